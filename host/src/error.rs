@@ -1,0 +1,63 @@
+//! Errors of the host tools: each names the file (and line) it is about, so a
+//! user can fix the input without reading code.
+
+use std::path::PathBuf;
+
+/// Why a sequence could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum ReadError {
+    /// A file or directory could not be opened or read.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The operating system's reason.
+        source: std::io::Error,
+    },
+    /// A depth PNG is truncated, corrupt or not 16-bit grey.
+    #[error("{path}: cannot decode depth PNG: {reason}")]
+    Png {
+        /// The file.
+        path: PathBuf,
+        /// What the decoder said.
+        reason: String,
+    },
+    /// A text line does not parse.
+    #[error("{path}:{line}: {reason}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line number.
+        line: usize,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// A pose is not finite or not a rotation.
+    #[error("{path}:{line}: bad pose: {reason:?}")]
+    Pose {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line number.
+        line: usize,
+        /// The core's verdict.
+        reason: placedb::CameraError,
+    },
+    /// A depth image has another size than the first one of the sequence.
+    #[error("{name}: depth image is {found:?}, the sequence's images are {expected:?}")]
+    SizeMismatch {
+        /// The image.
+        name: String,
+        /// Size of the first image.
+        expected: (u16, u16),
+        /// Size of this one.
+        found: (u16, u16),
+    },
+    /// The directory is not any supported layout, or is inconsistent.
+    #[error("{path}: {reason}")]
+    Layout {
+        /// The directory.
+        path: PathBuf,
+        /// What is missing or inconsistent.
+        reason: String,
+    },
+}

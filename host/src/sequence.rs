@@ -1,0 +1,131 @@
+//! An RGB-D sequence as the host tools see it: per-frame metadata and poses up
+//! front, depth images decoded on demand (a 20,000-frame scan does not fit in
+//! memory), whatever the source: files on disk or the built-in renderer.
+
+use crate::error::ReadError;
+use std::path::PathBuf;
+
+/// A decoded depth image: row-major `u16`, 0 = no measurement.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct DepthImage {
+    /// Width in pixels.
+    pub width: u16,
+    /// Height in pixels.
+    pub height: u16,
+    /// `width * height` depth values, row after row.
+    pub data: Vec<u16>,
+}
+
+impl DepthImage {
+    /// Row `v` of the image.
+    pub fn row(&self, v: u16) -> &[u16] {
+        let w = self.width as usize;
+        &self.data[v as usize * w..(v as usize + 1) * w]
+    }
+}
+
+/// Pinhole intrinsics in the sequence's own precision (pixels).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CameraModel {
+    /// Focal length x.
+    pub fx: f64,
+    /// Focal length y.
+    pub fy: f64,
+    /// Principal point x.
+    pub cx: f64,
+    /// Principal point y.
+    pub cy: f64,
+}
+
+/// One frame's metadata: everything but the pixels.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameInfo {
+    /// Position in the sequence, from 0.
+    pub index: usize,
+    /// Seconds; the index when the format has no timestamps.
+    pub timestamp: f64,
+    /// Camera-to-world translation, metres.
+    pub translation: [f64; 3],
+    /// Camera-to-world rotation as `[qx, qy, qz, qw]`, unit norm.
+    pub rotation: [f64; 4],
+    /// Where the depth comes from, for messages ("frame-000012.depth.png").
+    pub depth_name: String,
+    /// Colour image of the same frame, when the format has one.
+    pub color_path: Option<PathBuf>,
+}
+
+impl FrameInfo {
+    /// The pose in the core's form (checked again there).
+    pub fn pose(&self) -> Result<placedb::Pose, placedb::CameraError> {
+        let t = self.translation.map(|c| c as f32);
+        let q = self.rotation.map(|c| c as f32);
+        placedb::Pose::from_quaternion(t, q)
+    }
+}
+
+/// Sequence layouts the readers understand.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Format {
+    /// TUM RGB-D: depth.txt, rgb.txt, groundtruth.txt.
+    Tum,
+    /// Microsoft 7-Scenes: frame-XXXXXX.depth.png and .pose.txt.
+    #[value(name = "7scenes")]
+    #[serde(rename = "7scenes")]
+    SevenScenes,
+    /// The reference code's layout: depth/, color/, poses file, intrinsics.txt.
+    Vprdb,
+    /// The built-in synthetic renderer.
+    Synthetic,
+}
+
+/// Produces the depth image of frame `i` on demand.
+pub trait DepthSource: Send + Sync {
+    /// Decodes (or renders) frame `i`'s depth.
+    fn depth(&self, i: usize) -> Result<DepthImage, ReadError>;
+}
+
+/// A sequence: metadata for every frame, camera, and a way to get depth.
+pub struct Sequence {
+    /// Human-readable name (directory name or "synthetic").
+    pub name: String,
+    /// Layout it was read from.
+    pub format: Format,
+    /// Camera intrinsics.
+    pub camera: CameraModel,
+    /// Depth units per metre (TUM 5000, 7-Scenes 1000).
+    pub depth_scale: f64,
+    /// Width and height shared by every depth image.
+    pub size: (u16, u16),
+    /// Every frame, in sequence order.
+    pub frames: Vec<FrameInfo>,
+    /// Depth images on demand.
+    pub source: Box<dyn DepthSource>,
+}
+
+impl Sequence {
+    /// Depth of frame `i`, checked to have the sequence's size.
+    pub fn depth(&self, i: usize) -> Result<DepthImage, ReadError> {
+        let img = self.source.depth(i)?;
+        if (img.width, img.height) != self.size {
+            return Err(ReadError::SizeMismatch {
+                name: self.frames[i].depth_name.clone(),
+                expected: self.size,
+                found: (img.width, img.height),
+            });
+        }
+        Ok(img)
+    }
+
+    /// The core's intrinsics for this sequence.
+    pub fn intrinsics(&self) -> placedb::Intrinsics {
+        placedb::Intrinsics {
+            width: self.size.0,
+            height: self.size.1,
+            fx: self.camera.fx as f32,
+            fy: self.camera.fy as f32,
+            cx: self.camera.cx as f32,
+            cy: self.camera.cy as f32,
+        }
+    }
+}

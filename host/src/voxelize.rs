@@ -1,0 +1,196 @@
+//! Voxelizes a whole sequence on the host, in parallel, with the core's own
+//! projector: the offline yardstick sees exactly the voxel sets the device
+//! would see at the same stride.
+
+use crate::error::ReadError;
+use crate::sequence::Sequence;
+use indicatif::ProgressBar;
+use placedb::{DepthRange, FrameProjector, VoxelGrid};
+use rayon::prelude::*;
+use std::time::{Duration, Instant};
+
+/// Where voxel (0, 0, 0) starts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum GridOrigin {
+    /// The world origin: what the device does, since it cannot know the scene in advance.
+    World,
+    /// The minimum corner of all points: what the reference code does.
+    SceneMin,
+}
+
+/// How frames become voxel sets.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VoxelConfig {
+    /// Voxel edge, metres.
+    pub voxel: f32,
+    /// Pixel stride in u and v (1 = exact).
+    pub stride: u16,
+    /// Valid depths, metres.
+    pub range: DepthRange,
+    /// Grid anchoring.
+    pub origin: GridOrigin,
+}
+
+impl Default for VoxelConfig {
+    fn default() -> Self {
+        VoxelConfig {
+            voxel: 0.3,
+            stride: 1,
+            range: DepthRange::default(),
+            origin: GridOrigin::World,
+        }
+    }
+}
+
+/// The voxel set of every frame of a sequence.
+#[derive(Debug, Clone)]
+pub struct VoxelSets {
+    /// The grid the keys refer to.
+    pub grid: VoxelGrid,
+    /// Per frame: ascending, duplicate-free packed voxel keys.
+    pub sets: Vec<Vec<u64>>,
+    /// Per frame: pixels with a valid depth at this stride.
+    pub valid_pixels: Vec<u32>,
+    /// Points dropped because their key was out of the representable range.
+    pub out_of_range: u64,
+    /// Summed over threads: time spent decoding or rendering depth.
+    pub read_time: Duration,
+    /// Summed over threads: time spent back-projecting and deduplicating.
+    pub voxelize_time: Duration,
+}
+
+/// Why voxelization failed.
+#[derive(Debug, thiserror::Error)]
+pub enum VoxelizeError {
+    /// The depth could not be read.
+    #[error(transparent)]
+    Read(#[from] ReadError),
+    /// A frame's pose or the configuration was refused by the core.
+    #[error("frame {frame} ({name}): {reason:?}")]
+    Camera {
+        /// Frame index.
+        frame: usize,
+        /// Its depth file.
+        name: String,
+        /// The core's verdict.
+        reason: placedb::CameraError,
+    },
+}
+
+/// Voxelizes every frame; frames are processed in parallel, results are in order.
+pub fn voxelize(
+    seq: &Sequence,
+    cfg: &VoxelConfig,
+    progress: Option<&ProgressBar>,
+) -> Result<VoxelSets, VoxelizeError> {
+    let origin = match cfg.origin {
+        GridOrigin::World => [0.0; 3],
+        GridOrigin::SceneMin => scene_min(seq, cfg, progress)?,
+    };
+    let grid = VoxelGrid::new(cfg.voxel, origin).map_err(|reason| VoxelizeError::Camera {
+        frame: 0,
+        name: "configuration".into(),
+        reason,
+    })?;
+    let k = seq.intrinsics();
+    let per_frame: Vec<_> = (0..seq.frames.len())
+        .into_par_iter()
+        .map(|i| {
+            let camera_err = |reason| VoxelizeError::Camera {
+                frame: i,
+                name: seq.frames[i].depth_name.clone(),
+                reason,
+            };
+            let t0 = Instant::now();
+            let img = seq.depth(i)?;
+            let t1 = Instant::now();
+            let pose = seq.frames[i].pose().map_err(camera_err)?;
+            let proj = FrameProjector::new(&k, seq.depth_scale as f32, cfg.range, cfg.stride, &grid, &pose)
+                .map_err(camera_err)?;
+            let mut keys = Vec::new();
+            let mut oor = 0u32;
+            let mut valid = 0u32;
+            for v in 0..img.height {
+                valid += proj.project_row(v, img.row(v), &mut oor, |key| keys.push(key.to_bits()));
+            }
+            keys.sort_unstable();
+            keys.dedup();
+            keys.shrink_to_fit();
+            let t2 = Instant::now();
+            if let Some(p) = progress {
+                p.inc(1);
+            }
+            Ok((keys, valid, oor, t1 - t0, t2 - t1))
+        })
+        .collect::<Result<_, VoxelizeError>>()?;
+    let mut out = VoxelSets {
+        grid,
+        sets: Vec::with_capacity(per_frame.len()),
+        valid_pixels: Vec::with_capacity(per_frame.len()),
+        out_of_range: 0,
+        read_time: Duration::ZERO,
+        voxelize_time: Duration::ZERO,
+    };
+    for (keys, valid, oor, read, vox) in per_frame {
+        out.sets.push(keys);
+        out.valid_pixels.push(valid);
+        out.out_of_range += oor as u64;
+        out.read_time += read;
+        out.voxelize_time += vox;
+    }
+    Ok(out)
+}
+
+/// Minimum corner of all valid points of the sequence (the reference code's
+/// grid anchor); computed in `f64` from the definition, not the fast path.
+fn scene_min(
+    seq: &Sequence,
+    cfg: &VoxelConfig,
+    progress: Option<&ProgressBar>,
+) -> Result<[f32; 3], VoxelizeError> {
+    let c = seq.camera;
+    let mins = (0..seq.frames.len())
+        .into_par_iter()
+        .map(|i| {
+            let img = seq.depth(i)?;
+            let f = &seq.frames[i];
+            let pose = f.pose().map_err(|reason| VoxelizeError::Camera {
+                frame: i,
+                name: f.depth_name.clone(),
+                reason,
+            })?;
+            let r = pose.rotation_matrix();
+            let mut m = [f64::INFINITY; 3];
+            let step = cfg.stride as usize;
+            for v in (0..img.height as usize).step_by(step) {
+                for (u, &raw) in img.row(v as u16).iter().enumerate().step_by(step) {
+                    let z = raw as f64 / seq.depth_scale;
+                    if raw == 0 || !(z > cfg.range.min as f64 && z <= cfg.range.max as f64) {
+                        continue;
+                    }
+                    let pc = [(u as f64 - c.cx) * z / c.fx, (v as f64 - c.cy) * z / c.fy, z];
+                    for a in 0..3 {
+                        let pw = r[a][0] as f64 * pc[0] + r[a][1] as f64 * pc[1] + r[a][2] as f64 * pc[2]
+                            + f.translation[a];
+                        m[a] = m[a].min(pw);
+                    }
+                }
+            }
+            if let Some(p) = progress {
+                p.inc(1);
+            }
+            Ok(m)
+        })
+        .collect::<Result<Vec<_>, VoxelizeError>>()?;
+    let mut m = [f64::INFINITY; 3];
+    for fm in mins {
+        for a in 0..3 {
+            m[a] = m[a].min(fm[a]);
+        }
+    }
+    if m.iter().any(|c| !c.is_finite()) {
+        m = [0.0; 3]; // no valid point at all: any anchor gives empty sets
+    }
+    Ok(m.map(|c| c as f32))
+}

@@ -1,0 +1,419 @@
+//! Pinhole camera model, poses and back-projection of depth rows into voxel keys.
+//!
+//! The hot loop is [`FrameProjector::project_row`]: it is the only place that turns
+//! depth pixels into world points, so the host yardstick, the online selector and
+//! the firmware all voxelize identically. Arithmetic is `f32` because a
+//! Cortex-M4F has only a single-precision FPU; `f32` is exact enough for 0.3 m
+//! voxels within a few kilometres of the origin.
+
+use crate::voxel::{VoxelGrid, VoxelKey};
+use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
+
+/// Why a camera or pose description was refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum CameraError {
+    /// A focal length is zero, negative or not finite, or the principal point is not finite.
+    BadIntrinsics,
+    /// Width or height is zero or larger than [`Intrinsics::MAX_SIDE`].
+    BadImageSize,
+    /// The depth scale (units per metre) is zero, negative or not finite.
+    BadDepthScale,
+    /// The depth range is empty, negative or NaN.
+    BadDepthRange,
+    /// The pixel stride is zero or larger than [`Intrinsics::MAX_SIDE`].
+    BadStride,
+    /// A pose component is NaN or infinite.
+    NonFinitePose,
+    /// The rotation part is not a rotation (not orthonormal, or a reflection).
+    NotARotation,
+    /// The voxel size is zero, negative or not finite, or the grid origin is not finite.
+    BadVoxelSize,
+}
+
+/// Pinhole intrinsics of a depth image of `width x height` pixels.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Intrinsics {
+    /// Image width in pixels.
+    pub width: u16,
+    /// Image height in pixels.
+    pub height: u16,
+    /// Focal length along x, pixels.
+    pub fx: f32,
+    /// Focal length along y, pixels.
+    pub fy: f32,
+    /// Principal point x, pixels.
+    pub cx: f32,
+    /// Principal point y, pixels.
+    pub cy: f32,
+}
+
+impl Intrinsics {
+    /// Largest accepted image side; far above any depth sensor, small enough that
+    /// pixel coordinates are exact in `f32`.
+    pub const MAX_SIDE: u16 = 8192;
+
+    /// Checks that the model can back-project: finite positive focal lengths, a
+    /// finite principal point and a non-empty image.
+    pub fn validate(&self) -> Result<(), CameraError> {
+        let finite = self.fx.is_finite()
+            && self.fy.is_finite()
+            && self.cx.is_finite()
+            && self.cy.is_finite();
+        if !finite || self.fx <= 0.0 || self.fy <= 0.0 {
+            return Err(CameraError::BadIntrinsics);
+        }
+        if self.width == 0
+            || self.height == 0
+            || self.width > Self::MAX_SIDE
+            || self.height > Self::MAX_SIDE
+        {
+            return Err(CameraError::BadImageSize);
+        }
+        Ok(())
+    }
+}
+
+/// Which depths count as measurements, in metres: `min < z <= max`.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct DepthRange {
+    /// Exclusive lower bound, metres (default 0.1).
+    pub min: f32,
+    /// Inclusive upper bound, metres (default 10); may be `f32::INFINITY`.
+    pub max: f32,
+}
+
+impl Default for DepthRange {
+    fn default() -> Self {
+        DepthRange {
+            min: 0.1,
+            max: 10.0,
+        }
+    }
+}
+
+impl DepthRange {
+    /// Checks `0 <= min < max` (max may be infinite, neither may be NaN).
+    pub fn validate(&self) -> Result<(), CameraError> {
+        if self.min.is_nan() || self.max.is_nan() || self.min < 0.0 || self.min >= self.max {
+            return Err(CameraError::BadDepthRange);
+        }
+        Ok(())
+    }
+}
+
+/// Camera-to-world pose `p_w = R p_c + t`, checked to be a proper rotation.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Pose {
+    /// Translation, metres.
+    pub translation: [f32; 3],
+    /// Orientation as a unit quaternion `[qx, qy, qz, qw]`.
+    pub rotation: [f32; 4],
+}
+
+impl Pose {
+    /// Tolerance on `|q| - 1` and on `R^T R - I`: poses from files carry 6-9
+    /// significant digits, anything further off is a broken pose, not rounding.
+    pub const ROTATION_TOLERANCE: f32 = 1e-3;
+
+    /// The identity pose.
+    pub const IDENTITY: Pose = Pose {
+        translation: [0.0; 3],
+        rotation: [0.0, 0.0, 0.0, 1.0],
+    };
+
+    /// A pose from a translation and a quaternion `[qx, qy, qz, qw]` whose norm
+    /// must be 1 within [`Self::ROTATION_TOLERANCE`]; it is renormalised.
+    pub fn from_quaternion(translation: [f32; 3], q: [f32; 4]) -> Result<Pose, CameraError> {
+        if translation.iter().chain(q.iter()).any(|c| !c.is_finite()) {
+            return Err(CameraError::NonFinitePose);
+        }
+        let norm = libm::sqrtf(q.iter().map(|c| c * c).sum::<f32>());
+        if libm::fabsf(norm - 1.0) > Self::ROTATION_TOLERANCE {
+            return Err(CameraError::NotARotation);
+        }
+        Ok(Pose {
+            translation,
+            rotation: [q[0] / norm, q[1] / norm, q[2] / norm, q[3] / norm],
+        })
+    }
+
+    /// A pose from a row-major rotation matrix and a translation; the matrix must
+    /// be orthonormal with determinant +1 within [`Self::ROTATION_TOLERANCE`].
+    pub fn from_matrix(rotation: [[f32; 3]; 3], translation: [f32; 3]) -> Result<Pose, CameraError> {
+        if rotation.iter().flatten().chain(translation.iter()).any(|c| !c.is_finite()) {
+            return Err(CameraError::NonFinitePose);
+        }
+        let m = Matrix3::from_fn(|r, c| rotation[r][c]);
+        let off = (m.transpose() * m - Matrix3::identity()).amax();
+        if off > Self::ROTATION_TOLERANCE || m.determinant() <= 0.0 {
+            return Err(CameraError::NotARotation);
+        }
+        let q = UnitQuaternion::from_matrix(&m);
+        Ok(Pose {
+            translation,
+            rotation: [q.i, q.j, q.k, q.w],
+        })
+    }
+
+    /// Row-major rotation matrix of this pose.
+    pub fn rotation_matrix(&self) -> [[f32; 3]; 3] {
+        let [x, y, z, w] = self.rotation;
+        let m = UnitQuaternion::new_unchecked(Quaternion::new(w, x, y, z)).to_rotation_matrix();
+        let m = m.matrix();
+        [
+            [m[(0, 0)], m[(0, 1)], m[(0, 2)]],
+            [m[(1, 0)], m[(1, 1)], m[(1, 2)]],
+            [m[(2, 0)], m[(2, 1)], m[(2, 2)]],
+        ]
+    }
+
+    /// Re-checks a pose that came from outside (e.g. the wire) as
+    /// [`Pose::from_quaternion`] would.
+    pub fn validate(&self) -> Result<(), CameraError> {
+        Pose::from_quaternion(self.translation, self.rotation).map(|_| ())
+    }
+
+    /// World coordinates of a camera-frame point.
+    pub fn transform(&self, p: [f32; 3]) -> [f32; 3] {
+        let r = self.rotation_matrix();
+        let v = Matrix3::from_fn(|i, j| r[i][j]) * Vector3::from(p);
+        [
+            v.x + self.translation[0],
+            v.y + self.translation[1],
+            v.z + self.translation[2],
+        ]
+    }
+}
+
+/// Back-projects the pixel `(u, v)` with depth `z` metres into the camera frame.
+pub fn back_project(k: &Intrinsics, u: f32, v: f32, z: f32) -> [f32; 3] {
+    [(u - k.cx) * z / k.fx, (v - k.cy) * z / k.fy, z]
+}
+
+/// Everything needed to turn one frame's depth rows into voxel keys, folded into
+/// a few per-frame constants so the per-pixel work is six multiply-adds, three
+/// floors and a range test.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameProjector {
+    /// World-from-camera rotation, pre-divided by the voxel size.
+    rotation: [[f32; 3]; 3],
+    /// Camera centre relative to the grid origin, in voxels.
+    translation: [f32; 3],
+    inv_fx: f32,
+    inv_fy: f32,
+    cx: f32,
+    cy: f32,
+    metres_per_unit: f32,
+    range: DepthRange,
+    width: u16,
+    height: u16,
+    stride: u16,
+}
+
+impl FrameProjector {
+    /// Prepares the projection of one frame; validates every input.
+    pub fn new(
+        intrinsics: &Intrinsics,
+        depth_scale: f32,
+        range: DepthRange,
+        stride: u16,
+        grid: &VoxelGrid,
+        pose: &Pose,
+    ) -> Result<FrameProjector, CameraError> {
+        intrinsics.validate()?;
+        range.validate()?;
+        grid.validate()?;
+        pose.validate()?;
+        if !depth_scale.is_finite() || depth_scale <= 0.0 {
+            return Err(CameraError::BadDepthScale);
+        }
+        if stride == 0 || stride > Intrinsics::MAX_SIDE {
+            return Err(CameraError::BadStride);
+        }
+        let inv_voxel = 1.0 / grid.voxel_size;
+        let r = pose.rotation_matrix();
+        let mut rotation = [[0.0f32; 3]; 3];
+        let mut translation = [0.0f32; 3];
+        for i in 0..3 {
+            for j in 0..3 {
+                rotation[i][j] = r[i][j] * inv_voxel;
+            }
+            translation[i] = (pose.translation[i] - grid.origin[i]) * inv_voxel;
+        }
+        Ok(FrameProjector {
+            rotation,
+            translation,
+            inv_fx: 1.0 / intrinsics.fx,
+            inv_fy: 1.0 / intrinsics.fy,
+            cx: intrinsics.cx,
+            cy: intrinsics.cy,
+            metres_per_unit: 1.0 / depth_scale,
+            range,
+            width: intrinsics.width,
+            height: intrinsics.height,
+            stride,
+        })
+    }
+
+    /// Image width this projector expects, pixels.
+    pub fn width(&self) -> u16 {
+        self.width
+    }
+
+    /// Image height this projector expects, pixels.
+    pub fn height(&self) -> u16 {
+        self.height
+    }
+
+    /// Pixel stride in u and v.
+    pub fn stride(&self) -> u16 {
+        self.stride
+    }
+
+    /// Whether row `v` is sampled at this stride.
+    pub fn samples_row(&self, v: u16) -> bool {
+        v % self.stride == 0
+    }
+
+    /// Back-projects the sampled pixels of image row `v` (`row[u]` is the depth
+    /// of pixel `(u, v)`, `row.len()` is the image width) and calls `emit` with
+    /// the voxel key of every valid pixel, in order of `u`; returns how many
+    /// valid pixels it saw. Rows not sampled by the stride emit nothing.
+    /// Points whose key does not fit [`VoxelKey`]'s range are counted as valid
+    /// but not emitted; `out_of_range` is incremented for each.
+    pub fn project_row(
+        &self,
+        v: u16,
+        row: &[u16],
+        out_of_range: &mut u32,
+        mut emit: impl FnMut(VoxelKey),
+    ) -> u32 {
+        if !self.samples_row(v) {
+            return 0;
+        }
+        let r = &self.rotation;
+        let y = (v as f32 - self.cy) * self.inv_fy;
+        // Ray direction (before scaling by z) is a + u' * b with u' = (u - cx) / fx.
+        let a = [r[0][1] * y + r[0][2], r[1][1] * y + r[1][2], r[2][1] * y + r[2][2]];
+        let b = [r[0][0], r[1][0], r[2][0]];
+        let mut valid = 0u32;
+        for (u, &raw) in row.iter().enumerate().step_by(self.stride as usize) {
+            if raw == 0 {
+                continue;
+            }
+            let z = raw as f32 * self.metres_per_unit;
+            if !(z > self.range.min && z <= self.range.max) {
+                continue;
+            }
+            valid += 1;
+            let x = (u as f32 - self.cx) * self.inv_fx;
+            let p = [
+                (a[0] + x * b[0]) * z + self.translation[0],
+                (a[1] + x * b[1]) * z + self.translation[1],
+                (a[2] + x * b[2]) * z + self.translation[2],
+            ];
+            match VoxelKey::from_grid_coords(p) {
+                Some(key) => emit(key),
+                None => *out_of_range = out_of_range.saturating_add(1),
+            }
+        }
+        valid
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn k() -> Intrinsics {
+        Intrinsics {
+            width: 640,
+            height: 480,
+            fx: 585.0,
+            fy: 585.0,
+            cx: 320.0,
+            cy: 240.0,
+        }
+    }
+
+    #[test]
+    fn rejects_bad_intrinsics_and_poses() {
+        let mut bad = k();
+        bad.fx = 0.0;
+        assert_eq!(bad.validate(), Err(CameraError::BadIntrinsics));
+        bad = k();
+        bad.cy = f32::NAN;
+        assert_eq!(bad.validate(), Err(CameraError::BadIntrinsics));
+        bad = k();
+        bad.width = 0;
+        assert_eq!(bad.validate(), Err(CameraError::BadImageSize));
+        assert_eq!(
+            Pose::from_quaternion([0.0, f32::NAN, 0.0], [0.0, 0.0, 0.0, 1.0]),
+            Err(CameraError::NonFinitePose)
+        );
+        assert_eq!(
+            Pose::from_quaternion([0.0; 3], [0.0, 0.0, 0.0, 2.0]),
+            Err(CameraError::NotARotation)
+        );
+        let reflection = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]];
+        assert_eq!(Pose::from_matrix(reflection, [0.0; 3]), Err(CameraError::NotARotation));
+        let shear = [[1.0, 0.5, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        assert_eq!(Pose::from_matrix(shear, [0.0; 3]), Err(CameraError::NotARotation));
+    }
+
+    #[test]
+    fn matrix_and_quaternion_agree() {
+        // 90 degrees about z.
+        let m = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]];
+        let p = Pose::from_matrix(m, [1.0, 2.0, 3.0]).unwrap();
+        let h = core::f32::consts::FRAC_1_SQRT_2;
+        let q = Pose::from_quaternion([1.0, 2.0, 3.0], [0.0, 0.0, h, h]).unwrap();
+        let a = p.transform([1.0, 0.0, 0.0]);
+        let b = q.transform([1.0, 0.0, 0.0]);
+        for i in 0..3 {
+            assert!((a[i] - b[i]).abs() < 1e-6);
+        }
+        assert!((a[0] - 1.0).abs() < 1e-6 && (a[1] - 3.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn projector_matches_definition() {
+        let grid = VoxelGrid::new(0.3, [0.0; 3]).unwrap();
+        let pose = Pose::from_quaternion([0.5, -0.2, 1.0], [0.1, 0.2, 0.3, 0.927]).unwrap();
+        let proj = FrameProjector::new(&k(), 1000.0, DepthRange::default(), 1, &grid, &pose).unwrap();
+        let mut row = [0u16; 640];
+        row[10] = 2500;
+        row[300] = 50; // 5 cm: below min depth
+        row[600] = 12000; // 12 m: beyond max depth
+        row[639] = 7000;
+        let mut keys = [VoxelKey::new(0, 0, 0); 4];
+        let mut n = 0;
+        let mut oor = 0;
+        let valid = proj.project_row(17, &row, &mut oor, |key| {
+            keys[n] = key;
+            n += 1;
+        });
+        assert_eq!((valid, n, oor), (2, 2, 0));
+        for (i, (u, d)) in [(10u16, 2.5f32), (639, 7.0)].iter().enumerate() {
+            let pc = back_project(&k(), *u as f32, 17.0, *d);
+            let pw = pose.transform(pc);
+            let expect = VoxelKey::new(
+                libm::floorf(pw[0] / 0.3) as i32,
+                libm::floorf(pw[1] / 0.3) as i32,
+                libm::floorf(pw[2] / 0.3) as i32,
+            );
+            assert_eq!(keys[i], expect);
+        }
+    }
+
+    #[test]
+    fn stride_skips_rows_and_columns() {
+        let grid = VoxelGrid::new(0.3, [0.0; 3]).unwrap();
+        let proj =
+            FrameProjector::new(&k(), 1000.0, DepthRange::default(), 4, &grid, &Pose::IDENTITY).unwrap();
+        let row = [1000u16; 640];
+        let mut oor = 0;
+        assert_eq!(proj.project_row(1, &row, &mut oor, |_| {}), 0);
+        assert_eq!(proj.project_row(8, &row, &mut oor, |_| {}), 160);
+    }
+}

@@ -1,0 +1,16 @@
+//! placedb core: voxelize streamed depth frames and keep a dominating-set
+//! place-recognition database online, inside fixed memory budgets.
+//!
+//! `no_std`, no heap, no `unsafe`: every capacity is a const generic or a
+//! named profile, and every fallible step returns a typed error instead of
+//! panicking. The host tools and every board run this very crate, so the
+//! decisions a device makes can be replayed bit for bit on a workstation.
+#![no_std]
+#![forbid(unsafe_code)]
+#![deny(missing_docs)]
+
+pub mod camera;
+pub mod voxel;
+
+pub use camera::{CameraError, DepthRange, FrameProjector, Intrinsics, Pose};
+pub use voxel::{FrameVoxels, VoxelGrid, VoxelKey};

@@ -1,0 +1,284 @@
+//! Voxel keys, the voxel grid, and the bounded per-frame voxel set.
+//!
+//! A key is `floor(p / voxel)` per axis. Keys are packed into one `u64`
+//! (21 bits per axis, biased) so that a set of keys is a plain sorted `[u64]`:
+//! intersections are merges, sketches are hashes of one word, and the wire
+//! and flash formats need no structure. 21 bits cover ±1,048,575 voxels, which
+//! is ±314 km at 0.3 m: points beyond are reported, never wrapped.
+
+use crate::camera::CameraError;
+
+/// Bits per axis in a packed key.
+const AXIS_BITS: u32 = 21;
+/// Bias that maps the signed axis range onto `0..2^21`.
+const AXIS_BIAS: i32 = 1 << (AXIS_BITS - 1);
+const AXIS_MASK: u64 = (1 << AXIS_BITS) - 1;
+
+/// Integer coordinates of one voxel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct VoxelKey {
+    /// Packed, biased coordinates: x in bits 42..63, y in 21..42, z in 0..21.
+    packed: u64,
+}
+
+impl VoxelKey {
+    /// Smallest representable coordinate on each axis.
+    pub const MIN: i32 = -AXIS_BIAS;
+    /// Largest representable coordinate on each axis.
+    pub const MAX: i32 = AXIS_BIAS - 1;
+
+    /// The key of voxel `(x, y, z)`; coordinates are clamped to
+    /// [`Self::MIN`]..=[`Self::MAX`] (use [`Self::checked`] to refuse instead).
+    pub fn new(x: i32, y: i32, z: i32) -> VoxelKey {
+        let c = |a: i32| (a.clamp(Self::MIN, Self::MAX) + AXIS_BIAS) as u64;
+        VoxelKey {
+            packed: (c(x) << (2 * AXIS_BITS)) | (c(y) << AXIS_BITS) | c(z),
+        }
+    }
+
+    /// The key of voxel `(x, y, z)`, or `None` outside the representable range.
+    pub fn checked(x: i32, y: i32, z: i32) -> Option<VoxelKey> {
+        let ok = |a: i32| (Self::MIN..=Self::MAX).contains(&a);
+        (ok(x) && ok(y) && ok(z)).then(|| VoxelKey::new(x, y, z))
+    }
+
+    /// The key of the voxel holding a point given in voxel units relative to the
+    /// grid origin (i.e. already divided by the voxel size); `None` when out of
+    /// range or not finite.
+    #[inline]
+    pub fn from_grid_coords(p: [f32; 3]) -> Option<VoxelKey> {
+        // Compare in f32 before converting: NaN fails every comparison.
+        const LIMIT: f32 = AXIS_BIAS as f32;
+        let inside = |a: f32| a >= -LIMIT && a < LIMIT;
+        if !(inside(p[0]) && inside(p[1]) && inside(p[2])) {
+            return None;
+        }
+        Some(VoxelKey::new(floor_i32(p[0]), floor_i32(p[1]), floor_i32(p[2])))
+    }
+
+    /// Coordinates `(x, y, z)` of the voxel.
+    pub fn coords(self) -> (i32, i32, i32) {
+        let u = |shift: u32| ((self.packed >> shift) & AXIS_MASK) as i32 - AXIS_BIAS;
+        (u(2 * AXIS_BITS), u(AXIS_BITS), u(0))
+    }
+
+    /// The packed form: a total order that is also the order of `(x, y, z)`.
+    pub fn to_bits(self) -> u64 {
+        self.packed
+    }
+
+    /// A key from its packed form; `None` for words no key packs to.
+    pub fn from_bits(bits: u64) -> Option<VoxelKey> {
+        (bits >> (3 * AXIS_BITS) == 0).then_some(VoxelKey { packed: bits })
+    }
+}
+
+/// `floor` for values already known to be within `i32` range, without a libm
+/// call: truncation rounds toward zero, so negative non-integers step down one.
+#[inline]
+fn floor_i32(a: f32) -> i32 {
+    let t = a as i32;
+    if (t as f32) > a {
+        t - 1
+    } else {
+        t
+    }
+}
+
+/// Voxel size and the world point where voxel (0, 0, 0) starts.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct VoxelGrid {
+    /// Edge length of a voxel, metres (default 0.3).
+    pub voxel_size: f32,
+    /// World coordinates of the grid's corner, metres: the world origin on the
+    /// device; the scene's minimum corner to reproduce the reference code.
+    pub origin: [f32; 3],
+}
+
+impl VoxelGrid {
+    /// A grid of `voxel_size` metres anchored at `origin`, validated.
+    pub fn new(voxel_size: f32, origin: [f32; 3]) -> Result<VoxelGrid, CameraError> {
+        let grid = VoxelGrid { voxel_size, origin };
+        grid.validate()?;
+        Ok(grid)
+    }
+
+    /// Checks a finite positive voxel size (at least 1 mm) and a finite origin.
+    pub fn validate(&self) -> Result<(), CameraError> {
+        if !(self.voxel_size >= 1e-3 && self.voxel_size.is_finite())
+            || self.origin.iter().any(|c| !c.is_finite())
+        {
+            return Err(CameraError::BadVoxelSize);
+        }
+        Ok(())
+    }
+}
+
+/// Bounded set of the voxel keys of one frame, filled pixel by pixel.
+///
+/// Open addressing with linear probing over `CAP` slots (a power of two); at
+/// most three quarters are used so that probes stay short. Keys arriving when
+/// it is full are counted in [`FrameVoxels::dropped`], never silently lost.
+#[derive(Debug, Clone)]
+pub struct FrameVoxels<const CAP: usize> {
+    slots: [u64; CAP],
+    len: usize,
+    dropped: u32,
+}
+
+/// Marks an empty slot; no packed key has its top bit set.
+const EMPTY: u64 = u64::MAX;
+
+impl<const CAP: usize> Default for FrameVoxels<CAP> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const CAP: usize> FrameVoxels<CAP> {
+    /// Most distinct keys the set holds: three quarters of `CAP`.
+    pub const LIMIT: usize = CAP - CAP / 4;
+    const MASK: usize = {
+        assert!(CAP.is_power_of_two() && CAP >= 4, "CAP must be a power of two >= 4");
+        CAP - 1
+    };
+
+    /// An empty set.
+    pub const fn new() -> Self {
+        FrameVoxels {
+            slots: [EMPTY; CAP],
+            len: 0,
+            dropped: 0,
+        }
+    }
+
+    /// Empties the set for the next frame.
+    pub fn clear(&mut self) {
+        self.slots.fill(EMPTY);
+        self.len = 0;
+        self.dropped = 0;
+    }
+
+    /// Number of distinct keys held.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether no key is held.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Keys refused because the set was full (counted once per pixel, so the
+    /// same voxel may be counted more than once).
+    pub fn dropped(&self) -> u32 {
+        self.dropped
+    }
+
+    /// Adds a key; returns `false` if it was new but the set is full.
+    #[inline]
+    pub fn insert(&mut self, key: VoxelKey) -> bool {
+        let bits = key.to_bits();
+        // Fibonacci hashing: the top bits of the product spread neighbouring voxels.
+        let mut i = (bits.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 32) as usize & Self::MASK;
+        loop {
+            let slot = self.slots[i];
+            if slot == bits {
+                return true;
+            }
+            if slot == EMPTY {
+                if self.len >= Self::LIMIT {
+                    self.dropped = self.dropped.saturating_add(1);
+                    return false;
+                }
+                self.slots[i] = bits;
+                self.len += 1;
+                return true;
+            }
+            i = (i + 1) & Self::MASK;
+        }
+    }
+
+    /// Sorts the keys in place and returns them as packed words in ascending
+    /// order; the set is left unusable for insertion until [`Self::clear`].
+    pub fn sorted(&mut self) -> &[u64] {
+        // EMPTY is the largest word, so the keys end up in front.
+        self.slots.sort_unstable();
+        &self.slots[..self.len]
+    }
+}
+
+/// Size of the intersection of two ascending, duplicate-free key lists.
+pub fn intersection_size(a: &[u64], b: &[u64]) -> u32 {
+    let (mut i, mut j, mut n) = (0, 0, 0u32);
+    while i < a.len() && j < b.len() {
+        match a[i].cmp(&b[j]) {
+            core::cmp::Ordering::Less => i += 1,
+            core::cmp::Ordering::Greater => j += 1,
+            core::cmp::Ordering::Equal => {
+                n += 1;
+                i += 1;
+                j += 1;
+            }
+        }
+    }
+    n
+}
+
+/// Intersection over union of two sets given their sizes and intersection.
+pub fn iou(len_a: u32, len_b: u32, common: u32) -> f32 {
+    let union = len_a + len_b - common;
+    if union == 0 {
+        0.0
+    } else {
+        common as f32 / union as f32
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn keys_round_trip_and_order() {
+        for &(x, y, z) in &[(0, 0, 0), (-1, 2, -3), (VoxelKey::MIN, VoxelKey::MAX, 7)] {
+            let k = VoxelKey::checked(x, y, z).unwrap();
+            assert_eq!(k.coords(), (x, y, z));
+            assert_eq!(VoxelKey::from_bits(k.to_bits()), Some(k));
+        }
+        assert!(VoxelKey::checked(VoxelKey::MAX + 1, 0, 0).is_none());
+        assert!(VoxelKey::new(-1, 5, 5) < VoxelKey::new(0, 0, 0));
+        assert!(VoxelKey::from_bits(u64::MAX).is_none());
+    }
+
+    #[test]
+    fn floor_matches_libm() {
+        for &a in &[-2.5f32, -2.0, -0.1, 0.0, 0.1, 2.0, 2.9999, -1e6, 1e6] {
+            assert_eq!(floor_i32(a), libm::floorf(a) as i32, "{a}");
+        }
+        assert!(VoxelKey::from_grid_coords([f32::NAN, 0.0, 0.0]).is_none());
+        assert!(VoxelKey::from_grid_coords([2e6, 0.0, 0.0]).is_none());
+    }
+
+    #[test]
+    fn frame_set_dedups_sorts_and_reports_overflow() {
+        let mut s = FrameVoxels::<16>::new();
+        for i in 0..20 {
+            s.insert(VoxelKey::new(i % 14, 0, 0));
+        }
+        assert_eq!(s.len(), FrameVoxels::<16>::LIMIT);
+        assert_eq!(s.dropped(), 2);
+        let keys = s.sorted();
+        assert!(keys.windows(2).all(|w| w[0] < w[1]));
+        s.clear();
+        assert!(s.is_empty());
+    }
+
+    #[test]
+    fn merge_intersection() {
+        assert_eq!(intersection_size(&[1, 3, 5, 7], &[2, 3, 4, 7, 9]), 2);
+        assert_eq!(intersection_size(&[], &[1]), 0);
+        assert!((iou(4, 5, 2) - 2.0 / 7.0).abs() < 1e-7);
+        assert_eq!(iou(0, 0, 0), 0.0);
+    }
+}
