@@ -139,8 +139,16 @@ impl Pose {
 
     /// A pose from a row-major rotation matrix and a translation; the matrix must
     /// be orthonormal with determinant +1 within [`Self::ROTATION_TOLERANCE`].
-    pub fn from_matrix(rotation: [[f32; 3]; 3], translation: [f32; 3]) -> Result<Pose, CameraError> {
-        if rotation.iter().flatten().chain(translation.iter()).any(|c| !c.is_finite()) {
+    pub fn from_matrix(
+        rotation: [[f32; 3]; 3],
+        translation: [f32; 3],
+    ) -> Result<Pose, CameraError> {
+        if rotation
+            .iter()
+            .flatten()
+            .chain(translation.iter())
+            .any(|c| !c.is_finite())
+        {
             return Err(CameraError::NonFinitePose);
         }
         let m = Matrix3::from_fn(|r, c| rotation[r][c]);
@@ -275,29 +283,81 @@ impl FrameProjector {
         v % self.stride == 0
     }
 
-    /// Back-projects the sampled pixels of image row `v` (`row[u]` is the depth
-    /// of pixel `(u, v)`, `row.len()` is the image width) and calls `emit` with
-    /// the voxel key of every valid pixel, in order of `u`; returns how many
-    /// valid pixels it saw. Rows not sampled by the stride emit nothing.
-    /// Points whose key does not fit [`VoxelKey`]'s range are counted as valid
-    /// but not emitted; `out_of_range` is incremented for each.
+    /// Back-projects the sampled pixels of a full-resolution image row `v`
+    /// (`row[u]` is the depth of pixel `(u, v)`) and calls `emit` with the
+    /// voxel key of every valid pixel, in order of `u`; returns how many valid
+    /// pixels it saw. Rows the stride does not sample emit nothing. Points whose
+    /// key does not fit [`VoxelKey`]'s range count as valid but are not emitted;
+    /// `out_of_range` is incremented for each.
     pub fn project_row(
         &self,
         v: u16,
         row: &[u16],
         out_of_range: &mut u32,
-        mut emit: impl FnMut(VoxelKey),
+        emit: impl FnMut(VoxelKey),
     ) -> u32 {
         if !self.samples_row(v) {
             return 0;
         }
+        let pixels = row
+            .iter()
+            .copied()
+            .enumerate()
+            .step_by(self.stride as usize);
+        self.project(v, pixels, out_of_range, emit)
+    }
+
+    /// Like [`Self::project_row`] for a row that is already subsampled, as the
+    /// wire carries it: `samples[i]` is the depth of pixel `(i * stride, v)`,
+    /// and `v` must be a sampled row (`v % stride == 0`), else nothing is emitted.
+    pub fn project_samples(
+        &self,
+        v: u16,
+        samples: &[u16],
+        out_of_range: &mut u32,
+        emit: impl FnMut(VoxelKey),
+    ) -> u32 {
+        if !self.samples_row(v) {
+            return 0;
+        }
+        let stride = self.stride as usize;
+        let pixels = samples
+            .iter()
+            .enumerate()
+            .map(|(i, &raw)| (i * stride, raw));
+        self.project(v, pixels, out_of_range, emit)
+    }
+
+    /// Sampled columns per row: `ceil(width / stride)`.
+    pub fn samples_per_row(&self) -> u16 {
+        self.width.div_ceil(self.stride)
+    }
+
+    /// Sampled rows per image: `ceil(height / stride)`.
+    pub fn sampled_rows(&self) -> u16 {
+        self.height.div_ceil(self.stride)
+    }
+
+    /// The one back-projection loop: `pixels` yields `(u, raw depth)`.
+    #[inline(always)]
+    fn project(
+        &self,
+        v: u16,
+        pixels: impl Iterator<Item = (usize, u16)>,
+        out_of_range: &mut u32,
+        mut emit: impl FnMut(VoxelKey),
+    ) -> u32 {
         let r = &self.rotation;
         let y = (v as f32 - self.cy) * self.inv_fy;
-        // Ray direction (before scaling by z) is a + u' * b with u' = (u - cx) / fx.
-        let a = [r[0][1] * y + r[0][2], r[1][1] * y + r[1][2], r[2][1] * y + r[2][2]];
+        // The ray (before scaling by z) is a + x * b with x = (u - cx) / fx.
+        let a = [
+            r[0][1] * y + r[0][2],
+            r[1][1] * y + r[1][2],
+            r[2][1] * y + r[2][2],
+        ];
         let b = [r[0][0], r[1][0], r[2][0]];
         let mut valid = 0u32;
-        for (u, &raw) in row.iter().enumerate().step_by(self.stride as usize) {
+        for (u, raw) in pixels {
             if raw == 0 {
                 continue;
             }
@@ -356,9 +416,15 @@ mod tests {
             Err(CameraError::NotARotation)
         );
         let reflection = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]];
-        assert_eq!(Pose::from_matrix(reflection, [0.0; 3]), Err(CameraError::NotARotation));
+        assert_eq!(
+            Pose::from_matrix(reflection, [0.0; 3]),
+            Err(CameraError::NotARotation)
+        );
         let shear = [[1.0, 0.5, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-        assert_eq!(Pose::from_matrix(shear, [0.0; 3]), Err(CameraError::NotARotation));
+        assert_eq!(
+            Pose::from_matrix(shear, [0.0; 3]),
+            Err(CameraError::NotARotation)
+        );
     }
 
     #[test]
@@ -380,7 +446,8 @@ mod tests {
     fn projector_matches_definition() {
         let grid = VoxelGrid::new(0.3, [0.0; 3]).unwrap();
         let pose = Pose::from_quaternion([0.5, -0.2, 1.0], [0.1, 0.2, 0.3, 0.927]).unwrap();
-        let proj = FrameProjector::new(&k(), 1000.0, DepthRange::default(), 1, &grid, &pose).unwrap();
+        let proj =
+            FrameProjector::new(&k(), 1000.0, DepthRange::default(), 1, &grid, &pose).unwrap();
         let mut row = [0u16; 640];
         row[10] = 2500;
         row[300] = 50; // 5 cm: below min depth
@@ -409,11 +476,41 @@ mod tests {
     #[test]
     fn stride_skips_rows_and_columns() {
         let grid = VoxelGrid::new(0.3, [0.0; 3]).unwrap();
-        let proj =
-            FrameProjector::new(&k(), 1000.0, DepthRange::default(), 4, &grid, &Pose::IDENTITY).unwrap();
+        let proj = FrameProjector::new(
+            &k(),
+            1000.0,
+            DepthRange::default(),
+            4,
+            &grid,
+            &Pose::IDENTITY,
+        )
+        .unwrap();
         let row = [1000u16; 640];
         let mut oor = 0;
         assert_eq!(proj.project_row(1, &row, &mut oor, |_| {}), 0);
         assert_eq!(proj.project_row(8, &row, &mut oor, |_| {}), 160);
+        assert_eq!((proj.samples_per_row(), proj.sampled_rows()), (160, 120));
+    }
+
+    #[test]
+    fn subsampled_rows_give_the_same_keys() {
+        let grid = VoxelGrid::new(0.3, [0.0; 3]).unwrap();
+        let pose = Pose::from_quaternion([0.5, -0.2, 1.0], [0.1, 0.2, 0.3, 0.927]).unwrap();
+        let proj =
+            FrameProjector::new(&k(), 1000.0, DepthRange::default(), 3, &grid, &pose).unwrap();
+        let row: [u16; 640] = core::array::from_fn(|u| (500 + 7 * u) as u16);
+        let samples: [u16; 214] = core::array::from_fn(|i| row[3 * i]);
+        let (mut full, mut sub) = ([0u64; 214], [0u64; 214]);
+        let (mut nf, mut ns, mut oor) = (0, 0, 0);
+        proj.project_row(9, &row, &mut oor, |key| {
+            full[nf] = key.to_bits();
+            nf += 1;
+        });
+        proj.project_samples(9, &samples, &mut oor, |key| {
+            sub[ns] = key.to_bits();
+            ns += 1;
+        });
+        assert_eq!((nf, ns), (214, 214));
+        assert_eq!(full, sub);
     }
 }

@@ -10,7 +10,17 @@
 #![deny(missing_docs)]
 
 pub mod camera;
+pub mod frame;
+pub mod profile;
+pub mod protocol;
+pub mod select;
+pub mod sketch;
+pub mod store;
 pub mod voxel;
 
 pub use camera::{CameraError, DepthRange, FrameProjector, Intrinsics, Pose};
+pub use frame::{FrameError, FrameMeta, ScanConfig};
+pub use select::{
+    DbRecord, Decision, FrameDecision, SelectError, Selector, SelectorConfig, Status,
+};
 pub use voxel::{FrameVoxels, VoxelGrid, VoxelKey};

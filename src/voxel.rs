@@ -53,7 +53,11 @@ impl VoxelKey {
         if !(inside(p[0]) && inside(p[1]) && inside(p[2])) {
             return None;
         }
-        Some(VoxelKey::new(floor_i32(p[0]), floor_i32(p[1]), floor_i32(p[2])))
+        Some(VoxelKey::new(
+            floor_i32(p[0]),
+            floor_i32(p[1]),
+            floor_i32(p[2]),
+        ))
     }
 
     /// Coordinates `(x, y, z)` of the voxel.
@@ -139,7 +143,10 @@ impl<const CAP: usize> FrameVoxels<CAP> {
     /// Most distinct keys the set holds: three quarters of `CAP`.
     pub const LIMIT: usize = CAP - CAP / 4;
     const MASK: usize = {
-        assert!(CAP.is_power_of_two() && CAP >= 4, "CAP must be a power of two >= 4");
+        assert!(
+            CAP.is_power_of_two() && CAP >= 4,
+            "CAP must be a power of two >= 4"
+        );
         CAP - 1
     };
 

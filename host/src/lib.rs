@@ -3,10 +3,19 @@
 //! the `placedb` command line built on them.
 
 pub mod error;
+pub mod graph;
+pub mod link;
+pub mod metrics;
+pub mod online;
+pub mod output;
+pub mod pipeline;
+pub mod plot;
 pub mod read;
 pub mod sequence;
+pub mod solve;
+pub mod synth;
 pub mod voxelize;
 
 pub use error::ReadError;
-pub use sequence::{CameraModel, DepthImage, DepthSource, FrameInfo, Format, Sequence};
-pub use voxelize::{voxelize, GridOrigin, VoxelConfig, VoxelSets};
+pub use sequence::{CameraModel, DepthImage, DepthSource, Format, FrameInfo, Sequence};
+pub use voxelize::{voxelize, voxelize_on, GridOrigin, VoxelConfig, VoxelSets};

@@ -1,1 +1,534 @@
-fn main() {}
+//! The `placedb` command line: select a place-recognition database from a
+//! recorded RGB-D sequence (or the built-in synthetic office), compare solvers,
+//! write synthetic sequences, print the device budgets.
+
+use clap::{Args, Parser, Subcommand};
+use placedb_host::pipeline::{self, Outcome, Prepared, Solver, SolverParams};
+use placedb_host::read::{self, ReadOptions};
+use placedb_host::synth::{self, SynthConfig};
+use placedb_host::{output, plot, CameraModel, Format, GridOrigin, Sequence, VoxelConfig};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+#[derive(Parser)]
+#[command(
+    name = "placedb",
+    version,
+    about = "Select a compact visual-place-recognition database from an RGB-D scan: \
+the frames whose voxelized views dominate every other frame (IoU of 0.3 m voxel sets above mu)."
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Select a database from a sequence and write database.csv, labels.csv, metrics.json, topview.png.
+    Select(SelectArgs),
+    /// Run every solver and baseline on a sequence and print one table side by side.
+    Compare(CompareArgs),
+    /// Write the built-in synthetic office scan as a TUM RGB-D sequence.
+    Synth(SynthArgs),
+    /// Print each device capacity profile: exact state size and what it holds.
+    Budget,
+}
+
+/// Where the frames come from and how they become voxel sets.
+#[derive(Args, Clone)]
+struct SeqArgs {
+    /// Sequence directory (TUM RGB-D, 7-Scenes or the reference code's layout).
+    #[arg(required_unless_present = "demo")]
+    seq: Option<PathBuf>,
+    /// Use the built-in synthetic office scan (600 frames, 320x240) instead of a directory.
+    #[arg(long, conflicts_with = "seq")]
+    demo: bool,
+    /// Sequence layout; detected from the directory's files when omitted.
+    #[arg(long, value_enum)]
+    format: Option<Format>,
+    /// Depth units per metre (TUM 5000, 7-Scenes and the reference layout 1000).
+    #[arg(long)]
+    depth_scale: Option<f64>,
+    /// Pinhole intrinsics "fx,fy,cx,cy" in pixels, replacing the sequence's.
+    #[arg(long, value_parser = parse_intrinsics)]
+    intrinsics: Option<CameraModel>,
+    /// Voxel edge in metres.
+    #[arg(long, default_value_t = 0.3)]
+    voxel: f32,
+    /// Use every s-th pixel in u and v (1 = exact voxel sets).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=64))]
+    stride: u16,
+    /// Valid depths "min,max" in metres: min < z <= max ("0.1,inf" keeps far points).
+    #[arg(long, default_value = "0.1,10", value_parser = parse_range)]
+    depth_range: (f32, f32),
+    /// Anchor of the voxel grid: the world origin (as the device) or the scene's minimum corner (as the reference code).
+    #[arg(long, value_enum, default_value_t = GridOrigin::World)]
+    grid_origin: GridOrigin,
+}
+
+/// Solver parameters shared by select and compare.
+#[derive(Args, Clone)]
+struct ParamArgs {
+    /// every-nth: take every N-th frame.
+    #[arg(long, default_value_t = 10)]
+    every_nth: usize,
+    /// distance: take a frame each D metres of camera path.
+    #[arg(long, default_value_t = 0.5)]
+    distance: f64,
+    /// cube: take the frame nearest the centre of each C-metre cube of the trajectory's box.
+    #[arg(long, default_value_t = 1.0)]
+    cube: f64,
+    /// exact: time limit in seconds; past it the best set and a proven lower bound are reported.
+    #[arg(long, default_value_t = 60.0)]
+    time_limit: f64,
+    /// online: device capacity profile (ram256k, ram512k, ram1m; see `placedb budget`).
+    #[arg(long, default_value = "ram512k")]
+    profile: String,
+    /// online: frames held undecided (1 reproduces in-order; capped by the profile's window).
+    #[arg(long, default_value_t = 32)]
+    window: u16,
+    /// Test sequence of the same place: adds oracle_recall@0.3.
+    #[arg(long)]
+    test: Option<PathBuf>,
+    /// Print machine-readable JSON instead of text.
+    #[arg(long)]
+    json: bool,
+    /// No progress bars.
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+#[derive(Args)]
+struct SelectArgs {
+    #[command(flatten)]
+    seq: SeqArgs,
+    /// Output directory for database.csv, labels.csv, metrics.json, topview.png.
+    #[arg(short, long)]
+    out: PathBuf,
+    /// Which solver or baseline.
+    #[arg(long, value_enum, default_value_t = Solver::Online)]
+    solver: Solver,
+    /// IoU threshold: frames overlap when IoU > mu.
+    #[arg(long, default_value_t = 0.3)]
+    mu: f32,
+    #[command(flatten)]
+    params: ParamArgs,
+}
+
+#[derive(Args)]
+struct CompareArgs {
+    #[command(flatten)]
+    seq: SeqArgs,
+    /// IoU thresholds, comma separated.
+    #[arg(long, default_value = "0.3", value_delimiter = ',')]
+    mu: Vec<f32>,
+    #[command(flatten)]
+    params: ParamArgs,
+}
+
+#[derive(Args)]
+struct SynthArgs {
+    /// Output directory (TUM layout).
+    out: PathBuf,
+    /// Number of frames.
+    #[arg(long, default_value_t = 600)]
+    frames: usize,
+    /// Image width.
+    #[arg(long, default_value_t = 320)]
+    width: u16,
+    /// Image height.
+    #[arg(long, default_value_t = 240)]
+    height: u16,
+    /// Seed of the furniture layout.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Number of rooms.
+    #[arg(long, default_value_t = 8)]
+    rooms: usize,
+}
+
+fn parse_intrinsics(s: &str) -> Result<CameraModel, String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f64>().map_err(|e| format!("{x:?}: {e}")))
+        .collect::<Result<_, _>>()?;
+    match v[..] {
+        [fx, fy, cx, cy] => Ok(CameraModel { fx, fy, cx, cy }),
+        _ => Err("expected four numbers fx,fy,cx,cy".into()),
+    }
+}
+
+fn parse_range(s: &str) -> Result<(f32, f32), String> {
+    let (a, b) = s.split_once(',').ok_or("expected min,max in metres")?;
+    let min: f32 = a.trim().parse().map_err(|e| format!("{a:?}: {e}"))?;
+    let max: f32 = b.trim().parse().map_err(|e| format!("{b:?}: {e}"))?;
+    if !(min >= 0.0 && max > min) {
+        return Err(format!("need 0 <= min < max, got {min},{max}"));
+    }
+    Ok((min, max))
+}
+
+type Error = Box<dyn std::error::Error>;
+
+fn open_sequence(a: &SeqArgs) -> Result<Sequence, Error> {
+    if a.demo {
+        return Ok(synth::sequence(&SynthConfig::demo()));
+    }
+    let path = a
+        .seq
+        .as_ref()
+        .ok_or("a sequence directory or --demo is required")?;
+    let opts = ReadOptions {
+        format: a.format,
+        depth_scale: a.depth_scale,
+        intrinsics: a.intrinsics,
+    };
+    Ok(read::open(path, &opts)?)
+}
+
+fn open_test(path: &PathBuf, a: &SeqArgs) -> Result<Sequence, Error> {
+    let opts = ReadOptions {
+        format: None,
+        depth_scale: a.depth_scale,
+        intrinsics: a.intrinsics,
+    };
+    Ok(read::open(path, &opts)?)
+}
+
+fn voxel_config(a: &SeqArgs) -> VoxelConfig {
+    VoxelConfig {
+        voxel: a.voxel,
+        stride: a.stride,
+        range: placedb::DepthRange {
+            min: a.depth_range.0,
+            max: a.depth_range.1,
+        },
+        origin: a.grid_origin,
+    }
+}
+
+fn solver_params(p: &ParamArgs) -> Result<SolverParams, Error> {
+    if !(p.time_limit.is_finite() && p.time_limit > 0.0) {
+        return Err("--time-limit must be a positive number of seconds".into());
+    }
+    if placedb::profile::by_name(&p.profile).is_none() {
+        return Err(format!("unknown --profile {:?}; see `placedb budget`", p.profile).into());
+    }
+    Ok(SolverParams {
+        every_nth: p.every_nth,
+        distance: p.distance,
+        cube: p.cube,
+        time_limit: Duration::from_secs_f64(p.time_limit),
+        profile: p.profile.clone(),
+        window: p.window.max(1),
+        ..SolverParams::default()
+    })
+}
+
+/// The flat metrics.json object of one outcome.
+fn metrics_json(
+    seq: &Sequence,
+    prep: &Prepared,
+    o: &Outcome,
+    mu: f32,
+    params: &SolverParams,
+) -> serde_json::Value {
+    let mut m = match serde_json::to_value(&o.metrics) {
+        Ok(serde_json::Value::Object(m)) => m,
+        _ => serde_json::Map::new(),
+    };
+    // DESIGN names the recall metric `oracle_recall@0.3`.
+    if let Some(r) = m.remove("oracle_recall_0_3") {
+        if !r.is_null() {
+            m.insert("oracle_recall@0.3".into(), r);
+        }
+    }
+    let c = &prep.config;
+    let mut put = |k: &str, v: serde_json::Value| {
+        m.insert(k.to_string(), v);
+    };
+    put("solver", o.solver.name().into());
+    put("mu", f64::from(mu).into());
+    put("voxel", f64::from(c.voxel).into());
+    put("stride", c.stride.into());
+    put("depth_min", f64::from(c.range.min).into());
+    put(
+        "depth_max",
+        if c.range.max.is_finite() {
+            f64::from(c.range.max).into()
+        } else {
+            "inf".into()
+        },
+    );
+    put(
+        "grid_origin",
+        serde_json::to_value(c.origin).unwrap_or_default(),
+    );
+    put("sequence", seq.name.clone().into());
+    put(
+        "format",
+        serde_json::to_value(seq.format).unwrap_or_default(),
+    );
+    put("frames", seq.frames.len().into());
+    put("voxelize_s", prep.voxelize_wall.as_secs_f64().into());
+    put("graph_s", prep.graph_wall.as_secs_f64().into());
+    put("solve_s", o.solve_time.as_secs_f64().into());
+    put("co_observing_pairs", prep.co.pair_count().into());
+    if let Some((optimal, lb)) = o.exact {
+        put("optimal", optimal.into());
+        put("lower_bound", lb.into());
+    }
+    if let Some(run) = &o.online {
+        put("profile", params.profile.clone().into());
+        put("window", params.window.into());
+        let st = &run.status;
+        put("sketched_frames", st.sketched_frames.into());
+        put("truncated_frames", st.truncated_frames.into());
+        put("uncovered_by_capacity", st.uncovered_frames.into());
+        put("degradation_flags", st.flags.into());
+        put("pool_peak_words", st.pool.peak.into());
+        put("frame_voxels_peak", st.frame_voxels.peak.into());
+        put("core_s", run.core_time.as_secs_f64().into());
+    }
+    serde_json::Value::Object(m)
+}
+
+fn select(a: SelectArgs) -> Result<(), Error> {
+    let t0 = Instant::now();
+    let seq = open_sequence(&a.seq)?;
+    let params = solver_params(&a.params)?;
+    let prep = pipeline::prepare(&seq, voxel_config(&a.seq), a.params.quiet)?;
+    let mut o = pipeline::solve(&seq, &prep, a.solver, a.mu, &params, a.params.quiet)?;
+    if let Some(test) = &a.params.test {
+        let tseq = open_test(test, &a.seq)?;
+        let tsets = pipeline::prepare_test(&tseq, &prep, a.params.quiet)?;
+        pipeline::add_oracle_recall(&mut o, &prep, &tsets);
+    }
+    let rows = match &o.online {
+        // The device's own records: what an export from a board would hold.
+        Some(run) => run
+            .database
+            .iter()
+            .map(|r| {
+                let t = r.pose.translation.map(f64::from);
+                let q = r.pose.rotation.map(f64::from);
+                (
+                    r.index as usize,
+                    r.timestamp,
+                    [t[0], t[1], t[2], q[0], q[1], q[2], q[3]],
+                )
+            })
+            .collect(),
+        None => output::rows_from_sequence(&seq, &o.database),
+    };
+    let timestamps: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
+    let mut json = metrics_json(&seq, &prep, &o, a.mu, &params);
+    json["total_s"] = t0.elapsed().as_secs_f64().into();
+    output::write_database_dir(&a.out, &rows, &timestamps, &o.labels, &json)?;
+    plot::topview(
+        &a.out.join("topview.png"),
+        &seq,
+        &prep.sets.sets,
+        prep.sets.grid,
+        &o.database,
+    )?;
+    if a.params.json {
+        println!("{}", serde_json::to_string_pretty(&json)?);
+    } else {
+        let m = &o.metrics;
+        println!(
+            "{}: {} frames -> {} database frames ({:.1}x reduction) with solver {} at mu {}",
+            seq.name,
+            seq.frames.len(),
+            m.size,
+            m.reduction,
+            o.solver.name(),
+            a.mu
+        );
+        println!(
+            "  uncovered {}  spatial coverage {:.3}  frame coverage mean {:.3} min {:.3} (<0.3: {:.1}%)",
+            m.uncovered,
+            m.spatial_coverage,
+            m.frames_coverage_mean,
+            m.frames_coverage_min,
+            100.0 * m.frames_coverage_below_0_3
+        );
+        if let Some(r) = m.oracle_recall_0_3 {
+            println!("  oracle_recall@0.3 on the test sequence: {r:.3}");
+        }
+        if let Some((optimal, lb)) = o.exact {
+            println!(
+                "  exact: {} (lower bound {lb})",
+                if optimal {
+                    "proven minimum"
+                } else {
+                    "time limit hit, not proven"
+                }
+            );
+        }
+        if let Some(run) = &o.online {
+            let st = &run.status;
+            println!(
+                "  online core: profile {}, window {}, {} frames by sketch, {} truncated, {} uncovered by capacity",
+                params.profile, params.window, st.sketched_frames, st.truncated_frames, st.uncovered_frames
+            );
+        }
+        println!("  database frames: {:?}", o.database);
+        println!(
+            "  time: voxelize {:.3} s, overlaps {:.3} s, solve {:.3} s, total {:.3} s",
+            prep.voxelize_wall.as_secs_f64(),
+            prep.graph_wall.as_secs_f64(),
+            o.solve_time.as_secs_f64(),
+            t0.elapsed().as_secs_f64()
+        );
+        println!(
+            "  wrote {}/{{database.csv,labels.csv,metrics.json,topview.png}}",
+            a.out.display()
+        );
+    }
+    Ok(())
+}
+
+fn compare(a: CompareArgs) -> Result<(), Error> {
+    let seq = open_sequence(&a.seq)?;
+    let params = solver_params(&a.params)?;
+    let prep = pipeline::prepare(&seq, voxel_config(&a.seq), a.params.quiet)?;
+    let test = match &a.params.test {
+        Some(t) => Some(pipeline::prepare_test(
+            &open_test(t, &a.seq)?,
+            &prep,
+            a.params.quiet,
+        )?),
+        None => None,
+    };
+    let mut all = Vec::new();
+    for &mu in &a.mu {
+        for solver in Solver::ALL {
+            let mut o = pipeline::solve(&seq, &prep, solver, mu, &params, true)?;
+            if let Some(t) = &test {
+                pipeline::add_oracle_recall(&mut o, &prep, t);
+            }
+            all.push((mu, o));
+        }
+    }
+    if a.params.json {
+        let v: Vec<_> = all
+            .iter()
+            .map(|(mu, o)| metrics_json(&seq, &prep, o, *mu, &params))
+            .collect();
+        println!("{}", serde_json::to_string_pretty(&v)?);
+        return Ok(());
+    }
+    println!(
+        "{}: {} frames, voxel {} m, stride {}, voxelize {:.3} s, overlaps {:.3} s",
+        seq.name,
+        seq.frames.len(),
+        prep.config.voxel,
+        prep.config.stride,
+        prep.voxelize_wall.as_secs_f64(),
+        prep.graph_wall.as_secs_f64()
+    );
+    println!(
+        "{:>5} {:<10} {:>6} {:>9} {:>9} {:>8} {:>8} {:>8} {:>8} {:>8} {:>9}",
+        "mu",
+        "solver",
+        "size",
+        "reduction",
+        "uncovered",
+        "spatial",
+        "fc_mean",
+        "fc_min",
+        "fc<0.3",
+        "recall",
+        "time_s"
+    );
+    for (mu, o) in &all {
+        let m = &o.metrics;
+        let recall = m
+            .oracle_recall_0_3
+            .map_or("-".to_string(), |r| format!("{r:.3}"));
+        let name = match o.exact {
+            Some((false, _)) => format!("{}*", o.solver.name()),
+            _ => o.solver.name().to_string(),
+        };
+        println!(
+            "{:>5} {:<10} {:>6} {:>9.1} {:>9} {:>8.3} {:>8.3} {:>8.3} {:>7.1}% {:>8} {:>9.3}",
+            mu,
+            name,
+            m.size,
+            m.reduction,
+            m.uncovered,
+            m.spatial_coverage,
+            m.frames_coverage_mean,
+            m.frames_coverage_min,
+            100.0 * m.frames_coverage_below_0_3,
+            recall,
+            o.solve_time.as_secs_f64()
+        );
+    }
+    if all.iter().any(|(_, o)| matches!(o.exact, Some((false, _)))) {
+        println!("* exact hit its time limit: best set found, not proven minimum");
+    }
+    Ok(())
+}
+
+fn synth_cmd(a: SynthArgs) -> Result<(), Error> {
+    let cfg = SynthConfig {
+        frames: a.frames,
+        width: a.width,
+        height: a.height,
+        seed: a.seed,
+        rooms: a.rooms,
+    };
+    let seq = synth::sequence(&cfg);
+    let pb = indicatif::ProgressBar::new(seq.frames.len() as u64);
+    synth::write_tum(&seq, &a.out, Some(&pb))?;
+    pb.finish_and_clear();
+    println!(
+        "wrote {} frames of {}x{} to {} (TUM layout)",
+        seq.frames.len(),
+        a.width,
+        a.height,
+        a.out.display()
+    );
+    Ok(())
+}
+
+fn budget() -> Result<(), Error> {
+    println!(
+        "{:<9} {:>9} {:>11} {:>10} {:>12} {:>10} {:>7} {:>7}",
+        "profile", "ram", "state", "headroom", "frame_voxels", "pool_keys", "db", "window"
+    );
+    for p in placedb::profile::PROFILES {
+        println!(
+            "{:<9} {:>8}K {:>10}B {:>9}K {:>12} {:>10} {:>7} {:>7}",
+            p.name,
+            p.ram / 1024,
+            p.state_bytes,
+            (p.ram as i64 - p.state_bytes as i64) / 1024,
+            p.frame_voxel_slots - p.frame_voxel_slots / 4,
+            p.pool_words,
+            p.database_frames,
+            p.window
+        );
+    }
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let r = match cli.command {
+        Command::Select(a) => select(a),
+        Command::Compare(a) => compare(a),
+        Command::Synth(a) => synth_cmd(a),
+        Command::Budget => budget(),
+    };
+    match r {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("placedb: error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}

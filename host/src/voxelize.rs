@@ -93,6 +93,17 @@ pub fn voxelize(
         name: "configuration".into(),
         reason,
     })?;
+    voxelize_on(seq, cfg, grid, progress)
+}
+
+/// Voxelizes every frame on a given grid (`cfg.origin` and `cfg.voxel` are
+/// ignored): a test sequence must share its database's grid.
+pub fn voxelize_on(
+    seq: &Sequence,
+    cfg: &VoxelConfig,
+    grid: VoxelGrid,
+    progress: Option<&ProgressBar>,
+) -> Result<VoxelSets, VoxelizeError> {
     let k = seq.intrinsics();
     let per_frame: Vec<_> = (0..seq.frames.len())
         .into_par_iter()
@@ -106,8 +117,15 @@ pub fn voxelize(
             let img = seq.depth(i)?;
             let t1 = Instant::now();
             let pose = seq.frames[i].pose().map_err(camera_err)?;
-            let proj = FrameProjector::new(&k, seq.depth_scale as f32, cfg.range, cfg.stride, &grid, &pose)
-                .map_err(camera_err)?;
+            let proj = FrameProjector::new(
+                &k,
+                seq.depth_scale as f32,
+                cfg.range,
+                cfg.stride,
+                &grid,
+                &pose,
+            )
+            .map_err(camera_err)?;
             let mut keys = Vec::new();
             let mut oor = 0u32;
             let mut valid = 0u32;
@@ -169,9 +187,15 @@ fn scene_min(
                     if raw == 0 || !(z > cfg.range.min as f64 && z <= cfg.range.max as f64) {
                         continue;
                     }
-                    let pc = [(u as f64 - c.cx) * z / c.fx, (v as f64 - c.cy) * z / c.fy, z];
+                    let pc = [
+                        (u as f64 - c.cx) * z / c.fx,
+                        (v as f64 - c.cy) * z / c.fy,
+                        z,
+                    ];
                     for a in 0..3 {
-                        let pw = r[a][0] as f64 * pc[0] + r[a][1] as f64 * pc[1] + r[a][2] as f64 * pc[2]
+                        let pw = r[a][0] as f64 * pc[0]
+                            + r[a][1] as f64 * pc[1]
+                            + r[a][2] as f64 * pc[2]
                             + f.translation[a];
                         m[a] = m[a].min(pw);
                     }

@@ -1,0 +1,210 @@
+//! Replays a recorded sequence through the device core (`placedb::Selector`)
+//! exactly as a board would receive it: frame by frame, sampled rows in
+//! chunks, one selector of a named capacity profile.
+
+use crate::sequence::{DepthImage, Sequence};
+use crate::voxelize::VoxelizeError;
+use indicatif::ProgressBar;
+use placedb::profile::{Ram1M, Ram256K, Ram512K};
+use placedb::{
+    DbRecord, Decision, FrameMeta, ScanConfig, SelectError, Selector, SelectorConfig, Status,
+};
+use rayon::prelude::*;
+use std::time::{Duration, Instant};
+
+/// Result of a replay.
+#[derive(Debug, Clone)]
+pub struct OnlineRun {
+    /// Final decision of every frame, by frame index.
+    pub decisions: Vec<Decision>,
+    /// Class label (a frame index) of every frame.
+    pub labels: Vec<usize>,
+    /// Database entries in the order they were taken.
+    pub database: Vec<DbRecord>,
+    /// The selector's final counters.
+    pub status: Status,
+    /// Summed over threads: decoding depth.
+    pub read_time: Duration,
+    /// Wall time inside the core (voxelize + overlap + select).
+    pub core_time: Duration,
+}
+
+/// Why a replay stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    /// Reading depth failed.
+    #[error(transparent)]
+    Read(#[from] VoxelizeError),
+    /// The core refused a step.
+    #[error("frame {frame}: the core refused it: {reason:?}")]
+    Core {
+        /// Frame index.
+        frame: usize,
+        /// The core's error.
+        reason: SelectError,
+    },
+    /// No such profile.
+    #[error("unknown profile {0:?} (known: ram256k, ram512k, ram1m)")]
+    UnknownProfile(String),
+}
+
+/// The rows a board receives for one frame: sampled rows of sampled columns.
+pub fn sampled_rows(img: &DepthImage, stride: u16) -> (usize, Vec<u16>) {
+    let s = stride.max(1) as usize;
+    let width = (img.width as usize).div_ceil(s);
+    let mut out = Vec::with_capacity(width * (img.height as usize).div_ceil(s));
+    for v in (0..img.height).step_by(s) {
+        out.extend(img.row(v).iter().step_by(s));
+    }
+    (width, out)
+}
+
+/// Runs `seq` through a selector of profile `profile` (see `placedb::profile`).
+/// `rows_per_chunk` sampled rows are pushed at a time, as a transport would.
+pub fn replay(
+    seq: &Sequence,
+    profile: &str,
+    scan: ScanConfig,
+    cfg: SelectorConfig,
+    rows_per_chunk: usize,
+    progress: Option<&ProgressBar>,
+) -> Result<OnlineRun, ReplayError> {
+    // The selectors are hundreds of KiB: build them on a thread with a stack to match.
+    std::thread::scope(|s| {
+        let job = s.spawn_scoped_big(move || match profile {
+            "ram256k" => run(
+                Box::new(Ram256K::new()),
+                seq,
+                scan,
+                cfg,
+                rows_per_chunk,
+                progress,
+            ),
+            "ram512k" => run(
+                Box::new(Ram512K::new()),
+                seq,
+                scan,
+                cfg,
+                rows_per_chunk,
+                progress,
+            ),
+            "ram1m" => run(
+                Box::new(Ram1M::new()),
+                seq,
+                scan,
+                cfg,
+                rows_per_chunk,
+                progress,
+            ),
+            other => Err(ReplayError::UnknownProfile(other.to_string())),
+        });
+        job.join().expect("replay thread panicked")
+    })
+}
+
+/// Spawning with a stack large enough for a selector built by value.
+trait SpawnBig<'scope> {
+    fn spawn_scoped_big<T: Send + 'scope>(
+        &'scope self,
+        f: impl FnOnce() -> T + Send + 'scope,
+    ) -> std::thread::ScopedJoinHandle<'scope, T>;
+}
+
+impl<'scope, 'env> SpawnBig<'scope> for std::thread::Scope<'scope, 'env> {
+    fn spawn_scoped_big<T: Send + 'scope>(
+        &'scope self,
+        f: impl FnOnce() -> T + Send + 'scope,
+    ) -> std::thread::ScopedJoinHandle<'scope, T> {
+        std::thread::Builder::new()
+            .stack_size(64 << 20)
+            .spawn_scoped(self, f)
+            .expect("cannot start the replay thread")
+    }
+}
+
+fn run<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const K: usize>(
+    mut sel: Box<Selector<FV, POOL, DB, W, K>>,
+    seq: &Sequence,
+    scan: ScanConfig,
+    cfg: SelectorConfig,
+    rows_per_chunk: usize,
+    progress: Option<&ProgressBar>,
+) -> Result<OnlineRun, ReplayError> {
+    let n = seq.frames.len();
+    let core_err = |frame: usize| move |reason| ReplayError::Core { frame, reason };
+    sel.configure(scan, cfg).map_err(core_err(0))?;
+    let mut decisions = vec![Decision::Pending; n];
+    let mut read_time = Duration::ZERO;
+    let mut core_time = Duration::ZERO;
+    let mut record = |d: placedb::FrameDecision| {
+        if let Some(slot) = decisions.get_mut(d.index as usize) {
+            if d.decision != Decision::Pending {
+                *slot = d.decision;
+            }
+        }
+    };
+    // Decode a batch in parallel, then feed it in order: the core is sequential by nature.
+    let batch = 2 * rayon::current_num_threads().max(1);
+    for start in (0..n).step_by(batch) {
+        let end = (start + batch).min(n);
+        let images: Vec<_> = (start..end)
+            .into_par_iter()
+            .map(|i| {
+                let t = Instant::now();
+                let img = seq.depth(i).map_err(VoxelizeError::from)?;
+                let pose = seq.frames[i]
+                    .pose()
+                    .map_err(|reason| VoxelizeError::Camera {
+                        frame: i,
+                        name: seq.frames[i].depth_name.clone(),
+                        reason,
+                    })?;
+                let (width, rows) = sampled_rows(&img, scan.stride);
+                Ok((pose, width, rows, t.elapsed()))
+            })
+            .collect::<Result<_, VoxelizeError>>()?;
+        for (k, (pose, width, rows, took)) in images.into_iter().enumerate() {
+            let i = start + k;
+            read_time += took;
+            let t = Instant::now();
+            let meta = FrameMeta {
+                index: i as u32,
+                timestamp: seq.frames[i].timestamp,
+                pose,
+            };
+            sel.begin_frame(meta).map_err(core_err(i))?;
+            let chunk = width * rows_per_chunk.max(1);
+            for (c, data) in rows.chunks(chunk.max(1)).enumerate() {
+                let first = (c * rows_per_chunk.max(1)) as u16;
+                sel.push_rows(first, data).map_err(core_err(i))?;
+            }
+            sel.end_frame(&mut record).map_err(core_err(i))?;
+            core_time += t.elapsed();
+            if let Some(p) = progress {
+                p.inc(1);
+            }
+        }
+    }
+    let t = Instant::now();
+    sel.finish(&mut record).map_err(core_err(n))?;
+    core_time += t.elapsed();
+    let labels = decisions
+        .iter()
+        .enumerate()
+        .map(|(i, d)| match *d {
+            Decision::DominatedBy(k) | Decision::Uncovered(Some(k)) => k as usize,
+            _ => i,
+        })
+        .collect();
+    let database = (0..sel.database_len())
+        .filter_map(|i| sel.database_record(i))
+        .collect();
+    Ok(OnlineRun {
+        decisions,
+        labels,
+        database,
+        status: *sel.status(),
+        read_time,
+        core_time,
+    })
+}

@@ -1,0 +1,64 @@
+//! The database directory (DESIGN section 6): `database.csv`, `labels.csv`,
+//! `metrics.json` and `topview.png`. Scripts read these: the column sets and
+//! key names are stable.
+
+use crate::sequence::Sequence;
+use std::fmt::Write as _;
+use std::io;
+use std::path::Path;
+
+/// One database row: frame index, timestamp and pose `[tx ty tz qx qy qz qw]`.
+pub type DbRow = (usize, f64, [f64; 7]);
+
+/// The rows of `database.csv` for database `db` of `seq`, from its poses.
+pub fn rows_from_sequence(seq: &Sequence, db: &[usize]) -> Vec<DbRow> {
+    db.iter()
+        .map(|&i| {
+            let f = &seq.frames[i];
+            let [tx, ty, tz] = f.translation;
+            let [qx, qy, qz, qw] = f.rotation;
+            (i, f.timestamp, [tx, ty, tz, qx, qy, qz, qw])
+        })
+        .collect()
+}
+
+/// The text of `database.csv`: header and one line per database frame, in
+/// sequence order.
+pub fn database_csv(rows: &[DbRow]) -> String {
+    let mut s = String::from("index,timestamp,tx,ty,tz,qx,qy,qz,qw\n");
+    let mut rows = rows.to_vec();
+    rows.sort_by_key(|r| r.0);
+    for (i, ts, p) in rows {
+        let _ = write!(s, "{i},{ts:.6}");
+        for c in p {
+            let _ = write!(s, ",{c}");
+        }
+        s.push('\n');
+    }
+    s
+}
+
+/// The text of `labels.csv`: `index,timestamp,class_index` for every frame.
+pub fn labels_csv(timestamps: &[f64], labels: &[usize]) -> String {
+    let mut s = String::from("index,timestamp,class_index\n");
+    for (i, (ts, l)) in timestamps.iter().zip(labels).enumerate() {
+        let _ = writeln!(s, "{i},{ts:.6},{l}");
+    }
+    s
+}
+
+/// Writes the database directory; `metrics` must be a flat JSON object.
+pub fn write_database_dir(
+    dir: &Path,
+    rows: &[DbRow],
+    timestamps: &[f64],
+    labels: &[usize],
+    metrics: &serde_json::Value,
+) -> io::Result<()> {
+    std::fs::create_dir_all(dir)?;
+    std::fs::write(dir.join("database.csv"), database_csv(rows))?;
+    std::fs::write(dir.join("labels.csv"), labels_csv(timestamps, labels))?;
+    let json = serde_json::to_string_pretty(metrics).map_err(io::Error::other)?;
+    std::fs::write(dir.join("metrics.json"), json + "\n")?;
+    Ok(())
+}

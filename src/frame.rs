@@ -1,0 +1,226 @@
+//! Frame ingest: one frame at a time, begun with its pose, fed sampled depth
+//! rows in order in chunks of any size, ended into a sorted voxel set.
+//!
+//! The device never holds an image: each row is voxelized as it arrives into
+//! the bounded [`FrameVoxels`] set. Rows are the *sampled* rows of the image
+//! (row `r` is image row `r * stride`, sample `i` is column `i * stride`),
+//! which is also what travels on the wire.
+
+use crate::camera::{CameraError, DepthRange, FrameProjector, Intrinsics, Pose};
+use crate::voxel::{FrameVoxels, VoxelGrid};
+
+/// What every frame of a scan shares: camera, depth units, sampling, grid.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ScanConfig {
+    /// Pinhole intrinsics and full image size.
+    pub intrinsics: Intrinsics,
+    /// Depth units per metre.
+    pub depth_scale: f32,
+    /// Valid depths, metres.
+    pub range: DepthRange,
+    /// Pixel stride in u and v.
+    pub stride: u16,
+    /// Voxel size and grid anchor.
+    pub grid: VoxelGrid,
+}
+
+impl ScanConfig {
+    /// Checks every field as the projector will.
+    pub fn validate(&self) -> Result<(), CameraError> {
+        FrameProjector::new(
+            &self.intrinsics,
+            self.depth_scale,
+            self.range,
+            self.stride,
+            &self.grid,
+            &Pose::IDENTITY,
+        )
+        .map(|_| ())
+    }
+}
+
+/// Identity of a frame: position in the scan, time, pose.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct FrameMeta {
+    /// Position in the sequence; frames must arrive with indices 0, 1, 2, ...
+    pub index: u32,
+    /// Seconds (the index when the source has no timestamps).
+    pub timestamp: f64,
+    /// Camera-to-world pose.
+    pub pose: Pose,
+}
+
+/// Why a frame step was refused; the frame in progress is left as it was.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum FrameError {
+    /// The camera, pose or configuration is invalid.
+    Camera(CameraError),
+    /// A frame was begun while another is in progress.
+    FrameInProgress,
+    /// Rows or an end arrived with no frame begun.
+    NoFrame,
+    /// A frame index other than the next expected one.
+    WrongIndex {
+        /// The index that must come next.
+        expected: u32,
+    },
+    /// Rows must arrive in order without gaps.
+    RowOutOfOrder {
+        /// The sampled row that must come next.
+        expected: u16,
+    },
+    /// A chunk is not a whole number of sampled rows, or runs past the image.
+    BadRowChunk,
+    /// The frame ended before all its sampled rows arrived.
+    MissingRows {
+        /// Sampled rows received.
+        received: u16,
+        /// Sampled rows in the image.
+        expected: u16,
+    },
+}
+
+impl From<CameraError> for FrameError {
+    fn from(e: CameraError) -> Self {
+        FrameError::Camera(e)
+    }
+}
+
+/// Counts gathered while a frame is voxelized.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct FrameStats {
+    /// Sampled pixels with a depth in range.
+    pub valid_pixels: u32,
+    /// Pixels whose voxel key was out of the representable range.
+    pub out_of_range: u32,
+    /// Pixels whose new voxel did not fit the frame set (set was full).
+    pub dropped: u32,
+}
+
+/// The frame being received.
+#[derive(Debug, Clone)]
+pub struct FrameIngest<const FV: usize> {
+    current: Option<(FrameMeta, FrameProjector)>,
+    next_row: u16,
+    stats: FrameStats,
+    voxels: FrameVoxels<FV>,
+}
+
+impl<const FV: usize> Default for FrameIngest<FV> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const FV: usize> FrameIngest<FV> {
+    /// Most distinct voxels one frame can hold.
+    pub const VOXEL_LIMIT: usize = FrameVoxels::<FV>::LIMIT;
+
+    /// No frame in progress.
+    pub const fn new() -> Self {
+        FrameIngest {
+            current: None,
+            next_row: 0,
+            stats: FrameStats {
+                valid_pixels: 0,
+                out_of_range: 0,
+                dropped: 0,
+            },
+            voxels: FrameVoxels::new(),
+        }
+    }
+
+    /// The frame in progress, if any.
+    pub fn current(&self) -> Option<&FrameMeta> {
+        self.current.as_ref().map(|(m, _)| m)
+    }
+
+    /// Drops the frame in progress (reset, reconfiguration).
+    pub fn abort(&mut self) {
+        self.current = None;
+    }
+
+    /// Starts a frame whose index must be `expected_index`.
+    pub fn begin(
+        &mut self,
+        meta: FrameMeta,
+        expected_index: u32,
+        cfg: &ScanConfig,
+    ) -> Result<(), FrameError> {
+        if self.current.is_some() {
+            return Err(FrameError::FrameInProgress);
+        }
+        if meta.index != expected_index {
+            return Err(FrameError::WrongIndex {
+                expected: expected_index,
+            });
+        }
+        if !meta.timestamp.is_finite() {
+            return Err(FrameError::Camera(CameraError::NonFinitePose));
+        }
+        let projector = FrameProjector::new(
+            &cfg.intrinsics,
+            cfg.depth_scale,
+            cfg.range,
+            cfg.stride,
+            &cfg.grid,
+            &meta.pose,
+        )?;
+        self.voxels.clear();
+        self.stats = FrameStats::default();
+        self.next_row = 0;
+        self.current = Some((meta, projector));
+        Ok(())
+    }
+
+    /// Sampled columns per row of the frame in progress.
+    pub fn samples_per_row(&self) -> Option<u16> {
+        self.current.as_ref().map(|(_, p)| p.samples_per_row())
+    }
+
+    /// Voxelizes `data`: whole sampled rows starting at sampled row `first_row`.
+    /// Refused (nothing changes) unless `first_row` is the next row and `data`
+    /// holds whole rows within the image.
+    pub fn push_rows(&mut self, first_row: u16, data: &[u16]) -> Result<(), FrameError> {
+        let (_, proj) = self.current.as_ref().ok_or(FrameError::NoFrame)?;
+        if first_row != self.next_row {
+            return Err(FrameError::RowOutOfOrder {
+                expected: self.next_row,
+            });
+        }
+        let width = proj.samples_per_row() as usize;
+        if data.len() % width != 0 {
+            return Err(FrameError::BadRowChunk);
+        }
+        let rows = data.len() / width;
+        if rows > (proj.sampled_rows() - self.next_row) as usize {
+            return Err(FrameError::BadRowChunk);
+        }
+        let stride = proj.stride();
+        let (voxels, stats) = (&mut self.voxels, &mut self.stats);
+        for (i, row) in data.chunks_exact(width).enumerate() {
+            let v = (first_row as usize + i) as u16 * stride;
+            stats.valid_pixels += proj.project_samples(v, row, &mut stats.out_of_range, |key| {
+                voxels.insert(key);
+            });
+        }
+        self.next_row += rows as u16;
+        Ok(())
+    }
+
+    /// Ends the frame: its metadata, its voxel keys ascending, and its counts.
+    /// Refused (the frame stays open) if rows are missing.
+    pub fn end(&mut self) -> Result<(FrameMeta, &[u64], FrameStats), FrameError> {
+        let (meta, proj) = self.current.as_ref().ok_or(FrameError::NoFrame)?;
+        if self.next_row != proj.sampled_rows() {
+            return Err(FrameError::MissingRows {
+                received: self.next_row,
+                expected: proj.sampled_rows(),
+            });
+        }
+        let meta = *meta;
+        self.current = None;
+        self.stats.dropped = self.voxels.dropped();
+        Ok((meta, self.voxels.sorted(), self.stats))
+    }
+}

@@ -1,0 +1,508 @@
+//! Framing: postcard + CRC-32 + COBS on the way out, a resynchronising
+//! accumulator on the way in.
+//!
+//! Encoding uses postcard's own flavours (`CrcModifier` over `Cobs` over `Slice`),
+//! so a frame is built in one pass straight into the caller's buffer. Decoding
+//! does not use postcard's `CobsAccumulator`: it cannot tell a bad CRC from bad
+//! COBS from a bad message, and after an overflow it restarts in the middle of
+//! the oversized frame instead of at its end. [`FrameDecoder`] keeps the COBS
+//! bytes of one frame, decodes them in place when the delimiter arrives, checks
+//! the CRC, then lets postcard deserialize straight from its buffer, so borrowed
+//! payloads ([`super::DepthRows::data`]) point into the decoder: no copy.
+
+use super::messages::{DeviceMessage, ErrorKind, ExportRecord, HostFrame, ProtocolError};
+use crc::{Crc, Digest, CRC_32_ISO_HDLC};
+use postcard::ser_flavors::{crc::CrcModifier, Cobs, Flavor, Slice};
+use serde::{Deserialize, Serialize};
+
+/// Largest frame, trailing 0x00 included, that a receiver must accept: the
+/// device's receive buffer ([`FrameDecoder<MAX_FRAME_LEN>`]). Holds one
+/// [`super::HostMessage::DepthRows`] of up to [`super::MAX_ROW_VALUES`] (1007)
+/// depth values, e.g. 8 or 12 strided rows of 80 values (640 px at stride 8).
+pub const MAX_FRAME_LEN: usize = 2048;
+
+/// The frame CRC: CRC-32/ISO-HDLC (zlib, Ethernet), appended little-endian.
+pub static CRC: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
+
+/// Bytes of CRC after the postcard message.
+const CRC_LEN: usize = 4;
+
+/// Worst-case length of the frame (COBS overhead and delimiter included) of a
+/// postcard message of `message_len` bytes.
+pub const fn max_frame_len(message_len: usize) -> usize {
+    let payload = message_len.saturating_add(CRC_LEN);
+    // COBS adds one code byte per started run of 254 bytes (plus a final one when
+    // the payload ends a full run); then the 0x00 delimiter.
+    payload.saturating_add(payload / 254).saturating_add(2)
+}
+
+/// Longest postcard message whose worst-case frame fits `frame_len` bytes.
+pub(crate) const fn max_message_len(frame_len: usize) -> usize {
+    let mut len = frame_len;
+    while len > 0 && max_frame_len(len) > frame_len {
+        len -= 1;
+    }
+    if max_frame_len(len) > frame_len {
+        0
+    } else {
+        len
+    }
+}
+
+/// `ceil(len / stride)`: pixels per strided row or column (0 for stride 0).
+pub const fn strided_len(len: u16, stride: u16) -> u16 {
+    if stride == 0 {
+        0
+    } else {
+        len.div_ceil(stride)
+    }
+}
+
+/// Encodes `msg` as one complete frame (postcard, CRC-32, COBS, trailing 0x00)
+/// into `buf` and returns the frame. `msg` is a [`HostFrame`] or a
+/// [`DeviceMessage`]. A buffer too small gives [`ErrorKind::Oversized`];
+/// [`max_frame_len`] of the postcard size is always enough.
+pub fn encode<'b, T>(msg: &T, buf: &'b mut [u8]) -> Result<&'b [u8], ProtocolError>
+where
+    T: Serialize + ?Sized,
+{
+    let cobs = Cobs::try_new(Slice::new(buf)).map_err(ser_error)?;
+    let flavor = CrcModifier::new(cobs, CRC.digest());
+    let frame: &'b mut [u8] = postcard::serialize_with_flavor(msg, flavor).map_err(ser_error)?;
+    Ok(frame)
+}
+
+fn ser_error(e: postcard::Error) -> ProtocolError {
+    match e {
+        postcard::Error::SerializeBufferFull => ProtocolError::new(ErrorKind::Oversized),
+        _ => ProtocolError::new(ErrorKind::Internal),
+    }
+}
+
+/// What a [`FrameDecoder`] needs to know about the message type of a direction.
+pub trait WireMessage {
+    /// Whether the encoding starts with a `u32` sequence number (host frames),
+    /// which the decoder reports with errors of damaged frames.
+    const SEQ_PREFIX: bool;
+    /// Number of variants of the message enum, to tell an unknown message from a
+    /// malformed one.
+    const VARIANTS: u32;
+}
+
+impl WireMessage for HostFrame<'_> {
+    const SEQ_PREFIX: bool = true;
+    const VARIANTS: u32 = 8;
+}
+
+impl WireMessage for DeviceMessage<'_> {
+    const SEQ_PREFIX: bool = false;
+    const VARIANTS: u32 = 7;
+}
+
+/// Result of [`FrameDecoder::push`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Push<'i> {
+    /// Every input byte was consumed; no frame is complete yet.
+    NeedMore,
+    /// A frame is complete: call [`FrameDecoder::decode`] before pushing again.
+    Ready {
+        /// Input after the frame's delimiter, not consumed yet.
+        remaining: &'i [u8],
+    },
+    /// A frame was lost (too long); the decoder resynchronises on the next 0x00.
+    Error {
+        /// What happened.
+        error: ProtocolError,
+        /// Input not consumed yet.
+        remaining: &'i [u8],
+    },
+}
+
+/// Result of [`FrameDecoder::feed`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Feed<'i, M> {
+    /// Every input byte was consumed; no frame is complete yet.
+    NeedMore,
+    /// A frame ended: its message or why it could not be read.
+    Frame {
+        /// The decoded message (borrowing the decoder) or the error.
+        result: Result<M, ProtocolError>,
+        /// Input after the frame, not consumed yet: feed it next.
+        remaining: &'i [u8],
+    },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum State {
+    /// Accumulating the COBS bytes of a frame.
+    Collecting,
+    /// A complete frame is in the buffer.
+    Ready,
+    /// Dropping the rest of an oversized frame until the next 0x00.
+    Discarding,
+}
+
+/// Accumulates a byte stream into frames of at most `N` bytes (delimiter
+/// included) and decodes them in place.
+///
+/// Feed it arbitrary chunks; each [`Feed::Frame`] is one frame's message or
+/// error, and the chunk's unconsumed rest to feed next:
+///
+/// ```
+/// use placedb::protocol::{encode, Feed, FrameDecoder, HostFrame, HostMessage, MAX_FRAME_LEN};
+/// let mut tx = [0u8; 64];
+/// let frame = encode(&HostFrame { seq: 7, msg: HostMessage::StatusRequest }, &mut tx).unwrap();
+/// let mut decoder = FrameDecoder::<MAX_FRAME_LEN>::new();
+/// let mut rest: &[u8] = frame;
+/// while let Feed::Frame { result, remaining } = decoder.feed::<HostFrame>(rest) {
+///     assert_eq!(result.unwrap().seq, 7);
+///     rest = remaining;
+/// }
+/// ```
+///
+/// Errors: a frame longer than `N` gives [`ErrorKind::Oversized`] as soon as it
+/// overflows, and the rest of it up to the next 0x00 is dropped silently; bad
+/// COBS gives [`ErrorKind::BadFraming`], a frame shorter than its CRC
+/// [`ErrorKind::Truncated`], a CRC mismatch [`ErrorKind::BadCrc`], a message
+/// postcard cannot read [`ErrorKind::Decode`] or [`ErrorKind::UnknownMessage`].
+/// After any error the next frame decodes normally. Empty frames are skipped.
+#[derive(Debug, Clone)]
+pub struct FrameDecoder<const N: usize> {
+    buf: [u8; N],
+    len: usize,
+    state: State,
+}
+
+impl<const N: usize> Default for FrameDecoder<N> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const N: usize> FrameDecoder<N> {
+    /// COBS bytes a frame may have besides its delimiter.
+    const CAPACITY: usize = N.saturating_sub(1);
+
+    /// An empty decoder.
+    pub const fn new() -> Self {
+        FrameDecoder {
+            buf: [0; N],
+            len: 0,
+            state: State::Collecting,
+        }
+    }
+
+    /// Forgets any partial frame; the next byte starts a new frame.
+    pub fn clear(&mut self) {
+        self.len = 0;
+        self.state = State::Collecting;
+    }
+
+    /// Whether part of a frame has been received (and not completed).
+    pub fn is_mid_frame(&self) -> bool {
+        self.state == State::Discarding || (self.state == State::Collecting && self.len > 0)
+    }
+
+    /// Consumes input up to the end of the next complete frame. A frame left
+    /// undecoded by the previous call is dropped.
+    pub fn push<'i>(&mut self, input: &'i [u8]) -> Push<'i> {
+        if self.state == State::Ready {
+            self.clear();
+        }
+        let mut input = input;
+        loop {
+            if input.is_empty() {
+                return Push::NeedMore;
+            }
+            let zero = input.iter().position(|&b| b == 0);
+            let (body, rest, ended) = match zero {
+                Some(z) => (
+                    input.get(..z).unwrap_or_default(),
+                    input.get(z + 1..).unwrap_or_default(),
+                    true,
+                ),
+                None => (input, &[][..], false),
+            };
+            if self.state == State::Discarding {
+                if ended {
+                    self.clear();
+                    input = rest;
+                    continue;
+                }
+                return Push::NeedMore;
+            }
+            let end = self.len.saturating_add(body.len());
+            let dest = match self.buf.get_mut(self.len..end) {
+                Some(dest) if end <= Self::CAPACITY => dest,
+                _ => {
+                    self.len = 0;
+                    self.state = if ended {
+                        State::Collecting
+                    } else {
+                        State::Discarding
+                    };
+                    return Push::Error {
+                        error: ProtocolError::new(ErrorKind::Oversized),
+                        remaining: rest,
+                    };
+                }
+            };
+            dest.copy_from_slice(body);
+            self.len = end;
+            if !ended {
+                return Push::NeedMore;
+            }
+            if self.len == 0 {
+                // Empty frame (a lone delimiter): resynchronisation, no message.
+                input = rest;
+                continue;
+            }
+            self.state = State::Ready;
+            return Push::Ready { remaining: rest };
+        }
+    }
+
+    /// Decodes the frame completed by the last [`Self::push`]: COBS in place, CRC
+    /// check, then postcard. The message may borrow the decoder's buffer. Without
+    /// a complete frame, returns [`ErrorKind::Internal`].
+    pub fn decode<'d, M>(&'d mut self) -> Result<M, ProtocolError>
+    where
+        M: Deserialize<'d> + WireMessage,
+    {
+        if self.state != State::Ready {
+            return Err(ProtocolError::new(ErrorKind::Internal));
+        }
+        let n = self.len;
+        self.clear();
+        let body = self
+            .buf
+            .get_mut(..n)
+            .ok_or(ProtocolError::new(ErrorKind::Internal))?;
+        let decoded =
+            cobs_decode_in_place(body).ok_or(ProtocolError::new(ErrorKind::BadFraming))?;
+        let body: &'d [u8] = body;
+        let payload = body
+            .get(..decoded)
+            .ok_or(ProtocolError::new(ErrorKind::Internal))?;
+        decode_payload(payload)
+    }
+
+    /// [`Self::push`] then, when a frame is complete, [`Self::decode`].
+    pub fn feed<'d, 'i, M>(&'d mut self, input: &'i [u8]) -> Feed<'i, M>
+    where
+        M: Deserialize<'d> + WireMessage,
+    {
+        match self.push(input) {
+            Push::NeedMore => Feed::NeedMore,
+            Push::Error { error, remaining } => Feed::Frame {
+                result: Err(error),
+                remaining,
+            },
+            Push::Ready { remaining } => Feed::Frame {
+                result: self.decode(),
+                remaining,
+            },
+        }
+    }
+}
+
+/// Decodes COBS in place (no delimiter in `buf`); returns the decoded length,
+/// or `None` when the bytes are not valid COBS.
+fn cobs_decode_in_place(buf: &mut [u8]) -> Option<usize> {
+    let n = buf.len();
+    let mut read = 0usize;
+    let mut write = 0usize;
+    while read < n {
+        let code = usize::from(*buf.get(read)?);
+        if code == 0 {
+            return None;
+        }
+        read += 1;
+        let block_end = read.checked_add(code - 1)?;
+        if block_end > n {
+            return None;
+        }
+        // `write < read` always holds, so copying forwards never clobbers unread bytes.
+        while read < block_end {
+            let b = *buf.get(read)?;
+            if b == 0 {
+                return None;
+            }
+            *buf.get_mut(write)? = b;
+            write += 1;
+            read += 1;
+        }
+        if code != 0xFF && read < n {
+            *buf.get_mut(write)? = 0;
+            write += 1;
+        }
+    }
+    Some(write)
+}
+
+/// Checks the CRC of a decoded frame and deserializes its message.
+fn decode_payload<'d, M>(payload: &'d [u8]) -> Result<M, ProtocolError>
+where
+    M: Deserialize<'d> + WireMessage,
+{
+    let split = payload
+        .len()
+        .checked_sub(CRC_LEN)
+        .ok_or(ProtocolError::new(ErrorKind::Truncated))?;
+    let (message, crc_bytes) = payload.split_at_checked(split).unwrap_or_default();
+    let (seq, after_seq) = if M::SEQ_PREFIX {
+        match postcard::take_from_bytes::<u32>(message) {
+            Ok((seq, rest)) => (Some(seq), rest),
+            Err(_) => (None, message),
+        }
+    } else {
+        (None, message)
+    };
+    let error = |kind| ProtocolError { kind, seq };
+    let mut crc = [0u8; CRC_LEN];
+    if crc_bytes.len() != CRC_LEN {
+        return Err(error(ErrorKind::Internal));
+    }
+    crc.copy_from_slice(crc_bytes);
+    if CRC.checksum(message) != u32::from_le_bytes(crc) {
+        return Err(error(ErrorKind::BadCrc));
+    }
+    if M::SEQ_PREFIX && seq.is_none() {
+        return Err(error(ErrorKind::Decode));
+    }
+    match postcard::take_from_bytes::<u32>(after_seq) {
+        Ok((tag, _)) if tag >= M::VARIANTS => return Err(error(ErrorKind::UnknownMessage)),
+        Ok(_) => {}
+        Err(_) => return Err(error(ErrorKind::Decode)),
+    }
+    match postcard::take_from_bytes::<M>(message) {
+        Ok((msg, [])) => Ok(msg),
+        Ok(_) | Err(_) => Err(error(ErrorKind::Decode)),
+    }
+}
+
+/// A postcard flavour that only feeds a CRC digest.
+struct DigestFlavor<'a> {
+    digest: &'a mut Digest<'static, u32>,
+}
+
+impl Flavor for DigestFlavor<'_> {
+    type Output = ();
+
+    fn try_extend(&mut self, data: &[u8]) -> postcard::Result<()> {
+        self.digest.update(data);
+        Ok(())
+    }
+
+    fn try_push(&mut self, data: u8) -> postcard::Result<()> {
+        self.digest.update(&[data]);
+        Ok(())
+    }
+
+    fn finalize(self) -> postcard::Result<()> {
+        Ok(())
+    }
+}
+
+/// Running checksum of an export: CRC-32/ISO-HDLC over the concatenated postcard
+/// encodings of the [`ExportRecord`]s sent (the struct alone, without the
+/// [`DeviceMessage`] tag, CRC or COBS), in order. Both sides compute it the
+/// same way; [`DeviceMessage::ExportEnd::crc32`] carries the device's value.
+#[derive(Clone)]
+pub struct ExportCrc {
+    digest: Digest<'static, u32>,
+    count: u32,
+}
+
+impl core::fmt::Debug for ExportCrc {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("ExportCrc")
+            .field("count", &self.count)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Default for ExportCrc {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl ExportCrc {
+    /// A checksum over no records.
+    pub fn new() -> Self {
+        ExportCrc {
+            digest: CRC.digest(),
+            count: 0,
+        }
+    }
+
+    /// Adds one record.
+    pub fn add(&mut self, record: &ExportRecord) {
+        let flavor = DigestFlavor {
+            digest: &mut self.digest,
+        };
+        // Serializing a plain struct into a flavour that cannot fail cannot fail.
+        let _ = postcard::serialize_with_flavor::<ExportRecord, _, ()>(record, flavor);
+        self.count = self.count.wrapping_add(1);
+    }
+
+    /// Records added so far.
+    pub fn count(&self) -> u32 {
+        self.count
+    }
+
+    /// The checksum of the records added so far.
+    pub fn value(&self) -> u32 {
+        self.digest.clone().finalize()
+    }
+}
+
+/// [`ExportCrc`] of a sequence of records.
+pub fn export_crc<'r>(records: impl IntoIterator<Item = &'r ExportRecord>) -> u32 {
+    let mut crc = ExportCrc::new();
+    for record in records {
+        crc.add(record);
+    }
+    crc.value()
+}
+
+/// Packs `row_count` strided rows, from strided row `first_row` on, of a
+/// full-resolution row-major depth image `depth` (`width` columns) sampled at
+/// `stride`, as the little-endian bytes of [`super::DepthRows::data`], into
+/// `out`. Errors: [`ErrorKind::RowOutOfRange`] when a row is beyond the image,
+/// [`ErrorKind::Oversized`] when `out` is too small, [`ErrorKind::BadConfig`]
+/// for a zero width or stride.
+pub fn pack_rows<'o>(
+    depth: &[u16],
+    width: u16,
+    stride: u16,
+    first_row: u16,
+    row_count: u16,
+    out: &'o mut [u8],
+) -> Result<&'o [u8], ErrorKind> {
+    if width == 0 || stride == 0 {
+        return Err(ErrorKind::BadConfig);
+    }
+    let w = usize::from(width);
+    let s = usize::from(stride);
+    let mut written = 0usize;
+    for r in 0..usize::from(row_count) {
+        let start = (usize::from(first_row) + r)
+            .checked_mul(s)
+            .and_then(|v| v.checked_mul(w))
+            .ok_or(ErrorKind::RowOutOfRange)?;
+        let row = start
+            .checked_add(w)
+            .and_then(|end| depth.get(start..end))
+            .ok_or(ErrorKind::RowOutOfRange)?;
+        for &value in row.iter().step_by(s) {
+            let dest = out
+                .get_mut(written..written.saturating_add(2))
+                .ok_or(ErrorKind::Oversized)?;
+            dest.copy_from_slice(&value.to_le_bytes());
+            written += 2;
+        }
+    }
+    out.get(..written).ok_or(ErrorKind::Internal)
+}

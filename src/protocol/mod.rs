@@ -1,0 +1,101 @@
+//! The wire protocol between a host and a device: messages and framing.
+//!
+//! # Layers
+//!
+//! One *frame* on the byte stream (UART, USB CDC-ACM, TCP to an emulator) is
+//!
+//! ```text
+//! COBS( postcard(message) ++ crc32_le(postcard(message)) ) ++ 0x00
+//! ```
+//!
+//! - `message` is a [`HostFrame`] (host to device: a sequence number followed by a
+//!   [`HostMessage`]) or a [`DeviceMessage`] (device to host), encoded with
+//!   `postcard` (varint integers, little-endian `f32`/`f64`, enum variants as a
+//!   varint index, byte slices as a varint length followed by the bytes).
+//! - `crc32_le` is CRC-32/ISO-HDLC (the zlib/Ethernet CRC, [`crc::CRC_32_ISO_HDLC`])
+//!   of the postcard bytes, appended as 4 little-endian bytes (exactly what
+//!   postcard's `use-crc` flavour appends).
+//! - COBS removes every 0x00 from the frame body, so 0x00 only ever delimits frames.
+//!
+//! A frame, delimiter included, is at most [`MAX_FRAME_LEN`] bytes: the device's
+//! receive buffer. An empty frame (two consecutive 0x00) is ignored without a
+//! reply, so a sender may write a lone 0x00 at any time to resynchronise the
+//! receiver after an aborted frame.
+//!
+//! # Conversation rules
+//!
+//! - Every host message travels in a [`HostFrame`] with a `u32` sequence number
+//!   chosen by the host (normally incrementing, wrapping). The device treats it as
+//!   opaque and echoes it back.
+//! - Every host frame gets exactly one *terminal* reply carrying its sequence
+//!   number: [`DeviceMessage::Ack`] (Hello, FrameBegin, DepthRows, FrameEnd,
+//!   Finish, Reset), [`DeviceMessage::Status`] (StatusRequest),
+//!   [`DeviceMessage::ExportEnd`] (ExportRequest), or [`DeviceMessage::Error`]
+//!   (anything refused). Decisions and export records caused by a message are sent
+//!   before its terminal reply, so a host may keep several messages in flight and
+//!   match replies by sequence number.
+//! - A refused message leaves the device's database exactly as it was.
+//! - For a frame that fails CRC, [`DeviceMessage::Error::seq`] carries the sequence
+//!   number *claimed* by the damaged frame (its first varint) when one can be read;
+//!   it is a hint, not a verified value. Framing errors that lose the frame
+//!   boundary (oversized, bad COBS) carry `None`.
+//!
+//! # Depth rows
+//!
+//! The host pre-subsamples depth: with pixel stride `s` it sends the *strided
+//! image* of `width_sent = ceil(width / s)` columns and `height_sent = ceil(height
+//! / s)` rows, where strided pixel `(i, j)` is image pixel `(i * s, j * s)`.
+//! [`HostMessage::DepthRows`] carries `row_count` consecutive strided rows starting
+//! at strided row `first_row`, as little-endian `u16` depth values, row-major,
+//! `row_count * width_sent * 2` bytes. [`depth_rows_per_message`] says how many
+//! strided rows fit one frame; [`pack_rows`] builds the payload from a
+//! full-resolution image.
+
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::indexing_slicing,
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::panic
+    )
+)]
+
+mod framing;
+mod messages;
+
+pub use framing::{
+    encode, export_crc, max_frame_len, pack_rows, strided_len, ExportCrc, Feed, FrameDecoder, Push,
+    WireMessage, CRC, MAX_FRAME_LEN,
+};
+pub use messages::{
+    degradation, Capacity, CapacitySlot, Config, DecisionKind, DepthRows, DeviceMessage, ErrorKind,
+    ExportRecord, HostFrame, HostMessage, Phase, ProtocolError, RecordKind, Status, CAPACITY_SLOTS,
+    DEPTH_ROWS_OVERHEAD, MAX_ROW_VALUES,
+};
+
+/// Version of this wire protocol; a device refuses a [`HostMessage::Hello`] whose
+/// version differs with [`ErrorKind::WrongVersion`]. Bump it on any change of the
+/// encoding of an existing message.
+pub const PROTOCOL_VERSION: u16 = 1;
+
+/// How many strided rows of `width_sent` depth values fit in one
+/// [`HostMessage::DepthRows`] frame of at most [`MAX_FRAME_LEN`] bytes, whatever
+/// the sequence number, frame index and row numbers are (worst-case varints).
+///
+/// Returns 0 when `width_sent` is 0 or when not even one row fits
+/// (`width_sent > MAX_ROW_VALUES`): the host must then use a larger stride.
+pub const fn depth_rows_per_message(width_sent: u16) -> u16 {
+    if width_sent == 0 {
+        return 0;
+    }
+    let rows = MAX_ROW_VALUES / width_sent as usize;
+    if rows > u16::MAX as usize {
+        u16::MAX
+    } else {
+        rows as u16
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,689 @@
+//! Unit tests of messages and framing.
+
+extern crate std;
+
+use super::*;
+use crate::camera::{DepthRange, Intrinsics, Pose};
+use proptest::prelude::*;
+use std::vec;
+use std::vec::Vec;
+
+const N: usize = MAX_FRAME_LEN;
+
+fn config() -> Config {
+    Config {
+        version: PROTOCOL_VERSION,
+        voxel_size: 0.3,
+        mu: 0.3,
+        depth_scale: 5000.0,
+        intrinsics: Intrinsics {
+            width: 640,
+            height: 480,
+            fx: 525.0,
+            fy: 525.0,
+            cx: 319.5,
+            cy: 239.5,
+        },
+        stride: 8,
+        depth_range: DepthRange::default(),
+    }
+}
+
+fn pose() -> Pose {
+    Pose {
+        translation: [1.5, -2.25, 0.125],
+        rotation: [
+            0.0,
+            0.0,
+            core::f32::consts::FRAC_1_SQRT_2,
+            core::f32::consts::FRAC_1_SQRT_2,
+        ],
+    }
+}
+
+/// 8 strided rows of 80 values, with zeros and 0xFF bytes to exercise COBS.
+fn depth_bytes() -> Vec<u8> {
+    (0..8 * 80u32)
+        .flat_map(|i| ((i * 37 % 5000) as u16 * (i % 3) as u16).to_le_bytes())
+        .collect()
+}
+
+fn host_messages(data: &[u8]) -> Vec<HostMessage<'_>> {
+    vec![
+        HostMessage::Hello(config()),
+        HostMessage::FrameBegin {
+            frame: 42,
+            timestamp: 1_305_031_102.25,
+            pose: pose(),
+        },
+        HostMessage::DepthRows(DepthRows {
+            frame: 42,
+            first_row: 8,
+            row_count: 8,
+            data,
+        }),
+        HostMessage::FrameEnd { frame: 42 },
+        HostMessage::Finish,
+        HostMessage::StatusRequest,
+        HostMessage::ExportRequest { from_record: 3 },
+        HostMessage::Reset,
+    ]
+}
+
+fn record(i: u32) -> ExportRecord {
+    ExportRecord {
+        record: i,
+        frame: 10 * i,
+        timestamp: 12.5 + f64::from(i),
+        kind: if i.is_multiple_of(2) {
+            RecordKind::Database { pose: pose() }
+        } else {
+            RecordKind::Label {
+                class: 10 * (i - 1),
+            }
+        },
+    }
+}
+
+fn device_messages() -> Vec<DeviceMessage<'static>> {
+    let mut status = Status {
+        seq: 9,
+        phase: Phase::InFrame,
+        frames_seen: 120,
+        database_size: 17,
+        capacities: [Capacity::default(); CAPACITY_SLOTS],
+        degradation: degradation::WINDOW_FORCED | degradation::SKETCH_ESTIMATES,
+    };
+    if let Some(c) = status.capacity_mut(CapacitySlot::Database) {
+        *c = Capacity {
+            used: 17,
+            limit: 512,
+        };
+    }
+    vec![
+        DeviceMessage::Ack { seq: u32::MAX },
+        DeviceMessage::Error {
+            seq: Some(5),
+            kind: ErrorKind::RowTooLong,
+        },
+        DeviceMessage::Error {
+            seq: None,
+            kind: ErrorKind::Oversized,
+        },
+        DeviceMessage::Decision {
+            frame: 7,
+            kind: DecisionKind::Taken,
+        },
+        DeviceMessage::Decision {
+            frame: 8,
+            kind: DecisionKind::DominatedBy(7),
+        },
+        DeviceMessage::Decision {
+            frame: 9,
+            kind: DecisionKind::Pending,
+        },
+        DeviceMessage::Status(status),
+        DeviceMessage::ExportRecord(record(0)),
+        DeviceMessage::ExportRecord(record(1)),
+        DeviceMessage::ExportEnd {
+            seq: 3,
+            from_record: 0,
+            count: 2,
+            crc32: export_crc(&[record(0), record(1)]),
+        },
+        DeviceMessage::Log("boot ok"),
+    ]
+}
+
+fn encode_vec<T: serde::Serialize>(msg: &T) -> Vec<u8> {
+    let mut buf = vec![0u8; 4 * N];
+    encode(msg, &mut buf).unwrap().to_vec()
+}
+
+fn plain_vec<T: serde::Serialize>(msg: &T) -> Result<Vec<u8>, postcard::Error> {
+    let mut buf = vec![0u8; 4 * N];
+    postcard::to_slice(msg, &mut buf).map(|b| b.to_vec())
+}
+
+fn host_frames(data: &[u8]) -> Vec<HostFrame<'_>> {
+    host_messages(data)
+        .into_iter()
+        .enumerate()
+        .map(|(i, msg)| HostFrame {
+            seq: 1000 + i as u32,
+            msg,
+        })
+        .collect()
+}
+
+/// Host frames decoded and re-encoded (a byte-exact owned form).
+fn run_host(chunks: &[&[u8]]) -> Vec<Result<Vec<u8>, ProtocolError>> {
+    let mut decoder = FrameDecoder::<N>::new();
+    let mut out = Vec::new();
+    for chunk in chunks {
+        let mut rest: &[u8] = chunk;
+        while let Feed::Frame { result, remaining } = decoder.feed::<HostFrame>(rest) {
+            out.push(result.map(|f| encode_vec(&f)));
+            rest = remaining;
+        }
+    }
+    out
+}
+
+/// Test-only COBS encoder of raw payload bytes (plus CRC unless `crc` is false).
+fn raw_frame(payload: &[u8], crc: bool) -> Vec<u8> {
+    let mut data = payload.to_vec();
+    if crc {
+        data.extend_from_slice(&CRC.checksum(payload).to_le_bytes());
+    }
+    let mut out = vec![0u8];
+    let mut code_at = 0;
+    for &b in &data {
+        if b == 0 {
+            out[code_at] = (out.len() - code_at) as u8;
+            code_at = out.len();
+            out.push(0);
+        } else {
+            out.push(b);
+            if out.len() - code_at == 0xFF {
+                out[code_at] = 0xFF;
+                code_at = out.len();
+                out.push(0);
+            }
+        }
+    }
+    out[code_at] = (out.len() - code_at) as u8;
+    out.push(0);
+    out
+}
+
+#[test]
+fn host_messages_round_trip() {
+    let data = depth_bytes();
+    for frame in host_frames(&data) {
+        let bytes = encode_vec(&frame);
+        assert_eq!(bytes.last(), Some(&0));
+        assert!(!bytes[..bytes.len() - 1].contains(&0));
+        assert!(bytes.len() <= MAX_FRAME_LEN, "{frame:?}");
+        let mut decoder = FrameDecoder::<N>::new();
+        match decoder.feed::<HostFrame>(&bytes) {
+            Feed::Frame { result, remaining } => {
+                assert_eq!(result, Ok(frame));
+                assert!(remaining.is_empty());
+            }
+            Feed::NeedMore => panic!("no frame"),
+        }
+    }
+}
+
+#[test]
+fn depth_rows_borrow_the_decoder_buffer() {
+    let data = depth_bytes();
+    let frame = host_frames(&data)[2];
+    let bytes = encode_vec(&frame);
+    let mut decoder = FrameDecoder::<N>::new();
+    let Feed::Frame { result, .. } = decoder.feed::<HostFrame>(&bytes) else {
+        panic!("no frame")
+    };
+    let HostFrame {
+        msg: HostMessage::DepthRows(rows),
+        ..
+    } = result.unwrap()
+    else {
+        panic!("not rows")
+    };
+    assert_eq!(rows.data, &data[..]);
+    assert_eq!(rows.check(80, 60), Ok(()));
+    let decoded: Vec<(u16, Vec<u16>)> = rows
+        .rows(80)
+        .map(|(r, row)| (r, DepthRows::values(row).collect()))
+        .collect();
+    assert_eq!(decoded.len(), 8);
+    assert_eq!(decoded[0].0, 8);
+    assert_eq!(decoded[7].0, 15);
+    assert_eq!(decoded[1].1[3], u16::from_le_bytes([data[166], data[167]]));
+}
+
+#[test]
+fn device_messages_round_trip() {
+    for msg in device_messages() {
+        let bytes = encode_vec(&msg);
+        let mut decoder = FrameDecoder::<N>::new();
+        // Byte by byte, to exercise accumulation.
+        let mut frames = 0;
+        for b in bytes.chunks(1) {
+            if let Feed::Frame { result, remaining } = decoder.feed::<DeviceMessage>(b) {
+                assert_eq!(result, Ok(msg));
+                assert!(remaining.is_empty());
+                frames += 1;
+            }
+        }
+        assert_eq!(frames, 1);
+    }
+}
+
+#[test]
+fn frame_format_is_postcard_crc_cobs() {
+    let frame = HostFrame {
+        seq: 300,
+        msg: HostMessage::ExportRequest { from_record: 5 },
+    };
+    let mut plain = [0u8; 32];
+    let message = postcard::to_slice(&frame, &mut plain).unwrap();
+    assert_eq!(message, &[0xAC, 0x02, 6, 5]);
+    assert_eq!(encode_vec(&frame), raw_frame(message, true));
+    // And the same holds for a message with zeros and long runs.
+    let data = depth_bytes();
+    for frame in host_frames(&data) {
+        let message = plain_vec(&frame).unwrap();
+        assert_eq!(encode_vec(&frame), raw_frame(&message, true));
+    }
+}
+
+#[test]
+fn variant_counts_match_the_enums() {
+    let data = depth_bytes();
+    let last = host_frames(&data).pop().unwrap();
+    let bytes = plain_vec(&last).unwrap();
+    let (_, rest) = postcard::take_from_bytes::<u32>(&bytes).unwrap();
+    assert_eq!(rest[0] as u32 + 1, <HostFrame as WireMessage>::VARIANTS);
+    let last = device_messages().pop().unwrap();
+    let bytes = plain_vec(&last).unwrap();
+    assert_eq!(
+        bytes[0] as u32 + 1,
+        <DeviceMessage as WireMessage>::VARIANTS
+    );
+}
+
+#[test]
+fn corrupting_any_byte_is_an_error_and_the_next_frame_decodes() {
+    let data = depth_bytes();
+    let frames = host_frames(&data);
+    let good = encode_vec(&frames[5]);
+    for victim in [&frames[1], &frames[2], &frames[6]] {
+        let bytes = encode_vec(victim);
+        for pos in 0..bytes.len() - 1 {
+            for flip in [0x01u8, 0x80, 0xFF, 0x5A] {
+                let mut bad = bytes.clone();
+                bad[pos] ^= flip;
+                let got = run_host(&[&bad, &good]);
+                let (last, errors) = got.split_last().unwrap();
+                assert_eq!(last, &Ok(good.clone()), "pos {pos} flip {flip:#x}");
+                if bad[pos] == 0 {
+                    // The frame became two (possibly one empty); each is an error.
+                    assert!(!errors.is_empty() && errors.len() <= 2);
+                } else {
+                    assert_eq!(errors.len(), 1, "pos {pos} flip {flip:#x}");
+                }
+                assert!(errors.iter().all(|e| e.is_err()), "pos {pos} {errors:?}");
+            }
+        }
+    }
+}
+
+#[test]
+fn bad_crc_reports_the_claimed_sequence_number() {
+    let frame = HostFrame {
+        seq: 77,
+        msg: HostMessage::FrameEnd { frame: 123_456 },
+    };
+    let mut bytes = encode_vec(&frame);
+    let n = bytes.len();
+    bytes[n - 3] ^= 0x10; // inside the CRC, not a COBS code byte here
+    let got = run_host(&[&bytes]);
+    assert_eq!(
+        got,
+        vec![Err(ProtocolError {
+            kind: ErrorKind::BadCrc,
+            seq: Some(77)
+        })]
+    );
+}
+
+#[test]
+fn unknown_and_undecodable_messages_are_typed() {
+    // seq 9, variant 8 (one past Reset), valid CRC.
+    let got = run_host(&[&raw_frame(&[9, 8], true)]);
+    assert_eq!(
+        got,
+        vec![Err(ProtocolError {
+            kind: ErrorKind::UnknownMessage,
+            seq: Some(9)
+        })]
+    );
+    // seq 9, FrameEnd without its frame index.
+    let got = run_host(&[&raw_frame(&[9, 3], true)]);
+    assert_eq!(got[0].as_ref().unwrap_err().kind, ErrorKind::Decode);
+    // Trailing bytes after a complete message.
+    let got = run_host(&[&raw_frame(&[9, 5, 0], true)]);
+    assert_eq!(got[0].as_ref().unwrap_err().kind, ErrorKind::Decode);
+    // Too short for a CRC.
+    let got = run_host(&[&raw_frame(&[1, 2], false)]);
+    assert_eq!(got[0].as_ref().unwrap_err().kind, ErrorKind::Truncated);
+    // Invalid COBS: a code byte pointing past the end.
+    let got = run_host(&[&[9, 1, 2, 0]]);
+    assert_eq!(got[0].as_ref().unwrap_err().kind, ErrorKind::BadFraming);
+    // Hello with a wrong version decodes; validation says why.
+    let mut c = config();
+    c.version += 1;
+    assert_eq!(c.validate(), Err(ErrorKind::WrongVersion));
+    assert_eq!(config().validate(), Ok(()));
+    c = config();
+    c.stride = 0;
+    assert_eq!(c.validate(), Err(ErrorKind::BadConfig));
+    c = config();
+    c.stride = 1;
+    c.intrinsics.width = 1280; // a full row no longer fits one frame
+    assert_eq!(c.validate(), Err(ErrorKind::BadConfig));
+}
+
+#[test]
+fn empty_frames_are_skipped() {
+    let good = encode_vec(&HostFrame {
+        seq: 1,
+        msg: HostMessage::Reset,
+    });
+    let got = run_host(&[&[0, 0, 0], &good, &[0], &good]);
+    assert_eq!(got, vec![Ok(good.clone()), Ok(good)]);
+}
+
+#[test]
+fn oversized_frames_are_refused_and_the_decoder_resynchronises() {
+    let good = encode_vec(&HostFrame {
+        seq: 2,
+        msg: HostMessage::StatusRequest,
+    });
+    let long = vec![0x42u8; 3 * N];
+    // In one chunk, in many chunks, and byte by byte.
+    let mut stream = long.clone();
+    stream.push(0);
+    stream.extend_from_slice(&good);
+    for chunk_len in [stream.len(), 100, 1] {
+        let chunks: Vec<&[u8]> = stream.chunks(chunk_len).collect();
+        let got = run_host(&chunks);
+        assert_eq!(
+            got,
+            vec![
+                Err(ProtocolError::new(ErrorKind::Oversized)),
+                Ok(good.clone())
+            ],
+            "chunk {chunk_len}"
+        );
+    }
+    // Exactly N bytes with the delimiter fit; N + 1 do not.
+    let fits = raw_frame(&vec![0x11u8; N - 2 - (N - 2) / 255 - 4], true);
+    assert!(fits.len() <= N);
+    let mut decoder = FrameDecoder::<N>::new();
+    assert!(matches!(decoder.push(&fits), Push::Ready { remaining: [] }));
+    let mut exact = vec![0x01u8; N - 1];
+    exact.push(0);
+    assert!(matches!(
+        FrameDecoder::<N>::new().push(&exact),
+        Push::Ready { .. }
+    ));
+    let mut over = vec![0x01u8; N];
+    over.push(0);
+    assert!(matches!(
+        FrameDecoder::<N>::new().push(&over),
+        Push::Error { .. }
+    ));
+}
+
+#[test]
+fn truncated_frames_are_errors_and_the_next_frame_decodes() {
+    let data = depth_bytes();
+    let frames = host_frames(&data);
+    let full = encode_vec(&frames[2]);
+    let good = encode_vec(&frames[3]);
+    for cut in 1..full.len() - 1 {
+        // Cut, resynchronising delimiter, good frame.
+        let got = run_host(&[&full[..cut], &[0], &good]);
+        assert_eq!(got.len(), 2, "cut {cut}");
+        assert!(got[0].is_err());
+        assert_eq!(got[1], Ok(good.clone()));
+        // Cut directly followed by two good frames: the first merges with the cut.
+        let got = run_host(&[&full[..cut], &good, &good]);
+        assert_eq!(got.len(), 2, "cut {cut}");
+        assert!(got[0].is_err());
+        assert_eq!(got[1], Ok(good.clone()));
+    }
+}
+
+#[test]
+fn splitting_the_stream_anywhere_gives_the_same_frames() {
+    let data = depth_bytes();
+    let mut stream = Vec::new();
+    for frame in host_frames(&data) {
+        stream.extend_from_slice(&encode_vec(&frame));
+    }
+    let whole = run_host(&[&stream]);
+    assert_eq!(whole.len(), 8);
+    assert!(whole.iter().all(|r| r.is_ok()));
+    for cut in 0..=stream.len() {
+        let (a, b) = stream.split_at(cut);
+        assert_eq!(run_host(&[a, b]), whole, "cut {cut}");
+    }
+    let bytes: Vec<&[u8]> = stream.chunks(1).collect();
+    assert_eq!(run_host(&bytes), whole);
+}
+
+#[test]
+fn max_depth_rows_fit_the_receive_buffer() {
+    assert_eq!(MAX_ROW_VALUES, 1007);
+    assert_eq!(depth_rows_per_message(80), 12);
+    assert!(depth_rows_per_message(80) >= 8);
+    assert_eq!(depth_rows_per_message(640), 1);
+    assert_eq!(depth_rows_per_message(1007), 1);
+    assert_eq!(depth_rows_per_message(1008), 0);
+    assert_eq!(depth_rows_per_message(0), 0);
+    assert_eq!(depth_rows_per_message(1), 1007);
+    for width in [1u16, 7, 80, 160, 320, 640, 1007] {
+        let rows = depth_rows_per_message(width);
+        // Worst case: maximal varints and no zero byte anywhere (max COBS overhead).
+        let data = vec![0xFFu8; usize::from(rows) * usize::from(width) * 2];
+        let frame = HostFrame {
+            seq: u32::MAX,
+            msg: HostMessage::DepthRows(DepthRows {
+                frame: u32::MAX,
+                first_row: u16::MAX,
+                row_count: rows.max(0x4000),
+                data: &data,
+            }),
+        };
+        let bytes = encode_vec(&frame);
+        assert!(
+            bytes.len() <= MAX_FRAME_LEN,
+            "width {width}: {}",
+            bytes.len()
+        );
+        let mut decoder = FrameDecoder::<MAX_FRAME_LEN>::new();
+        assert!(matches!(
+            decoder.feed::<HostFrame>(&bytes),
+            Feed::Frame { result: Ok(_), .. }
+        ));
+    }
+    // One more value does not fit.
+    let data = vec![0xFFu8; (MAX_ROW_VALUES + 1) * 2];
+    let frame = HostFrame {
+        seq: u32::MAX,
+        msg: HostMessage::DepthRows(DepthRows {
+            frame: u32::MAX,
+            first_row: u16::MAX,
+            row_count: u16::MAX,
+            data: &data,
+        }),
+    };
+    assert!(encode_vec(&frame).len() > MAX_FRAME_LEN);
+    assert!(max_frame_len(plain_vec(&frame).unwrap().len()) > MAX_FRAME_LEN);
+}
+
+#[test]
+fn encode_into_small_buffers_fails_cleanly() {
+    let data = depth_bytes();
+    for frame in host_frames(&data) {
+        let needed = encode_vec(&frame).len();
+        let message_len = plain_vec(&frame).unwrap().len();
+        assert!(needed <= max_frame_len(message_len));
+        for size in 0..needed {
+            let mut buf = vec![0u8; size];
+            assert_eq!(
+                encode(&frame, &mut buf).unwrap_err().kind,
+                ErrorKind::Oversized,
+                "size {size}"
+            );
+        }
+        let mut buf = vec![0u8; needed];
+        assert_eq!(encode(&frame, &mut buf).unwrap().len(), needed);
+    }
+}
+
+#[test]
+fn depth_rows_checks_and_packing() {
+    // A 10 x 7 image with value 100 * v + u, stride 3: 4 x 3 strided.
+    let (w, h, s) = (10u16, 7u16, 3u16);
+    let image: Vec<u16> = (0..h)
+        .flat_map(|v| (0..w).map(move |u| 100 * v + u))
+        .collect();
+    let (ws, hs) = (strided_len(w, s), strided_len(h, s));
+    assert_eq!((ws, hs), (4, 3));
+    let mut buf = [0u8; 64];
+    let bytes = pack_rows(&image, w, s, 1, 2, &mut buf).unwrap().to_vec();
+    let rows = DepthRows {
+        frame: 0,
+        first_row: 1,
+        row_count: 2,
+        data: &bytes,
+    };
+    assert_eq!(rows.check(ws, hs), Ok(()));
+    let got: Vec<(u16, Vec<u16>)> = rows
+        .rows(ws)
+        .map(|(r, row)| (r, DepthRows::values(row).collect()))
+        .collect();
+    assert_eq!(
+        got,
+        vec![(1, vec![300, 303, 306, 309]), (2, vec![600, 603, 606, 609])]
+    );
+    assert_eq!(
+        pack_rows(&image, w, s, 2, 2, &mut buf),
+        Err(ErrorKind::RowOutOfRange)
+    );
+    assert_eq!(
+        pack_rows(&image, w, s, 0, 3, &mut buf[..23]),
+        Err(ErrorKind::Oversized)
+    );
+    assert_eq!(
+        pack_rows(&image, w, 0, 0, 1, &mut buf),
+        Err(ErrorKind::BadConfig)
+    );
+    let short = DepthRows {
+        data: &bytes[..bytes.len() - 2],
+        ..rows
+    };
+    assert_eq!(short.check(ws, hs), Err(ErrorKind::RowTooShort));
+    let mut long_bytes = bytes.clone();
+    long_bytes.push(1);
+    let long = DepthRows {
+        data: &long_bytes,
+        ..rows
+    };
+    assert_eq!(long.check(ws, hs), Err(ErrorKind::RowTooLong));
+    let beyond = DepthRows {
+        first_row: 2,
+        ..rows
+    };
+    assert_eq!(beyond.check(ws, hs), Err(ErrorKind::RowOutOfRange));
+    assert_eq!(rows.rows(0).count(), 0);
+}
+
+#[test]
+fn export_crc_is_order_sensitive_and_matches_the_encodings() {
+    let records: Vec<ExportRecord> = (0..5).map(record).collect();
+    let mut concatenated = Vec::new();
+    for r in &records {
+        concatenated.extend_from_slice(&plain_vec(r).unwrap());
+    }
+    assert_eq!(export_crc(&records), CRC.checksum(&concatenated));
+    let mut running = ExportCrc::new();
+    for r in &records {
+        running.add(r);
+    }
+    assert_eq!(running.count(), 5);
+    assert_eq!(running.value(), export_crc(&records));
+    let mut swapped = records.clone();
+    swapped.swap(1, 2);
+    assert_ne!(export_crc(&swapped), export_crc(&records));
+    assert_eq!(export_crc(&[]), CRC.checksum(&[]));
+}
+
+#[test]
+fn status_capacity_slots() {
+    let mut status = Status {
+        seq: 0,
+        phase: Phase::Ready,
+        frames_seen: 0,
+        database_size: 0,
+        capacities: [Capacity::default(); CAPACITY_SLOTS],
+        degradation: 0,
+    };
+    for (i, slot) in CapacitySlot::ALL.iter().enumerate() {
+        assert_eq!(*slot as usize, i);
+        status.capacity_mut(*slot).unwrap().limit = i as u32 + 1;
+    }
+    assert_eq!(status.capacity(CapacitySlot::Window).limit, 6);
+    assert_eq!(CapacitySlot::WorldVoxels.name(), "world_voxels");
+    let e = ProtocolError {
+        kind: ErrorKind::BadCrc,
+        seq: Some(4),
+    };
+    assert_eq!(
+        e.reply(),
+        DeviceMessage::Error {
+            seq: Some(4),
+            kind: ErrorKind::BadCrc
+        }
+    );
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(512))]
+
+    #[test]
+    fn arbitrary_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..5000),
+                                   chunk in 1usize..300) {
+        let mut decoder = FrameDecoder::<256>::new();
+        for part in bytes.chunks(chunk) {
+            let mut rest = part;
+            while let Feed::Frame { remaining, .. } = decoder.feed::<HostFrame>(rest) {
+                rest = remaining;
+            }
+            let mut rest = part;
+            while let Feed::Frame { remaining, .. } = decoder.feed::<DeviceMessage>(rest) {
+                rest = remaining;
+            }
+        }
+    }
+
+    #[test]
+    fn garbage_then_resync_then_good_frame(garbage in proptest::collection::vec(any::<u8>(), 0..3000)) {
+        let good = encode_vec(&HostFrame { seq: 5, msg: HostMessage::StatusRequest });
+        let got = run_host(&[&garbage, &[0], &good]);
+        prop_assert_eq!(got.last(), Some(&Ok(good.clone())));
+    }
+
+    #[test]
+    fn random_depth_rows_round_trip(data in proptest::collection::vec(any::<u8>(), 0..=MAX_ROW_VALUES),
+                                    seq in any::<u32>(), frame in any::<u32>()) {
+        let data: Vec<u8> = data.iter().flat_map(|b| [*b, b.wrapping_mul(7)]).collect();
+        let msg = HostFrame { seq, msg: HostMessage::DepthRows(DepthRows { frame, first_row: 3, row_count: 1, data: &data }) };
+        let bytes = encode_vec(&msg);
+        prop_assert!(bytes.len() <= MAX_FRAME_LEN);
+        let mut decoder = FrameDecoder::<N>::new();
+        match decoder.feed::<HostFrame>(&bytes) {
+            Feed::Frame { result, remaining } => {
+                prop_assert_eq!(result, Ok(msg));
+                prop_assert!(remaining.is_empty());
+            }
+            Feed::NeedMore => prop_assert!(false),
+        }
+    }
+}

@@ -1,0 +1,578 @@
+//! The online dominating-set selector: frames arrive once, in order; the
+//! selector keeps the database frames and a window of recent undecided frames,
+//! and decides each frame when it leaves the window.
+//!
+//! Rule: a frame is covered as soon as some database frame overlaps it
+//! (IoU > mu). When the oldest window frame must leave uncovered, the selector
+//! takes the window frame that overlaps it and covers the most still-uncovered
+//! window frames (ties: the latest frame, which reaches furthest into the
+//! future). With a window of 1 this is exactly the paper's `in-order` rule; a
+//! longer window lets a later, better-placed frame cover a run of frames.
+//!
+//! Overlaps are exact (merge of stored keys) while keys fit the key pool;
+//! frames stored without keys are compared by bottom-k sketch, and then count as
+//! overlapping only above `mu + sketch_margin`, so that sketch noise does not
+//! claim coverage the exact sets would deny. Every degradation is counted in
+//! [`Status`].
+
+use crate::camera::Pose;
+use crate::frame::{FrameError, FrameIngest, FrameMeta, ScanConfig};
+use crate::sketch::Sketch;
+use crate::store::{Aabb, KeyPool, KeyRun};
+use crate::voxel::iou;
+
+/// Tuning of the selection rule.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct SelectorConfig {
+    /// Overlap threshold: frames overlap when IoU > mu.
+    pub mu: f32,
+    /// Frames held undecided (1 = the paper's in-order rule); at most the
+    /// selector's window capacity.
+    pub window: u16,
+    /// Extra IoU a sketch estimate must show to count as an overlap.
+    pub sketch_margin: f32,
+}
+
+impl Default for SelectorConfig {
+    fn default() -> Self {
+        SelectorConfig {
+            mu: 0.3,
+            window: u16::MAX,
+            sketch_margin: 0.05,
+        }
+    }
+}
+
+/// The fate of a frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum Decision {
+    /// In the database; its own class.
+    Taken,
+    /// Overlaps database frame `k` (a frame index), which is its class.
+    DominatedBy(u32),
+    /// Still in the window; its final decision comes later.
+    Pending,
+    /// Degraded: no database frame overlaps it and the database is full; the
+    /// nearest database frame (highest IoU), if any, is its class.
+    Uncovered(Option<u32>),
+}
+
+/// A decision about one frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct FrameDecision {
+    /// Frame index.
+    pub index: u32,
+    /// What was decided.
+    pub decision: Decision,
+}
+
+/// One database entry as exported.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct DbRecord {
+    /// Frame index.
+    pub index: u32,
+    /// Timestamp, seconds.
+    pub timestamp: f64,
+    /// Camera-to-world pose.
+    pub pose: Pose,
+    /// Voxels in the frame's set.
+    pub voxels: u32,
+}
+
+/// Degradation flags in [`Status::flags`].
+pub mod flags {
+    /// Some frame had more voxels than the frame set holds; its set was truncated.
+    pub const FRAME_VOXELS_FULL: u32 = 1 << 0;
+    /// Some frame's keys did not fit the key pool; it is compared by sketch.
+    pub const POOL_FULL: u32 = 1 << 1;
+    /// Some frame could not be covered because the database is full.
+    pub const DATABASE_FULL: u32 = 1 << 2;
+    /// Some points were too far from the grid origin for a voxel key.
+    pub const OUT_OF_RANGE: u32 = 1 << 3;
+}
+
+/// One capacity: what is used now, the most ever used, and the limit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+pub struct Usage {
+    /// In use now.
+    pub used: u32,
+    /// High-water mark since the last reset.
+    pub peak: u32,
+    /// Capacity.
+    pub limit: u32,
+}
+
+impl Usage {
+    fn set(&mut self, used: usize) {
+        self.used = used as u32;
+        self.peak = self.peak.max(self.used);
+    }
+}
+
+/// Counters and capacities, for the status message and the host report.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+pub struct Status {
+    /// Frames ended so far.
+    pub frames_seen: u32,
+    /// Frames with a final decision.
+    pub frames_decided: u32,
+    /// Database entries.
+    pub database: Usage,
+    /// Key pool words.
+    pub pool: Usage,
+    /// Window frames.
+    pub window: Usage,
+    /// Distinct voxels in one frame.
+    pub frame_voxels: Usage,
+    /// Frames stored without exact keys (compared by sketch).
+    pub sketched_frames: u32,
+    /// Frames whose voxel set was truncated.
+    pub truncated_frames: u32,
+    /// Frames decided [`Decision::Uncovered`].
+    pub uncovered_frames: u32,
+    /// Points dropped for an out-of-range voxel key.
+    pub out_of_range_points: u32,
+    /// [`flags`] of every degradation seen.
+    pub flags: u32,
+}
+
+/// A frame the selector keeps: its identity and what overlap tests need.
+#[derive(Debug, Clone)]
+struct Stored<const K: usize> {
+    meta: FrameMeta,
+    len: u32,
+    aabb: Option<Aabb>,
+    keys: Option<KeyRun>,
+    sketch: Sketch<K>,
+}
+
+/// Best (IoU, frame index) so far; ties go to the lowest frame index.
+type Best = Option<(f32, u32)>;
+
+fn better(best: Best, iou: f32, index: u32) -> Best {
+    match best {
+        Some((b, i)) if b > iou || (b == iou && i < index) => best,
+        _ => Some((iou, index)),
+    }
+}
+
+/// A window frame and its relations to the other window frames.
+#[derive(Debug, Clone)]
+struct Slot<const W: usize, const K: usize> {
+    frame: Stored<K>,
+    taken: bool,
+    /// Best overlapping database frame: set means covered.
+    cover: Best,
+    /// Best database frame, overlapping or not (for degraded labels).
+    nearest: Best,
+    /// Bit t: overlaps the frame in ring slot t.
+    adjacent: u64,
+    /// IoU with the frame in ring slot t (valid while both are live).
+    iou: [f32; W],
+}
+
+/// The online selector with its capacities: `FV` slots of the frame voxel set,
+/// `POOL` key words, `DB` database frames, `W` window frames (at most 64),
+/// sketches of `K` hashes.
+#[derive(Debug)]
+pub struct Selector<
+    const FV: usize,
+    const POOL: usize,
+    const DB: usize,
+    const W: usize,
+    const K: usize,
+> {
+    scan: Option<ScanConfig>,
+    cfg: SelectorConfig,
+    ingest: FrameIngest<FV>,
+    pool: KeyPool<POOL>,
+    db: heapless::Vec<Stored<K>, DB>,
+    ring: [Option<Slot<W, K>>; W],
+    head: usize,
+    len: usize,
+    status: Status,
+}
+
+/// Why the selector refused a step; nothing stored changed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum SelectError {
+    /// No scan configuration yet.
+    NotConfigured,
+    /// Configuration refused while a frame is in progress.
+    FrameInProgress,
+    /// The scan or selector configuration is invalid.
+    BadConfig,
+    /// A frame step was refused.
+    Frame(FrameError),
+}
+
+impl From<FrameError> for SelectError {
+    fn from(e: FrameError) -> Self {
+        SelectError::Frame(e)
+    }
+}
+
+impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const K: usize> Default
+    for Selector<FV, POOL, DB, W, K>
+{
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const K: usize>
+    Selector<FV, POOL, DB, W, K>
+{
+    const WINDOW_FITS_MASK: () = assert!(W >= 1 && W <= 64, "window capacity must be 1..=64");
+
+    /// An unconfigured selector.
+    pub fn new() -> Self {
+        #[allow(clippy::let_unit_value)]
+        let () = Self::WINDOW_FITS_MASK;
+        let mut s = Selector {
+            scan: None,
+            cfg: SelectorConfig::default(),
+            ingest: FrameIngest::new(),
+            pool: KeyPool::new(),
+            db: heapless::Vec::new(),
+            ring: [const { None }; W],
+            head: 0,
+            len: 0,
+            status: Status::default(),
+        };
+        s.reset();
+        s
+    }
+
+    /// Forgets everything: configuration, frames, database, counters.
+    pub fn reset(&mut self) {
+        self.scan = None;
+        self.ingest.abort();
+        self.pool.clear();
+        self.db.clear();
+        self.ring.iter_mut().for_each(|s| *s = None);
+        self.head = 0;
+        self.len = 0;
+        self.status = Status::default();
+        self.status.database.limit = DB as u32;
+        self.status.pool.limit = POOL as u32;
+        self.status.window.limit = W as u32;
+        self.status.frame_voxels.limit = FrameIngest::<FV>::VOXEL_LIMIT as u32;
+    }
+
+    /// Sets the scan and selection parameters. Only between frames; a
+    /// selector that already holds frames keeps them (the new parameters apply
+    /// to the frames that follow), so reconfigure after [`Self::reset`] to
+    /// start a new scan.
+    pub fn configure(&mut self, scan: ScanConfig, cfg: SelectorConfig) -> Result<(), SelectError> {
+        if self.ingest.current().is_some() {
+            return Err(SelectError::FrameInProgress);
+        }
+        scan.validate().map_err(|_| SelectError::BadConfig)?;
+        let margin_ok = cfg.sketch_margin.is_finite() && cfg.sketch_margin >= 0.0;
+        if !(cfg.mu >= 0.0 && cfg.mu < 1.0) || !margin_ok || cfg.window == 0 {
+            return Err(SelectError::BadConfig);
+        }
+        let cfg = SelectorConfig {
+            window: cfg.window.min(W as u16),
+            ..cfg
+        };
+        self.scan = Some(scan);
+        self.cfg = cfg;
+        Ok(())
+    }
+
+    /// The scan configuration, once configured.
+    pub fn scan_config(&self) -> Option<&ScanConfig> {
+        self.scan.as_ref()
+    }
+
+    /// The selection parameters in force (window clamped to capacity).
+    pub fn config(&self) -> &SelectorConfig {
+        &self.cfg
+    }
+
+    /// Counters and capacities.
+    pub fn status(&self) -> &Status {
+        &self.status
+    }
+
+    /// Number of database entries.
+    pub fn database_len(&self) -> usize {
+        self.db.len()
+    }
+
+    /// Database entry `i` in the order frames were taken.
+    pub fn database_record(&self, i: usize) -> Option<DbRecord> {
+        self.db.get(i).map(|s| DbRecord {
+            index: s.meta.index,
+            timestamp: s.meta.timestamp,
+            pose: s.meta.pose,
+            voxels: s.len,
+        })
+    }
+
+    /// The frame in progress, if any.
+    pub fn current_frame(&self) -> Option<&FrameMeta> {
+        self.ingest.current()
+    }
+
+    /// Sampled columns per row the next chunk must have.
+    pub fn samples_per_row(&self) -> Option<u16> {
+        self.ingest.samples_per_row()
+    }
+
+    /// Starts frame `meta`; its index must be the number of frames seen so far.
+    pub fn begin_frame(&mut self, meta: FrameMeta) -> Result<(), SelectError> {
+        let scan = self.scan.as_ref().ok_or(SelectError::NotConfigured)?;
+        self.ingest.begin(meta, self.status.frames_seen, scan)?;
+        Ok(())
+    }
+
+    /// Feeds whole sampled rows of the frame in progress (see [`FrameIngest::push_rows`]).
+    pub fn push_rows(&mut self, first_row: u16, data: &[u16]) -> Result<(), SelectError> {
+        self.ingest.push_rows(first_row, data)?;
+        Ok(())
+    }
+
+    /// Abandons the frame in progress, if any; nothing else changes.
+    pub fn abort_frame(&mut self) {
+        self.ingest.abort();
+    }
+
+    /// Ends the frame in progress and runs the selection step; `emit` receives
+    /// the final decisions of frames leaving the window, in frame order, then
+    /// `Pending` for this frame if it stays in the window.
+    pub fn end_frame(&mut self, mut emit: impl FnMut(FrameDecision)) -> Result<(), SelectError> {
+        let (meta, keys, stats) = self.ingest.end()?;
+        let n = keys.len() as u32;
+        let aabb = Aabb::of_sorted(keys);
+        let sketch = Sketch::<K>::from_keys(keys.iter().copied());
+        let (mu, margin) = (self.cfg.mu, self.cfg.sketch_margin);
+        let pool = &self.pool;
+        // Overlap of the new frame (exact keys in hand) with a stored frame.
+        let overlap = |other: &Stored<K>| -> (f32, bool) {
+            match (&aabb, &other.aabb) {
+                (Some(a), Some(b)) if a.touches(b) => {}
+                _ => return (0.0, false),
+            }
+            match &other.keys {
+                Some(run) => {
+                    let x = iou(n, other.len, pool.intersect(run, keys));
+                    (x, x > mu)
+                }
+                None => {
+                    let x = sketch.jaccard(&other.sketch);
+                    (x, x > mu + margin)
+                }
+            }
+        };
+        let (mut cover, mut nearest): (Best, Best) = (None, None);
+        for other in self.db.iter() {
+            let (x, overlaps) = overlap(other);
+            nearest = better(nearest, x, other.meta.index);
+            if overlaps {
+                cover = better(cover, x, other.meta.index);
+            }
+        }
+        let s = (self.head + self.len) % W;
+        let mut slot = Slot {
+            frame: Stored {
+                meta,
+                len: n,
+                aabb,
+                keys: None,
+                sketch,
+            },
+            taken: false,
+            cover,
+            nearest,
+            adjacent: 0,
+            iou: [0.0; W],
+        };
+        for k in 0..self.len {
+            let t = (self.head + k) % W;
+            if let Some(other) = self.ring[t].as_mut() {
+                if other.taken {
+                    continue;
+                }
+                let (x, overlaps) = overlap(&other.frame);
+                slot.iou[t] = x;
+                other.iou[s] = x;
+                if overlaps {
+                    slot.adjacent |= 1 << t;
+                    other.adjacent |= 1 << s;
+                } else {
+                    other.adjacent &= !(1 << s);
+                }
+            }
+        }
+        if let Some(a) = &aabb {
+            slot.frame.keys = self.pool.store(keys, a);
+        }
+        // Bookkeeping of this frame's degradations.
+        let st = &mut self.status;
+        if n > 0 && slot.frame.keys.is_none() {
+            st.sketched_frames += 1;
+            st.flags |= flags::POOL_FULL;
+        }
+        if stats.dropped > 0 {
+            st.truncated_frames += 1;
+            st.flags |= flags::FRAME_VOXELS_FULL;
+        }
+        if stats.out_of_range > 0 {
+            st.out_of_range_points = st.out_of_range_points.saturating_add(stats.out_of_range);
+            st.flags |= flags::OUT_OF_RANGE;
+        }
+        st.frame_voxels.set(n as usize);
+        st.frames_seen += 1;
+        self.ring[s] = Some(slot);
+        self.len += 1;
+        self.note_usage();
+        while self.len >= self.cfg.window as usize {
+            self.decide_oldest(&mut emit);
+        }
+        if self.len > 0 && self.ring[s].is_some() {
+            emit(FrameDecision {
+                index: meta.index,
+                decision: Decision::Pending,
+            });
+        }
+        Ok(())
+    }
+
+    /// Decides every frame still in the window (end of scan). The selector
+    /// stays usable: later frames start with an empty window.
+    pub fn finish(&mut self, mut emit: impl FnMut(FrameDecision)) -> Result<(), SelectError> {
+        if self.ingest.current().is_some() {
+            return Err(SelectError::FrameInProgress);
+        }
+        while self.len > 0 {
+            self.decide_oldest(&mut emit);
+        }
+        Ok(())
+    }
+
+    fn note_usage(&mut self) {
+        self.status.database.set(self.db.len());
+        self.status.pool.set(self.pool.used());
+        self.status.window.set(self.len);
+    }
+
+    /// Live, not-taken ring slots as a bit mask, and those among them not yet covered.
+    fn masks(&self) -> (u64, u64) {
+        let (mut open, mut uncovered) = (0u64, 0u64);
+        for k in 0..self.len {
+            let t = (self.head + k) % W;
+            if let Some(slot) = &self.ring[t] {
+                if !slot.taken {
+                    open |= 1 << t;
+                    if slot.cover.is_none() {
+                        uncovered |= 1 << t;
+                    }
+                }
+            }
+        }
+        (open, uncovered)
+    }
+
+    /// Final decision for the oldest window frame, taking a frame if needed.
+    fn decide_oldest(&mut self, emit: &mut impl FnMut(FrameDecision)) {
+        let o = self.head;
+        let Some(oldest) = self.ring[o].as_ref() else {
+            // Unreachable by construction; keep the window consistent anyway.
+            self.head = (self.head + 1) % W;
+            self.len = self.len.saturating_sub(1);
+            return;
+        };
+        let index = oldest.frame.meta.index;
+        let decision = if oldest.taken {
+            Decision::Taken
+        } else if let Some((_, k)) = oldest.cover {
+            Decision::DominatedBy(k)
+        } else {
+            let (open, uncovered) = self.masks();
+            let candidates = (oldest.adjacent | (1 << o)) & open;
+            let mut best: Option<(u32, u32, usize)> = None; // (score, frame index, slot)
+            for t in 0..W {
+                if candidates & (1 << t) == 0 {
+                    continue;
+                }
+                if let Some(c) = &self.ring[t] {
+                    let score = ((c.adjacent | (1 << t)) & uncovered).count_ones();
+                    let idx = c.frame.meta.index;
+                    if best.is_none_or(|(bs, bi, _)| score > bs || (score == bs && idx > bi)) {
+                        best = Some((score, idx, t));
+                    }
+                }
+            }
+            match best {
+                Some((_, idx, t)) if !self.db.is_full() => {
+                    self.take(t);
+                    if t == o {
+                        Decision::Taken
+                    } else {
+                        Decision::DominatedBy(idx)
+                    }
+                }
+                _ => {
+                    self.status.uncovered_frames += 1;
+                    self.status.flags |= flags::DATABASE_FULL;
+                    Decision::Uncovered(oldest.nearest.map(|(_, k)| k))
+                }
+            }
+        };
+        emit(FrameDecision { index, decision });
+        self.status.frames_decided += 1;
+        if let Some(gone) = self.ring[o].take() {
+            if let (false, Some(run)) = (gone.taken, gone.frame.keys) {
+                self.release(&run);
+            }
+        }
+        self.head = (self.head + 1) % W;
+        self.len -= 1;
+        self.note_usage();
+    }
+
+    /// Moves window slot `t` into the database and updates every window
+    /// frame's cover and nearest database frame.
+    fn take(&mut self, t: usize) {
+        let Some(slot) = self.ring[t].as_mut() else {
+            return;
+        };
+        if self.db.push(slot.frame.clone()).is_err() {
+            return;
+        }
+        slot.taken = true;
+        let idx = slot.frame.meta.index;
+        for k in 0..self.len {
+            let j = (self.head + k) % W;
+            if j == t {
+                continue;
+            }
+            if let Some(other) = self.ring[j].as_mut() {
+                if other.taken {
+                    continue;
+                }
+                let x = other.iou[t];
+                other.nearest = better(other.nearest, x, idx);
+                if other.adjacent & (1 << t) != 0 {
+                    other.cover = better(other.cover, x, idx);
+                }
+            }
+        }
+    }
+
+    /// Frees a run of the key pool and shifts every run stored after it.
+    fn release(&mut self, run: &KeyRun) {
+        self.pool.free(run);
+        let runs = self
+            .db
+            .iter_mut()
+            .map(|s| &mut s.keys)
+            .chain(self.ring.iter_mut().flatten().map(|s| &mut s.frame.keys));
+        for r in runs.flatten() {
+            r.after_free(run);
+        }
+    }
+}
