@@ -280,7 +280,7 @@ impl FrameProjector {
 
     /// Whether row `v` is sampled at this stride.
     pub fn samples_row(&self, v: u16) -> bool {
-        v % self.stride == 0
+        v.is_multiple_of(self.stride)
     }
 
     /// Back-projects the sampled pixels of a full-resolution image row `v`

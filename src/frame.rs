@@ -181,6 +181,7 @@ impl<const FV: usize> FrameIngest<FV> {
     /// Voxelizes `data`: whole sampled rows starting at sampled row `first_row`.
     /// Refused (nothing changes) unless `first_row` is the next row and `data`
     /// holds whole rows within the image.
+    #[inline(never)]
     pub fn push_rows(&mut self, first_row: u16, data: &[u16]) -> Result<(), FrameError> {
         let (_, proj) = self.current.as_ref().ok_or(FrameError::NoFrame)?;
         if first_row != self.next_row {
@@ -189,7 +190,7 @@ impl<const FV: usize> FrameIngest<FV> {
             });
         }
         let width = proj.samples_per_row() as usize;
-        if data.len() % width != 0 {
+        if !data.len().is_multiple_of(width) {
             return Err(FrameError::BadRowChunk);
         }
         let rows = data.len() / width;

@@ -10,6 +10,7 @@
 #![deny(missing_docs)]
 
 pub mod camera;
+pub mod device;
 pub mod frame;
 pub mod profile;
 pub mod protocol;

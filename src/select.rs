@@ -103,6 +103,12 @@ pub struct Usage {
 }
 
 impl Usage {
+    const ZERO: Usage = Usage {
+        used: 0,
+        peak: 0,
+        limit: 0,
+    };
+
     fn set(&mut self, used: usize) {
         self.used = used as u32;
         self.peak = self.peak.max(self.used);
@@ -132,8 +138,28 @@ pub struct Status {
     pub uncovered_frames: u32,
     /// Points dropped for an out-of-range voxel key.
     pub out_of_range_points: u32,
+    /// Sampled pixels with a valid depth, over all frames.
+    pub valid_pixels: u64,
     /// [`flags`] of every degradation seen.
     pub flags: u32,
+}
+
+impl Status {
+    /// Nothing seen, nothing used (limits are filled in by [`Selector::status`]).
+    pub const ZERO: Status = Status {
+        frames_seen: 0,
+        frames_decided: 0,
+        database: Usage::ZERO,
+        pool: Usage::ZERO,
+        window: Usage::ZERO,
+        frame_voxels: Usage::ZERO,
+        sketched_frames: 0,
+        truncated_frames: 0,
+        uncovered_frames: 0,
+        out_of_range_points: 0,
+        valid_pixels: 0,
+        flags: 0,
+    };
 }
 
 /// A frame the selector keeps: its identity and what overlap tests need.
@@ -182,8 +208,8 @@ pub struct Selector<
     const W: usize,
     const K: usize,
 > {
-    scan: Option<ScanConfig>,
-    cfg: SelectorConfig,
+    /// `None` until configured; an all-zero `None` keeps a fresh selector in `.bss`.
+    config: Option<(ScanConfig, SelectorConfig)>,
     ingest: FrameIngest<FV>,
     pool: KeyPool<POOL>,
     db: heapless::Vec<Stored<K>, DB>,
@@ -212,6 +238,82 @@ impl From<FrameError> for SelectError {
     }
 }
 
+/// Where the window sits in the ring, and the slot the new frame will use.
+#[derive(Debug, Clone, Copy)]
+struct WindowView {
+    head: usize,
+    len: usize,
+    slot: usize,
+}
+
+/// Measures the overlap of a new frame (exact `keys` in hand) with every
+/// database frame and every open window frame, records the window relations
+/// in both directions, and returns the new frame's window slot. Kept out of
+/// line so instruction counts split voxelize / overlap / select.
+#[inline(never)]
+fn overlaps<const POOL: usize, const W: usize, const K: usize>(
+    cfg: &SelectorConfig,
+    pool: &KeyPool<POOL>,
+    db: &[Stored<K>],
+    ring: &mut [Option<Slot<W, K>>; W],
+    window: WindowView,
+    new: Stored<K>,
+    keys: &[u64],
+) -> Slot<W, K> {
+    let (mu, margin) = (cfg.mu, cfg.sketch_margin);
+    let overlap = |other: &Stored<K>| -> (f32, bool) {
+        match (&new.aabb, &other.aabb) {
+            (Some(a), Some(b)) if a.touches(b) => {}
+            _ => return (0.0, false),
+        }
+        match &other.keys {
+            Some(run) => {
+                let x = iou(new.len, other.len, pool.intersect(run, keys));
+                (x, x > mu)
+            }
+            None => {
+                let x = new.sketch.jaccard(&other.sketch);
+                (x, x > mu + margin)
+            }
+        }
+    };
+    let (mut cover, mut nearest): (Best, Best) = (None, None);
+    for other in db {
+        let (x, overlaps) = overlap(other);
+        nearest = better(nearest, x, other.meta.index);
+        if overlaps {
+            cover = better(cover, x, other.meta.index);
+        }
+    }
+    let s = window.slot;
+    let mut slot = Slot {
+        frame: new.clone(),
+        taken: false,
+        cover,
+        nearest,
+        adjacent: 0,
+        iou: [0.0; W],
+    };
+    for k in 0..window.len {
+        let t = (window.head + k) % W;
+        if let Some(other) = ring[t].as_mut() {
+            if other.taken {
+                continue;
+            }
+            let (x, overlaps) = overlap(&other.frame);
+            slot.iou[t] = x;
+            other.iou[s] = x;
+            if overlaps {
+                slot.adjacent |= 1 << t;
+                other.adjacent |= 1 << s;
+            } else {
+                other.adjacent &= !(1 << s);
+            }
+        }
+    }
+    slot
+}
+
 impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const K: usize> Default
     for Selector<FV, POOL, DB, W, K>
 {
@@ -226,27 +328,24 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
     const WINDOW_FITS_MASK: () = assert!(W >= 1 && W <= 64, "window capacity must be 1..=64");
 
     /// An unconfigured selector.
-    pub fn new() -> Self {
+    pub const fn new() -> Self {
         #[allow(clippy::let_unit_value)]
         let () = Self::WINDOW_FITS_MASK;
-        let mut s = Selector {
-            scan: None,
-            cfg: SelectorConfig::default(),
+        Selector {
+            config: None,
             ingest: FrameIngest::new(),
             pool: KeyPool::new(),
             db: heapless::Vec::new(),
             ring: [const { None }; W],
             head: 0,
             len: 0,
-            status: Status::default(),
-        };
-        s.reset();
-        s
+            status: Status::ZERO,
+        }
     }
 
     /// Forgets everything: configuration, frames, database, counters.
     pub fn reset(&mut self) {
-        self.scan = None;
+        self.config = None;
         self.ingest.abort();
         self.pool.clear();
         self.db.clear();
@@ -254,10 +353,6 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
         self.head = 0;
         self.len = 0;
         self.status = Status::default();
-        self.status.database.limit = DB as u32;
-        self.status.pool.limit = POOL as u32;
-        self.status.window.limit = W as u32;
-        self.status.frame_voxels.limit = FrameIngest::<FV>::VOXEL_LIMIT as u32;
     }
 
     /// Sets the scan and selection parameters. Only between frames; a
@@ -270,31 +365,37 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
         }
         scan.validate().map_err(|_| SelectError::BadConfig)?;
         let margin_ok = cfg.sketch_margin.is_finite() && cfg.sketch_margin >= 0.0;
-        if !(cfg.mu >= 0.0 && cfg.mu < 1.0) || !margin_ok || cfg.window == 0 {
+        if !((0.0..1.0).contains(&cfg.mu) && margin_ok) || cfg.window == 0 {
             return Err(SelectError::BadConfig);
         }
         let cfg = SelectorConfig {
             window: cfg.window.min(W as u16),
             ..cfg
         };
-        self.scan = Some(scan);
-        self.cfg = cfg;
+        self.config = Some((scan, cfg));
         Ok(())
     }
 
     /// The scan configuration, once configured.
     pub fn scan_config(&self) -> Option<&ScanConfig> {
-        self.scan.as_ref()
+        self.config.as_ref().map(|(scan, _)| scan)
     }
 
     /// The selection parameters in force (window clamped to capacity).
-    pub fn config(&self) -> &SelectorConfig {
-        &self.cfg
+    pub fn config(&self) -> Option<&SelectorConfig> {
+        self.config.as_ref().map(|(_, cfg)| cfg)
     }
 
     /// Counters and capacities.
-    pub fn status(&self) -> &Status {
-        &self.status
+    pub fn status(&self) -> Status {
+        // Limits are constants, filled in here so that the state itself
+        // starts all zero (see `new`).
+        let mut st = self.status;
+        st.database.limit = DB as u32;
+        st.pool.limit = POOL as u32;
+        st.window.limit = W as u32;
+        st.frame_voxels.limit = FrameIngest::<FV>::VOXEL_LIMIT as u32;
+        st
     }
 
     /// Number of database entries.
@@ -324,7 +425,7 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
 
     /// Starts frame `meta`; its index must be the number of frames seen so far.
     pub fn begin_frame(&mut self, meta: FrameMeta) -> Result<(), SelectError> {
-        let scan = self.scan.as_ref().ok_or(SelectError::NotConfigured)?;
+        let (scan, _) = self.config.as_ref().ok_or(SelectError::NotConfigured)?;
         self.ingest.begin(meta, self.status.frames_seen, scan)?;
         Ok(())
     }
@@ -348,65 +449,24 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
         let n = keys.len() as u32;
         let aabb = Aabb::of_sorted(keys);
         let sketch = Sketch::<K>::from_keys(keys.iter().copied());
-        let (mu, margin) = (self.cfg.mu, self.cfg.sketch_margin);
-        let pool = &self.pool;
-        // Overlap of the new frame (exact keys in hand) with a stored frame.
-        let overlap = |other: &Stored<K>| -> (f32, bool) {
-            match (&aabb, &other.aabb) {
-                (Some(a), Some(b)) if a.touches(b) => {}
-                _ => return (0.0, false),
-            }
-            match &other.keys {
-                Some(run) => {
-                    let x = iou(n, other.len, pool.intersect(run, keys));
-                    (x, x > mu)
-                }
-                None => {
-                    let x = sketch.jaccard(&other.sketch);
-                    (x, x > mu + margin)
-                }
-            }
-        };
-        let (mut cover, mut nearest): (Best, Best) = (None, None);
-        for other in self.db.iter() {
-            let (x, overlaps) = overlap(other);
-            nearest = better(nearest, x, other.meta.index);
-            if overlaps {
-                cover = better(cover, x, other.meta.index);
-            }
-        }
         let s = (self.head + self.len) % W;
-        let mut slot = Slot {
-            frame: Stored {
-                meta,
-                len: n,
-                aabb,
-                keys: None,
-                sketch,
-            },
-            taken: false,
-            cover,
-            nearest,
-            adjacent: 0,
-            iou: [0.0; W],
+        let new = Stored {
+            meta,
+            len: n,
+            aabb,
+            keys: None,
+            sketch,
         };
-        for k in 0..self.len {
-            let t = (self.head + k) % W;
-            if let Some(other) = self.ring[t].as_mut() {
-                if other.taken {
-                    continue;
-                }
-                let (x, overlaps) = overlap(&other.frame);
-                slot.iou[t] = x;
-                other.iou[s] = x;
-                if overlaps {
-                    slot.adjacent |= 1 << t;
-                    other.adjacent |= 1 << s;
-                } else {
-                    other.adjacent &= !(1 << s);
-                }
-            }
-        }
+        let window = WindowView {
+            head: self.head,
+            len: self.len,
+            slot: s,
+        };
+        let cfg = match &self.config {
+            Some((_, cfg)) => *cfg,
+            None => return Err(SelectError::NotConfigured),
+        };
+        let mut slot = overlaps(&cfg, &self.pool, &self.db, &mut self.ring, window, new, keys);
         if let Some(a) = &aabb {
             slot.frame.keys = self.pool.store(keys, a);
         }
@@ -425,11 +485,12 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
             st.flags |= flags::OUT_OF_RANGE;
         }
         st.frame_voxels.set(n as usize);
+        st.valid_pixels += u64::from(stats.valid_pixels);
         st.frames_seen += 1;
         self.ring[s] = Some(slot);
         self.len += 1;
         self.note_usage();
-        while self.len >= self.cfg.window as usize {
+        while self.len >= cfg.window as usize {
             self.decide_oldest(&mut emit);
         }
         if self.len > 0 && self.ring[s].is_some() {
@@ -477,6 +538,7 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
     }
 
     /// Final decision for the oldest window frame, taking a frame if needed.
+    #[inline(never)]
     fn decide_oldest(&mut self, emit: &mut impl FnMut(FrameDecision)) {
         let o = self.head;
         let Some(oldest) = self.ring[o].as_ref() else {

@@ -38,6 +38,7 @@ impl<const K: usize> Default for Sketch<K> {
 
 impl<const K: usize> Sketch<K> {
     /// Sketch of a set given as distinct packed keys, in any order.
+    #[inline(never)]
     pub fn from_keys(keys: impl Iterator<Item = u64>) -> Self {
         let mut s = Self::default();
         for k in keys {

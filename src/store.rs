@@ -26,6 +26,7 @@ pub struct Aabb {
 
 impl Aabb {
     /// Box of ascending packed keys; `None` for an empty set.
+    #[inline(never)]
     pub fn of_sorted(keys: &[u64]) -> Option<Aabb> {
         let first = VoxelKey::from_bits(*keys.first()?)?.coords();
         let mut b = Aabb {
@@ -107,6 +108,7 @@ impl<const N: usize> KeyPool<N> {
 
     /// Stores ascending keys whose box is `aabb`; `None` (and nothing stored)
     /// when they do not fit the free space or the relative encoding.
+    #[inline(never)]
     pub fn store(&mut self, keys: &[u64], aabb: &Aabb) -> Option<KeyRun> {
         if !aabb.fits_relative() || keys.len() > N - self.used {
             return None;

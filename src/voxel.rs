@@ -49,7 +49,7 @@ impl VoxelKey {
     pub fn from_grid_coords(p: [f32; 3]) -> Option<VoxelKey> {
         // Compare in f32 before converting: NaN fails every comparison.
         const LIMIT: f32 = AXIS_BIAS as f32;
-        let inside = |a: f32| a >= -LIMIT && a < LIMIT;
+        let inside = |a: f32| (-LIMIT..LIMIT).contains(&a);
         if !(inside(p[0]) && inside(p[1]) && inside(p[2])) {
             return None;
         }
@@ -130,8 +130,10 @@ pub struct FrameVoxels<const CAP: usize> {
     dropped: u32,
 }
 
-/// Marks an empty slot; no packed key has its top bit set.
-const EMPTY: u64 = u64::MAX;
+/// Marks an empty slot. Slots hold `key + 1` (packed keys use 63 bits, so this
+/// never wraps) so that an empty set is all zero bytes: a selector in a
+/// `static` then lands in `.bss`, costing no flash and no start-up copy.
+const EMPTY: u64 = 0;
 
 impl<const CAP: usize> Default for FrameVoxels<CAP> {
     fn default() -> Self {
@@ -185,7 +187,7 @@ impl<const CAP: usize> FrameVoxels<CAP> {
     /// Adds a key; returns `false` if it was new but the set is full.
     #[inline]
     pub fn insert(&mut self, key: VoxelKey) -> bool {
-        let bits = key.to_bits();
+        let bits = key.to_bits() + 1;
         // Fibonacci hashing: the top bits of the product spread neighbouring voxels.
         let mut i = (bits.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 32) as usize & Self::MASK;
         loop {
@@ -208,10 +210,15 @@ impl<const CAP: usize> FrameVoxels<CAP> {
 
     /// Sorts the keys in place and returns them as packed words in ascending
     /// order; the set is left unusable for insertion until [`Self::clear`].
+    #[inline(never)]
     pub fn sorted(&mut self) -> &[u64] {
-        // EMPTY is the largest word, so the keys end up in front.
+        // EMPTY is the smallest word, so the keys end up at the back.
         self.slots.sort_unstable();
-        &self.slots[..self.len]
+        let keys = &mut self.slots[CAP - self.len..];
+        for k in keys.iter_mut() {
+            *k -= 1;
+        }
+        keys
     }
 }
 

@@ -65,6 +65,9 @@ struct SeqArgs {
     /// Anchor of the voxel grid: the world origin (as the device) or the scene's minimum corner (as the reference code).
     #[arg(long, value_enum, default_value_t = GridOrigin::World)]
     grid_origin: GridOrigin,
+    /// Use only the first N frames of the sequence.
+    #[arg(long)]
+    max_frames: Option<usize>,
 }
 
 /// Solver parameters shared by select and compare.
@@ -172,6 +175,14 @@ fn parse_range(s: &str) -> Result<(f32, f32), String> {
 type Error = Box<dyn std::error::Error>;
 
 fn open_sequence(a: &SeqArgs) -> Result<Sequence, Error> {
+    let mut seq = open_full_sequence(a)?;
+    if let Some(n) = a.max_frames {
+        seq.frames.truncate(n);
+    }
+    Ok(seq)
+}
+
+fn open_full_sequence(a: &SeqArgs) -> Result<Sequence, Error> {
     if a.demo {
         return Ok(synth::sequence(&SynthConfig::demo()));
     }

@@ -203,7 +203,7 @@ fn run<const FV: usize, const POOL: usize, const DB: usize, const W: usize, cons
         decisions,
         labels,
         database,
-        status: *sel.status(),
+        status: sel.status(),
         read_time,
         core_time,
     })
