@@ -1,0 +1,759 @@
+//! Host-side transports to a placedb device, and a protocol client on top.
+//!
+//! - [`Link`]: a byte pipe with a receive timeout. Implementations: [`TcpLink`]
+//!   (`tcp:HOST:PORT`, e.g. an emulator or a serial-to-TCP bridge) and [`Qemu`]
+//!   (launches the emulated board and talks to its UART0 over loopback TCP).
+//!   A serial-port link (`serial:/dev/ttyACM0`) needs the `serialport` crate and
+//!   is not implemented yet: [`open`] refuses it with `Unsupported`.
+//! - [`Client`]: frames [`HostMessage`]s with sequence numbers, decodes
+//!   [`DeviceMessage`]s, and matches terminal replies to requests.
+//!
+//! Every link reads in a background thread into a channel, so writing a long
+//! stream never deadlocks against a device that is itself blocked writing
+//! replies (the emulated UART moves only about 10 KB/s into the firmware).
+
+use placedb::protocol::{
+    encode, DeviceMessage, FrameDecoder, HostFrame, HostMessage, ProtocolError, Push, MAX_FRAME_LEN,
+};
+use std::io::{self, Read, Write};
+use std::net::{Shutdown, SocketAddr, TcpListener, TcpStream, ToSocketAddrs};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
+use std::sync::{Arc, Condvar, Mutex};
+use std::thread::{self, JoinHandle};
+use std::time::{Duration, Instant};
+
+/// A bidirectional byte stream to a device.
+pub trait Link: Send {
+    /// Writes every byte.
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()>;
+
+    /// Waits up to `timeout` for bytes and returns those available (never
+    /// empty). Errors: `TimedOut` when nothing arrived, `UnexpectedEof` when the
+    /// device closed the link.
+    fn recv(&mut self, timeout: Duration) -> io::Result<Vec<u8>>;
+}
+
+impl<L: Link + ?Sized> Link for Box<L> {
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        (**self).send(bytes)
+    }
+
+    fn recv(&mut self, timeout: Duration) -> io::Result<Vec<u8>> {
+        (**self).recv(timeout)
+    }
+}
+
+/// Opens a link from its command-line spelling: `tcp:HOST:PORT`.
+/// `serial:PATH` is recognised but needs the `serialport` crate (not built in).
+pub fn open(spec: &str, timeout: Duration) -> io::Result<Box<dyn Link>> {
+    if let Some(addr) = spec.strip_prefix("tcp:") {
+        return Ok(Box::new(TcpLink::connect(addr, timeout)?));
+    }
+    if spec.starts_with("serial:") {
+        return Err(io::Error::new(
+            io::ErrorKind::Unsupported,
+            "serial links need the `serialport` crate, not built into this placedb",
+        ));
+    }
+    Err(io::Error::new(
+        io::ErrorKind::InvalidInput,
+        format!("unknown link `{spec}`: expected tcp:HOST:PORT or serial:PATH"),
+    ))
+}
+
+/// A TCP connection; a reader thread feeds a channel.
+pub struct TcpLink {
+    stream: TcpStream,
+    rx: Receiver<io::Result<Vec<u8>>>,
+    reader: Option<JoinHandle<()>>,
+    closed: bool,
+}
+
+impl TcpLink {
+    /// Connects to `addr` (`HOST:PORT`) within `timeout`.
+    pub fn connect(addr: impl ToSocketAddrs, timeout: Duration) -> io::Result<TcpLink> {
+        let mut last = io::Error::new(io::ErrorKind::NotFound, "address resolves to nothing");
+        for a in addr.to_socket_addrs()? {
+            match TcpStream::connect_timeout(&a, timeout) {
+                Ok(stream) => return TcpLink::from_stream(stream),
+                Err(e) => last = e,
+            }
+        }
+        Err(last)
+    }
+
+    /// Wraps a connected stream.
+    pub fn from_stream(stream: TcpStream) -> io::Result<TcpLink> {
+        stream.set_nodelay(true)?;
+        stream.set_nonblocking(false)?;
+        let mut reading = stream.try_clone()?;
+        let (tx, rx) = mpsc::channel();
+        let reader = thread::Builder::new()
+            .name("placedb-link-rx".into())
+            .spawn(move || {
+                let mut buf = vec![0u8; 64 * 1024];
+                loop {
+                    match reading.read(&mut buf) {
+                        Ok(0) => {
+                            let _ = tx.send(Err(io::ErrorKind::UnexpectedEof.into()));
+                            return;
+                        }
+                        Ok(n) => {
+                            if tx.send(Ok(buf[..n].to_vec())).is_err() {
+                                return;
+                            }
+                        }
+                        Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                        Err(e) => {
+                            let _ = tx.send(Err(e));
+                            return;
+                        }
+                    }
+                }
+            })?;
+        Ok(TcpLink {
+            stream,
+            rx,
+            reader: Some(reader),
+            closed: false,
+        })
+    }
+
+    /// The peer's address.
+    pub fn peer_addr(&self) -> io::Result<SocketAddr> {
+        self.stream.peer_addr()
+    }
+}
+
+impl Link for TcpLink {
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        self.stream.write_all(bytes)?;
+        self.stream.flush()
+    }
+
+    fn recv(&mut self, timeout: Duration) -> io::Result<Vec<u8>> {
+        if self.closed {
+            return Err(io::ErrorKind::UnexpectedEof.into());
+        }
+        match self.rx.recv_timeout(timeout) {
+            Ok(Ok(bytes)) => Ok(bytes),
+            Ok(Err(e)) => {
+                self.closed = true;
+                Err(e)
+            }
+            Err(RecvTimeoutError::Timeout) => Err(io::Error::new(
+                io::ErrorKind::TimedOut,
+                format!("no bytes from the device within {timeout:?}"),
+            )),
+            Err(RecvTimeoutError::Disconnected) => {
+                self.closed = true;
+                Err(io::ErrorKind::UnexpectedEof.into())
+            }
+        }
+    }
+}
+
+impl Drop for TcpLink {
+    fn drop(&mut self) {
+        let _ = self.stream.shutdown(Shutdown::Both);
+        if let Some(reader) = self.reader.take() {
+            let _ = reader.join();
+        }
+    }
+}
+
+/// How to launch the emulated board.
+#[derive(Debug, Clone)]
+pub struct QemuOptions {
+    /// The emulator binary (default `qemu-system-arm`).
+    pub program: PathBuf,
+    /// The QEMU machine (default `mps2-an386`).
+    pub machine: String,
+    /// The CPU (default `cortex-m4`).
+    pub cpu: String,
+    /// Extra arguments, e.g. `-icount shift=0` for deterministic timing.
+    pub extra_args: Vec<String>,
+    /// How long QEMU may take to connect its UART to the host.
+    pub connect_timeout: Duration,
+    /// QEMU is killed this long after the start, whatever happens.
+    pub deadline: Duration,
+}
+
+impl Default for QemuOptions {
+    fn default() -> Self {
+        QemuOptions {
+            program: "qemu-system-arm".into(),
+            machine: "mps2-an386".into(),
+            cpu: "cortex-m4".into(),
+            extra_args: Vec::new(),
+            connect_timeout: Duration::from_secs(10),
+            deadline: Duration::from_secs(600),
+        }
+    }
+}
+
+/// Shared between the owner and the watchdog thread.
+struct Watch {
+    child: Mutex<Child>,
+    stop: Mutex<bool>,
+    wake: Condvar,
+}
+
+/// An emulated board running a firmware ELF, its UART0 connected to the host
+/// over loopback TCP.
+///
+/// The host listens on `127.0.0.1:0` and starts
+/// `qemu-system-arm -cpu cortex-m4 -machine mps2-an386 -display none -monitor none
+/// -semihosting-config enable=on,target=native -serial tcp:127.0.0.1:PORT -kernel ELF`;
+/// without `,server` QEMU's `tcp:` chardev is a *client* and connects to the
+/// host at start-up. Semihosting output (stdout and stderr of QEMU) is collected
+/// in [`Qemu::console`]. QEMU is killed when the `Qemu` is dropped and, by a
+/// watchdog, at the deadline.
+pub struct Qemu {
+    link: TcpLink,
+    watch: Arc<Watch>,
+    console: Arc<Mutex<Vec<u8>>>,
+    threads: Vec<JoinHandle<()>>,
+}
+
+impl Qemu {
+    /// Boots `firmware` with default options and the given deadline.
+    pub fn start(firmware: &Path, deadline: Duration) -> io::Result<Qemu> {
+        Qemu::start_with(
+            firmware,
+            QemuOptions {
+                deadline,
+                ..QemuOptions::default()
+            },
+        )
+    }
+
+    /// Boots `firmware` with `options`.
+    pub fn start_with(firmware: &Path, options: QemuOptions) -> io::Result<Qemu> {
+        if !firmware.is_file() {
+            return Err(io::Error::new(
+                io::ErrorKind::NotFound,
+                format!("firmware ELF {} not found", firmware.display()),
+            ));
+        }
+        let started = Instant::now();
+        let listener = TcpListener::bind(("127.0.0.1", 0))?;
+        let port = listener.local_addr()?.port();
+        let mut command = Command::new(&options.program);
+        command
+            .args(["-cpu", &options.cpu, "-machine", &options.machine])
+            .args(["-display", "none", "-monitor", "none"])
+            .args(["-semihosting-config", "enable=on,target=native"])
+            .arg("-serial")
+            .arg(format!("tcp:127.0.0.1:{port}"))
+            .args(&options.extra_args)
+            .arg("-kernel")
+            .arg(firmware)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped());
+        let mut child = command.spawn().map_err(|e| {
+            io::Error::new(
+                e.kind(),
+                format!("cannot start {}: {e}", options.program.display()),
+            )
+        })?;
+        let console = Arc::new(Mutex::new(Vec::new()));
+        let mut threads = Vec::new();
+        if let Some(out) = child.stdout.take() {
+            threads.push(collect(out, Arc::clone(&console))?);
+        }
+        if let Some(err) = child.stderr.take() {
+            threads.push(collect(err, Arc::clone(&console))?);
+        }
+        let watch = Arc::new(Watch {
+            child: Mutex::new(child),
+            stop: Mutex::new(false),
+            wake: Condvar::new(),
+        });
+        threads.push(watchdog(Arc::clone(&watch), started + options.deadline)?);
+        let accepted = accept_within(&listener, options.connect_timeout, &watch);
+        let stream = match accepted {
+            Ok(stream) => stream,
+            Err(e) => {
+                let mut qemu_fail = Qemu::stop(&watch, &mut threads);
+                let text =
+                    String::from_utf8_lossy(&console.lock().map(|c| c.clone()).unwrap_or_default())
+                        .into_owned();
+                qemu_fail.push_str(&text);
+                return Err(io::Error::new(
+                    e.kind(),
+                    format!("QEMU did not connect its UART: {e}; QEMU said: {qemu_fail}"),
+                ));
+            }
+        };
+        let link = TcpLink::from_stream(stream)?;
+        Ok(Qemu {
+            link,
+            watch,
+            console,
+            threads,
+        })
+    }
+
+    /// Kills QEMU and joins the helper threads; returns a note on how it ended.
+    fn stop(watch: &Watch, threads: &mut Vec<JoinHandle<()>>) -> String {
+        if let Ok(mut stop) = watch.stop.lock() {
+            *stop = true;
+        }
+        watch.wake.notify_all();
+        let mut note = String::new();
+        if let Ok(mut child) = watch.child.lock() {
+            if let Ok(Some(status)) = child.try_wait() {
+                note = format!("(exited: {status}) ");
+            }
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+        for t in threads.drain(..) {
+            let _ = t.join();
+        }
+        note
+    }
+
+    /// Everything QEMU printed so far (semihosting output and QEMU's messages).
+    pub fn console(&self) -> String {
+        let bytes = self.console.lock().map(|c| c.clone()).unwrap_or_default();
+        String::from_utf8_lossy(&bytes).into_owned()
+    }
+
+    /// Waits until the console contains `needle`; false after `timeout`.
+    pub fn wait_console(&self, needle: &str, timeout: Duration) -> bool {
+        let end = Instant::now() + timeout;
+        loop {
+            if self.console().contains(needle) {
+                return true;
+            }
+            if Instant::now() >= end {
+                return false;
+            }
+            thread::sleep(Duration::from_millis(10));
+        }
+    }
+
+    /// QEMU's exit status if it has exited (semihosting exit: 0 success, 1 failure).
+    pub fn try_wait(&self) -> io::Result<Option<ExitStatus>> {
+        match self.watch.child.lock() {
+            Ok(mut child) => child.try_wait(),
+            Err(_) => Err(io::Error::other("QEMU watch poisoned")),
+        }
+    }
+
+    /// Waits up to `timeout` for QEMU to exit by itself.
+    pub fn wait_exit(&self, timeout: Duration) -> io::Result<Option<ExitStatus>> {
+        let end = Instant::now() + timeout;
+        loop {
+            if let Some(status) = self.try_wait()? {
+                return Ok(Some(status));
+            }
+            if Instant::now() >= end {
+                return Ok(None);
+            }
+            thread::sleep(Duration::from_millis(10));
+        }
+    }
+
+    /// The link to the board's UART0.
+    pub fn link(&mut self) -> &mut TcpLink {
+        &mut self.link
+    }
+}
+
+impl Link for Qemu {
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        self.link.send(bytes)
+    }
+
+    fn recv(&mut self, timeout: Duration) -> io::Result<Vec<u8>> {
+        self.link.recv(timeout)
+    }
+}
+
+impl Drop for Qemu {
+    fn drop(&mut self) {
+        Qemu::stop(&self.watch, &mut self.threads);
+    }
+}
+
+/// Copies a child's output stream into `console` until it closes.
+fn collect(
+    mut from: impl Read + Send + 'static,
+    console: Arc<Mutex<Vec<u8>>>,
+) -> io::Result<JoinHandle<()>> {
+    thread::Builder::new()
+        .name("placedb-qemu-console".into())
+        .spawn(move || {
+            let mut buf = [0u8; 4096];
+            loop {
+                match from.read(&mut buf) {
+                    Ok(0) => return,
+                    Ok(n) => {
+                        if let Ok(mut c) = console.lock() {
+                            c.extend_from_slice(&buf[..n]);
+                        }
+                    }
+                    Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                    Err(_) => return,
+                }
+            }
+        })
+}
+
+/// Kills the child at `deadline` unless told to stop first.
+fn watchdog(watch: Arc<Watch>, deadline: Instant) -> io::Result<JoinHandle<()>> {
+    thread::Builder::new()
+        .name("placedb-qemu-watchdog".into())
+        .spawn(move || {
+            let Ok(mut stop) = watch.stop.lock() else {
+                return;
+            };
+            while !*stop {
+                let left = deadline.saturating_duration_since(Instant::now());
+                if left.is_zero() {
+                    drop(stop);
+                    if let Ok(mut child) = watch.child.lock() {
+                        let _ = child.kill();
+                    }
+                    return;
+                }
+                stop = match watch.wake.wait_timeout(stop, left) {
+                    Ok((guard, _)) => guard,
+                    Err(_) => return,
+                };
+            }
+        })
+}
+
+/// Accepts one connection within `timeout`, giving up early if QEMU exits.
+fn accept_within(
+    listener: &TcpListener,
+    timeout: Duration,
+    watch: &Watch,
+) -> io::Result<TcpStream> {
+    listener.set_nonblocking(true)?;
+    let end = Instant::now() + timeout;
+    loop {
+        match listener.accept() {
+            Ok((stream, peer)) => {
+                if !peer.ip().is_loopback() {
+                    continue;
+                }
+                stream.set_nonblocking(false)?;
+                return Ok(stream);
+            }
+            Err(e) if e.kind() == io::ErrorKind::WouldBlock => {}
+            Err(e) => return Err(e),
+        }
+        if let Ok(mut child) = watch.child.lock() {
+            if let Ok(Some(status)) = child.try_wait() {
+                return Err(io::Error::new(
+                    io::ErrorKind::BrokenPipe,
+                    format!("QEMU exited ({status}) before connecting"),
+                ));
+            }
+        }
+        if Instant::now() >= end {
+            return Err(io::Error::new(
+                io::ErrorKind::TimedOut,
+                format!("no connection within {timeout:?}"),
+            ));
+        }
+        thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// One thing received from a device.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Received {
+    /// A decoded message (every variant but `Log`, which is [`Received::Log`]).
+    Message(DeviceMessage<'static>),
+    /// A `DeviceMessage::Log` line.
+    Log(String),
+    /// A frame that could not be read (damaged on the way, or oversized).
+    Damaged(ProtocolError),
+}
+
+impl Received {
+    fn from_message(msg: DeviceMessage<'_>) -> Received {
+        use DeviceMessage as M;
+        Received::Message(match msg {
+            M::Log(text) => return Received::Log(text.to_owned()),
+            M::Ack { seq } => M::Ack { seq },
+            M::Error { seq, kind } => M::Error { seq, kind },
+            M::Decision { frame, kind } => M::Decision { frame, kind },
+            M::Status(status) => M::Status(status),
+            M::ExportRecord(record) => M::ExportRecord(record),
+            M::ExportEnd {
+                seq,
+                from_record,
+                count,
+                crc32,
+            } => M::ExportEnd {
+                seq,
+                from_record,
+                count,
+                crc32,
+            },
+        })
+    }
+
+    /// The sequence number if this is the terminal reply of a host message
+    /// (Ack, Status, ExportEnd, or Error with a known sequence number).
+    pub fn terminal_seq(&self) -> Option<u32> {
+        match self {
+            Received::Message(DeviceMessage::Ack { seq })
+            | Received::Message(DeviceMessage::ExportEnd { seq, .. }) => Some(*seq),
+            Received::Message(DeviceMessage::Status(status)) => Some(status.seq),
+            Received::Message(DeviceMessage::Error { seq, .. }) => *seq,
+            _ => None,
+        }
+    }
+}
+
+/// The protocol on top of a [`Link`]: numbered host frames out, device
+/// messages in.
+pub struct Client<L: Link> {
+    link: L,
+    decoder: Box<FrameDecoder<MAX_FRAME_LEN>>,
+    pending: Vec<u8>,
+    next_seq: u32,
+    tx: Vec<u8>,
+}
+
+impl<L: Link> Client<L> {
+    /// A client whose first sequence number is 1.
+    pub fn new(link: L) -> Client<L> {
+        Client {
+            link,
+            decoder: Box::new(FrameDecoder::new()),
+            pending: Vec::new(),
+            next_seq: 1,
+            tx: vec![0u8; MAX_FRAME_LEN],
+        }
+    }
+
+    /// The underlying link.
+    pub fn link(&mut self) -> &mut L {
+        &mut self.link
+    }
+
+    /// Gives the link back.
+    pub fn into_link(self) -> L {
+        self.link
+    }
+
+    /// Takes the next sequence number (for frames built by hand).
+    pub fn take_seq(&mut self) -> u32 {
+        let seq = self.next_seq;
+        self.next_seq = self.next_seq.wrapping_add(1);
+        seq
+    }
+
+    /// Sends `msg` with the next sequence number and returns that number.
+    /// A frame larger than [`MAX_FRAME_LEN`] is refused with `InvalidInput`.
+    pub fn send(&mut self, msg: HostMessage<'_>) -> io::Result<u32> {
+        let seq = self.take_seq();
+        let frame = encode(&HostFrame { seq, msg }, &mut self.tx)
+            .map_err(|e| io::Error::new(io::ErrorKind::InvalidInput, e))?;
+        self.link.send(frame)?;
+        Ok(seq)
+    }
+
+    /// Sends raw bytes (e.g. a deliberately damaged frame).
+    pub fn send_raw(&mut self, bytes: &[u8]) -> io::Result<()> {
+        self.link.send(bytes)
+    }
+
+    /// Sends a lone 0x00 so the device drops any partial frame.
+    pub fn resync(&mut self) -> io::Result<()> {
+        self.link.send(&[0])
+    }
+
+    /// The next thing the device sends, within `timeout`.
+    pub fn recv(&mut self, timeout: Duration) -> io::Result<Received> {
+        let end = Instant::now() + timeout;
+        loop {
+            if !self.pending.is_empty() {
+                let total = self.pending.len();
+                let (consumed, outcome) = match self.decoder.push(&self.pending) {
+                    Push::NeedMore => (total, None),
+                    Push::Ready { remaining } => (total - remaining.len(), Some(Ok(()))),
+                    Push::Error { error, remaining } => (total - remaining.len(), Some(Err(error))),
+                };
+                self.pending.drain(..consumed);
+                match outcome {
+                    Some(Ok(())) => {
+                        return Ok(match self.decoder.decode::<DeviceMessage>() {
+                            Ok(msg) => Received::from_message(msg),
+                            Err(e) => Received::Damaged(e),
+                        })
+                    }
+                    Some(Err(e)) => return Ok(Received::Damaged(e)),
+                    None => {}
+                }
+            }
+            let left = end.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Err(io::Error::new(
+                    io::ErrorKind::TimedOut,
+                    format!("no complete frame from the device within {timeout:?}"),
+                ));
+            }
+            let bytes = self.link.recv(left)?;
+            self.pending.extend_from_slice(&bytes);
+        }
+    }
+
+    /// Everything received until the terminal reply for `seq` (included, last),
+    /// within `timeout` overall.
+    pub fn replies_to(&mut self, seq: u32, timeout: Duration) -> io::Result<Vec<Received>> {
+        let end = Instant::now() + timeout;
+        let mut got = Vec::new();
+        loop {
+            let left = end.saturating_duration_since(Instant::now());
+            let item = self.recv(left)?;
+            let done = item.terminal_seq() == Some(seq);
+            got.push(item);
+            if done {
+                return Ok(got);
+            }
+        }
+    }
+
+    /// Sends `msg` and collects the replies up to its terminal reply.
+    pub fn request(
+        &mut self,
+        msg: HostMessage<'_>,
+        timeout: Duration,
+    ) -> io::Result<(u32, Vec<Received>)> {
+        let seq = self.send(msg)?;
+        let replies = self.replies_to(seq, timeout)?;
+        Ok((seq, replies))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use placedb::protocol::{Capacity, ErrorKind, Feed, Phase, Status, CAPACITY_SLOTS};
+
+    /// A fake device on loopback: answers StatusRequest with Status, logs once,
+    /// refuses anything else, reports framing errors.
+    fn fake_device(listener: TcpListener) -> JoinHandle<()> {
+        thread::spawn(move || {
+            let (mut stream, _) = listener.accept().unwrap();
+            let mut decoder = FrameDecoder::<MAX_FRAME_LEN>::new();
+            let mut tx = vec![0u8; 256];
+            let mut buf = [0u8; 100];
+            loop {
+                let n = match stream.read(&mut buf) {
+                    Ok(0) | Err(_) => return,
+                    Ok(n) => n,
+                };
+                let mut rest = &buf[..n];
+                while let Feed::Frame { result, remaining } = decoder.feed::<HostFrame>(rest) {
+                    let mut replies = Vec::new();
+                    match result {
+                        Ok(HostFrame {
+                            seq,
+                            msg: HostMessage::StatusRequest,
+                        }) => {
+                            replies.push(
+                                encode(&DeviceMessage::Log("status"), &mut tx)
+                                    .unwrap()
+                                    .to_vec(),
+                            );
+                            let status = DeviceMessage::Status(Status {
+                                seq,
+                                phase: Phase::Ready,
+                                frames_seen: 3,
+                                database_size: 1,
+                                capacities: [Capacity::default(); CAPACITY_SLOTS],
+                                degradation: 0,
+                            });
+                            replies.push(encode(&status, &mut tx).unwrap().to_vec());
+                        }
+                        Ok(HostFrame { seq, .. }) => {
+                            let e = DeviceMessage::Error {
+                                seq: Some(seq),
+                                kind: ErrorKind::Unsupported,
+                            };
+                            replies.push(encode(&e, &mut tx).unwrap().to_vec());
+                        }
+                        Err(e) => replies.push(encode(&e.reply(), &mut tx).unwrap().to_vec()),
+                    }
+                    for r in replies {
+                        // Byte by byte, to exercise reassembly on the host.
+                        for b in r {
+                            stream.write_all(&[b]).unwrap();
+                        }
+                    }
+                    rest = remaining;
+                }
+            }
+        })
+    }
+
+    #[test]
+    fn client_over_tcp_matches_replies() {
+        let listener = TcpListener::bind(("127.0.0.1", 0)).unwrap();
+        let port = listener.local_addr().unwrap().port();
+        let device = fake_device(listener);
+        let link = open(&format!("tcp:127.0.0.1:{port}"), Duration::from_secs(5)).unwrap();
+        let mut client = Client::new(link);
+        client.resync().unwrap();
+        let (seq, replies) = client
+            .request(HostMessage::StatusRequest, Duration::from_secs(5))
+            .unwrap();
+        assert_eq!(replies.len(), 2);
+        assert_eq!(replies[0], Received::Log("status".into()));
+        assert!(matches!(
+            replies[1],
+            Received::Message(DeviceMessage::Status(Status { seq: s, frames_seen: 3, .. })) if s == seq
+        ));
+        let (seq, replies) = client
+            .request(HostMessage::Reset, Duration::from_secs(5))
+            .unwrap();
+        assert_eq!(
+            replies,
+            vec![Received::Message(DeviceMessage::Error {
+                seq: Some(seq),
+                kind: ErrorKind::Unsupported
+            })]
+        );
+        // Nothing more: a timeout, not a hang.
+        let err = client.recv(Duration::from_millis(50)).unwrap_err();
+        assert_eq!(err.kind(), io::ErrorKind::TimedOut);
+        drop(client);
+        device.join().unwrap();
+    }
+
+    #[test]
+    fn open_refuses_unknown_and_serial_links() {
+        assert_eq!(
+            open("serial:/dev/ttyACM0", Duration::from_millis(10))
+                .err()
+                .map(|e| e.kind()),
+            Some(io::ErrorKind::Unsupported)
+        );
+        assert_eq!(
+            open("udp:1.2.3.4:5", Duration::from_millis(10))
+                .err()
+                .map(|e| e.kind()),
+            Some(io::ErrorKind::InvalidInput)
+        );
+    }
+
+    #[test]
+    fn qemu_reports_a_missing_firmware() {
+        let err = Qemu::start(Path::new("/nonexistent/fw.elf"), Duration::from_secs(1)).err();
+        assert_eq!(err.map(|e| e.kind()), Some(io::ErrorKind::NotFound));
+    }
+}

@@ -1,0 +1,195 @@
+//! End to end over the emulated board: host -> loopback TCP -> QEMU UART0 ->
+//! firmware frame decoder -> handler -> UART0 -> host.
+//!
+//! Needs `qemu-system-arm` and the firmware built first:
+//! `cd boards/qemu-mps2-an386 && cargo build --release`
+//! (or point `PLACEDB_QEMU_FIRMWARE` at another ELF).
+
+use placedb::protocol::{
+    encode, DeviceMessage, ErrorKind, Feed, FrameDecoder, HostFrame, HostMessage, Phase,
+    ProtocolError, MAX_FRAME_LEN,
+};
+use placedb_host::link::{Client, Qemu, Received};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+const REPLY_TIMEOUT: Duration = Duration::from_secs(5);
+
+fn firmware() -> PathBuf {
+    let path = std::env::var_os("PLACEDB_QEMU_FIRMWARE")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| {
+            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(
+                "../boards/qemu-mps2-an386/target/thumbv7em-none-eabihf/release/placedb-qemu-mps2-an386",
+            )
+        });
+    assert!(
+        path.is_file(),
+        "firmware {} is missing: build it with `cd boards/qemu-mps2-an386 && cargo build --release` \
+         (or set PLACEDB_QEMU_FIRMWARE)",
+        path.display()
+    );
+    path
+}
+
+/// A StatusRequest frame with sequence number `seq`, damaged so that the
+/// device sees a CRC error but can still read the claimed sequence number.
+fn damaged_status_request(seq: u32) -> Vec<u8> {
+    let mut buf = [0u8; 64];
+    let good = encode(
+        &HostFrame {
+            seq,
+            msg: HostMessage::StatusRequest,
+        },
+        &mut buf,
+    )
+    .unwrap()
+    .to_vec();
+    // Flip bits from the end (the CRC) backwards until a position gives exactly
+    // that, checked with the same decoder the firmware runs.
+    for pos in (0..good.len() - 1).rev() {
+        let mut bad = good.clone();
+        bad[pos] ^= 0x24;
+        if bad[pos] == 0 {
+            continue;
+        }
+        let mut decoder = FrameDecoder::<MAX_FRAME_LEN>::new();
+        if let Feed::Frame {
+            result:
+                Err(ProtocolError {
+                    kind: ErrorKind::BadCrc,
+                    seq: Some(s),
+                }),
+            remaining: [],
+        } = decoder.feed::<HostFrame>(&bad)
+        {
+            if s == seq {
+                return bad;
+            }
+        }
+    }
+    panic!("no damaging position found");
+}
+
+fn expect_status(replies: &[Received], seq: u32) {
+    match replies {
+        [Received::Message(DeviceMessage::Status(status))] => {
+            assert_eq!(status.seq, seq);
+            assert_eq!(status.phase, Phase::Unconfigured);
+        }
+        other => panic!("expected one Status for seq {seq}, got {other:?}"),
+    }
+}
+
+#[test]
+fn status_then_damaged_frame_then_status() {
+    let started = Instant::now();
+    let firmware = firmware();
+    let qemu = Qemu::start(&firmware, Duration::from_secs(25)).unwrap_or_else(|e| {
+        panic!("cannot start qemu-system-arm (apt-get install qemu-system-arm): {e}")
+    });
+    assert!(
+        qemu.wait_console("boot", REPLY_TIMEOUT),
+        "no boot line; console: {}",
+        qemu.console()
+    );
+    let mut client = Client::new(qemu);
+    client.resync().unwrap();
+
+    let (seq, replies) = client
+        .request(HostMessage::StatusRequest, REPLY_TIMEOUT)
+        .unwrap();
+    expect_status(&replies, seq);
+
+    let seq = client.take_seq();
+    client.send_raw(&damaged_status_request(seq)).unwrap();
+    let replies = client.replies_to(seq, REPLY_TIMEOUT).unwrap();
+    assert_eq!(
+        replies,
+        vec![Received::Message(DeviceMessage::Error {
+            seq: Some(seq),
+            kind: ErrorKind::BadCrc
+        })]
+    );
+
+    let (seq, replies) = client
+        .request(HostMessage::StatusRequest, REPLY_TIMEOUT)
+        .unwrap();
+    expect_status(&replies, seq);
+
+    // Anything the stand-in firmware cannot do yet is refused with a typed error.
+    let (seq, replies) = client.request(HostMessage::Finish, REPLY_TIMEOUT).unwrap();
+    assert_eq!(
+        replies,
+        vec![Received::Message(DeviceMessage::Error {
+            seq: Some(seq),
+            kind: ErrorKind::Unsupported
+        })]
+    );
+
+    let qemu = client.into_link();
+    assert!(
+        qemu.try_wait().unwrap().is_none(),
+        "firmware exited: {}",
+        qemu.console()
+    );
+    drop(qemu);
+    assert!(started.elapsed() < Duration::from_secs(30));
+}
+
+#[test]
+fn largest_depth_rows_fit_and_oversized_frames_are_refused() {
+    use placedb::protocol::{depth_rows_per_message, DepthRows, MAX_ROW_VALUES};
+    let started = Instant::now();
+    let qemu = Qemu::start(&firmware(), Duration::from_secs(25)).unwrap();
+    let mut client = Client::new(qemu);
+    client.resync().unwrap();
+
+    // A full-size DepthRows frame (worst-case COBS: no zero byte) reaches the
+    // handler intact: the stand-in answers it with Unsupported and its seq.
+    let rows = depth_rows_per_message(80);
+    assert!(usize::from(rows) * 80 <= MAX_ROW_VALUES);
+    let data = vec![0xA5u8; usize::from(rows) * 80 * 2];
+    let msg = HostMessage::DepthRows(DepthRows {
+        frame: 1,
+        first_row: 0,
+        row_count: rows,
+        data: &data,
+    });
+    let (seq, replies) = client.request(msg, REPLY_TIMEOUT).unwrap();
+    assert_eq!(
+        replies,
+        vec![Received::Message(DeviceMessage::Error {
+            seq: Some(seq),
+            kind: ErrorKind::Unsupported
+        })]
+    );
+
+    // A frame longer than the device's buffer: Oversized (no seq), then the
+    // device resynchronises on the delimiter and answers the next request.
+    let mut long = vec![0x11u8; MAX_FRAME_LEN + 100];
+    long.push(0);
+    client.send_raw(&long).unwrap();
+    match client.recv(REPLY_TIMEOUT).unwrap() {
+        Received::Message(DeviceMessage::Error {
+            seq: None,
+            kind: ErrorKind::Oversized,
+        }) => {}
+        other => panic!("expected Oversized, got {other:?}"),
+    }
+    let (seq, replies) = client
+        .request(HostMessage::StatusRequest, REPLY_TIMEOUT)
+        .unwrap();
+    expect_status(&replies, seq);
+    assert!(started.elapsed() < Duration::from_secs(30));
+}
+
+#[test]
+fn qemu_is_killed_at_its_deadline() {
+    let qemu = Qemu::start(&firmware(), Duration::from_secs(1)).unwrap();
+    let status = qemu.wait_exit(Duration::from_secs(10)).unwrap();
+    assert!(
+        matches!(status, Some(s) if !s.success()),
+        "QEMU still running or exited cleanly: {status:?}"
+    );
+}
