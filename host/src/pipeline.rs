@@ -174,6 +174,7 @@ pub fn prepare(
 }
 
 /// What one solver produced.
+#[derive(Debug, Clone)]
 pub struct Outcome {
     /// Solver used.
     pub solver: Solver,
