@@ -128,6 +128,8 @@ pub struct FrameVoxels<const CAP: usize> {
     slots: [u64; CAP],
     len: usize,
     dropped: u32,
+    /// The last slot word inserted: runs of pixels in one voxel skip the probe.
+    last: u64,
 }
 
 /// Marks an empty slot. Slots hold `key + 1` (packed keys use 63 bits, so this
@@ -158,6 +160,7 @@ impl<const CAP: usize> FrameVoxels<CAP> {
             slots: [EMPTY; CAP],
             len: 0,
             dropped: 0,
+            last: EMPTY,
         }
     }
 
@@ -166,6 +169,7 @@ impl<const CAP: usize> FrameVoxels<CAP> {
         self.slots.fill(EMPTY);
         self.len = 0;
         self.dropped = 0;
+        self.last = EMPTY;
     }
 
     /// Number of distinct keys held.
@@ -188,11 +192,15 @@ impl<const CAP: usize> FrameVoxels<CAP> {
     #[inline]
     pub fn insert(&mut self, key: VoxelKey) -> bool {
         let bits = key.to_bits() + 1;
+        if bits == self.last {
+            return true;
+        }
         // Fibonacci hashing: the top bits of the product spread neighbouring voxels.
         let mut i = (bits.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 32) as usize & Self::MASK;
         loop {
             let slot = self.slots[i];
             if slot == bits {
+                self.last = bits;
                 return true;
             }
             if slot == EMPTY {
@@ -202,6 +210,7 @@ impl<const CAP: usize> FrameVoxels<CAP> {
                 }
                 self.slots[i] = bits;
                 self.len += 1;
+                self.last = bits;
                 return true;
             }
             i = (i + 1) & Self::MASK;

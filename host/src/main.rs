@@ -33,6 +33,9 @@ enum Command {
     Synth(SynthArgs),
     /// Print each device capacity profile: exact state size and what it holds.
     Budget,
+    /// Measure select's wall time, time split and peak memory on the synthetic
+    /// 5000-frame scan and the recorded samples (each run in a child process).
+    Bench(BenchArgs),
 }
 
 /// Where the frames come from and how they become voxel sets.
@@ -44,6 +47,9 @@ struct SeqArgs {
     /// Use the built-in synthetic office scan (600 frames, 320x240) instead of a directory.
     #[arg(long, conflicts_with = "seq")]
     demo: bool,
+    /// With --demo: walk the same office in this many frames.
+    #[arg(long, default_value_t = 600, requires = "demo")]
+    demo_frames: usize,
     /// Sequence layout; detected from the directory's files when omitted.
     #[arg(long, value_enum)]
     format: Option<Format>,
@@ -174,6 +180,14 @@ fn parse_range(s: &str) -> Result<(f32, f32), String> {
 
 type Error = Box<dyn std::error::Error>;
 
+/// Peak resident memory of this process so far, MB (Linux `VmHWM`).
+fn peak_rss_mb() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
 fn open_sequence(a: &SeqArgs) -> Result<Sequence, Error> {
     let mut seq = open_full_sequence(a)?;
     if let Some(n) = a.max_frames {
@@ -184,7 +198,11 @@ fn open_sequence(a: &SeqArgs) -> Result<Sequence, Error> {
 
 fn open_full_sequence(a: &SeqArgs) -> Result<Sequence, Error> {
     if a.demo {
-        return Ok(synth::sequence(&SynthConfig::demo()));
+        let cfg = SynthConfig {
+            frames: a.demo_frames,
+            ..SynthConfig::demo()
+        };
+        return Ok(synth::sequence(&cfg));
     }
     let path = a
         .seq
@@ -283,6 +301,8 @@ fn metrics_json(
     );
     put("frames", seq.frames.len().into());
     put("voxelize_s", prep.voxelize_wall.as_secs_f64().into());
+    put("read_cpu_s", prep.sets.read_time.as_secs_f64().into());
+    put("voxelize_cpu_s", prep.sets.voxelize_time.as_secs_f64().into());
     put("graph_s", prep.graph_wall.as_secs_f64().into());
     put("solve_s", o.solve_time.as_secs_f64().into());
     put("co_observing_pairs", prep.co.pair_count().into());
@@ -336,6 +356,9 @@ fn select(a: SelectArgs) -> Result<(), Error> {
     let timestamps: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
     let mut json = metrics_json(&seq, &prep, &o, a.mu, &params);
     json["total_s"] = t0.elapsed().as_secs_f64().into();
+    if let Some(mb) = peak_rss_mb() {
+        json["peak_rss_mb"] = mb.into();
+    }
     output::write_database_dir(&a.out, &rows, &timestamps, &o.labels, &json)?;
     plot::topview(
         &a.out.join("topview.png"),
@@ -527,6 +550,88 @@ fn budget() -> Result<(), Error> {
     Ok(())
 }
 
+#[derive(Args)]
+struct BenchArgs {
+    /// Directory holding the recorded samples (7scenes-1000, vprdb-test-db).
+    #[arg(long, default_value = "../shared/data")]
+    data: PathBuf,
+    /// Solvers to time, comma separated.
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "in-order,greedy,exact,online")]
+    solvers: Vec<Solver>,
+    /// Pixel stride.
+    #[arg(long, default_value_t = 1)]
+    stride: u16,
+    /// Frames of the synthetic scan.
+    #[arg(long, default_value_t = 5000)]
+    synthetic_frames: usize,
+}
+
+/// The paper's reference code on this machine, 7scenes-1000 at stride 1
+/// (figures from the issue that set the target): seconds and peak MB.
+const PAPER_7SCENES: (f64, f64) = (51.0, 400.0);
+
+fn bench(a: BenchArgs) -> Result<(), Error> {
+    let exe = std::env::current_exe()?;
+    let out = std::env::temp_dir().join(format!("placedb-bench-{}", std::process::id()));
+    let mut inputs: Vec<(String, Vec<String>)> = vec![(
+        format!("synthetic-{}", a.synthetic_frames),
+        vec!["--demo".into(), "--demo-frames".into(), a.synthetic_frames.to_string()],
+    )];
+    for name in ["7scenes-1000", "vprdb-test-db"] {
+        let p = a.data.join(name);
+        if p.is_dir() {
+            inputs.push((name.into(), vec![p.display().to_string()]));
+        } else {
+            eprintln!("placedb bench: {} not found, skipped", p.display());
+        }
+    }
+    println!(
+        "{:<16} {:<9} {:>6} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
+        "sequence", "solver", "frames", "total_s", "read*", "voxel*", "vox_wall", "graph_s", "solve_s", "peak_MB"
+    );
+    for (name, args) in &inputs {
+        for solver in &a.solvers {
+            let child = std::process::Command::new(&exe)
+                .arg("select")
+                .args(args)
+                .args(["--solver", solver.name(), "--stride", &a.stride.to_string(), "--json", "-q", "-o"])
+                .arg(&out)
+                .output()?;
+            if !child.status.success() {
+                let err = String::from_utf8_lossy(&child.stderr);
+                return Err(format!("{name} {}: {err}", solver.name()).into());
+            }
+            let m: serde_json::Value = serde_json::from_slice(&child.stdout)?;
+            let f = |k: &str| m[k].as_f64().unwrap_or(f64::NAN);
+            println!(
+                "{:<16} {:<9} {:>6} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.1}",
+                name,
+                solver.name(),
+                f("frames"),
+                f("total_s"),
+                f("read_cpu_s"),
+                f("voxelize_cpu_s"),
+                f("voxelize_s"),
+                f("graph_s"),
+                f("solve_s"),
+                f("peak_rss_mb")
+            );
+            if name == "7scenes-1000" && a.stride == 1 && *solver == Solver::InOrder {
+                let (s, mb) = PAPER_7SCENES;
+                println!(
+                    "{:<16} paper's code: {s} s, {mb} MB -> {:.0}x faster, {:.1}x less memory (target 100x, 10x)",
+                    "",
+                    s / f("total_s"),
+                    mb / f("peak_rss_mb")
+                );
+            }
+        }
+    }
+    let _ = std::fs::remove_dir_all(&out);
+    println!("* read and voxel are CPU time summed over threads; the others are wall time");
+    Ok(())
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let r = match cli.command {
@@ -534,6 +639,7 @@ fn main() -> ExitCode {
         Command::Compare(a) => compare(a),
         Command::Synth(a) => synth_cmd(a),
         Command::Budget => budget(),
+        Command::Bench(a) => bench(a),
     };
     match r {
         Ok(()) => ExitCode::SUCCESS,

@@ -129,8 +129,17 @@ pub fn voxelize_on(
             let mut keys = Vec::new();
             let mut oor = 0u32;
             let mut valid = 0u32;
+            // Neighbouring pixels mostly fall in the same voxel: dropping
+            // repeats here keeps the sort below small.
+            let mut last = u64::MAX;
             for v in 0..img.height {
-                valid += proj.project_row(v, img.row(v), &mut oor, |key| keys.push(key.to_bits()));
+                valid += proj.project_row(v, img.row(v), &mut oor, |key| {
+                    let bits = key.to_bits();
+                    if bits != last {
+                        keys.push(bits);
+                        last = bits;
+                    }
+                });
             }
             keys.sort_unstable();
             keys.dedup();

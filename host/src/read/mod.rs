@@ -1,2 +1,300 @@
 //! Sequence readers (TUM RGB-D, 7-Scenes, the reference code's layout) and
-//! format detection. Owned by the readers work; placeholder until it lands.
+//! format detection.
+//!
+//! [`open`] reads a sequence directory's metadata (poses, timestamps,
+//! intrinsics, the size of the first depth image) up front; depth images are
+//! decoded on demand through [`Sequence::source`], which is cheap to share
+//! between threads. Every error names the file, and for text files the 1-based
+//! line, so a user can fix the input without reading code.
+//!
+//! | format | depth scale | intrinsics when the file is absent | timestamp |
+//! |---|---|---|---|
+//! | [`Format::Tum`] ([`tum`]) | 5000 | fx = fy = 525, cx = 319.5, cy = 239.5 | depth.txt's |
+//! | [`Format::SevenScenes`] ([`sevenscenes`]) | 1000 | fx = fy = 585, cx = 320, cy = 240 | frame number |
+//! | [`Format::Vprdb`] ([`vprdb`]) | 1000 | required (`intrinsics.txt`) | pose file's, else index |
+//!
+//! [`ReadOptions`] overrides the depth scale and the intrinsics of any format
+//! (the intrinsics file is then not read).
+
+mod png;
+pub mod sevenscenes;
+mod text;
+pub mod tum;
+pub mod vprdb;
+
+use crate::error::ReadError;
+use crate::sequence::{CameraModel, DepthImage, Format, FrameInfo, Sequence};
+use std::path::{Path, PathBuf};
+
+/// How to read a sequence; `Default` detects the format and uses its defaults.
+#[derive(Debug, Clone, Default)]
+pub struct ReadOptions {
+    /// The layout; detected with [`detect`] when `None`.
+    pub format: Option<Format>,
+    /// Depth units per metre, replacing the format's default.
+    pub depth_scale: Option<f64>,
+    /// Intrinsics, replacing the sequence's file and the format's default.
+    pub intrinsics: Option<CameraModel>,
+}
+
+/// Reads the sequence in directory `path`, detecting its format when
+/// `opts.format` is `None`.
+pub fn open(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError> {
+    if let Some(scale) = opts.depth_scale {
+        if !(scale.is_finite() && scale > 0.0) {
+            return Err(text::layout(
+                path,
+                format!("depth scale override must be finite and > 0, got {scale}"),
+            ));
+        }
+    }
+    if let Some(k) = &opts.intrinsics {
+        check_camera(k)
+            .map_err(|reason| text::layout(path, format!("intrinsics override {k:?}: {reason}")))?;
+    }
+    let format = match opts.format {
+        Some(f) => f,
+        None => detect(path)?,
+    };
+    match format {
+        Format::Tum => tum::read(path, opts),
+        Format::SevenScenes => sevenscenes::read(path, opts),
+        Format::Vprdb => vprdb::read(path, opts),
+        Format::Synthetic => Err(text::layout(
+            path,
+            "the synthetic format is rendered, not read from a directory",
+        )),
+    }
+}
+
+/// Recognises the layout of directory `path`: 7-Scenes if it holds
+/// `frame-*.depth.png` files, TUM if it holds `depth.txt` and
+/// `groundtruth.txt`, the reference layout if it has a `depth/` directory.
+pub fn detect(path: &Path) -> Result<Format, ReadError> {
+    let meta = std::fs::metadata(path).map_err(|source| ReadError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    if !meta.is_dir() {
+        return Err(text::layout(path, "not a directory"));
+    }
+    let names = text::list_dir(path)?;
+    if names.iter().any(|n| sevenscenes::frame_number(n).is_some()) {
+        return Ok(Format::SevenScenes);
+    }
+    if path.join("depth.txt").is_file() && path.join("groundtruth.txt").is_file() {
+        return Ok(Format::Tum);
+    }
+    if path.join("depth").is_dir() {
+        return Ok(Format::Vprdb);
+    }
+    Err(text::layout(
+        path,
+        "unknown sequence layout: looked for frame-*.depth.png (7scenes), \
+         depth.txt and groundtruth.txt (tum), a depth/ directory (vprdb)",
+    ))
+}
+
+/// Decodes a 16-bit greyscale depth PNG as stored (no value mapping).
+/// A truncated, corrupt, 8-bit or colour file is a [`ReadError::Png`] naming it.
+pub fn decode_depth_png(path: &Path) -> Result<DepthImage, ReadError> {
+    png::decode(path, false)
+}
+
+/// Parses a 3x3 pinhole matrix `K = [fx 0 cx; 0 fy cy; 0 0 1]` written as three
+/// lines of three white-space separated numbers (blank and `#` lines are
+/// skipped). The structural zeros and the 1 must be there (a transposed matrix
+/// is refused), skew is not supported, and fx, fy must be finite and > 0.
+pub fn parse_intrinsics_file(path: &Path) -> Result<CameraModel, ReadError> {
+    let content = text::read_text(path)?;
+    let mut rows: Vec<(usize, Vec<f64>)> = Vec::with_capacity(3);
+    let mut last_line = 1;
+    for (line, l) in text::data_lines(&content) {
+        if rows.len() == 3 {
+            return Err(text::parse_error(
+                path,
+                line,
+                "more than 3 rows in a 3x3 intrinsics matrix",
+            ));
+        }
+        let row = text::numbers(path, line, l, &[3], "a row of the 3x3 matrix K")?;
+        if let Some(c) = row.iter().position(|v| !v.is_finite()) {
+            return Err(text::parse_error(
+                path,
+                line,
+                format!("column {}: {} is not finite", c + 1, row[c]),
+            ));
+        }
+        rows.push((line, row));
+        last_line = line;
+    }
+    if rows.len() < 3 {
+        return Err(text::parse_error(
+            path,
+            last_line,
+            format!("a 3x3 intrinsics matrix has 3 rows, found {}", rows.len()),
+        ));
+    }
+    let k = |r: usize, c: usize| rows[r].1[c];
+    let expect = |r: usize, c: usize, want: f64| -> Result<(), ReadError> {
+        if (k(r, c) - want).abs() > 1e-9 {
+            return Err(text::parse_error(
+                path,
+                rows[r].0,
+                format!(
+                    "K[{r}][{c}] is {}, expected {want} in [fx 0 cx; 0 fy cy; 0 0 1]",
+                    k(r, c)
+                ),
+            ));
+        }
+        Ok(())
+    };
+    expect(0, 1, 0.0)?;
+    expect(1, 0, 0.0)?;
+    expect(2, 0, 0.0)?;
+    expect(2, 1, 0.0)?;
+    expect(2, 2, 1.0)?;
+    let model = CameraModel {
+        fx: k(0, 0),
+        fy: k(1, 1),
+        cx: k(0, 2),
+        cy: k(1, 2),
+    };
+    check_camera(&model).map_err(|reason| text::parse_error(path, rows[0].0, reason))?;
+    Ok(model)
+}
+
+/// Why a camera model cannot back-project, if it cannot.
+fn check_camera(k: &CameraModel) -> Result<(), String> {
+    let finite = [k.fx, k.fy, k.cx, k.cy].iter().all(|v| v.is_finite());
+    if !finite {
+        return Err("intrinsics must be finite".into());
+    }
+    if k.fx <= 0.0 || k.fy <= 0.0 {
+        return Err(format!(
+            "focal lengths must be > 0, got fx {} fy {}",
+            k.fx, k.fy
+        ));
+    }
+    Ok(())
+}
+
+/// The camera of a sequence: the override, else `dir/file` when it exists,
+/// else `default` (an error naming the file when there is none).
+fn camera(
+    dir: &Path,
+    file: &str,
+    default: Option<CameraModel>,
+    opts: &ReadOptions,
+) -> Result<CameraModel, ReadError> {
+    if let Some(k) = opts.intrinsics {
+        return Ok(k);
+    }
+    let path = dir.join(file);
+    match (path.exists(), default) {
+        (true, _) => parse_intrinsics_file(&path),
+        (false, Some(k)) => Ok(k),
+        (false, None) => Err(text::layout(
+            &path,
+            "intrinsics file missing (or give the intrinsics explicitly)",
+        )),
+    }
+}
+
+/// Assembles a sequence whose frame `i` has depth PNG `paths[i]`; the size is
+/// read from the first image's header.
+fn assemble(
+    dir: &Path,
+    format: Format,
+    camera: CameraModel,
+    depth_scale: f64,
+    frames: Vec<FrameInfo>,
+    paths: Vec<PathBuf>,
+    invalid_65535: bool,
+) -> Result<Sequence, ReadError> {
+    debug_assert_eq!(frames.len(), paths.len());
+    let first = paths
+        .first()
+        .ok_or_else(|| text::layout(dir, "the sequence has no depth frames"))?;
+    let size = png::depth_png_size(first)?;
+    Ok(Sequence {
+        name: text::dir_name(dir),
+        format,
+        camera,
+        depth_scale,
+        size,
+        frames,
+        source: Box::new(png::PngDepthSource {
+            paths,
+            invalid_65535,
+        }),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn temp_file(name: &str, content: &str) -> PathBuf {
+        let p =
+            std::env::temp_dir().join(format!("placedb-read-mod-{}-{name}", std::process::id()));
+        std::fs::write(&p, content).unwrap();
+        p
+    }
+
+    #[test]
+    fn intrinsics_parse_and_refusals() {
+        let p = temp_file("k-ok.txt", "# K\n500 0 320\n0 501 240\n\n0 0 1");
+        let k = parse_intrinsics_file(&p).unwrap();
+        assert_eq!(
+            k,
+            CameraModel {
+                fx: 500.0,
+                fy: 501.0,
+                cx: 320.0,
+                cy: 240.0
+            }
+        );
+        std::fs::remove_file(&p).ok();
+
+        for (name, content, line, needle) in [
+            ("k-short.txt", "500 0 320\n0 501 240\n", 2, "found 2"),
+            (
+                "k-long.txt",
+                "500 0 320\n0 501 240\n0 0 1\n1 2 3\n",
+                4,
+                "more than 3",
+            ),
+            ("k-cols.txt", "500 0 320\n0 501\n0 0 1\n", 2, "found 2"),
+            (
+                "k-transposed.txt",
+                "500 0 0\n0 501 0\n320 240 1\n",
+                3,
+                "K[2][0]",
+            ),
+            ("k-neg.txt", "-500 0 320\n0 501 240\n0 0 1\n", 1, "> 0"),
+            (
+                "k-nan.txt",
+                "500 0 320\n0 nan 240\n0 0 1\n",
+                2,
+                "not finite",
+            ),
+            (
+                "k-word.txt",
+                "500 0 320\n0 fy 240\n0 0 1\n",
+                2,
+                "not a number",
+            ),
+        ] {
+            let p = temp_file(name, content);
+            let e = parse_intrinsics_file(&p).unwrap_err();
+            let msg = e.to_string();
+            assert!(
+                matches!(e, ReadError::Parse { line: l, .. } if l == line),
+                "{name}: {msg}"
+            );
+            assert!(msg.contains(name) && msg.contains(needle), "{name}: {msg}");
+            std::fs::remove_file(&p).ok();
+        }
+    }
+}

@@ -1,0 +1,183 @@
+//! Microsoft 7-Scenes (one `seq-XX` directory): `frame-XXXXXX.depth.png`
+//! (16-bit millimetres, depth scale 1000; both 0 and 65535 mean "no
+//! measurement", 65535 is decoded as 0) and `frame-XXXXXX.pose.txt` (4x4
+//! camera-to-world matrix, one row per line, last row `0 0 0 1`).
+//!
+//! Frames are sorted by frame number; the timestamp is the frame number (the
+//! dataset has none). `camera-intrinsics.txt` (3x3) gives the intrinsics when
+//! present, else the dataset's fx = fy = 585, cx = 320, cy = 240. The colour
+//! image is `frame-XXXXXX.color.png` or `.jpg` when one exists. A depth image
+//! without its pose file is an error naming both.
+
+use super::{text, ReadOptions};
+use crate::error::ReadError;
+use crate::sequence::{CameraModel, Format, FrameInfo, Sequence};
+use nalgebra::{Matrix3, UnitQuaternion};
+use std::collections::HashSet;
+use std::path::Path;
+
+/// The dataset's intrinsics, used when `camera-intrinsics.txt` is absent.
+pub const DEFAULT_CAMERA: CameraModel = CameraModel {
+    fx: 585.0,
+    fy: 585.0,
+    cx: 320.0,
+    cy: 240.0,
+};
+
+/// Depth units per metre (millimetres).
+pub const DEPTH_SCALE: f64 = 1000.0;
+
+/// The frame number of a `frame-<digits>.depth.png` file name.
+pub(crate) fn frame_number(name: &str) -> Option<u64> {
+    let digits = name.strip_prefix("frame-")?.strip_suffix(".depth.png")?;
+    if digits.is_empty() || !digits.bytes().all(|b| b.is_ascii_digit()) {
+        return None;
+    }
+    digits.parse().ok()
+}
+
+/// Parses a 4x4 camera-to-world pose file into a translation and a unit
+/// quaternion `[qx, qy, qz, qw]`.
+pub(crate) fn parse_pose_file(path: &Path) -> Result<([f64; 3], [f64; 4]), ReadError> {
+    let content = text::read_text(path)?;
+    let mut rows: Vec<(usize, Vec<f64>)> = Vec::with_capacity(4);
+    let mut last_line = 1;
+    for (line, l) in text::data_lines(&content) {
+        if rows.len() == 4 {
+            return Err(text::parse_error(
+                path,
+                line,
+                "more than 4 rows in a 4x4 pose matrix",
+            ));
+        }
+        rows.push((
+            line,
+            text::numbers(path, line, l, &[4], "a row of the 4x4 pose")?,
+        ));
+        last_line = line;
+    }
+    if rows.len() < 4 {
+        return Err(text::parse_error(
+            path,
+            last_line,
+            format!("a 4x4 pose matrix has 4 rows, found {}", rows.len()),
+        ));
+    }
+    let m = |r: usize, c: usize| rows[r].1[c];
+    let first_line = rows[0].0;
+    let r: [[f64; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| m(i, j)));
+    let t = [m(0, 3), m(1, 3), m(2, 3)];
+    placedb::Pose::from_matrix(r.map(|row| row.map(|c| c as f32)), t.map(|c| c as f32)).map_err(
+        |reason| ReadError::Pose {
+            path: path.to_path_buf(),
+            line: first_line,
+            reason,
+        },
+    )?;
+    let last = &rows[3];
+    if last.1 != [0.0, 0.0, 0.0, 1.0] {
+        return Err(text::parse_error(
+            path,
+            last.0,
+            format!(
+                "the last row of a 4x4 pose must be 0 0 0 1, found {:?}",
+                last.1
+            ),
+        ));
+    }
+    let q = UnitQuaternion::from_matrix(&Matrix3::from_fn(|i, j| r[i][j]));
+    Ok((t, [q.i, q.j, q.k, q.w]))
+}
+
+/// Reads a 7-Scenes sequence directory.
+pub(crate) fn read(dir: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError> {
+    let names = text::list_dir(dir)?;
+    let mut numbered: Vec<(u64, &String)> = names
+        .iter()
+        .filter_map(|n| frame_number(n).map(|k| (k, n)))
+        .collect();
+    numbered.sort();
+    if let Some(w) = numbered.windows(2).find(|w| w[0].0 == w[1].0) {
+        return Err(text::layout(
+            dir,
+            format!("{} and {} have the same frame number", w[0].1, w[1].1),
+        ));
+    }
+    if numbered.is_empty() {
+        return Err(text::layout(dir, "no frame-*.depth.png files"));
+    }
+    let present: HashSet<&str> = names.iter().map(String::as_str).collect();
+    let camera = super::camera(dir, "camera-intrinsics.txt", Some(DEFAULT_CAMERA), opts)?;
+    let mut frames = Vec::with_capacity(numbered.len());
+    let mut paths = Vec::with_capacity(numbered.len());
+    for (index, &(number, depth_name)) in numbered.iter().enumerate() {
+        let stem = &depth_name[..depth_name.len() - ".depth.png".len()];
+        let pose_name = format!("{stem}.pose.txt");
+        if !present.contains(pose_name.as_str()) {
+            return Err(text::layout(
+                dir,
+                format!("{depth_name} has no pose file (expected {pose_name})"),
+            ));
+        }
+        let (translation, rotation) = parse_pose_file(&dir.join(&pose_name))?;
+        let color_path = ["png", "jpg"]
+            .iter()
+            .map(|ext| format!("{stem}.color.{ext}"))
+            .find(|n| present.contains(n.as_str()))
+            .map(|n| dir.join(n));
+        frames.push(FrameInfo {
+            index,
+            timestamp: number as f64,
+            translation,
+            rotation,
+            depth_name: depth_name.clone(),
+            color_path,
+        });
+        paths.push(dir.join(depth_name));
+    }
+    super::assemble(
+        dir,
+        Format::SevenScenes,
+        camera,
+        opts.depth_scale.unwrap_or(DEPTH_SCALE),
+        frames,
+        paths,
+        true,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frame_numbers() {
+        assert_eq!(frame_number("frame-000012.depth.png"), Some(12));
+        assert_eq!(frame_number("frame-7.depth.png"), Some(7));
+        assert_eq!(frame_number("frame-000012.pose.txt"), None);
+        assert_eq!(frame_number("frame-.depth.png"), None);
+        assert_eq!(frame_number("frame-+1.depth.png"), None);
+        assert_eq!(frame_number("xframe-000012.depth.png"), None);
+    }
+
+    #[test]
+    fn pose_file_rotation_becomes_quaternion() {
+        let p = std::env::temp_dir().join(format!(
+            "placedb-read-7s-{}-frame-000000.pose.txt",
+            std::process::id()
+        ));
+        // 90 degrees about z: x -> y.
+        std::fs::write(&p, "0 -1 0 1\n1 0 0 2\n0 0 1 3\n0 0 0 1\n").unwrap();
+        let (t, q) = parse_pose_file(&p).unwrap();
+        assert_eq!(t, [1.0, 2.0, 3.0]);
+        let h = std::f64::consts::FRAC_1_SQRT_2;
+        let expected = [0.0, 0.0, h, h];
+        let same = q.iter().zip(expected).all(|(a, b)| (a - b).abs() < 1e-9);
+        let opposite = q.iter().zip(expected).all(|(a, b)| (a + b).abs() < 1e-9);
+        assert!(same || opposite, "{q:?}");
+        std::fs::write(&p, "1 0 0 1\n0 1 0 2\n0 0 1 3\n0 0 1 1\n").unwrap();
+        let e = parse_pose_file(&p).unwrap_err();
+        assert!(matches!(e, ReadError::Parse { line: 4, .. }), "{e}");
+        std::fs::remove_file(&p).ok();
+    }
+}
