@@ -358,15 +358,15 @@ impl FrameProjector {
         let b = [r[0][0], r[1][0], r[2][0]];
         let mut valid = 0u32;
         for (u, raw) in pixels {
-            if raw == 0 {
-                continue;
-            }
+            // A raw 0 (no measurement) gives z = 0, which fails `z > min`
+            // because the range is validated to have min >= 0.
             let z = raw as f32 * self.metres_per_unit;
             if !(z > self.range.min && z <= self.range.max) {
                 continue;
             }
             valid += 1;
-            let x = (u as f32 - self.cx) * self.inv_fx;
+            // Through i32: one instruction to float, where usize takes several.
+            let x = (u as i32 as f32 - self.cx) * self.inv_fx;
             let p = [
                 (a[0] + x * b[0]) * z + self.translation[0],
                 (a[1] + x * b[1]) * z + self.translation[1],

@@ -53,11 +53,11 @@ impl VoxelKey {
         if !(inside(p[0]) && inside(p[1]) && inside(p[2])) {
             return None;
         }
-        Some(VoxelKey::new(
-            floor_i32(p[0]),
-            floor_i32(p[1]),
-            floor_i32(p[2]),
-        ))
+        // In range: pack without the clamps of `new`; this is the per-pixel path.
+        let c = |a: f32| (floor_i32(a) + AXIS_BIAS) as u64;
+        Some(VoxelKey {
+            packed: (c(p[0]) << (2 * AXIS_BITS)) | (c(p[1]) << AXIS_BITS) | c(p[2]),
+        })
     }
 
     /// Coordinates `(x, y, z)` of the voxel.

@@ -321,6 +321,7 @@ fn metrics_json(
         put("pool_peak_words", st.pool.peak.into());
         put("frame_voxels_peak", st.frame_voxels.peak.into());
         put("core_s", run.core_time.as_secs_f64().into());
+        put("valid_pixels", st.valid_pixels.into());
     }
     serde_json::Value::Object(m)
 }
