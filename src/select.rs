@@ -197,6 +197,55 @@ struct Slot<const W: usize, const K: usize> {
     iou: [f32; W],
 }
 
+/// A window ring entry. Not `Option<Slot>`: its `None` would be encoded in
+/// a niche (a non-zero byte), and a selector whose fresh state is all zero
+/// bytes lands in `.bss` instead of costing its size again in flash.
+#[derive(Debug, Clone)]
+struct RingEntry<const W: usize, const K: usize> {
+    live: bool,
+    slot: Slot<W, K>,
+}
+
+impl<const W: usize, const K: usize> RingEntry<W, K> {
+    const EMPTY: Self = RingEntry {
+        live: false,
+        slot: Slot {
+            frame: Stored {
+                meta: FrameMeta {
+                    index: 0,
+                    timestamp: 0.0,
+                    pose: Pose {
+                        translation: [0.0; 3],
+                        rotation: [0.0; 4],
+                    },
+                },
+                len: 0,
+                aabb: None,
+                keys: None,
+                sketch: Sketch::EMPTY,
+            },
+            taken: false,
+            cover: None,
+            nearest: None,
+            adjacent: 0,
+            iou: [0.0; W],
+        },
+    };
+
+    fn get(&self) -> Option<&Slot<W, K>> {
+        self.live.then_some(&self.slot)
+    }
+
+    fn get_mut(&mut self) -> Option<&mut Slot<W, K>> {
+        self.live.then_some(&mut self.slot)
+    }
+
+    fn take(&mut self) -> Option<Slot<W, K>> {
+        let entry = core::mem::replace(self, Self::EMPTY);
+        entry.live.then_some(entry.slot)
+    }
+}
+
 /// The online selector with its capacities: `FV` slots of the frame voxel set,
 /// `POOL` key words, `DB` database frames, `W` window frames (at most 64),
 /// sketches of `K` hashes.
@@ -213,7 +262,7 @@ pub struct Selector<
     ingest: FrameIngest<FV>,
     pool: KeyPool<POOL>,
     db: heapless::Vec<Stored<K>, DB>,
-    ring: [Option<Slot<W, K>>; W],
+    ring: [RingEntry<W, K>; W],
     head: usize,
     len: usize,
     status: Status,
@@ -255,7 +304,7 @@ fn overlaps<const POOL: usize, const W: usize, const K: usize>(
     cfg: &SelectorConfig,
     pool: &KeyPool<POOL>,
     db: &[Stored<K>],
-    ring: &mut [Option<Slot<W, K>>; W],
+    ring: &mut [RingEntry<W, K>; W],
     window: WindowView,
     new: Stored<K>,
     keys: &[u64],
@@ -296,7 +345,7 @@ fn overlaps<const POOL: usize, const W: usize, const K: usize>(
     };
     for k in 0..window.len {
         let t = (window.head + k) % W;
-        if let Some(other) = ring[t].as_mut() {
+        if let Some(other) = ring[t].get_mut() {
             if other.taken {
                 continue;
             }
@@ -336,7 +385,7 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
             ingest: FrameIngest::new(),
             pool: KeyPool::new(),
             db: heapless::Vec::new(),
-            ring: [const { None }; W],
+            ring: [const { RingEntry::EMPTY }; W],
             head: 0,
             len: 0,
             status: Status::ZERO,
@@ -349,7 +398,7 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
         self.ingest.abort();
         self.pool.clear();
         self.db.clear();
-        self.ring.iter_mut().for_each(|s| *s = None);
+        self.ring.iter_mut().for_each(|s| *s = RingEntry::EMPTY);
         self.head = 0;
         self.len = 0;
         self.status = Status::default();
@@ -444,6 +493,7 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
     /// Ends the frame in progress and runs the selection step; `emit` receives
     /// the final decisions of frames leaving the window, in frame order, then
     /// `Pending` for this frame if it stays in the window.
+    #[inline(never)]
     pub fn end_frame(&mut self, mut emit: impl FnMut(FrameDecision)) -> Result<(), SelectError> {
         let (meta, keys, stats) = self.ingest.end()?;
         let n = keys.len() as u32;
@@ -487,13 +537,13 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
         st.frame_voxels.set(n as usize);
         st.valid_pixels += u64::from(stats.valid_pixels);
         st.frames_seen += 1;
-        self.ring[s] = Some(slot);
+        self.ring[s] = RingEntry { live: true, slot };
         self.len += 1;
         self.note_usage();
         while self.len >= cfg.window as usize {
             self.decide_oldest(&mut emit);
         }
-        if self.len > 0 && self.ring[s].is_some() {
+        if self.len > 0 && self.ring[s].live {
             emit(FrameDecision {
                 index: meta.index,
                 decision: Decision::Pending,
@@ -504,6 +554,7 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
 
     /// Decides every frame still in the window (end of scan). The selector
     /// stays usable: later frames start with an empty window.
+    #[inline(never)]
     pub fn finish(&mut self, mut emit: impl FnMut(FrameDecision)) -> Result<(), SelectError> {
         if self.ingest.current().is_some() {
             return Err(SelectError::FrameInProgress);
@@ -525,7 +576,7 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
         let (mut open, mut uncovered) = (0u64, 0u64);
         for k in 0..self.len {
             let t = (self.head + k) % W;
-            if let Some(slot) = &self.ring[t] {
+            if let Some(slot) = self.ring[t].get() {
                 if !slot.taken {
                     open |= 1 << t;
                     if slot.cover.is_none() {
@@ -541,7 +592,7 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
     #[inline(never)]
     fn decide_oldest(&mut self, emit: &mut impl FnMut(FrameDecision)) {
         let o = self.head;
-        let Some(oldest) = self.ring[o].as_ref() else {
+        let Some(oldest) = self.ring[o].get() else {
             // Unreachable by construction; keep the window consistent anyway.
             self.head = (self.head + 1) % W;
             self.len = self.len.saturating_sub(1);
@@ -560,7 +611,7 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
                 if candidates & (1 << t) == 0 {
                     continue;
                 }
-                if let Some(c) = &self.ring[t] {
+                if let Some(c) = self.ring[t].get() {
                     let score = ((c.adjacent | (1 << t)) & uncovered).count_ones();
                     let idx = c.frame.meta.index;
                     if best.is_none_or(|(bs, bi, _)| score > bs || (score == bs && idx > bi)) {
@@ -599,7 +650,7 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
     /// Moves window slot `t` into the database and updates every window
     /// frame's cover and nearest database frame.
     fn take(&mut self, t: usize) {
-        let Some(slot) = self.ring[t].as_mut() else {
+        let Some(slot) = self.ring[t].get_mut() else {
             return;
         };
         if self.db.push(slot.frame.clone()).is_err() {
@@ -612,7 +663,7 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
             if j == t {
                 continue;
             }
-            if let Some(other) = self.ring[j].as_mut() {
+            if let Some(other) = self.ring[j].get_mut() {
                 if other.taken {
                     continue;
                 }
@@ -632,7 +683,7 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
             .db
             .iter_mut()
             .map(|s| &mut s.keys)
-            .chain(self.ring.iter_mut().flatten().map(|s| &mut s.frame.keys));
+            .chain(self.ring.iter_mut().filter_map(RingEntry::get_mut).map(|s| &mut s.frame.keys));
         for r in runs.flatten() {
             r.after_free(run);
         }

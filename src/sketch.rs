@@ -37,6 +37,12 @@ impl<const K: usize> Default for Sketch<K> {
 }
 
 impl<const K: usize> Sketch<K> {
+    /// The sketch of the empty set.
+    pub const EMPTY: Self = Sketch {
+        hashes: [0; K],
+        len: 0,
+    };
+
     /// Sketch of a set given as distinct packed keys, in any order.
     #[inline(never)]
     pub fn from_keys(keys: impl Iterator<Item = u64>) -> Self {

@@ -60,6 +60,22 @@ impl VoxelKey {
         })
     }
 
+    /// The key of voxel `(x, y, z)` given as `i64`, or `None` outside the
+    /// representable range; one test for all three axes (per-pixel path).
+    #[inline(always)]
+    pub fn from_wide(x: i64, y: i64, z: i64) -> Option<VoxelKey> {
+        // Biased, an in-range axis is 0..2^21; anything else has higher bits
+        // set once seen as u64 (negative values included).
+        let b = |a: i64| a.wrapping_add(AXIS_BIAS as i64) as u64;
+        let (x, y, z) = (b(x), b(y), b(z));
+        if (x | y | z) >> AXIS_BITS != 0 {
+            return None;
+        }
+        Some(VoxelKey {
+            packed: (x << (2 * AXIS_BITS)) | (y << AXIS_BITS) | z,
+        })
+    }
+
     /// Coordinates `(x, y, z)` of the voxel.
     pub fn coords(self) -> (i32, i32, i32) {
         let u = |shift: u32| ((self.packed >> shift) & AXIS_MASK) as i32 - AXIS_BIAS;
@@ -281,6 +297,15 @@ mod tests {
         }
         assert!(VoxelKey::from_grid_coords([f32::NAN, 0.0, 0.0]).is_none());
         assert!(VoxelKey::from_grid_coords([2e6, 0.0, 0.0]).is_none());
+    }
+
+    #[test]
+    fn wide_keys_check_every_axis() {
+        let k = VoxelKey::from_wide(-3, 7, VoxelKey::MAX as i64).unwrap();
+        assert_eq!(k.coords(), (-3, 7, VoxelKey::MAX));
+        for (x, y, z) in [(1i64 << 21, 0, 0), (0, -(1 << 20) - 1, 0), (0, 0, 1 << 32), (i64::MIN, 0, 0)] {
+            assert!(VoxelKey::from_wide(x, y, z).is_none(), "{x} {y} {z}");
+        }
     }
 
     #[test]

@@ -1,0 +1,129 @@
+//! placedb firmware for the Raspberry Pi Pico (RP2040, Cortex-M0+): the placedb
+//! wire protocol over USB CDC-ACM serial.
+//!
+//! One polled loop, no interrupts: service USB, read what the host sent, feed
+//! it to the [`Device256K`] (a `static`, so its RAM is accounted for at link
+//! time) and queue every reply frame it produces on the [`link::Link`], which
+//! never drops a reply byte and stops reading while its queue is full. The
+//! on-board LED (GPIO25) toggles on every reply frame.
+#![no_std]
+#![no_main]
+
+mod link;
+
+use core::cell::{Cell, RefCell};
+use critical_section::Mutex;
+use embedded_hal::digital::StatefulOutputPin;
+use placedb::device::Device256K;
+use rp2040_hal::{self as hal, pac, usb::UsbBus};
+use usb_device::class_prelude::UsbBusAllocator;
+use usb_device::device::{StringDescriptors, UsbDeviceBuilder, UsbVidPid};
+use usbd_serial::{SerialPort, USB_CLASS_CDC};
+
+/// Second-stage bootloader for the Pico's W25Q16 flash (W25Q080 image): the
+/// first 256 bytes of flash (memory.x), loaded and checked by the boot ROM.
+// `unsafe(link_section)`: the attribute is unsafe in general (a section can
+// hold anything); `.boot2` is a 256-byte region of its own that only the boot
+// ROM reads, and the value is the vendor's checksummed image.
+#[unsafe(link_section = ".boot2")]
+#[used]
+pub static BOOT2: [u8; 256] = rp2040_boot2::BOOT_LOADER_W25Q080;
+
+/// The Pico's crystal.
+const XTAL_FREQ_HZ: u32 = 12_000_000;
+/// The RP2040 timer counts microseconds.
+const TIMER_HZ: u32 = 1_000_000;
+/// Shared VID/PID for CDC-ACM test devices (not for products).
+const USB_VID_PID: UsbVidPid = UsbVidPid(0x16c0, 0x27dd);
+/// Bytes read from USB per turn: one full-speed bulk packet.
+const RX_CHUNK: usize = 64;
+
+/// The device, all zero at power-on, in `.bss`: a firmware whose statics and
+/// stack reserve do not fit the 256 KiB RAM fails to link (memory.x).
+static DEVICE: Mutex<RefCell<Device256K>> = Mutex::new(RefCell::new(Device256K::new()));
+
+/// The timer read by [`ticks`], the device's clock.
+static TIMER: Mutex<Cell<Option<hal::Timer>>> = Mutex::new(Cell::new(None));
+
+/// Microseconds since boot (0 before the timer is set up).
+fn ticks() -> u64 {
+    critical_section::with(|cs| TIMER.borrow(cs).get()).map_or(0, |t| t.get_counter().ticks())
+}
+
+#[hal::entry]
+fn main() -> ! {
+    let Some(mut pac) = pac::Peripherals::take() else {
+        halt()
+    };
+    let mut watchdog = hal::Watchdog::new(pac.WATCHDOG);
+    let Ok(clocks) = hal::clocks::init_clocks_and_plls(
+        XTAL_FREQ_HZ,
+        pac.XOSC,
+        pac.CLOCKS,
+        pac.PLL_SYS,
+        pac.PLL_USB,
+        &mut pac.RESETS,
+        &mut watchdog,
+    ) else {
+        halt()
+    };
+    let timer = hal::Timer::new(pac.TIMER, &mut pac.RESETS, &clocks);
+    critical_section::with(|cs| {
+        TIMER.borrow(cs).set(Some(timer));
+        DEVICE.borrow_ref_mut(cs).set_clock(ticks, TIMER_HZ);
+    });
+
+    let sio = hal::Sio::new(pac.SIO);
+    let pins = hal::gpio::Pins::new(
+        pac.IO_BANK0,
+        pac.PADS_BANK0,
+        sio.gpio_bank0,
+        &mut pac.RESETS,
+    );
+    let mut led = pins.gpio25.into_push_pull_output();
+
+    let bus = UsbBusAllocator::new(UsbBus::new(
+        pac.USBCTRL_REGS,
+        pac.USBCTRL_DPRAM,
+        clocks.usb_clock,
+        true,
+        &mut pac.RESETS,
+    ));
+    let serial = SerialPort::new(&bus);
+    let strings = StringDescriptors::default()
+        .manufacturer("placedb")
+        .product("placedb device")
+        .serial_number("0001");
+    let Ok(builder) = UsbDeviceBuilder::new(&bus, USB_VID_PID).strings(&[strings]) else {
+        halt()
+    };
+    let usb = builder.device_class(USB_CLASS_CDC).build();
+    let mut link = link::Link::new(usb, serial);
+
+    let mut rx = [0u8; RX_CHUNK];
+    loop {
+        link.poll();
+        let n = link.read(&mut rx);
+        let bytes = rx.get(..n).unwrap_or_default();
+        if bytes.is_empty() {
+            continue;
+        }
+        critical_section::with(|cs| {
+            DEVICE.borrow_ref_mut(cs).receive(bytes, &mut |frame| {
+                let Ok(()) = led.toggle();
+                link.send(frame);
+            });
+        });
+    }
+}
+
+fn halt() -> ! {
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
+#[panic_handler]
+fn panic(_info: &core::panic::PanicInfo) -> ! {
+    halt()
+}
