@@ -1,0 +1,750 @@
+//! Exact co-observation counts between frames and the overlap graph `G(mu)`.
+//!
+//! [`CoObservation::new`] counts `|d_i ∩ d_j|` for every pair of frames that
+//! share at least one voxel, the way the paper's code does: an inverted index
+//! voxel -> frames, then for each frame `i` a walk over its voxels' posting
+//! lists counting the frames `j > i` met there, into a dense counter array of
+//! length `n` per thread — never an all-pairs loop over frames. That walk costs
+//! `Σ_voxels m² / 2` increments (`m` = frames seeing the voxel). Consecutive
+//! frames of a sequence share most of their voxels, so threads take runs of
+//! consecutive frames and, when cheaper, turn frame `i - 1`'s counts into
+//! frame `i`'s by walking only the postings of the voxels that enter and
+//! leave (the counters then hold every `j > run start` and are swept in order).
+//!
+//! IoU uses the core's [`placedb::voxel::iou`], so host and device compare
+//! the very same `f32` against `mu`.
+
+use indicatif::ProgressBar;
+use rayon::prelude::*;
+use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
+
+/// Hasher for packed voxel keys: one 64x64->128 multiply folded to 64 bits,
+/// so that every key bit reaches the low bits the hash table indexes with.
+#[derive(Default, Clone, Copy)]
+pub(crate) struct KeyHasher(u64);
+
+const MIX: u64 = 0x9E37_79B9_7F4A_7C15;
+
+impl Hasher for KeyHasher {
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0.rotate_left(8) ^ b as u64).wrapping_mul(MIX);
+        }
+    }
+
+    fn write_u64(&mut self, k: u64) {
+        self.0 ^= k;
+    }
+
+    fn finish(&self) -> u64 {
+        let p = (self.0 as u128).wrapping_mul(MIX as u128);
+        (p as u64) ^ ((p >> 64) as u64)
+    }
+}
+
+/// A `HashMap` keyed by packed voxel keys.
+pub(crate) type KeyMap<V> = HashMap<u64, V, BuildHasherDefault<KeyHasher>>;
+
+/// Inverted index voxel -> frames over a list of voxel sets.
+struct InvertedIndex {
+    /// Frames holding voxel `v` (dense id) are `items[starts[v]..starts[v + 1]]`, ascending.
+    starts: Vec<u32>,
+    /// Frame indices, grouped by voxel.
+    items: Vec<u32>,
+    /// Voxel id of every key occurrence, frame-major: frame `i`'s are
+    /// `ids[frame_starts[i]..frame_starts[i + 1]]`, in its key order.
+    ids: Vec<u32>,
+    /// Start of each frame's occurrences in `ids` (length `n + 1`).
+    frame_starts: Vec<usize>,
+    /// Number of distinct keys.
+    distinct: usize,
+}
+
+impl InvertedIndex {
+    /// Builds the index. Voxel ids are cells of the keys' bounding box when
+    /// it has no more cells than key occurrences (plus 65536), else the ranks
+    /// of the distinct keys found with a hash map. Either way ids ascend with
+    /// keys, so within a frame they ascend.
+    ///
+    /// # Panics
+    /// When the sets hold `u32::MAX` key occurrences or more in total.
+    fn new(sets: &[Vec<u64>]) -> InvertedIndex {
+        let total: usize = sets.iter().map(Vec::len).sum();
+        InvertedIndex::build(sets, BoxCells::of(sets, total))
+    }
+
+    /// Builds the index with voxel ids from `cells`, or from a hash map.
+    fn build(sets: &[Vec<u64>], cells: Option<BoxCells>) -> InvertedIndex {
+        let total: usize = sets.iter().map(Vec::len).sum();
+        assert!(
+            total < u32::MAX as usize,
+            "too many voxel occurrences: {total}"
+        );
+        let mut frame_starts = Vec::with_capacity(sets.len() + 1);
+        frame_starts.push(0);
+        for s in sets {
+            frame_starts.push(frame_starts.last().copied().unwrap_or(0) + s.len());
+        }
+        let mut ids = vec![0u32; total];
+        let n_ids = match cells {
+            Some(cells) => {
+                per_frame_mut(&mut ids, &frame_starts)
+                    .into_par_iter()
+                    .zip(sets)
+                    .for_each(|(out, s)| {
+                        for (o, &k) in out.iter_mut().zip(s) {
+                            *o = cells.cell(k);
+                        }
+                    });
+                cells.count
+            }
+            None => {
+                let mut map: KeyMap<u32> = KeyMap::default();
+                for (o, &k) in ids.iter_mut().zip(sets.iter().flatten()) {
+                    let next = map.len() as u32;
+                    *o = *map.entry(k).or_insert(next);
+                }
+                // Renumber by key order.
+                let mut keys: Vec<(u64, u32)> = map.into_iter().collect();
+                keys.par_sort_unstable();
+                let mut rank = vec![0u32; keys.len()];
+                for (r, &(_, first)) in keys.iter().enumerate() {
+                    rank[first as usize] = r as u32;
+                }
+                ids.par_iter_mut().for_each(|id| *id = rank[*id as usize]);
+                keys.len()
+            }
+        };
+
+        // Counting sort of (id, frame) by id, in parallel over id ranges:
+        // within a frame the ids of a range are a contiguous run.
+        let n_ranges = (8 * rayon::current_num_threads()).min(n_ids.max(1));
+        let bounds: Vec<u32> = (0..=n_ranges)
+            .map(|r| (r * n_ids / n_ranges) as u32)
+            .collect();
+        let run = |i: usize, lo: u32, hi: u32| {
+            let f = &ids[frame_starts[i]..frame_starts[i + 1]];
+            &f[f.partition_point(|&v| v < lo)..f.partition_point(|&v| v < hi)]
+        };
+        let counts: Vec<Vec<u32>> = bounds
+            .par_windows(2)
+            .map(|w| {
+                let mut c = vec![0u32; (w[1] - w[0]) as usize];
+                for i in 0..sets.len() {
+                    for &v in run(i, w[0], w[1]) {
+                        c[(v - w[0]) as usize] += 1;
+                    }
+                }
+                c
+            })
+            .collect();
+        let mut starts = Vec::with_capacity(n_ids + 1);
+        starts.push(0u32);
+        let mut distinct = 0;
+        for &c in counts.iter().flatten() {
+            distinct += (c != 0) as usize;
+            starts.push(starts.last().copied().unwrap_or(0) + c);
+        }
+        let mut items = vec![0u32; total];
+        let mut parts: Vec<&mut [u32]> = Vec::with_capacity(n_ranges);
+        let mut rest = &mut items[..];
+        for w in bounds.windows(2) {
+            let len = (starts[w[1] as usize] - starts[w[0] as usize]) as usize;
+            let (part, tail) = rest.split_at_mut(len);
+            parts.push(part);
+            rest = tail;
+        }
+        parts
+            .into_par_iter()
+            .zip(bounds.par_windows(2))
+            .for_each(|(part, w)| {
+                let base = starts[w[0] as usize];
+                let mut cursor: Vec<u32> = starts[w[0] as usize..w[1] as usize]
+                    .iter()
+                    .map(|&s| s - base)
+                    .collect();
+                for i in 0..sets.len() {
+                    for &v in run(i, w[0], w[1]) {
+                        let p = &mut cursor[(v - w[0]) as usize];
+                        part[*p as usize] = i as u32;
+                        *p += 1;
+                    }
+                }
+            });
+        InvertedIndex {
+            starts,
+            items,
+            ids,
+            frame_starts,
+            distinct,
+        }
+    }
+
+    /// Voxel ids of frame `i`'s keys, in key order.
+    fn ids_of(&self, i: usize) -> &[u32] {
+        &self.ids[self.frame_starts[i]..self.frame_starts[i + 1]]
+    }
+
+    /// Range of `items` holding voxel `v`'s frames.
+    fn range(&self, v: u32) -> (usize, usize) {
+        (
+            self.starts[v as usize] as usize,
+            self.starts[v as usize + 1] as usize,
+        )
+    }
+
+    /// Frames after `after` holding voxel `v`, ascending.
+    fn after(&self, v: u32, after: usize) -> &[u32] {
+        let (a, b) = self.range(v);
+        let p = &self.items[a..b];
+        &p[p.partition_point(|&j| j as usize <= after)..]
+    }
+}
+
+/// `buf` cut into one slice per frame.
+fn per_frame_mut<'a>(mut buf: &'a mut [u32], frame_starts: &[usize]) -> Vec<&'a mut [u32]> {
+    let mut out = Vec::with_capacity(frame_starts.len().saturating_sub(1));
+    for w in frame_starts.windows(2) {
+        let (head, tail) = buf.split_at_mut(w[1] - w[0]);
+        out.push(head);
+        buf = tail;
+    }
+    out
+}
+
+/// The bounding box of all keys as a dense grid of cells.
+struct BoxCells {
+    min: [u64; 3],
+    dims: [u64; 3],
+    count: usize,
+}
+
+impl BoxCells {
+    const SHIFT: [u32; 3] = [42, 21, 0];
+    const MASK: u64 = (1 << 21) - 1;
+
+    /// The box, when it has at most `total + 65536` cells.
+    fn of(sets: &[Vec<u64>], total: usize) -> Option<BoxCells> {
+        let axis = |k: u64, a: usize| (k >> Self::SHIFT[a]) & Self::MASK;
+        // Per axis minimum and maximum, and the OR of all keys (bit 63 must be clear).
+        let empty = ([u64::MAX; 3], [0u64; 3], 0u64);
+        let (lo, hi, or) = sets
+            .par_iter()
+            .map(|s| {
+                let (mut lo, mut hi, mut or) = empty;
+                for &k in s {
+                    for a in 0..3 {
+                        lo[a] = lo[a].min(axis(k, a));
+                        hi[a] = hi[a].max(axis(k, a));
+                    }
+                    or |= k;
+                }
+                (lo, hi, or)
+            })
+            .reduce(
+                || empty,
+                |(l1, h1, o1), (l2, h2, o2)| {
+                    (
+                        [0, 1, 2].map(|a| l1[a].min(l2[a])),
+                        [0, 1, 2].map(|a| h1[a].max(h2[a])),
+                        o1 | o2,
+                    )
+                },
+            );
+        if total == 0 || or >> 63 != 0 {
+            return None;
+        }
+        let dims = [0, 1, 2].map(|a| hi[a] - lo[a] + 1);
+        let count = dims[0] as u128 * dims[1] as u128 * dims[2] as u128;
+        (count <= total as u128 + 65536 && count < u32::MAX as u128).then_some(BoxCells {
+            min: lo,
+            dims,
+            count: count as usize,
+        })
+    }
+
+    /// Cell of key `k`: lexicographic in (x, y, z) like the packed keys.
+    fn cell(&self, k: u64) -> u32 {
+        let c = |a: usize| ((k >> Self::SHIFT[a]) & Self::MASK) - self.min[a];
+        ((c(0) * self.dims[1] + c(1)) * self.dims[2] + c(2)) as u32
+    }
+}
+
+/// Per-thread state of the counting walk over a run of consecutive frames.
+struct Counter {
+    /// Counts indexed by frame.
+    count: Vec<u32>,
+    /// `Some(base)`: `count[j] = |d_prev ∩ d_j|` for every `j > base`, where
+    /// `prev` is the frame just counted, and zero for `j <= base`.
+    /// `None`: all zero.
+    holding: Option<usize>,
+    /// Frames whose count left zero (sparse rows).
+    touched: Vec<u32>,
+    /// Voxel ids entering / leaving between consecutive frames.
+    added: Vec<u32>,
+    removed: Vec<u32>,
+    /// Rows counted by delta, dense and sparse walks.
+    paths: [usize; 3],
+}
+
+impl Counter {
+    fn new(n: usize) -> Counter {
+        Counter {
+            count: vec![0; n],
+            holding: None,
+            touched: Vec::new(),
+            added: Vec::new(),
+            removed: Vec::new(),
+            paths: [0; 3],
+        }
+    }
+
+    /// Rows of the consecutive frames `frames`; leaves the counters zeroed.
+    fn rows(
+        &mut self,
+        index: &InvertedIndex,
+        frames: std::ops::Range<usize>,
+        progress: Option<&ProgressBar>,
+    ) -> Vec<Vec<(u32, u32)>> {
+        let rows = frames
+            .map(|i| {
+                let row = self.row(index, i);
+                if let Some(p) = progress {
+                    p.inc(1);
+                }
+                row
+            })
+            .collect();
+        self.release();
+        rows
+    }
+
+    /// Zeroes the counters.
+    fn release(&mut self) {
+        if let Some(base) = self.holding.take() {
+            self.count[base + 1..].fill(0);
+        }
+    }
+
+    /// Row `i`: every `(j, |d_i ∩ d_j|)` with `j > i` and a non-zero count,
+    /// ascending in `j`. Three ways, cheapest first by estimate:
+    /// - delta: when holding frame `i - 1`'s counts, add the postings of
+    ///   voxels entering and subtract those leaving, then sweep `j > i`;
+    /// - dense: count frame `i`'s posting-list tails (`j > i`), then sweep;
+    /// - sparse: the same, remembering touched counters and sorting them.
+    fn row(&mut self, index: &InvertedIndex, i: usize) -> Vec<(u32, u32)> {
+        let n = self.count.len();
+        let ids = index.ids_of(i);
+        if let Some(base) = self.holding {
+            self.diff(index, i);
+            let len = |v: &u32| {
+                let (a, b) = index.range(*v);
+                b - a
+            };
+            let delta: usize = self.added.iter().chain(&self.removed).map(len).sum();
+            let fresh: usize = ids.iter().map(len).sum::<usize>() / 2;
+            if delta + (n - i) / 4 < fresh {
+                let count = &mut self.count[..];
+                for &v in &self.added {
+                    for &j in index.after(v, base) {
+                        count[j as usize] += 1;
+                    }
+                }
+                for &v in &self.removed {
+                    for &j in index.after(v, base) {
+                        count[j as usize] -= 1;
+                    }
+                }
+                self.paths[0] += 1;
+                return self.sweep(i);
+            }
+            self.release();
+        }
+        let work: usize = ids.iter().map(|&v| index.after(v, i).len()).sum();
+        let count = &mut self.count[..];
+        if 4 * work >= n - i - 1 {
+            for &v in ids {
+                for &j in index.after(v, i) {
+                    count[j as usize] += 1;
+                }
+            }
+            self.holding = Some(i);
+            self.paths[1] += 1;
+            return self.sweep(i);
+        }
+        let touched = &mut self.touched;
+        for &v in ids {
+            for &j in index.after(v, i) {
+                let c = &mut count[j as usize];
+                if *c == 0 {
+                    touched.push(j);
+                }
+                *c += 1;
+            }
+        }
+        touched.sort_unstable();
+        self.paths[2] += 1;
+        let row = touched
+            .iter()
+            .map(|&j| (j, std::mem::take(&mut count[j as usize])))
+            .collect();
+        touched.clear();
+        row
+    }
+
+    /// Non-zero counts of frames after `i`, without clearing them.
+    fn sweep(&self, i: usize) -> Vec<(u32, u32)> {
+        self.count[i + 1..]
+            .iter()
+            .enumerate()
+            .filter(|&(_, &c)| c != 0)
+            .map(|(k, &c)| ((i + 1 + k) as u32, c))
+            .collect()
+    }
+
+    /// Voxel ids in `d_i` but not `d_{i-1}` (`added`) and the reverse
+    /// (`removed`): a merge of the two frames' ascending ids.
+    fn diff(&mut self, index: &InvertedIndex, i: usize) {
+        let (a, b) = (index.ids_of(i - 1), index.ids_of(i));
+        self.added.clear();
+        self.removed.clear();
+        let (mut p, mut q) = (0, 0);
+        while p < a.len() && q < b.len() {
+            match a[p].cmp(&b[q]) {
+                std::cmp::Ordering::Less => {
+                    self.removed.push(a[p]);
+                    p += 1;
+                }
+                std::cmp::Ordering::Greater => {
+                    self.added.push(b[q]);
+                    q += 1;
+                }
+                std::cmp::Ordering::Equal => {
+                    p += 1;
+                    q += 1;
+                }
+            }
+        }
+        self.removed.extend_from_slice(&a[p..]);
+        self.added.extend_from_slice(&b[q..]);
+    }
+}
+
+/// Intersection counts of every co-observing pair of frames.
+///
+/// Only pairs `i < j` with `|d_i ∩ d_j| > 0` are stored, in row `i`
+/// (compressed rows, ascending `j`): memory grows with the number of
+/// co-observing pairs, not with `n²`.
+#[derive(Debug, Clone)]
+pub struct CoObservation {
+    /// `|d_i|` per frame.
+    sizes: Vec<u32>,
+    /// Row `i` is `pairs[offsets[i]..offsets[i + 1]]`.
+    offsets: Vec<usize>,
+    /// `(j, |d_i ∩ d_j|)` with `j > i`.
+    pairs: Vec<(u32, u32)>,
+    /// `|∪ d_i|`.
+    distinct_keys: usize,
+}
+
+impl CoObservation {
+    /// Counts intersections of all co-observing pairs of `sets` (each
+    /// ascending and duplicate-free). `progress`, when given, is incremented
+    /// once per frame.
+    ///
+    /// # Panics
+    /// When a set holds `u32::MAX` keys or more, or all sets together
+    /// `u32::MAX` key occurrences or more.
+    pub fn new(sets: &[Vec<u64>], progress: Option<&ProgressBar>) -> CoObservation {
+        let n = sets.len();
+        assert!(n < u32::MAX as usize, "too many frames: {n}");
+        debug_assert!(sets.iter().all(|s| s.windows(2).all(|w| w[0] < w[1])));
+        let index = InvertedIndex::new(sets);
+        // Runs of consecutive frames, so that each run can mostly update
+        // the previous frame's counts; several runs per thread for balance.
+        let run = (n / (4 * rayon::current_num_threads())).clamp(16, 256);
+        let runs: Vec<Vec<Vec<(u32, u32)>>> = (0..n.div_ceil(run))
+            .into_par_iter()
+            .map_init(
+                || Counter::new(n),
+                |counter, r| counter.rows(&index, r * run..((r + 1) * run).min(n), progress),
+            )
+            .collect();
+        let rows: Vec<Vec<(u32, u32)>> = runs.into_iter().flatten().collect();
+        let mut offsets = Vec::with_capacity(n + 1);
+        offsets.push(0);
+        for r in &rows {
+            offsets.push(offsets.last().copied().unwrap_or(0) + r.len());
+        }
+        let mut pairs = Vec::with_capacity(offsets[n]);
+        for r in rows {
+            pairs.extend_from_slice(&r);
+        }
+        CoObservation {
+            sizes: sets.iter().map(|s| s.len() as u32).collect(),
+            offsets,
+            pairs,
+            distinct_keys: index.distinct,
+        }
+    }
+
+    /// Number of frames.
+    pub fn len(&self) -> usize {
+        self.sizes.len()
+    }
+
+    /// `true` when there are no frames.
+    pub fn is_empty(&self) -> bool {
+        self.sizes.is_empty()
+    }
+
+    /// `|d_i|`.
+    pub fn size(&self, i: usize) -> u32 {
+        self.sizes[i]
+    }
+
+    /// `|∪ d_i|` over all frames.
+    pub fn distinct_keys(&self) -> usize {
+        self.distinct_keys
+    }
+
+    /// Number of co-observing pairs (`i < j`, at least one common voxel).
+    pub fn pair_count(&self) -> usize {
+        self.pairs.len()
+    }
+
+    /// Row `i`: `(j, |d_i ∩ d_j|)` for every co-observing `j > i`, ascending.
+    pub fn row(&self, i: usize) -> &[(u32, u32)] {
+        &self.pairs[self.offsets[i]..self.offsets[i + 1]]
+    }
+
+    /// Every co-observing pair as `(i, j, |d_i ∩ d_j|)` with `i < j`, row by row.
+    pub fn pairs(&self) -> impl Iterator<Item = (usize, usize, u32)> + '_ {
+        (0..self.len()).flat_map(move |i| self.row(i).iter().map(move |&(j, c)| (i, j as usize, c)))
+    }
+
+    /// `|d_i ∩ d_j|` (symmetric; `|d_i|` when `i == j`).
+    pub fn common(&self, i: usize, j: usize) -> u32 {
+        if i == j {
+            return self.sizes[i];
+        }
+        let (a, b) = if i < j { (i, j) } else { (j, i) };
+        let row = self.row(a);
+        match row.binary_search_by_key(&(b as u32), |&(j, _)| j) {
+            Ok(k) => row[k].1,
+            Err(_) => 0,
+        }
+    }
+
+    /// IoU of frames `i` and `j` by the core's formula (symmetric; 0 for pairs
+    /// sharing no voxel and for two empty sets; 1 for `i == j` unless empty).
+    pub fn iou(&self, i: usize, j: usize) -> f32 {
+        self.pair_iou(i, j, self.common(i, j))
+    }
+
+    /// IoU of `i` and `j` given their intersection count.
+    pub fn pair_iou(&self, i: usize, j: usize, common: u32) -> f32 {
+        placedb::voxel::iou(self.sizes[i], self.sizes[j], common)
+    }
+
+    /// The overlap graph `G(mu)`: edge `i–j` iff `IoU > mu` (strict). For
+    /// `mu < 0` pairs sharing no voxel still get no edge (IoU 0 is not an
+    /// overlap); NaN gives no edges.
+    pub fn graph(&self, mu: f32) -> OverlapGraph {
+        let n = self.len();
+        let upper: Vec<Vec<u32>> = (0..n)
+            .into_par_iter()
+            .map(|i| {
+                self.row(i)
+                    .iter()
+                    .filter(|&&(j, c)| self.pair_iou(i, j as usize, c) > mu)
+                    .map(|&(j, _)| j)
+                    .collect()
+            })
+            .collect();
+        let mut adj: Vec<Vec<u32>> = vec![Vec::new(); n];
+        // Rows in ascending order: every list receives its lower neighbours
+        // (ascending) before its own upper ones (ascending), so it stays sorted.
+        for (i, up) in upper.into_iter().enumerate() {
+            for &j in &up {
+                adj[j as usize].push(i as u32);
+            }
+            adj[i].extend_from_slice(&up);
+        }
+        OverlapGraph { n, mu, adj }
+    }
+}
+
+/// An undirected simple graph on frames `0..n`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OverlapGraph {
+    /// Number of vertices (frames).
+    pub n: usize,
+    /// The IoU threshold it was built with; NaN for graphs built from edges.
+    pub mu: f32,
+    /// Sorted, duplicate-free neighbours of each vertex, without the vertex
+    /// itself; symmetric.
+    pub adj: Vec<Vec<u32>>,
+}
+
+impl OverlapGraph {
+    /// A graph from an edge list (any order, duplicates and self-loops
+    /// ignored); `mu` is NaN.
+    ///
+    /// # Panics
+    /// When an endpoint is `>= n`.
+    pub fn from_edges(n: usize, edges: &[(usize, usize)]) -> OverlapGraph {
+        let mut adj: Vec<Vec<u32>> = vec![Vec::new(); n];
+        for &(a, b) in edges {
+            assert!(a < n && b < n, "edge ({a}, {b}) outside 0..{n}");
+            if a != b {
+                adj[a].push(b as u32);
+                adj[b].push(a as u32);
+            }
+        }
+        for l in &mut adj {
+            l.sort_unstable();
+            l.dedup();
+        }
+        OverlapGraph {
+            n,
+            mu: f32::NAN,
+            adj,
+        }
+    }
+
+    /// Neighbours of `v` (not including `v`), ascending.
+    pub fn neighbours(&self, v: usize) -> &[u32] {
+        &self.adj[v]
+    }
+
+    /// Whether `a` and `b` are adjacent.
+    pub fn has_edge(&self, a: usize, b: usize) -> bool {
+        self.adj[a].binary_search(&(b as u32)).is_ok()
+    }
+
+    /// Number of edges.
+    pub fn edge_count(&self) -> usize {
+        self.adj.iter().map(Vec::len).sum::<usize>() / 2
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use placedb::voxel::intersection_size;
+
+    #[test]
+    fn small_counts_and_graph() {
+        let sets = vec![
+            vec![1, 2, 3, 4],
+            vec![3, 4, 5],
+            vec![10],
+            vec![],
+            vec![1, 2, 3, 4],
+        ];
+        let co = CoObservation::new(&sets, None);
+        assert_eq!(co.row(0), &[(1, 2), (4, 4)]);
+        assert_eq!(co.row(1), &[(4, 2)]);
+        assert!(co.row(2).is_empty() && co.row(3).is_empty());
+        assert_eq!(co.common(4, 1), 2);
+        assert_eq!(co.iou(1, 0), 2.0 / 5.0);
+        assert_eq!(co.iou(0, 4), 1.0);
+        assert_eq!(co.iou(2, 3), 0.0);
+        assert_eq!(co.iou(3, 3), 0.0);
+        assert_eq!(co.distinct_keys(), 6);
+        let g = co.graph(0.4);
+        assert_eq!(g.adj, vec![vec![4], vec![], vec![], vec![], vec![0]]);
+        let g = co.graph(0.3);
+        assert_eq!(
+            g.adj,
+            vec![vec![1, 4], vec![0, 4], vec![], vec![], vec![0, 1]]
+        );
+    }
+
+    /// Rows of `sets` by one counter over `run`-frame runs, in both id
+    /// modes, checked against merges; returns how often each path ran.
+    fn check_rows(sets: &[Vec<u64>], run: usize) -> [usize; 3] {
+        let total = sets.iter().map(Vec::len).sum();
+        let mut paths = [0; 3];
+        for cells in [BoxCells::of(sets, total), None] {
+            let index = InvertedIndex::build(sets, cells);
+            let mut counter = Counter::new(sets.len());
+            let mut i = 0;
+            for r in (0..sets.len()).step_by(run) {
+                for row in counter.rows(&index, r..(r + run).min(sets.len()), None) {
+                    let want: Vec<(u32, u32)> = (i + 1..sets.len())
+                        .map(|j| (j as u32, intersection_size(&sets[i], &sets[j])))
+                        .filter(|&(_, c)| c > 0)
+                        .collect();
+                    assert_eq!(row, want, "frame {i}");
+                    i += 1;
+                }
+                assert!(counter.count.iter().all(|&c| c == 0));
+            }
+            paths = counter.paths;
+        }
+        paths
+    }
+
+    #[test]
+    fn every_counting_path_matches_merges() {
+        use placedb::VoxelKey;
+        let key = |x: i32, y: i32, z: i32| VoxelKey::new(x, y, z).to_bits();
+        // A sliding window along x, 1 voxel per frame: consecutive frames
+        // share most voxels (delta path).
+        let slide: Vec<Vec<u64>> = (0..120)
+            .map(|i| {
+                (i..i + 30)
+                    .flat_map(|x| (0..3).map(move |y| key(x, y, -2)))
+                    .collect()
+            })
+            .collect();
+        let p = check_rows(&slide, 40);
+        assert!(p[0] > 50 && p[1] >= 3, "{p:?}");
+        // Unrelated consecutive frames over a small world (dense path).
+        let mut state = 1u64;
+        let mut next = move || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            state >> 33
+        };
+        let shuffled: Vec<Vec<u64>> = (0..80)
+            .map(|_| {
+                let mut s: Vec<u64> = (0..40)
+                    .filter(|_| next() % 3 == 0)
+                    .map(|x| key(x, 5, 5))
+                    .collect();
+                s.dedup();
+                s
+            })
+            .collect();
+        let p = check_rows(&shuffled, 16);
+        assert!(p[1] > 40, "{p:?}");
+        // Frame 0 sees many frames through few voxels, the others only
+        // their neighbours (sparse path), plus empty frames.
+        let mut sparse: Vec<Vec<u64>> = (0..300)
+            .map(|i| vec![key(i, 0, 0), key(i / 7, 1, 0)])
+            .collect();
+        sparse[0] = (0..300).map(|i| key(i, 0, 0)).collect();
+        sparse[5].clear();
+        sparse[6].clear();
+        sparse.iter_mut().for_each(|s| s.sort_unstable());
+        let p = check_rows(&sparse, 300);
+        assert!(p[2] > 100, "{p:?}");
+    }
+
+    #[test]
+    fn hasher_spreads_low_bits() {
+        let h = |k: u64| {
+            let mut s = KeyHasher::default();
+            s.write_u64(k);
+            s.finish() & 0xff
+        };
+        // Keys differing only in the x field (high bits) must not collide in the low bits.
+        let distinct: std::collections::HashSet<u64> = (0..64u64).map(|x| h(x << 42)).collect();
+        assert!(distinct.len() > 40);
+    }
+}
