@@ -2,6 +2,7 @@
 //! graph, dominating-set solvers, baselines, metrics), replay of the core, and
 //! the `placedb` command line built on them.
 
+pub mod device_cli;
 pub mod error;
 pub mod graph;
 pub mod link;

@@ -1,10 +1,12 @@
 //! Host-side transports to a placedb device, and a protocol client on top.
 //!
 //! - [`Link`]: a byte pipe with a receive timeout. Implementations: [`TcpLink`]
-//!   (`tcp:HOST:PORT`, e.g. an emulator or a serial-to-TCP bridge) and [`Qemu`]
-//!   (launches the emulated board and talks to its UART0 over loopback TCP).
-//!   A serial-port link (`serial:/dev/ttyACM0`) needs the `serialport` crate and
-//!   is not implemented yet: [`open`] refuses it with `Unsupported`.
+//!   (`tcp:HOST:PORT`: an emulator such as `placedb device --qemu`, or a
+//!   serial-to-TCP bridge), [`SerialLink`] (`serial:PATH` or a bare device path
+//!   such as `/dev/ttyACM0`: a board over USB CDC-ACM or a UART), [`LocalLink`]
+//!   (`local:PROFILE`: the device state machine of the core in-process, no
+//!   hardware) and [`Qemu`] (launches the emulated board and talks to its UART0
+//!   over loopback TCP).
 //! - [`Client`]: frames [`HostMessage`]s with sequence numbers, decodes
 //!   [`DeviceMessage`]s, and matches terminal replies to requests.
 //!
@@ -45,22 +47,230 @@ impl<L: Link + ?Sized> Link for Box<L> {
     }
 }
 
-/// Opens a link from its command-line spelling: `tcp:HOST:PORT`.
-/// `serial:PATH` is recognised but needs the `serialport` crate (not built in).
+/// Opens a link from its command-line spelling: `tcp:HOST:PORT`,
+/// `serial:PATH` (or a bare path such as `/dev/ttyACM0` or `COM3`), or
+/// `local:PROFILE` (`local:ram512k`: the core's device in-process).
 pub fn open(spec: &str, timeout: Duration) -> io::Result<Box<dyn Link>> {
     if let Some(addr) = spec.strip_prefix("tcp:") {
         return Ok(Box::new(TcpLink::connect(addr, timeout)?));
     }
-    if spec.starts_with("serial:") {
-        return Err(io::Error::new(
-            io::ErrorKind::Unsupported,
-            "serial links need the `serialport` crate, not built into this placedb",
-        ));
+    if let Some(profile) = spec.strip_prefix("local:") {
+        return Ok(Box::new(LocalLink::start(profile)?));
+    }
+    let path = spec.strip_prefix("serial:").unwrap_or(spec);
+    let looks_like_port = spec.starts_with("serial:")
+        || path.starts_with('/')
+        || path.to_ascii_uppercase().starts_with("COM");
+    if looks_like_port && !path.is_empty() {
+        return Ok(Box::new(SerialLink::open(path)?));
     }
     Err(io::Error::new(
         io::ErrorKind::InvalidInput,
-        format!("unknown link `{spec}`: expected tcp:HOST:PORT or serial:PATH"),
+        format!(
+            "unknown port `{spec}`: expected tcp:HOST:PORT, a serial device path \
+             (/dev/ttyACM0, serial:PATH) or local:PROFILE"
+        ),
     ))
+}
+
+/// Chunks of bytes (or the error that ended them) from a reader thread.
+type Chunks = Receiver<io::Result<Vec<u8>>>;
+
+/// Reads `from` in a thread into a channel until it fails or closes.
+fn reader_thread(
+    mut from: impl Read + Send + 'static,
+    tolerate_timeouts: bool,
+) -> io::Result<(Chunks, JoinHandle<()>)> {
+    let (tx, rx) = mpsc::channel();
+    let handle = thread::Builder::new()
+        .name("placedb-link-rx".into())
+        .spawn(move || {
+            let mut buf = vec![0u8; 64 * 1024];
+            loop {
+                match from.read(&mut buf) {
+                    Ok(0) => {
+                        let _ = tx.send(Err(io::ErrorKind::UnexpectedEof.into()));
+                        return;
+                    }
+                    Ok(n) => {
+                        if tx.send(Ok(buf[..n].to_vec())).is_err() {
+                            return;
+                        }
+                    }
+                    Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                    Err(e) if tolerate_timeouts && e.kind() == io::ErrorKind::TimedOut => {
+                        // A serial read timed out: check the owner still listens.
+                        if tx.send(Ok(Vec::new())).is_err() {
+                            return;
+                        }
+                    }
+                    Err(e) => {
+                        let _ = tx.send(Err(e));
+                        return;
+                    }
+                }
+            }
+        })?;
+    Ok((rx, handle))
+}
+
+/// Waits on a reader channel, skipping empty keep-alive chunks.
+fn recv_channel(
+    rx: &Receiver<io::Result<Vec<u8>>>,
+    closed: &mut bool,
+    timeout: Duration,
+) -> io::Result<Vec<u8>> {
+    if *closed {
+        return Err(io::ErrorKind::UnexpectedEof.into());
+    }
+    let end = Instant::now() + timeout;
+    loop {
+        let left = end.saturating_duration_since(Instant::now());
+        match rx.recv_timeout(left) {
+            Ok(Ok(bytes)) if bytes.is_empty() => continue,
+            Ok(Ok(bytes)) => return Ok(bytes),
+            Ok(Err(e)) => {
+                *closed = true;
+                return Err(e);
+            }
+            Err(RecvTimeoutError::Timeout) => {
+                return Err(io::Error::new(
+                    io::ErrorKind::TimedOut,
+                    format!("no bytes from the device within {timeout:?}"),
+                ))
+            }
+            Err(RecvTimeoutError::Disconnected) => {
+                *closed = true;
+                return Err(io::ErrorKind::UnexpectedEof.into());
+            }
+        }
+    }
+}
+
+/// A serial port (USB CDC-ACM or a UART); a reader thread feeds a channel.
+pub struct SerialLink {
+    port: Box<dyn serialport::SerialPort>,
+    rx: Receiver<io::Result<Vec<u8>>>,
+    closed: bool,
+}
+
+impl SerialLink {
+    /// Opens `path` (115200 baud, 8N1; CDC-ACM ignores the rate).
+    pub fn open(path: &str) -> io::Result<SerialLink> {
+        let port = serialport::new(path, 115_200)
+            .timeout(Duration::from_millis(100))
+            .open()
+            .map_err(|e| io::Error::other(format!("cannot open serial port {path}: {e}")))?;
+        let reading = port
+            .try_clone()
+            .map_err(|e| io::Error::other(format!("cannot clone serial port {path}: {e}")))?;
+        // The reader thread ends when the port fails or this link is dropped
+        // (its next keep-alive send fails).
+        let (rx, _reader) = reader_thread(reading, true)?;
+        Ok(SerialLink {
+            port,
+            rx,
+            closed: false,
+        })
+    }
+}
+
+impl Link for SerialLink {
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        self.port.write_all(bytes)?;
+        self.port.flush()
+    }
+
+    fn recv(&mut self, timeout: Duration) -> io::Result<Vec<u8>> {
+        recv_channel(&self.rx, &mut self.closed, timeout)
+    }
+}
+
+/// The core's device state machine run in-process on a thread, behind the
+/// same byte interface as a board: what every board runs, without hardware.
+pub struct LocalLink {
+    to_device: Option<mpsc::Sender<Vec<u8>>>,
+    rx: Receiver<io::Result<Vec<u8>>>,
+    closed: bool,
+    worker: Option<JoinHandle<()>>,
+}
+
+impl LocalLink {
+    /// A fresh device of capacity profile `profile` (`ram256k`, `ram512k`, `ram1m`).
+    pub fn start(profile: &str) -> io::Result<LocalLink> {
+        use placedb::device::{Device1M, Device256K, Device512K};
+        let (to_device, inbox) = mpsc::channel::<Vec<u8>>();
+        let (tx, rx) = mpsc::channel();
+        /// `Device::receive` of some profile.
+        type Receive<'a> = dyn FnMut(&[u8], &mut dyn FnMut(&[u8])) + 'a;
+        /// Hands every chunk from the inbox to `receive` and the replies back.
+        fn serve(
+            receive: &mut Receive<'_>,
+            inbox: Receiver<Vec<u8>>,
+            tx: mpsc::Sender<io::Result<Vec<u8>>>,
+        ) {
+            for bytes in inbox {
+                let mut out = Vec::new();
+                receive(&bytes, &mut |frame: &[u8]| out.extend_from_slice(frame));
+                if !out.is_empty() && tx.send(Ok(out)).is_err() {
+                    return;
+                }
+            }
+        }
+        let profile = profile.to_string();
+        if placedb::profile::by_name(&profile).is_none() {
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                format!("unknown profile {profile:?} (known: ram256k, ram512k, ram1m)"),
+            ));
+        }
+        let worker = thread::Builder::new()
+            .name("placedb-local-device".into())
+            // A device is built on this stack before it is boxed (debug builds).
+            .stack_size(64 << 20)
+            .spawn(move || match profile.as_str() {
+                "ram256k" => {
+                    let mut d = Box::new(Device256K::new());
+                    serve(&mut |b, s| d.receive(b, s), inbox, tx)
+                }
+                "ram512k" => {
+                    let mut d = Box::new(Device512K::new());
+                    serve(&mut |b, s| d.receive(b, s), inbox, tx)
+                }
+                _ => {
+                    let mut d = Box::new(Device1M::new());
+                    serve(&mut |b, s| d.receive(b, s), inbox, tx)
+                }
+            })?;
+        Ok(LocalLink {
+            to_device: Some(to_device),
+            rx,
+            closed: false,
+            worker: Some(worker),
+        })
+    }
+}
+
+impl Link for LocalLink {
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        match &self.to_device {
+            Some(tx) if tx.send(bytes.to_vec()).is_ok() => Ok(()),
+            _ => Err(io::ErrorKind::BrokenPipe.into()),
+        }
+    }
+
+    fn recv(&mut self, timeout: Duration) -> io::Result<Vec<u8>> {
+        recv_channel(&self.rx, &mut self.closed, timeout)
+    }
+}
+
+impl Drop for LocalLink {
+    fn drop(&mut self) {
+        self.to_device = None;
+        if let Some(worker) = self.worker.take() {
+            let _ = worker.join();
+        }
+    }
 }
 
 /// A TCP connection; a reader thread feeds a channel.
@@ -88,31 +298,8 @@ impl TcpLink {
     pub fn from_stream(stream: TcpStream) -> io::Result<TcpLink> {
         stream.set_nodelay(true)?;
         stream.set_nonblocking(false)?;
-        let mut reading = stream.try_clone()?;
-        let (tx, rx) = mpsc::channel();
-        let reader = thread::Builder::new()
-            .name("placedb-link-rx".into())
-            .spawn(move || {
-                let mut buf = vec![0u8; 64 * 1024];
-                loop {
-                    match reading.read(&mut buf) {
-                        Ok(0) => {
-                            let _ = tx.send(Err(io::ErrorKind::UnexpectedEof.into()));
-                            return;
-                        }
-                        Ok(n) => {
-                            if tx.send(Ok(buf[..n].to_vec())).is_err() {
-                                return;
-                            }
-                        }
-                        Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-                        Err(e) => {
-                            let _ = tx.send(Err(e));
-                            return;
-                        }
-                    }
-                }
-            })?;
+        let reading = stream.try_clone()?;
+        let (rx, reader) = reader_thread(reading, false)?;
         Ok(TcpLink {
             stream,
             rx,
@@ -134,24 +321,7 @@ impl Link for TcpLink {
     }
 
     fn recv(&mut self, timeout: Duration) -> io::Result<Vec<u8>> {
-        if self.closed {
-            return Err(io::ErrorKind::UnexpectedEof.into());
-        }
-        match self.rx.recv_timeout(timeout) {
-            Ok(Ok(bytes)) => Ok(bytes),
-            Ok(Err(e)) => {
-                self.closed = true;
-                Err(e)
-            }
-            Err(RecvTimeoutError::Timeout) => Err(io::Error::new(
-                io::ErrorKind::TimedOut,
-                format!("no bytes from the device within {timeout:?}"),
-            )),
-            Err(RecvTimeoutError::Disconnected) => {
-                self.closed = true;
-                Err(io::ErrorKind::UnexpectedEof.into())
-            }
-        }
+        recv_channel(&self.rx, &mut self.closed, timeout)
     }
 }
 
@@ -192,6 +362,72 @@ impl Default for QemuOptions {
             deadline: Duration::from_secs(600),
         }
     }
+}
+
+/// The QEMU command line booting `firmware` with UART0 on chardev `serial`
+/// (e.g. `tcp:127.0.0.1:PORT` to connect to a host listening there, or
+/// `tcp:127.0.0.1:PORT,server,nowait` to listen). Standard input is closed.
+pub fn qemu_command(firmware: &Path, options: &QemuOptions, serial: &str) -> Command {
+    let mut command = Command::new(&options.program);
+    command
+        .args(["-cpu", &options.cpu, "-machine", &options.machine])
+        .args(["-display", "none", "-monitor", "none"])
+        .args(["-semihosting-config", "enable=on,target=native"])
+        .arg("-serial")
+        .arg(serial)
+        .args(&options.extra_args)
+        .arg("-kernel")
+        .arg(firmware)
+        .stdin(Stdio::null());
+    command
+}
+
+/// Where the QEMU board's firmware is built: `PLACEDB_QEMU_FIRMWARE` if set,
+/// else `boards/qemu-mps2-an386/target/thumbv7em-none-eabihf/release/placedb-qemu-mps2-an386`
+/// of this source tree.
+pub fn default_firmware() -> PathBuf {
+    std::env::var_os("PLACEDB_QEMU_FIRMWARE")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| {
+            Path::new(env!("CARGO_MANIFEST_DIR")).join(
+                "../boards/qemu-mps2-an386/target/thumbv7em-none-eabihf/release/placedb-qemu-mps2-an386",
+            )
+        })
+}
+
+/// How to build the QEMU firmware (for error messages).
+pub const FIRMWARE_BUILD: &str = "cd boards/qemu-mps2-an386 && cargo build --release";
+
+/// The QEMU firmware, built (or brought up to date) first unless
+/// `PLACEDB_QEMU_FIRMWARE` names one: tests then always run the firmware of
+/// the core they test. Built once per process.
+pub fn built_firmware() -> Result<PathBuf, String> {
+    static BUILT: std::sync::OnceLock<Result<PathBuf, String>> = std::sync::OnceLock::new();
+    BUILT
+        .get_or_init(|| {
+            let path = default_firmware();
+            if std::env::var_os("PLACEDB_QEMU_FIRMWARE").is_none() {
+                let board = Path::new(env!("CARGO_MANIFEST_DIR")).join("../boards/qemu-mps2-an386");
+                let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+                let out = Command::new(cargo)
+                    .args(["build", "--release"])
+                    .current_dir(&board)
+                    .output()
+                    .map_err(|e| format!("cannot run cargo to build the firmware: {e}"))?;
+                if !out.status.success() {
+                    return Err(format!(
+                        "building the firmware (`{FIRMWARE_BUILD}`) failed:\n{}",
+                        String::from_utf8_lossy(&out.stderr)
+                    ));
+                }
+            }
+            if path.is_file() {
+                Ok(path)
+            } else {
+                Err(format!("firmware {} is missing: build it with `{FIRMWARE_BUILD}`", path.display()))
+            }
+        })
+        .clone()
 }
 
 /// Shared between the owner and the watchdog thread.
@@ -241,19 +477,8 @@ impl Qemu {
         let started = Instant::now();
         let listener = TcpListener::bind(("127.0.0.1", 0))?;
         let port = listener.local_addr()?.port();
-        let mut command = Command::new(&options.program);
-        command
-            .args(["-cpu", &options.cpu, "-machine", &options.machine])
-            .args(["-display", "none", "-monitor", "none"])
-            .args(["-semihosting-config", "enable=on,target=native"])
-            .arg("-serial")
-            .arg(format!("tcp:127.0.0.1:{port}"))
-            .args(&options.extra_args)
-            .arg("-kernel")
-            .arg(firmware)
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped());
+        let mut command = qemu_command(firmware, &options, &format!("tcp:127.0.0.1:{port}"));
+        command.stdout(Stdio::piped()).stderr(Stdio::piped());
         let mut child = command.spawn().map_err(|e| {
             io::Error::new(
                 e.kind(),
@@ -642,7 +867,7 @@ impl<L: Link> Client<L> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use placedb::protocol::{Capacity, ErrorKind, Feed, Phase, Status, CAPACITY_SLOTS};
+    use placedb::protocol::{ErrorKind, Feed, Phase, Status};
 
     /// A fake device on loopback: answers StatusRequest with Status, logs once,
     /// refuses anything else, reports framing errors.
@@ -671,12 +896,9 @@ mod tests {
                                     .to_vec(),
                             );
                             let status = DeviceMessage::Status(Status {
-                                seq,
-                                phase: Phase::Ready,
                                 frames_seen: 3,
                                 database_size: 1,
-                                capacities: [Capacity::default(); CAPACITY_SLOTS],
-                                degradation: 0,
+                                ..Status::new(seq, Phase::Ready)
                             });
                             replies.push(encode(&status, &mut tx).unwrap().to_vec());
                         }
@@ -736,12 +958,14 @@ mod tests {
     }
 
     #[test]
-    fn open_refuses_unknown_and_serial_links() {
+    fn open_refuses_unknown_links_and_missing_ports() {
+        assert!(open("serial:/nonexistent/ttyACM9", Duration::from_millis(10)).is_err());
+        assert!(open("/nonexistent/ttyACM9", Duration::from_millis(10)).is_err());
         assert_eq!(
-            open("serial:/dev/ttyACM0", Duration::from_millis(10))
+            open("local:ram2k", Duration::from_millis(10))
                 .err()
                 .map(|e| e.kind()),
-            Some(io::ErrorKind::Unsupported)
+            Some(io::ErrorKind::InvalidInput)
         );
         assert_eq!(
             open("udp:1.2.3.4:5", Duration::from_millis(10))

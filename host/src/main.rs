@@ -3,6 +3,7 @@
 //! write synthetic sequences, print the device budgets.
 
 use clap::{Args, Parser, Subcommand};
+use placedb_host::device_cli;
 use placedb_host::pipeline::{self, Outcome, Prepared, Solver, SolverParams};
 use placedb_host::read::{self, ReadOptions};
 use placedb_host::synth::{self, SynthConfig};
@@ -36,6 +37,71 @@ enum Command {
     /// Measure select's wall time, time split and peak memory on the synthetic
     /// 5000-frame scan and the recorded samples (each run in a child process).
     Bench(BenchArgs),
+    /// Stream a sequence to a device (board or emulator) with live status.
+    Stream(StreamArgs),
+    /// Pull database.csv, labels.csv, metrics.json from a device (resumable, CRC-checked).
+    Export(ExportArgs),
+    /// Start the emulated board (QEMU mps2-an386) and print the port to use.
+    Device(DeviceArgs),
+}
+
+/// `placedb stream`: the sequence options of select, a port and the selector's.
+#[derive(Args)]
+struct StreamArgs {
+    #[command(flatten)]
+    seq: SeqArgs,
+    /// Device: a serial port (/dev/ttyACM0), tcp:HOST:PORT (the emulator) or local:PROFILE.
+    #[arg(long)]
+    port: String,
+    /// IoU threshold: frames overlap when IoU > mu.
+    #[arg(long, default_value_t = 0.3)]
+    mu: f32,
+    /// Frames held undecided (capped by the device's window).
+    #[arg(long, default_value_t = 32)]
+    window: u16,
+    /// Capacity profile the device's firmware was built with (checked).
+    #[arg(long, default_value = "ram512k")]
+    profile: String,
+    /// Also export the result into this directory (as `placedb export -o`).
+    #[arg(short, long)]
+    out: Option<PathBuf>,
+    /// No progress bar.
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+/// `placedb export`.
+#[derive(Args)]
+struct ExportArgs {
+    /// Device: a serial port (/dev/ttyACM0), tcp:HOST:PORT (the emulator) or local:PROFILE.
+    #[arg(long)]
+    port: String,
+    /// Output directory for database.csv, labels.csv, metrics.json.
+    #[arg(short, long)]
+    out: PathBuf,
+    /// Resume an interrupted export into the same directory from record K.
+    #[arg(long)]
+    from: Option<u32>,
+    /// No progress bar.
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+/// `placedb device`.
+#[derive(Args)]
+struct DeviceArgs {
+    /// Run the emulated board under qemu-system-arm (the only kind for now).
+    #[arg(long, required = true)]
+    qemu: bool,
+    /// Firmware ELF (default: the one built in boards/qemu-mps2-an386).
+    #[arg(long)]
+    firmware: Option<PathBuf>,
+    /// Loopback TCP port for the board's UART (0: any free port).
+    #[arg(long, default_value_t = 0)]
+    port: u16,
+    /// Run without -icount shift=0 (faster, but no exact instruction counts).
+    #[arg(long)]
+    no_icount: bool,
 }
 
 /// Where the frames come from and how they become voxel sets.
@@ -565,6 +631,13 @@ struct BenchArgs {
     /// Frames of the synthetic scan.
     #[arg(long, default_value_t = 5000)]
     synthetic_frames: usize,
+    /// Instead: count the core's instructions per frame and per valid pixel
+    /// with valgrind's callgrind (repeatable counts, not seconds).
+    #[arg(long)]
+    core: bool,
+    /// With --core: frames of 7scenes-1000 to replay.
+    #[arg(long, default_value_t = 20)]
+    core_frames: usize,
 }
 
 /// The paper's reference code on this machine, 7scenes-1000 at stride 1
@@ -572,6 +645,9 @@ struct BenchArgs {
 const PAPER_7SCENES: (f64, f64) = (51.0, 400.0);
 
 fn bench(a: BenchArgs) -> Result<(), Error> {
+    if a.core {
+        return core_cost(&a);
+    }
     let exe = std::env::current_exe()?;
     let out = std::env::temp_dir().join(format!("placedb-bench-{}", std::process::id()));
     let mut inputs: Vec<(String, Vec<String>)> = vec![(
@@ -633,6 +709,75 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
     Ok(())
 }
 
+/// The core's parts, each a function kept out of line in the core so that
+/// callgrind can count it alone (`--toggle-collect`).
+const CORE_PARTS: [(&str, &str); 4] = [
+    ("voxelize", "*FrameIngest*push_rows*"),
+    ("end frame", "*Selector*end_frame*"),
+    ("- select", "*Selector*decide_oldest*"),
+    ("finish", "*Selector*finish*"),
+];
+
+/// Counts the core's instructions with callgrind on a replay of the first
+/// frames of 7scenes-1000 and prints them per frame and per valid pixel.
+fn core_cost(a: &BenchArgs) -> Result<(), Error> {
+    let exe = std::env::current_exe()?;
+    let dir = std::env::temp_dir().join(format!("placedb-cost-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let seq = a.data.join("7scenes-1000");
+    let mut counts = Vec::new();
+    let mut meta = serde_json::Value::Null;
+    for (_, pattern) in CORE_PARTS {
+        let child = std::process::Command::new("valgrind")
+            .args(["--tool=callgrind", "--collect-atstart=no"])
+            .arg(format!("--toggle-collect={pattern}"))
+            .arg(format!("--callgrind-out-file={}", dir.join("callgrind.out").display()))
+            .arg(&exe)
+            .args(["select", "--solver", "online", "--json", "-q", "--stride"])
+            .arg(a.stride.to_string())
+            .arg("--max-frames")
+            .arg(a.core_frames.to_string())
+            .arg(&seq)
+            .arg("-o")
+            .arg(dir.join("out"))
+            .output()
+            .map_err(|e| format!("cannot run valgrind ({e}); install it to count instructions"))?;
+        if !child.status.success() {
+            return Err(format!("callgrind run failed: {}", String::from_utf8_lossy(&child.stderr)).into());
+        }
+        meta = serde_json::from_slice(&child.stdout)?;
+        // valgrind's summary line: "==PID== Collected : N" (callgrind) or "I   refs: N".
+        let stderr = String::from_utf8_lossy(&child.stderr);
+        let n = stderr
+            .lines()
+            .find_map(|l| l.split_once("Collected :").or_else(|| l.split_once("I   refs:")))
+            .and_then(|(_, n)| n.trim().replace(',', "").parse::<f64>().ok())
+            .ok_or("no instruction count in callgrind's output")?;
+        counts.push(n);
+    }
+    let frames = meta["frames"].as_f64().unwrap_or(f64::NAN);
+    let pixels = meta["valid_pixels"].as_f64().unwrap_or(f64::NAN);
+    println!(
+        "core instructions (callgrind, x86-64), {} frames of 7scenes-1000 at stride {}, {:.0} valid pixels per frame:",
+        frames,
+        a.stride,
+        pixels / frames
+    );
+    println!("{:<10} {:>14} {:>12}", "part", "instr/frame", "instr/pixel");
+    let mut total = 0.0;
+    for ((part, _), n) in CORE_PARTS.iter().zip(&counts) {
+        // Parts marked "-" are inside "end frame".
+        if !part.starts_with('-') {
+            total += n;
+        }
+        println!("{:<10} {:>14.0} {:>12.2}", part, n / frames, n / pixels);
+    }
+    println!("{:<10} {:>14.0} {:>12.2}", "all", total / frames, total / pixels);
+    println!("end frame = sort the frame's voxels, sketch, overlaps with database and window, select");
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(())
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let r = match cli.command {
@@ -641,6 +786,22 @@ fn main() -> ExitCode {
         Command::Synth(a) => synth_cmd(a),
         Command::Budget => budget(),
         Command::Bench(a) => bench(a),
+        Command::Stream(a) => open_sequence(&a.seq).and_then(|seq| {
+            let v = voxel_config(&a.seq);
+            let sel = placedb::SelectorConfig {
+                mu: a.mu,
+                window: a.window,
+                sketch_margin: SolverParams::default().sketch_margin,
+            };
+            let out = a.out.as_deref();
+            device_cli::stream_cmd(&a.port, &seq, &v, sel, &a.profile, out, a.quiet)?;
+            Ok(())
+        }),
+        Command::Export(a) => device_cli::export_cmd(&a.port, &a.out, a.from, a.quiet)
+            .map(|_| ())
+            .map_err(Into::into),
+        Command::Device(a) => device_cli::qemu_device_cmd(a.firmware, a.port, !a.no_icount)
+            .map_err(Into::into),
     };
     match r {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,5 +1,6 @@
-//! End to end over the emulated board: host -> loopback TCP -> QEMU UART0 ->
-//! firmware frame decoder -> handler -> UART0 -> host.
+//! The link to the emulated board: host -> loopback TCP -> QEMU UART0 ->
+//! firmware -> `placedb::device::Device` -> UART0 -> host. (The full scan
+//! end to end is tests/end_to_end.rs at the workspace root.)
 //!
 //! Needs `qemu-system-arm` and the firmware built first:
 //! `cd boards/qemu-mps2-an386 && cargo build --release`
@@ -16,20 +17,7 @@ use std::time::{Duration, Instant};
 const REPLY_TIMEOUT: Duration = Duration::from_secs(5);
 
 fn firmware() -> PathBuf {
-    let path = std::env::var_os("PLACEDB_QEMU_FIRMWARE")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| {
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(
-                "../boards/qemu-mps2-an386/target/thumbv7em-none-eabihf/release/placedb-qemu-mps2-an386",
-            )
-        });
-    assert!(
-        path.is_file(),
-        "firmware {} is missing: build it with `cd boards/qemu-mps2-an386 && cargo build --release` \
-         (or set PLACEDB_QEMU_FIRMWARE)",
-        path.display()
-    );
-    path
+    placedb_host::link::built_firmware().unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// A StatusRequest frame with sequence number `seq`, damaged so that the
@@ -117,13 +105,13 @@ fn status_then_damaged_frame_then_status() {
         .unwrap();
     expect_status(&replies, seq);
 
-    // Anything the stand-in firmware cannot do yet is refused with a typed error.
+    // Frame messages before a Hello are refused with a typed error.
     let (seq, replies) = client.request(HostMessage::Finish, REPLY_TIMEOUT).unwrap();
     assert_eq!(
         replies,
         vec![Received::Message(DeviceMessage::Error {
             seq: Some(seq),
-            kind: ErrorKind::Unsupported
+            kind: ErrorKind::NotConfigured
         })]
     );
 
@@ -146,7 +134,7 @@ fn largest_depth_rows_fit_and_oversized_frames_are_refused() {
     client.resync().unwrap();
 
     // A full-size DepthRows frame (worst-case COBS: no zero byte) reaches the
-    // handler intact: the stand-in answers it with Unsupported and its seq.
+    // device intact: unconfigured, it answers NotConfigured with its seq.
     let rows = depth_rows_per_message(80);
     assert!(usize::from(rows) * 80 <= MAX_ROW_VALUES);
     let data = vec![0xA5u8; usize::from(rows) * 80 * 2];
@@ -161,7 +149,7 @@ fn largest_depth_rows_fit_and_oversized_frames_are_refused() {
         replies,
         vec![Received::Message(DeviceMessage::Error {
             seq: Some(seq),
-            kind: ErrorKind::Unsupported
+            kind: ErrorKind::NotConfigured
         })]
     );
 

@@ -225,6 +225,12 @@ impl<const N: usize> FrameDecoder<N> {
         self.state = State::Collecting;
     }
 
+    /// Bytes of the frame being received, or of the complete frame awaiting
+    /// [`Self::decode`] (COBS bytes, delimiter not counted).
+    pub fn frame_len(&self) -> usize {
+        self.len
+    }
+
     /// Whether part of a frame has been received (and not completed).
     pub fn is_mid_frame(&self) -> bool {
         self.state == State::Discarding || (self.state == State::Collecting && self.len > 0)

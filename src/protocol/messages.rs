@@ -2,6 +2,9 @@
 //! variants at the end, never reorder (or bump [`super::PROTOCOL_VERSION`]).
 
 use crate::camera::{DepthRange, Intrinsics, Pose};
+use crate::frame::ScanConfig;
+use crate::select::{Decision, SelectorConfig};
+use crate::voxel::VoxelGrid;
 use serde::{Deserialize, Serialize};
 
 /// Worst-case postcard bytes of a [`HostFrame`] holding a [`HostMessage::DepthRows`],
@@ -28,10 +31,14 @@ pub struct HostFrame<'a> {
 /// Messages from host to device.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub enum HostMessage<'a> {
-    /// Configure the device (the hello). Allowed when no frame is open; a
-    /// reconfiguration discards the selection state as [`HostMessage::Reset`] does.
+    /// Configure the device (the hello). Accepted before the first frame of a
+    /// scan (replacing any earlier configuration). Once frames were seen, the
+    /// same configuration again is acknowledged without effect (a retry) and
+    /// another one is refused with [`ErrorKind::NeedsReset`]; inside a frame,
+    /// with [`ErrorKind::MidFrameReconfig`].
     Hello(Config),
-    /// Start frame `frame`; frame indices strictly increase within a run.
+    /// Start frame `frame`; frames are numbered 0, 1, 2, ... in sequence order
+    /// and the device expects exactly the next one.
     FrameBegin {
         /// Index of the frame in the sequence.
         frame: u32,
@@ -52,16 +59,22 @@ pub enum HostMessage<'a> {
     Finish,
     /// Ask for a [`DeviceMessage::Status`].
     StatusRequest,
-    /// Ask for the database and labels, from record `from_record` on.
+    /// Ask for the database and labels: records `from_record..`, at most
+    /// `max_records` of them. A host exports in batches, each checked by the
+    /// count and CRC of its [`DeviceMessage::ExportEnd`], and resumes from the
+    /// first record it does not hold.
     ExportRequest {
-        /// First record to send (0 for everything); resumes an interrupted export.
+        /// First record to send (0 for everything).
         from_record: u32,
+        /// Most records to send (`u32::MAX`: to the end).
+        max_records: u32,
     },
     /// Forget everything: configuration, database, labels, counters.
     Reset,
 }
 
-/// Configuration carried by [`HostMessage::Hello`].
+/// Configuration carried by [`HostMessage::Hello`]: everything the device's
+/// [`ScanConfig`] and [`SelectorConfig`] hold (see [`Config::new`]).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Config {
     /// The host's [`super::PROTOCOL_VERSION`].
@@ -78,9 +91,57 @@ pub struct Config {
     pub stride: u16,
     /// Valid depth range, metres.
     pub depth_range: DepthRange,
+    /// World coordinates of the voxel grid's corner, metres (the world origin
+    /// `[0, 0, 0]` unless the host reproduces another anchoring).
+    pub grid_origin: [f32; 3],
+    /// Frames the selector holds undecided (1 = the in-order rule); the device
+    /// clamps it to its window capacity. At least 1.
+    pub window: u16,
+    /// Extra IoU a sketch estimate must show to count as an overlap (>= 0).
+    pub sketch_margin: f32,
 }
 
 impl Config {
+    /// The configuration that sets up a device exactly as `scan` and `sel` set
+    /// up a [`crate::Selector`] (what the host's replay of the core uses).
+    pub fn new(scan: &ScanConfig, sel: &SelectorConfig) -> Config {
+        Config {
+            version: super::PROTOCOL_VERSION,
+            voxel_size: scan.grid.voxel_size,
+            mu: sel.mu,
+            depth_scale: scan.depth_scale,
+            intrinsics: scan.intrinsics,
+            stride: scan.stride,
+            depth_range: scan.range,
+            grid_origin: scan.grid.origin,
+            window: sel.window,
+            sketch_margin: sel.sketch_margin,
+        }
+    }
+
+    /// The scan half of the configuration.
+    pub fn scan_config(&self) -> ScanConfig {
+        ScanConfig {
+            intrinsics: self.intrinsics,
+            depth_scale: self.depth_scale,
+            range: self.depth_range,
+            stride: self.stride,
+            grid: VoxelGrid {
+                voxel_size: self.voxel_size,
+                origin: self.grid_origin,
+            },
+        }
+    }
+
+    /// The selection half of the configuration.
+    pub fn selector_config(&self) -> SelectorConfig {
+        SelectorConfig {
+            mu: self.mu,
+            window: self.window,
+            sketch_margin: self.sketch_margin,
+        }
+    }
+
     /// Columns per strided row on the wire: `ceil(width / stride)`.
     pub fn width_sent(&self) -> u16 {
         super::strided_len(self.intrinsics.width, self.stride)
@@ -104,8 +165,12 @@ impl Config {
             && (0.0..1.0).contains(&self.mu)
             && self.stride >= 1
             && self.stride <= Intrinsics::MAX_SIDE
+            && self.window >= 1
+            && self.sketch_margin.is_finite()
+            && self.sketch_margin >= 0.0
             && self.intrinsics.validate().is_ok()
-            && self.depth_range.validate().is_ok();
+            && self.depth_range.validate().is_ok()
+            && self.scan_config().validate().is_ok();
         if !fields_ok || super::depth_rows_per_message(self.width_sent()) == 0 {
             return Err(ErrorKind::BadConfig);
         }
@@ -210,7 +275,7 @@ pub enum DeviceMessage<'a> {
     Log(&'a str),
 }
 
-/// Verdict on one frame.
+/// Verdict on one frame (the wire form of [`Decision`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum DecisionKind {
     /// The frame joins the database.
@@ -219,6 +284,44 @@ pub enum DecisionKind {
     DominatedBy(u32),
     /// Not decided yet (held in the selector's window).
     Pending,
+    /// Degraded: no database frame overlaps it and the database is full; the
+    /// nearest database frame, if any, is its class.
+    Uncovered(Option<u32>),
+}
+
+impl From<Decision> for DecisionKind {
+    fn from(d: Decision) -> Self {
+        match d {
+            Decision::Taken => DecisionKind::Taken,
+            Decision::DominatedBy(k) => DecisionKind::DominatedBy(k),
+            Decision::Pending => DecisionKind::Pending,
+            Decision::Uncovered(k) => DecisionKind::Uncovered(k),
+        }
+    }
+}
+
+impl From<DecisionKind> for Decision {
+    fn from(d: DecisionKind) -> Self {
+        match d {
+            DecisionKind::Taken => Decision::Taken,
+            DecisionKind::DominatedBy(k) => Decision::DominatedBy(k),
+            DecisionKind::Pending => Decision::Pending,
+            DecisionKind::Uncovered(k) => Decision::Uncovered(k),
+        }
+    }
+}
+
+impl DecisionKind {
+    /// The class label of frame `frame` decided so: the covering (or nearest)
+    /// database frame, or the frame itself (taken, or uncovered with no
+    /// database frame at all). `None` while pending.
+    pub const fn class(self, frame: u32) -> Option<u32> {
+        match self {
+            DecisionKind::DominatedBy(k) | DecisionKind::Uncovered(Some(k)) => Some(k),
+            DecisionKind::Taken | DecisionKind::Uncovered(None) => Some(frame),
+            DecisionKind::Pending => None,
+        }
+    }
 }
 
 /// Device state reported by [`Status`].
@@ -230,33 +333,28 @@ pub enum Phase {
     Ready,
     /// Between FrameBegin and FrameEnd.
     InFrame,
-    /// After Finish: only status, export and reset are accepted.
+    /// After Finish: only status, export, a repeated Finish and reset are accepted.
     Finished,
 }
 
 /// Number of capacity slots in [`Status::capacities`].
-pub const CAPACITY_SLOTS: usize = 8;
+pub const CAPACITY_SLOTS: usize = 6;
 
-/// Named slots of [`Status::capacities`]; a device fills the slots its
-/// design has and leaves the others `(0, 0)`.
+/// Named slots of [`Status::capacities`], one per bounded resource of the device.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum CapacitySlot {
-    /// Database records (taken frames).
+    /// Database frames (taken frames).
     Database = 0,
     /// Label records (one per decided frame).
     Labels = 1,
-    /// Entries of the bounded world voxel hash.
-    WorldVoxels = 2,
-    /// Inverted-index entries (voxel, database frame).
-    Postings = 3,
-    /// Voxels of the frame being built.
-    FrameVoxels = 4,
+    /// Key pool words: exact voxel keys of stored frames.
+    Pool = 2,
     /// Undecided frames held by the selector.
-    Window = 5,
-    /// Per-frame sketches (e.g. MinHash / bottom-k).
-    Sketches = 6,
-    /// Not assigned yet.
-    Reserved = 7,
+    Window = 3,
+    /// Distinct voxels of one frame.
+    FrameVoxels = 4,
+    /// Bytes of one received frame (the receive buffer).
+    RxFrame = 5,
 }
 
 impl CapacitySlot {
@@ -264,12 +362,10 @@ impl CapacitySlot {
     pub const ALL: [CapacitySlot; CAPACITY_SLOTS] = [
         CapacitySlot::Database,
         CapacitySlot::Labels,
-        CapacitySlot::WorldVoxels,
-        CapacitySlot::Postings,
-        CapacitySlot::FrameVoxels,
+        CapacitySlot::Pool,
         CapacitySlot::Window,
-        CapacitySlot::Sketches,
-        CapacitySlot::Reserved,
+        CapacitySlot::FrameVoxels,
+        CapacitySlot::RxFrame,
     ];
 
     /// Stable snake_case name (for JSON and logs).
@@ -277,12 +373,10 @@ impl CapacitySlot {
         match self {
             CapacitySlot::Database => "database",
             CapacitySlot::Labels => "labels",
-            CapacitySlot::WorldVoxels => "world_voxels",
-            CapacitySlot::Postings => "postings",
-            CapacitySlot::FrameVoxels => "frame_voxels",
+            CapacitySlot::Pool => "pool",
             CapacitySlot::Window => "window",
-            CapacitySlot::Sketches => "sketches",
-            CapacitySlot::Reserved => "reserved",
+            CapacitySlot::FrameVoxels => "frame_voxels",
+            CapacitySlot::RxFrame => "rx_frame",
         }
     }
 }
@@ -290,31 +384,50 @@ impl CapacitySlot {
 /// Usage of one bounded resource.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Capacity {
-    /// Entries in use (or the high-water mark, as the device documents).
+    /// In use now.
     pub used: u32,
+    /// High-water mark since the last reset.
+    pub peak: u32,
     /// Compile-time limit.
     pub limit: u32,
 }
 
 /// Degradation flag bits of [`Status::degradation`]: sticky since the last
 /// reset, each set when the device kept working past an exhausted capacity.
+/// The low bits are the selector's own [`crate::select::flags`].
 pub mod degradation {
-    /// A frame had more voxels than the frame voxel set holds; the rest were dropped.
-    pub const FRAME_VOXELS_TRUNCATED: u32 = 1 << 0;
-    /// The world voxel hash was full; new voxels were not indexed.
-    pub const WORLD_VOXELS_FULL: u32 = 1 << 1;
-    /// The inverted index was full; some postings were not stored.
-    pub const POSTINGS_FULL: u32 = 1 << 2;
-    /// The database was full; frames that should have been taken were not stored.
-    pub const DATABASE_FULL: u32 = 1 << 3;
-    /// The label store was full; later labels were not stored.
-    pub const LABELS_FULL: u32 = 1 << 4;
-    /// The selector window was full; a frame was decided before its lookahead ended.
-    pub const WINDOW_FORCED: u32 = 1 << 5;
+    use crate::select::flags;
+    /// A frame had more voxels than the frame voxel set holds; its set was truncated.
+    pub const FRAME_VOXELS_FULL: u32 = flags::FRAME_VOXELS_FULL;
+    /// A frame's keys did not fit the key pool; it is compared by sketch.
+    pub const POOL_FULL: u32 = flags::POOL_FULL;
+    /// A frame could not be covered because the database is full (`Uncovered`).
+    pub const DATABASE_FULL: u32 = flags::DATABASE_FULL;
     /// Points beyond the voxel key range were skipped.
-    pub const VOXEL_OUT_OF_RANGE: u32 = 1 << 6;
-    /// Overlaps were estimated from sketches instead of exact voxel sets.
-    pub const SKETCH_ESTIMATES: u32 = 1 << 7;
+    pub const OUT_OF_RANGE: u32 = flags::OUT_OF_RANGE;
+    /// The label store was full; labels of later frames were not stored
+    /// (selection went on; the export holds the first labels only).
+    pub const LABELS_FULL: u32 = 1 << 8;
+}
+
+/// Cost of frames on the device, measured with a board clock (all zero when
+/// the board gives none). Decoding, voxelizing and selecting are counted;
+/// sending replies is not.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FrameCost {
+    /// Clock rate, ticks per second (0: no clock). The QEMU board counts
+    /// instructions under `-icount shift=0` and reports 1e9.
+    pub clock_hz: u32,
+    /// Frames measured (ended) since the last reset.
+    pub frames: u32,
+    /// Ticks of every measured frame together.
+    pub total: u64,
+    /// Ticks of the last frame's FrameBegin and DepthRows (decode + voxelize).
+    pub last_rows: u32,
+    /// Ticks of the last frame's FrameEnd (overlaps + selection).
+    pub last_end: u32,
+    /// Most ticks of one frame.
+    pub max: u32,
 }
 
 /// Terminal reply to [`HostMessage::StatusRequest`].
@@ -326,15 +439,66 @@ pub struct Status {
     pub phase: Phase,
     /// Frames closed with FrameEnd since the last reset.
     pub frames_seen: u32,
+    /// Frames with a final decision.
+    pub frames_decided: u32,
     /// Frames in the database.
     pub database_size: u32,
     /// Usage and limit of every bounded resource, indexed by [`CapacitySlot`].
     pub capacities: [Capacity; CAPACITY_SLOTS],
     /// [`degradation`] flags.
     pub degradation: u32,
+    /// Frames stored without exact keys (compared by sketch).
+    pub sketched_frames: u32,
+    /// Frames whose voxel set was truncated.
+    pub truncated_frames: u32,
+    /// Frames decided `Uncovered`.
+    pub uncovered_frames: u32,
+    /// Frames decided without room for their label.
+    pub labels_dropped: u32,
+    /// Points dropped for an out-of-range voxel key.
+    pub out_of_range_points: u32,
+    /// Sampled pixels with a valid depth, over all frames.
+    pub valid_pixels: u64,
+    /// Host messages and frames refused with an error since the last reset.
+    pub refused: u32,
+    /// Cost of frames on the device.
+    pub cost: FrameCost,
 }
 
 impl Status {
+    /// A status of `phase` with every counter and capacity zero.
+    pub const fn new(seq: u32, phase: Phase) -> Status {
+        const ZERO: Capacity = Capacity {
+            used: 0,
+            peak: 0,
+            limit: 0,
+        };
+        Status {
+            seq,
+            phase,
+            frames_seen: 0,
+            frames_decided: 0,
+            database_size: 0,
+            capacities: [ZERO; CAPACITY_SLOTS],
+            degradation: 0,
+            sketched_frames: 0,
+            truncated_frames: 0,
+            uncovered_frames: 0,
+            labels_dropped: 0,
+            out_of_range_points: 0,
+            valid_pixels: 0,
+            refused: 0,
+            cost: FrameCost {
+                clock_hz: 0,
+                frames: 0,
+                total: 0,
+                last_rows: 0,
+                last_end: 0,
+                max: 0,
+            },
+        }
+    }
+
     /// The capacity in `slot`.
     pub fn capacity(&self, slot: CapacitySlot) -> Capacity {
         self.capacities
@@ -346,6 +510,12 @@ impl Status {
     /// Mutable access to the capacity in `slot`.
     pub fn capacity_mut(&mut self, slot: CapacitySlot) -> Option<&mut Capacity> {
         self.capacities.get_mut(slot as usize)
+    }
+
+    /// Records in a full export now: database records, then labels.
+    pub fn export_records(&self) -> u32 {
+        self.database_size
+            .saturating_add(self.capacity(CapacitySlot::Labels).used)
     }
 }
 
@@ -424,6 +594,10 @@ pub enum ErrorKind {
     Unsupported,
     /// Anything else (a bug): the message was refused.
     Internal,
+    /// Hello with another configuration after frames were seen (send Reset first).
+    NeedsReset,
+    /// FrameEnd before every strided row of the frame arrived (the frame stays open).
+    MissingRows,
 }
 
 impl ErrorKind {
@@ -451,6 +625,8 @@ impl ErrorKind {
             ErrorKind::Finished => "sequence finished; reset first",
             ErrorKind::Unsupported => "unsupported message",
             ErrorKind::Internal => "internal error",
+            ErrorKind::NeedsReset => "scan in progress; reset before reconfiguring",
+            ErrorKind::MissingRows => "frame end before all its rows",
         }
     }
 }

@@ -34,6 +34,14 @@
 //!   (anything refused). Decisions and export records caused by a message are sent
 //!   before its terminal reply, so a host may keep several messages in flight and
 //!   match replies by sequence number.
+//! - A scan is: Hello, then for each frame `i = 0, 1, ...` FrameBegin, DepthRows
+//!   (every strided row, in order, any chunking), FrameEnd; then Finish. Export
+//!   and status requests are accepted at any time; Reset starts over.
+//! - An export is every database record (in frame order), then one label record
+//!   per decided frame (in frame order), numbered from 0; ExportRequest
+//!   `from_record = k, max_records = m` sends records `k..k+m` (as many as
+//!   exist) and an ExportEnd whose count and CRC ([`export_crc`]) cover
+//!   exactly the records sent.
 //! - A refused message leaves the device's database exactly as it was.
 //! - For a frame that fails CRC, [`DeviceMessage::Error::seq`] carries the sequence
 //!   number *claimed* by the damaged frame (its first varint) when one can be read;
@@ -70,14 +78,23 @@ pub use framing::{
 };
 pub use messages::{
     degradation, Capacity, CapacitySlot, Config, DecisionKind, DepthRows, DeviceMessage, ErrorKind,
-    ExportRecord, HostFrame, HostMessage, Phase, ProtocolError, RecordKind, Status, CAPACITY_SLOTS,
-    DEPTH_ROWS_OVERHEAD, MAX_ROW_VALUES,
+    ExportRecord, FrameCost, HostFrame, HostMessage, Phase, ProtocolError, RecordKind, Status,
+    CAPACITY_SLOTS, DEPTH_ROWS_OVERHEAD, MAX_ROW_VALUES,
 };
 
 /// Version of this wire protocol; a device refuses a [`HostMessage::Hello`] whose
 /// version differs with [`ErrorKind::WrongVersion`]. Bump it on any change of the
 /// encoding of an existing message.
-pub const PROTOCOL_VERSION: u16 = 1;
+///
+/// - 1: first version.
+/// - 2: `Config` carries the grid origin, window and sketch margin;
+///   `DecisionKind::Uncovered`; `ExportRequest::max_records`; `Status` reports every selector counter, peak
+///   usage and frame cost; `ErrorKind::NeedsReset` and `MissingRows`.
+pub const PROTOCOL_VERSION: u16 = 2;
+
+/// Largest encoded frame (delimiter included) of any [`DeviceMessage`] but a
+/// [`DeviceMessage::Log`]: a device's transmit buffer. Longer logs are dropped.
+pub const MAX_REPLY_LEN: usize = 256;
 
 /// How many strided rows of `width_sent` depth values fit in one
 /// [`HostMessage::DepthRows`] frame of at most [`MAX_FRAME_LEN`] bytes, whatever

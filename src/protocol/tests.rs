@@ -26,6 +26,9 @@ fn config() -> Config {
         },
         stride: 8,
         depth_range: DepthRange::default(),
+        grid_origin: [0.0; 3],
+        window: 32,
+        sketch_margin: 0.05,
     }
 }
 
@@ -65,7 +68,10 @@ fn host_messages(data: &[u8]) -> Vec<HostMessage<'_>> {
         HostMessage::FrameEnd { frame: 42 },
         HostMessage::Finish,
         HostMessage::StatusRequest,
-        HostMessage::ExportRequest { from_record: 3 },
+        HostMessage::ExportRequest {
+            from_record: 3,
+            max_records: 100,
+        },
         HostMessage::Reset,
     ]
 }
@@ -87,16 +93,15 @@ fn record(i: u32) -> ExportRecord {
 
 fn device_messages() -> Vec<DeviceMessage<'static>> {
     let mut status = Status {
-        seq: 9,
-        phase: Phase::InFrame,
         frames_seen: 120,
         database_size: 17,
-        capacities: [Capacity::default(); CAPACITY_SLOTS],
-        degradation: degradation::WINDOW_FORCED | degradation::SKETCH_ESTIMATES,
+        degradation: degradation::POOL_FULL | degradation::LABELS_FULL,
+        ..Status::new(9, Phase::InFrame)
     };
     if let Some(c) = status.capacity_mut(CapacitySlot::Database) {
         *c = Capacity {
             used: 17,
+            peak: 17,
             limit: 512,
         };
     }
@@ -121,6 +126,14 @@ fn device_messages() -> Vec<DeviceMessage<'static>> {
         DeviceMessage::Decision {
             frame: 9,
             kind: DecisionKind::Pending,
+        },
+        DeviceMessage::Decision {
+            frame: 10,
+            kind: DecisionKind::Uncovered(Some(7)),
+        },
+        DeviceMessage::Decision {
+            frame: 11,
+            kind: DecisionKind::Uncovered(None),
         },
         DeviceMessage::Status(status),
         DeviceMessage::ExportRecord(record(0)),
@@ -266,11 +279,14 @@ fn device_messages_round_trip() {
 fn frame_format_is_postcard_crc_cobs() {
     let frame = HostFrame {
         seq: 300,
-        msg: HostMessage::ExportRequest { from_record: 5 },
+        msg: HostMessage::ExportRequest {
+            from_record: 5,
+            max_records: 7,
+        },
     };
     let mut plain = [0u8; 32];
     let message = postcard::to_slice(&frame, &mut plain).unwrap();
-    assert_eq!(message, &[0xAC, 0x02, 6, 5]);
+    assert_eq!(message, &[0xAC, 0x02, 6, 5, 7]);
     assert_eq!(encode_vec(&frame), raw_frame(message, true));
     // And the same holds for a message with zeros and long runs.
     let data = depth_bytes();
@@ -375,6 +391,76 @@ fn unknown_and_undecodable_messages_are_typed() {
     c.stride = 1;
     c.intrinsics.width = 1280; // a full row no longer fits one frame
     assert_eq!(c.validate(), Err(ErrorKind::BadConfig));
+    c = config();
+    c.window = 0;
+    assert_eq!(c.validate(), Err(ErrorKind::BadConfig));
+    c = config();
+    c.sketch_margin = f32::NAN;
+    assert_eq!(c.validate(), Err(ErrorKind::BadConfig));
+    c = config();
+    c.grid_origin[1] = f32::INFINITY;
+    assert_eq!(c.validate(), Err(ErrorKind::BadConfig));
+    c = config();
+    assert_eq!(Config::new(&c.scan_config(), &c.selector_config()), c);
+}
+
+#[test]
+fn the_largest_replies_fit_the_reply_buffer() {
+    let big = Capacity {
+        used: u32::MAX,
+        peak: u32::MAX,
+        limit: u32::MAX,
+    };
+    let status = Status {
+        frames_seen: u32::MAX,
+        frames_decided: u32::MAX,
+        database_size: u32::MAX,
+        capacities: [big; CAPACITY_SLOTS],
+        degradation: u32::MAX,
+        sketched_frames: u32::MAX,
+        truncated_frames: u32::MAX,
+        uncovered_frames: u32::MAX,
+        labels_dropped: u32::MAX,
+        out_of_range_points: u32::MAX,
+        valid_pixels: u64::MAX,
+        refused: u32::MAX,
+        cost: FrameCost {
+            clock_hz: u32::MAX,
+            frames: u32::MAX,
+            total: u64::MAX,
+            last_rows: u32::MAX,
+            last_end: u32::MAX,
+            max: u32::MAX,
+        },
+        ..Status::new(u32::MAX, Phase::Finished)
+    };
+    let record = ExportRecord {
+        record: u32::MAX,
+        frame: u32::MAX,
+        timestamp: f64::MAX,
+        kind: RecordKind::Database { pose: pose() },
+    };
+    let mut buf = [0u8; MAX_REPLY_LEN];
+    for msg in [
+        DeviceMessage::Status(status),
+        DeviceMessage::ExportRecord(record),
+        DeviceMessage::ExportEnd {
+            seq: u32::MAX,
+            from_record: u32::MAX,
+            count: u32::MAX,
+            crc32: u32::MAX,
+        },
+        DeviceMessage::Decision {
+            frame: u32::MAX,
+            kind: DecisionKind::Uncovered(Some(u32::MAX)),
+        },
+        DeviceMessage::Error {
+            seq: Some(u32::MAX),
+            kind: ErrorKind::MissingRows,
+        },
+    ] {
+        assert!(encode(&msg, &mut buf).is_ok(), "{msg:?} does not fit");
+    }
 }
 
 #[test]
@@ -617,20 +703,13 @@ fn export_crc_is_order_sensitive_and_matches_the_encodings() {
 
 #[test]
 fn status_capacity_slots() {
-    let mut status = Status {
-        seq: 0,
-        phase: Phase::Ready,
-        frames_seen: 0,
-        database_size: 0,
-        capacities: [Capacity::default(); CAPACITY_SLOTS],
-        degradation: 0,
-    };
+    let mut status = Status::new(0, Phase::Ready);
     for (i, slot) in CapacitySlot::ALL.iter().enumerate() {
         assert_eq!(*slot as usize, i);
         status.capacity_mut(*slot).unwrap().limit = i as u32 + 1;
     }
-    assert_eq!(status.capacity(CapacitySlot::Window).limit, 6);
-    assert_eq!(CapacitySlot::WorldVoxels.name(), "world_voxels");
+    assert_eq!(status.capacity(CapacitySlot::Window).limit, 4);
+    assert_eq!(CapacitySlot::FrameVoxels.name(), "frame_voxels");
     let e = ProtocolError {
         kind: ErrorKind::BadCrc,
         seq: Some(4),

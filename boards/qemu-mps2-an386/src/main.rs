@@ -1,130 +1,165 @@
 //! placedb firmware for the MPS2 AN386 board (Cortex-M4F) under
-//! `qemu-system-arm -machine mps2-an386`: the placedb wire protocol on UART0.
+//! `qemu-system-arm -machine mps2-an386`: the placedb wire protocol on UART0,
+//! served by [`placedb::device::Device512K`] (the `ram512k` profile; the root
+//! `memory.x` gives RAM 512 KiB, so a device that does not fit fails to link).
 //!
-//! The main loop is transport-agnostic: read a chunk from any
-//! [`embedded_io::Read`], feed the frame decoder, hand every frame (or framing
-//! error) to the handler, encode its replies and write them to any
-//! [`embedded_io::Write`]. The handler is a stand-in answering `StatusRequest`
-//! and refusing the rest with `Unsupported`, until `placedb::device::Device`
-//! takes its place.
+//! The loop is transport-agnostic: read what the UART has, hand it to the
+//! device, write every reply frame back. Frame costs are measured with SysTick
+//! (25 MHz on this board; with `qemu -icount shift=0` one instruction takes
+//! 1 ns of virtual time, so one tick is 40 instructions) and reported by the
+//! device's status in nanoseconds of virtual time = instructions under
+//! `-icount shift=0`.
+//!
+//! Semihosting prints a boot line, the SysTick calibration, and the stack
+//! high-water mark whenever a scan finishes (`stack peak N of M bytes`).
 #![no_std]
 #![no_main]
 
 mod uart;
 
+use core::sync::atomic::{AtomicU32, Ordering};
+use cortex_m::peripheral::syst::SystClkSource;
+use cortex_m::peripheral::SYST;
 use cortex_m_rt::{entry, exception, ExceptionFrame};
 use cortex_m_semihosting::{debug, hprintln};
 use embedded_io::{Read, Write};
-use placedb::protocol::{
-    encode, Capacity, DeviceMessage, ErrorKind, Feed, FrameDecoder, HostFrame, HostMessage, Phase,
-    ProtocolError, Status, CAPACITY_SLOTS, MAX_FRAME_LEN, PROTOCOL_VERSION,
-};
+use placedb::device::Device512K;
+use placedb::protocol::{Phase, MAX_FRAME_LEN, PROTOCOL_VERSION};
 
-/// Encode buffer for replies; every device message but a long `Log` fits.
-const TX_LEN: usize = 256;
 /// Bytes read from the transport per call (the UART returns what it has).
 const RX_CHUNK: usize = 64;
+/// SysTick reload: the full 24-bit range.
+const RELOAD: u32 = 0x00FF_FFFF;
+/// SysTick ticks (25 MHz) to nanoseconds of virtual time.
+const NS_PER_TICK: u64 = 40;
 
-/// Stand-in for `placedb::device::Device`.
-struct Handler {
-    frames_seen: u32,
+/// SysTick wraps since boot.
+static WRAPS: AtomicU32 = AtomicU32::new(0);
+
+#[exception]
+fn SysTick() {
+    WRAPS.fetch_add(1, Ordering::Relaxed);
 }
 
-impl Handler {
-    const fn new() -> Self {
-        Handler { frames_seen: 0 }
-    }
-
-    /// Answers one received frame; `reply` sends one message.
-    fn handle(
-        &mut self,
-        frame: Result<HostFrame<'_>, ProtocolError>,
-        reply: &mut impl FnMut(&DeviceMessage<'_>),
-    ) {
-        let HostFrame { seq, msg } = match frame {
-            Ok(frame) => frame,
-            Err(error) => return reply(&error.reply()),
-        };
-        match msg {
-            HostMessage::StatusRequest => reply(&DeviceMessage::Status(Status {
-                seq,
-                phase: Phase::Unconfigured,
-                frames_seen: self.frames_seen,
-                database_size: 0,
-                capacities: [Capacity::default(); CAPACITY_SLOTS],
-                degradation: 0,
-            })),
-            _ => reply(&DeviceMessage::Error {
-                seq: Some(seq),
-                kind: ErrorKind::Unsupported,
-            }),
-        }
-    }
-}
-
-/// Encodes `msg` and writes the frame; a message too large for `tx` is replaced
-/// by an `Internal` error so the host still gets a reply.
-fn send<W: Write>(out: &mut W, tx: &mut [u8], msg: &DeviceMessage<'_>) -> Result<(), W::Error> {
-    match encode(msg, tx) {
-        Ok(frame) => out.write_all(frame),
-        Err(_) => {
-            let fallback = DeviceMessage::Error {
-                seq: None,
-                kind: ErrorKind::Internal,
-            };
-            match encode(&fallback, tx) {
-                Ok(frame) => out.write_all(frame),
-                Err(_) => Ok(()),
-            }
-        }
-    }
-}
-
-/// Runs the protocol on a byte transport until it fails.
-fn serve<T: Read + Write>(
-    io: &mut T,
-    decoder: &mut FrameDecoder<MAX_FRAME_LEN>,
-    handler: &mut Handler,
-) -> T::Error {
-    let mut rx = [0u8; RX_CHUNK];
-    let mut tx = [0u8; TX_LEN];
+/// SysTick ticks since boot.
+fn ticks() -> u64 {
     loop {
-        let n = match io.read(&mut rx) {
-            Ok(n) => n,
-            Err(e) => return e,
-        };
-        let mut rest = rx.get(..n).unwrap_or_default();
-        let mut failed = None;
-        while let Feed::Frame { result, remaining } = decoder.feed::<HostFrame>(rest) {
-            handler.handle(result, &mut |msg| {
-                if failed.is_none() {
-                    failed = send(io, &mut tx, msg).err();
-                }
-            });
-            rest = remaining;
-        }
-        if let Some(e) = failed {
-            return e;
+        let before = WRAPS.load(Ordering::Acquire);
+        let current = SYST::get_current();
+        if WRAPS.load(Ordering::Acquire) == before {
+            let elapsed = u64::from(RELOAD - current);
+            return u64::from(before) * (u64::from(RELOAD) + 1) + elapsed;
         }
     }
+}
+
+/// Nanoseconds of virtual time since boot (instructions under `-icount shift=0`).
+fn nanos() -> u64 {
+    ticks() * NS_PER_TICK
+}
+
+fn start_systick(mut syst: SYST) {
+    syst.set_clock_source(SystClkSource::Core);
+    syst.set_reload(RELOAD);
+    syst.clear_current();
+    syst.enable_interrupt();
+    syst.enable_counter();
+}
+
+/// SysTick ticks taken by `2 * n` instructions (a two-instruction loop).
+fn calibrate(n: u32) -> u64 {
+    let t0 = ticks();
+    let mut left = n;
+    // SAFETY: a register-only countdown loop: no memory access, no stack use.
+    unsafe {
+        core::arch::asm!(
+            "2:",
+            "subs {0}, {0}, #1",
+            "bne 2b",
+            inout(reg) left,
+            options(nomem, nostack),
+        );
+    }
+    let _ = left;
+    ticks() - t0
+}
+
+extern "C" {
+    static _stack_end: u32;
+    static _stack_start: u32;
+}
+
+/// Bytes of stack ever used (cortex-m-rt's `paint-stack` fills it with
+/// 0xCCCC_CCCC at reset), and the stack size.
+fn stack_peak() -> (usize, usize) {
+    let end = core::ptr::addr_of!(_stack_end) as usize;
+    let start = core::ptr::addr_of!(_stack_start) as usize;
+    let mut addr = end;
+    while addr < start {
+        // SAFETY: `addr` is a 4-byte aligned word of the stack region, which
+        // is ordinary RAM between two linker symbols; reading it is harmless.
+        let word = unsafe { core::ptr::read_volatile(addr as *const u32) };
+        if word != 0xCCCC_CCCC {
+            break;
+        }
+        addr += 4;
+    }
+    (start - addr, start - end)
 }
 
 #[entry]
 fn main() -> ! {
-    hprintln!(
-        "placedb-qemu-mps2-an386 boot: protocol v{}, rx frame {} B",
-        PROTOCOL_VERSION,
-        MAX_FRAME_LEN
-    );
+    // cortex-m-rt turns this into a `&'static mut` owned by `main`: the device
+    // lives in `.bss`, where the linker counts it against the RAM budget.
+    static mut DEVICE: Device512K = Device512K::new();
+    let device: &'static mut Device512K = DEVICE;
+
+    let Some(core) = cortex_m::Peripherals::take() else {
+        hprintln!("core peripherals unavailable");
+        fail();
+    };
+    start_systick(core.SYST);
     let Some(mut uart) = uart::Uart::take_uart0() else {
         hprintln!("UART0 unavailable");
-        debug::exit(debug::EXIT_FAILURE);
-        halt();
+        fail();
     };
-    let mut decoder = FrameDecoder::<MAX_FRAME_LEN>::new();
-    let mut handler = Handler::new();
-    // The UART's error type is `Infallible`: `serve` never returns.
-    match serve(&mut uart, &mut decoder, &mut handler) {}
+    let (_, stack) = stack_peak();
+    hprintln!(
+        "placedb-qemu-mps2-an386 boot: protocol v{}, profile ram512k, device {} B, stack {} B, rx frame {} B",
+        PROTOCOL_VERSION,
+        core::mem::size_of::<Device512K>(),
+        stack,
+        MAX_FRAME_LEN
+    );
+    let n = 1_000_000;
+    hprintln!(
+        "calibration: {} instructions = {} SysTick ticks",
+        2 * n,
+        calibrate(n)
+    );
+    device.set_clock(nanos, 1_000_000_000);
+
+    let mut rx = [0u8; RX_CHUNK];
+    let mut finished = false;
+    loop {
+        // The UART's error type is `Infallible`.
+        let Ok(n) = uart.read(&mut rx);
+        let bytes = rx.get(..n).unwrap_or_default();
+        device.receive(bytes, &mut |frame: &[u8]| {
+            let _ = uart.write_all(frame);
+        });
+        let now_finished = device.phase() == Phase::Finished;
+        if now_finished && !finished {
+            let (used, size) = stack_peak();
+            hprintln!("stack peak {} of {} bytes", used, size);
+        }
+        finished = now_finished;
+    }
+}
+
+fn fail() -> ! {
+    debug::exit(debug::EXIT_FAILURE);
+    halt()
 }
 
 fn halt() -> ! {
@@ -136,8 +171,7 @@ fn halt() -> ! {
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
     hprintln!("panic: {}", info);
-    debug::exit(debug::EXIT_FAILURE);
-    halt()
+    fail()
 }
 
 // cortex-m-rt requires the HardFault handler to be an `unsafe fn`; it performs
@@ -145,6 +179,5 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
 #[exception]
 unsafe fn HardFault(frame: &ExceptionFrame) -> ! {
     hprintln!("hard fault at pc {:#010x}", frame.pc());
-    debug::exit(debug::EXIT_FAILURE);
-    halt()
+    fail()
 }

@@ -1,0 +1,1103 @@
+//! Talking to a device: `placedb stream` (send a recorded sequence), `placedb
+//! export` (pull the database and labels, resumable, checked by count and
+//! CRC) and `placedb device --qemu` (start the emulated board).
+//!
+//! The device is the core's [`placedb::device::Device`], on a board or
+//! in-process (`local:PROFILE`); what it selects is what `placedb select
+//! --solver online` computes with the same profile and configuration, and the
+//! exported files are written by the same writers ([`crate::output`]), so they
+//! are byte-identical.
+
+use crate::link::{self, Client, Link, QemuOptions, Received};
+use crate::online::sampled_rows;
+use crate::output::{self, DbRow};
+use crate::sequence::Sequence;
+use crate::voxelize::{self, GridOrigin, VoxelConfig};
+use indicatif::ProgressBar;
+use placedb::profile::{Capacities, PROFILES};
+use placedb::protocol::{
+    depth_rows_per_message, encode, export_crc, CapacitySlot, Config, DecisionKind, DepthRows,
+    DeviceMessage, ErrorKind, ExportRecord, Feed, FrameDecoder, HostMessage, RecordKind, Status,
+    MAX_FRAME_LEN,
+};
+use placedb::{DbRecord, ScanConfig, SelectorConfig, VoxelGrid};
+use std::collections::VecDeque;
+use std::io;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+/// Why talking to a device failed.
+#[derive(Debug, thiserror::Error)]
+pub enum DeviceError {
+    /// The link failed or timed out.
+    #[error("link: {0}")]
+    Io(#[from] io::Error),
+    /// The device refused a message with a typed error.
+    #[error("the device refused {what} (seq {seq}): {kind}")]
+    Refused {
+        /// Which message.
+        what: String,
+        /// Its sequence number.
+        seq: u32,
+        /// The device's reason.
+        kind: ErrorKind,
+    },
+    /// The conversation went wrong (damaged or unexpected replies).
+    #[error("protocol: {0}")]
+    Protocol(String),
+    /// The device runs another capacity profile than asked for.
+    #[error("{0}")]
+    Profile(String),
+    /// Bad input on the host side (sequence, options, files).
+    #[error("{0}")]
+    Input(String),
+}
+
+/// How to stream.
+#[derive(Debug, Clone)]
+pub struct StreamOptions {
+    /// Strided rows per DepthRows message (0: as many as fit a frame).
+    pub rows_per_message: u16,
+    /// Messages sent ahead of their replies (1 = stop-and-wait).
+    pub in_flight: usize,
+    /// Longest wait for one reply.
+    pub reply_timeout: Duration,
+    /// Reset the device before the Hello (a new scan).
+    pub reset: bool,
+}
+
+impl Default for StreamOptions {
+    fn default() -> Self {
+        StreamOptions {
+            rows_per_message: 0,
+            in_flight: 4,
+            reply_timeout: Duration::from_secs(30),
+            reset: true,
+        }
+    }
+}
+
+/// What a stream did.
+#[derive(Debug, Clone)]
+pub struct StreamReport {
+    /// Frames sent.
+    pub frames: usize,
+    /// Final decision of every frame, by index.
+    pub decisions: Vec<Option<DecisionKind>>,
+    /// The device's status after Finish.
+    pub status: Status,
+    /// Wall time from Hello to the last reply.
+    pub wall: Duration,
+    /// Bytes written to the link.
+    pub bytes_sent: u64,
+    /// Messages sent.
+    pub messages: u64,
+}
+
+impl StreamReport {
+    /// Frames per second over the link, wall clock.
+    pub fn fps(&self) -> f64 {
+        self.frames as f64 / self.wall.as_secs_f64().max(1e-9)
+    }
+
+    /// Mean device clock ticks per frame (instructions for the QEMU board
+    /// under `-icount shift=0`), if the device has a clock.
+    pub fn ticks_per_frame(&self) -> Option<f64> {
+        let c = &self.status.cost;
+        (c.clock_hz > 0 && c.frames > 0).then(|| c.total as f64 / f64::from(c.frames))
+    }
+}
+
+/// The scan configuration `placedb select` uses for `seq` and `vcfg`: the
+/// same intrinsics, depth scale, range, stride and grid.
+pub fn scan_config(seq: &Sequence, vcfg: &VoxelConfig) -> Result<ScanConfig, DeviceError> {
+    let grid = match vcfg.origin {
+        GridOrigin::World => VoxelGrid::new(vcfg.voxel, [0.0; 3])
+            .map_err(|e| DeviceError::Input(format!("voxel grid: {e:?}")))?,
+        // The scene's corner needs every frame first, as select does.
+        GridOrigin::SceneMin => {
+            voxelize::voxelize(seq, vcfg, None)
+                .map_err(|e| DeviceError::Input(e.to_string()))?
+                .grid
+        }
+    };
+    Ok(ScanConfig {
+        intrinsics: seq.intrinsics(),
+        depth_scale: seq.depth_scale as f32,
+        range: vcfg.range,
+        stride: vcfg.stride,
+        grid,
+    })
+}
+
+/// The Hello for `scan` and `sel`, checked as the device will check it.
+pub fn device_config(scan: &ScanConfig, sel: &SelectorConfig) -> Result<Config, DeviceError> {
+    let cfg = Config::new(scan, sel);
+    cfg.validate().map_err(|kind| {
+        DeviceError::Input(format!(
+            "the device would refuse this configuration: {kind} \
+             (a strided row of {} values must fit one message: use a larger --stride)",
+            cfg.width_sent()
+        ))
+    })?;
+    Ok(cfg)
+}
+
+/// The profile whose capacities the device reports, if any.
+pub fn device_profile(st: &Status) -> Option<&'static Capacities> {
+    PROFILES.iter().find(|p| {
+        st.capacity(CapacitySlot::Database).limit as usize == p.database_frames
+            && st.capacity(CapacitySlot::Pool).limit as usize == p.pool_words
+            && st.capacity(CapacitySlot::Window).limit as usize == p.window
+            && st.capacity(CapacitySlot::FrameVoxels).limit as usize
+                == p.frame_voxel_slots - p.frame_voxel_slots / 4
+    })
+}
+
+fn check_profile(st: &Status, profile: &str) -> Result<(), DeviceError> {
+    match device_profile(st) {
+        Some(p) if p.name == profile => Ok(()),
+        Some(p) => Err(DeviceError::Profile(format!(
+            "the device runs profile {} but --profile {profile} was given: \
+             the results would not match `placedb select --profile {profile}`",
+            p.name
+        ))),
+        None => Err(DeviceError::Profile(format!(
+            "the device's capacities (database {}, pool {}, window {}) match no profile",
+            st.capacity(CapacitySlot::Database).limit,
+            st.capacity(CapacitySlot::Pool).limit,
+            st.capacity(CapacitySlot::Window).limit
+        ))),
+    }
+}
+
+/// Sends one message and waits for its terminal reply (other messages before
+/// it are returned too).
+fn request<L: Link>(
+    client: &mut Client<L>,
+    msg: HostMessage<'_>,
+    what: &str,
+    timeout: Duration,
+) -> Result<Vec<Received>, DeviceError> {
+    let (seq, replies) = client.request(msg, timeout)?;
+    match replies.last() {
+        Some(Received::Message(DeviceMessage::Error { kind, .. })) => Err(DeviceError::Refused {
+            what: what.to_string(),
+            seq,
+            kind: *kind,
+        }),
+        _ => Ok(replies),
+    }
+}
+
+/// The device's status.
+pub fn status<L: Link>(client: &mut Client<L>, timeout: Duration) -> Result<Status, DeviceError> {
+    let replies = request(client, HostMessage::StatusRequest, "StatusRequest", timeout)?;
+    match replies.last() {
+        Some(Received::Message(DeviceMessage::Status(s))) => Ok(*s),
+        other => Err(DeviceError::Protocol(format!(
+            "expected a Status, got {other:?}"
+        ))),
+    }
+}
+
+/// Messages in flight and what their replies told.
+struct Pipeline<'c, L: Link> {
+    client: &'c mut Client<L>,
+    outstanding: VecDeque<(u32, String)>,
+    in_flight: usize,
+    timeout: Duration,
+    decisions: Vec<Option<DecisionKind>>,
+    status: Option<Status>,
+    bytes: u64,
+    messages: u64,
+}
+
+impl<L: Link> Pipeline<'_, L> {
+    fn send(
+        &mut self,
+        msg: HostMessage<'_>,
+        what: impl FnOnce() -> String,
+    ) -> Result<(), DeviceError> {
+        while self.outstanding.len() >= self.in_flight.max(1) {
+            self.pump()?;
+        }
+        let mut buf = vec![0u8; MAX_FRAME_LEN];
+        self.bytes += encode(&placedb::protocol::HostFrame { seq: 0, msg }, &mut buf)
+            .map(|f| f.len() as u64)
+            .unwrap_or(0);
+        let seq = self.client.send(msg)?;
+        self.messages += 1;
+        self.outstanding.push_back((seq, what()));
+        Ok(())
+    }
+
+    /// Handles replies until the oldest outstanding message is answered.
+    fn pump(&mut self) -> Result<(), DeviceError> {
+        let Some((want, what)) = self.outstanding.front().cloned() else {
+            return Ok(());
+        };
+        loop {
+            let item = self.client.recv(self.timeout).map_err(|e| {
+                DeviceError::Io(io::Error::new(
+                    e.kind(),
+                    format!("waiting for the reply to {what}: {e}"),
+                ))
+            })?;
+            match &item {
+                Received::Message(DeviceMessage::Decision { frame, kind })
+                    if *kind != DecisionKind::Pending =>
+                {
+                    if let Some(slot) = self.decisions.get_mut(*frame as usize) {
+                        *slot = Some(*kind);
+                    }
+                }
+                Received::Message(DeviceMessage::Status(s)) => self.status = Some(*s),
+                Received::Message(DeviceMessage::Error { seq, kind }) => {
+                    return Err(DeviceError::Refused {
+                        what,
+                        seq: seq.unwrap_or(want),
+                        kind: *kind,
+                    })
+                }
+                Received::Damaged(e) => {
+                    return Err(DeviceError::Protocol(format!(
+                        "damaged reply while waiting for {what}: {e}"
+                    )))
+                }
+                _ => {}
+            }
+            match item.terminal_seq() {
+                Some(s) if s == want => {
+                    self.outstanding.pop_front();
+                    return Ok(());
+                }
+                Some(s) => {
+                    return Err(DeviceError::Protocol(format!(
+                        "reply to seq {s} while waiting for seq {want} ({what})"
+                    )))
+                }
+                None => {}
+            }
+        }
+    }
+
+    fn drain(&mut self) -> Result<(), DeviceError> {
+        while !self.outstanding.is_empty() {
+            self.pump()?;
+        }
+        Ok(())
+    }
+}
+
+/// One line about the device's state, for a live status display.
+pub fn status_line(st: &Status) -> String {
+    let c = |slot| {
+        let c = st.capacity(slot);
+        format!("{}/{}", c.used, c.limit)
+    };
+    let mut s = format!(
+        "db {} pool {} win {} labels {}",
+        c(CapacitySlot::Database),
+        c(CapacitySlot::Pool),
+        c(CapacitySlot::Window),
+        c(CapacitySlot::Labels)
+    );
+    if st.cost.clock_hz > 0 && st.cost.frames > 0 {
+        s += &format!(
+            " | last frame {:.2} M ticks",
+            f64::from(st.cost.last_rows.saturating_add(st.cost.last_end)) / 1e6
+        );
+    }
+    if st.degradation != 0 {
+        s += &format!(" | degraded {:#x}", st.degradation);
+    }
+    s
+}
+
+/// Streams `seq` to the device behind `client`: (Reset,) Hello with `cfg`,
+/// every frame as FrameBegin, DepthRows, FrameEnd (and a StatusRequest for
+/// the live line), then Finish. The device must run capacity profile
+/// `profile`.
+pub fn stream<L: Link>(
+    client: &mut Client<L>,
+    seq: &Sequence,
+    cfg: &Config,
+    profile: &str,
+    opts: &StreamOptions,
+    progress: Option<&ProgressBar>,
+) -> Result<StreamReport, DeviceError> {
+    let timeout = opts.reply_timeout;
+    client.resync()?;
+    let st = status(client, timeout)?;
+    check_profile(&st, profile)?;
+    if opts.reset {
+        request(client, HostMessage::Reset, "Reset", timeout)?;
+    }
+    let started = Instant::now();
+    request(client, HostMessage::Hello(*cfg), "Hello", timeout)?;
+    let n = seq.frames.len();
+    let width = cfg.width_sent();
+    let fit = depth_rows_per_message(width);
+    let rows_per_msg = match opts.rows_per_message {
+        0 => fit,
+        r => r.min(fit),
+    }
+    .max(1);
+    let mut pipe = Pipeline {
+        client,
+        outstanding: VecDeque::new(),
+        in_flight: opts.in_flight,
+        timeout,
+        decisions: vec![None; n],
+        status: None,
+        bytes: 0,
+        messages: 0,
+    };
+    for i in 0..n {
+        let img = seq
+            .depth(i)
+            .map_err(|e| DeviceError::Input(format!("frame {i}: {e}")))?;
+        let pose = seq.frames[i]
+            .pose()
+            .map_err(|e| DeviceError::Input(format!("frame {i}: pose: {e:?}")))?;
+        let (w, rows) = sampled_rows(&img, cfg.stride);
+        if w != usize::from(width) {
+            return Err(DeviceError::Input(format!(
+                "frame {i}: {w} sampled columns, the configuration says {width}"
+            )));
+        }
+        let frame = i as u32;
+        pipe.send(
+            HostMessage::FrameBegin {
+                frame,
+                timestamp: seq.frames[i].timestamp,
+                pose,
+            },
+            || format!("FrameBegin {i}"),
+        )?;
+        let per_msg = w * usize::from(rows_per_msg);
+        for (k, chunk) in rows.chunks(per_msg.max(1)).enumerate() {
+            let data: Vec<u8> = chunk.iter().flat_map(|d| d.to_le_bytes()).collect();
+            let first_row = (k * usize::from(rows_per_msg)) as u16;
+            pipe.send(
+                HostMessage::DepthRows(DepthRows {
+                    frame,
+                    first_row,
+                    row_count: (chunk.len() / w.max(1)) as u16,
+                    data: &data,
+                }),
+                || format!("DepthRows {i}:{first_row}"),
+            )?;
+        }
+        pipe.send(HostMessage::FrameEnd { frame }, || format!("FrameEnd {i}"))?;
+        pipe.send(HostMessage::StatusRequest, || "StatusRequest".into())?;
+        if let Some(p) = progress {
+            p.set_position(i as u64 + 1);
+            if let Some(st) = &pipe.status {
+                let fps = (i + 1) as f64 / started.elapsed().as_secs_f64().max(1e-9);
+                p.set_message(format!("{fps:.2} fps | {}", status_line(st)));
+            }
+        }
+    }
+    pipe.send(HostMessage::Finish, || "Finish".into())?;
+    pipe.drain()?;
+    let wall = started.elapsed();
+    let (decisions, bytes_sent, messages) = (pipe.decisions, pipe.bytes, pipe.messages);
+    let status = status(client, timeout)?;
+    Ok(StreamReport {
+        frames: n,
+        decisions,
+        status,
+        wall,
+        bytes_sent,
+        messages,
+    })
+}
+
+/// How to export.
+#[derive(Debug, Clone)]
+pub struct ExportOptions {
+    /// Records per ExportRequest; each batch is checked by count and CRC.
+    pub batch: u32,
+    /// Failed batches retried (from their first record) before giving up.
+    pub retries: usize,
+    /// Longest wait for one reply.
+    pub reply_timeout: Duration,
+}
+
+impl Default for ExportOptions {
+    fn default() -> Self {
+        ExportOptions {
+            batch: 256,
+            retries: 5,
+            reply_timeout: Duration::from_secs(30),
+        }
+    }
+}
+
+/// Every record of the device's export, checked.
+#[derive(Debug, Clone)]
+pub struct Export {
+    /// The records, numbered from 0.
+    pub records: Vec<ExportRecord>,
+    /// The device's status when the export ended.
+    pub status: Status,
+    /// Batches that had to be retried.
+    pub retried: usize,
+}
+
+/// One batch: records `from..from+max`, checked by count and CRC.
+fn export_batch<L: Link>(
+    client: &mut Client<L>,
+    from: u32,
+    max: u32,
+    timeout: Duration,
+) -> Result<Vec<ExportRecord>, DeviceError> {
+    let seq = client.send(HostMessage::ExportRequest {
+        from_record: from,
+        max_records: max,
+    })?;
+    let mut got: Vec<ExportRecord> = Vec::new();
+    let mut damaged = false;
+    loop {
+        match client.recv(timeout)? {
+            Received::Message(DeviceMessage::ExportRecord(r)) => got.push(r),
+            Received::Damaged(_) => damaged = true,
+            Received::Message(DeviceMessage::ExportEnd {
+                seq: s,
+                from_record,
+                count,
+                crc32,
+            }) if s == seq => {
+                let numbered = got
+                    .iter()
+                    .enumerate()
+                    .all(|(k, r)| r.record == from + k as u32);
+                if damaged || from_record != from || count as usize != got.len() || !numbered {
+                    return Err(DeviceError::Protocol(format!(
+                        "export batch from {from}: {} records received, {count} sent",
+                        got.len()
+                    )));
+                }
+                if crc32 != export_crc(&got) {
+                    return Err(DeviceError::Protocol(format!(
+                        "export batch from {from}: CRC mismatch"
+                    )));
+                }
+                return Ok(got);
+            }
+            Received::Message(DeviceMessage::Error { seq: s, kind }) if s == Some(seq) => {
+                return Err(DeviceError::Refused {
+                    what: format!("ExportRequest from {from}"),
+                    seq,
+                    kind,
+                })
+            }
+            // Anything else (a reply to an earlier request, a log) is not ours.
+            _ => {}
+        }
+    }
+}
+
+/// Pulls every record from the device, in checked batches, starting after
+/// the records in `have` (a resumed export). `saved` is called with each
+/// checked batch (to persist it).
+pub fn export<L: Link>(
+    client: &mut Client<L>,
+    mut have: Vec<ExportRecord>,
+    opts: &ExportOptions,
+    progress: Option<&ProgressBar>,
+    saved: &mut dyn FnMut(&[ExportRecord]) -> io::Result<()>,
+) -> Result<Export, DeviceError> {
+    let timeout = opts.reply_timeout;
+    client.resync()?;
+    let first = status(client, timeout)?;
+    let total = first.export_records() as usize;
+    if have.len() > total {
+        return Err(DeviceError::Input(format!(
+            "resuming from record {} but the device holds {total}",
+            have.len()
+        )));
+    }
+    if let Some(p) = progress {
+        p.set_length(total as u64);
+        p.set_position(have.len() as u64);
+    }
+    let mut retried = 0;
+    while have.len() < total {
+        let from = have.len() as u32;
+        match export_batch(client, from, opts.batch.max(1), timeout) {
+            Ok(batch) if !batch.is_empty() => {
+                saved(&batch)?;
+                have.extend(batch);
+                if let Some(p) = progress {
+                    p.set_position(have.len() as u64);
+                }
+            }
+            Ok(_) => {
+                return Err(DeviceError::Protocol(format!(
+                    "the device sent no record from {from} of {total}"
+                )))
+            }
+            Err(e @ DeviceError::Refused { .. }) => return Err(e),
+            Err(e) if retried < opts.retries => {
+                retried += 1;
+                if let Some(p) = progress {
+                    p.println(format!("retrying from record {from}: {e}"));
+                }
+                // Let a broken reply finish, then resynchronise.
+                while client.recv(Duration::from_millis(200)).is_ok() {}
+                client.resync()?;
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    let last = status(client, timeout)?;
+    if last.export_records() as usize != have.len()
+        || (last.frames_seen, last.database_size) != (first.frames_seen, first.database_size)
+    {
+        return Err(DeviceError::Protocol(
+            "the device's state changed during the export".into(),
+        ));
+    }
+    check_records(&have, last.database_size as usize)?;
+    Ok(Export {
+        records: have,
+        status: last,
+        retried,
+    })
+}
+
+/// Checks the layout: database records in strictly increasing frame order,
+/// then one label per frame 0, 1, 2, ...
+fn check_records(records: &[ExportRecord], database: usize) -> Result<(), DeviceError> {
+    let bad = |what: &str| Err(DeviceError::Protocol(format!("export: {what}")));
+    let (db, labels) = records.split_at(database.min(records.len()));
+    if db.len() != database {
+        return bad("fewer records than database frames");
+    }
+    let mut last = None;
+    for r in db {
+        if !matches!(r.kind, RecordKind::Database { .. }) || last.is_some_and(|l| r.frame <= l) {
+            return bad("database records out of order");
+        }
+        last = Some(r.frame);
+    }
+    for (j, r) in labels.iter().enumerate() {
+        if !matches!(r.kind, RecordKind::Label { .. }) || r.frame as usize != j {
+            return bad("label records out of order");
+        }
+    }
+    Ok(())
+}
+
+/// `database.csv` rows of the online selector's database records, exactly
+/// as `placedb select --solver online` writes them (f32 pose widened to f64).
+pub fn online_rows(database: &[DbRecord]) -> Vec<DbRow> {
+    database
+        .iter()
+        .map(|r| {
+            let t = r.pose.translation.map(f64::from);
+            let q = r.pose.rotation.map(f64::from);
+            (
+                r.index as usize,
+                r.timestamp,
+                [t[0], t[1], t[2], q[0], q[1], q[2], q[3]],
+            )
+        })
+        .collect()
+}
+
+impl Export {
+    /// The database records as the core's [`DbRecord`]s (voxel counts are not
+    /// exported: 0).
+    pub fn database(&self) -> Vec<DbRecord> {
+        self.records
+            .iter()
+            .filter_map(|r| match r.kind {
+                RecordKind::Database { pose } => Some(DbRecord {
+                    index: r.frame,
+                    timestamp: r.timestamp,
+                    pose,
+                    voxels: 0,
+                }),
+                RecordKind::Label { .. } => None,
+            })
+            .collect()
+    }
+
+    /// Timestamps and class labels of every labelled frame.
+    pub fn labels(&self) -> (Vec<f64>, Vec<usize>) {
+        self.records
+            .iter()
+            .filter_map(|r| match r.kind {
+                RecordKind::Label { class } => Some((r.timestamp, class as usize)),
+                RecordKind::Database { .. } => None,
+            })
+            .unzip()
+    }
+
+    /// The text of `database.csv` and `labels.csv`.
+    pub fn csv(&self) -> (String, String) {
+        let (timestamps, labels) = self.labels();
+        (
+            output::database_csv(&online_rows(&self.database())),
+            output::labels_csv(&timestamps, &labels),
+        )
+    }
+
+    /// `metrics.json` of an export: what the device knows (the metrics that
+    /// need the sequence's voxel sets are computed by `placedb select`).
+    pub fn metrics(&self) -> serde_json::Value {
+        let st = &self.status;
+        let size = st.database_size;
+        let frames = st.capacity(CapacitySlot::Labels).used;
+        let mut m = serde_json::json!({
+            "solver": "online",
+            "source": "device",
+            "size": size,
+            "frames": frames,
+            "reduction": if size > 0 { f64::from(frames) / f64::from(size) } else { 0.0 },
+            "profile": device_profile(st).map(|p| p.name),
+            "frames_seen": st.frames_seen,
+            "sketched_frames": st.sketched_frames,
+            "truncated_frames": st.truncated_frames,
+            "uncovered_by_capacity": st.uncovered_frames,
+            "labels_dropped": st.labels_dropped,
+            "degradation_flags": st.degradation,
+            "pool_peak_words": st.capacity(CapacitySlot::Pool).peak,
+            "frame_voxels_peak": st.capacity(CapacitySlot::FrameVoxels).peak,
+            "export_records": self.records.len(),
+        });
+        if st.cost.clock_hz > 0 && st.cost.frames > 0 {
+            m["device_ticks_per_frame"] = (st.cost.total as f64 / f64::from(st.cost.frames)).into();
+            m["device_clock_hz"] = st.cost.clock_hz.into();
+        }
+        m
+    }
+}
+
+/// Name of the file holding the checked batches of an unfinished export.
+pub const PARTIAL_EXPORT: &str = ".export-partial";
+
+/// The records of an unfinished export in `dir` and the status it began
+/// with: COBS frames of a `Status` then `ExportRecord`s, as the device sent
+/// them (so timestamps and poses survive bit for bit).
+pub fn read_partial(dir: &Path) -> Result<(Status, Vec<ExportRecord>), DeviceError> {
+    let path = dir.join(PARTIAL_EXPORT);
+    let bytes = std::fs::read(&path).map_err(|e| {
+        DeviceError::Input(format!("no unfinished export in {}: {e}", path.display()))
+    })?;
+    let mut decoder = Box::new(FrameDecoder::<MAX_FRAME_LEN>::new());
+    let mut rest: &[u8] = &bytes;
+    let (mut status, mut records) = (None, Vec::new());
+    while let Feed::Frame { result, remaining } = decoder.feed::<DeviceMessage>(rest) {
+        match result {
+            Ok(DeviceMessage::Status(s)) if status.is_none() => status = Some(s),
+            Ok(DeviceMessage::ExportRecord(r)) if status.is_some() => records.push(r),
+            // A torn last write: keep what was whole.
+            _ => break,
+        }
+        rest = remaining;
+    }
+    let status = status
+        .ok_or_else(|| DeviceError::Input(format!("{} holds no export header", path.display())))?;
+    Ok((status, records))
+}
+
+fn append_frames(path: &Path, msgs: &[DeviceMessage<'_>]) -> io::Result<()> {
+    use std::io::Write;
+    let mut file = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(path)?;
+    let mut buf = vec![0u8; MAX_FRAME_LEN];
+    for m in msgs {
+        let frame = encode(m, &mut buf).map_err(io::Error::other)?;
+        file.write_all(frame)?;
+    }
+    file.sync_data()
+}
+
+/// Opens the link `port` for the device subcommands.
+pub fn connect(port: &str) -> Result<Client<Box<dyn Link>>, DeviceError> {
+    let link = link::open(port, Duration::from_secs(10))?;
+    Ok(Client::new(link))
+}
+
+/// `placedb stream`: streams `seq` (configured by `vcfg` and `sel`, as
+/// `placedb select` is) to the device on `port`, which must run `profile`;
+/// prints a summary, and exports into `out` if given.
+pub fn stream_cmd(
+    port: &str,
+    seq: &Sequence,
+    vcfg: &VoxelConfig,
+    sel: SelectorConfig,
+    profile: &str,
+    out: Option<&Path>,
+    quiet: bool,
+) -> Result<StreamReport, DeviceError> {
+    if placedb::profile::by_name(profile).is_none() {
+        return Err(DeviceError::Input(format!(
+            "unknown --profile {profile:?}; see `placedb budget`"
+        )));
+    }
+    let scan = scan_config(seq, vcfg)?;
+    let sel = SelectorConfig {
+        window: sel.window.max(1),
+        ..sel
+    };
+    let cfg = device_config(&scan, &sel)?;
+    let mut client = connect(port)?;
+    let pb = (!quiet).then(|| {
+        let pb = ProgressBar::new(seq.frames.len() as u64);
+        if let Ok(style) = indicatif::ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} frames {msg}",
+        ) {
+            pb.set_style(style);
+        }
+        pb
+    });
+    let report = stream(
+        &mut client,
+        seq,
+        &cfg,
+        profile,
+        &StreamOptions::default(),
+        pb.as_ref(),
+    )?;
+    if let Some(pb) = &pb {
+        pb.finish_and_clear();
+    }
+    let st = &report.status;
+    println!(
+        "{}: {} frames -> {} database frames on the device ({} profile, mu {}, window {}, stride {})",
+        seq.name,
+        report.frames,
+        st.database_size,
+        profile,
+        sel.mu,
+        sel.window,
+        scan.stride
+    );
+    println!(
+        "  link: {:.1} s, {:.2} frames/s, {} messages, {:.1} KB sent ({:.1} KB/s)",
+        report.wall.as_secs_f64(),
+        report.fps(),
+        report.messages,
+        report.bytes_sent as f64 / 1e3,
+        report.bytes_sent as f64 / 1e3 / report.wall.as_secs_f64().max(1e-9)
+    );
+    if let Some(t) = report.ticks_per_frame() {
+        println!(
+            "  device: {:.3} M clock ticks per frame (max {:.3} M) at {} Hz: {:.2} ms of device time per frame \
+             (the QEMU board counts instructions under -icount shift=0)",
+            t / 1e6,
+            f64::from(st.cost.max) / 1e6,
+            st.cost.clock_hz,
+            1e3 * t / f64::from(st.cost.clock_hz)
+        );
+    }
+    println!("  {}", status_line(st));
+    match out {
+        Some(dir) => {
+            export_to(&mut client, dir, None, quiet)?;
+        }
+        None => println!("  pull the result with: placedb export --port {port} -o DIR"),
+    }
+    Ok(report)
+}
+
+/// `placedb export`: pulls every record from the device on `port` and
+/// writes `database.csv`, `labels.csv` and `metrics.json` to `out`.
+/// `from = Some(k)` resumes an interrupted export of the same device state
+/// from record `k` (the checked records before it are kept in `out`).
+pub fn export_cmd(
+    port: &str,
+    out: &Path,
+    from: Option<u32>,
+    quiet: bool,
+) -> Result<Export, DeviceError> {
+    let mut client = connect(port)?;
+    export_to(&mut client, out, from, quiet)
+}
+
+/// [`export_cmd`] over an open link.
+pub fn export_to<L: Link>(
+    client: &mut Client<L>,
+    out: &Path,
+    from: Option<u32>,
+    quiet: bool,
+) -> Result<Export, DeviceError> {
+    std::fs::create_dir_all(out)?;
+    let partial = out.join(PARTIAL_EXPORT);
+    let timeout = ExportOptions::default().reply_timeout;
+    client.resync()?;
+    let now = status(client, timeout)?;
+    let have = match from {
+        Some(k) => {
+            let (was, mut records) = read_partial(out)?;
+            if (was.frames_seen, was.database_size, was.export_records())
+                != (now.frames_seen, now.database_size, now.export_records())
+            {
+                return Err(DeviceError::Input(
+                    "the device's state changed since the interrupted export: export from 0".into(),
+                ));
+            }
+            if records.len() < k as usize {
+                return Err(DeviceError::Input(format!(
+                    "--from {k}: only {} checked records were saved",
+                    records.len()
+                )));
+            }
+            records.truncate(k as usize);
+            records
+        }
+        None => Vec::new(),
+    };
+    // Rewrite the partial file with exactly what is kept.
+    let _ = std::fs::remove_file(&partial);
+    let mut head = vec![DeviceMessage::Status(now)];
+    head.extend(have.iter().map(|r| DeviceMessage::ExportRecord(*r)));
+    append_frames(&partial, &head)?;
+    let pb = (!quiet).then(|| ProgressBar::new(0));
+    let export = export(
+        client,
+        have,
+        &ExportOptions::default(),
+        pb.as_ref(),
+        &mut |batch| {
+            let msgs: Vec<_> = batch
+                .iter()
+                .map(|r| DeviceMessage::ExportRecord(*r))
+                .collect();
+            append_frames(&partial, &msgs)
+        },
+    )
+    .map_err(|e| match e {
+        DeviceError::Io(io) => DeviceError::Io(io::Error::new(
+            io.kind(),
+            format!("{io}; resume with --from N (checked records are saved)"),
+        )),
+        other => other,
+    })?;
+    if let Some(pb) = &pb {
+        pb.finish_and_clear();
+    }
+    let (db_csv, labels_csv) = export.csv();
+    std::fs::write(out.join("database.csv"), db_csv)?;
+    std::fs::write(out.join("labels.csv"), labels_csv)?;
+    let json = serde_json::to_string_pretty(&export.metrics()).map_err(io::Error::other)?;
+    std::fs::write(out.join("metrics.json"), json + "\n")?;
+    std::fs::remove_file(&partial)?;
+    if !quiet {
+        println!(
+            "exported {} records ({} database frames, {} labels), checked by count and CRC{}; wrote {}/{{database.csv,labels.csv,metrics.json}}",
+            export.records.len(),
+            export.status.database_size,
+            export.status.capacity(CapacitySlot::Labels).used,
+            if export.retried > 0 {
+                format!(" ({} batches retried)", export.retried)
+            } else {
+                String::new()
+            },
+            out.display()
+        );
+    }
+    Ok(export)
+}
+
+/// `placedb device --qemu`: boots the emulated board with UART0 listening on
+/// `tcp:127.0.0.1:PORT` (0: a free port) and waits until QEMU exits
+/// (Ctrl-C stops it). `icount` makes instruction counting exact.
+pub fn qemu_device_cmd(
+    firmware: Option<PathBuf>,
+    port: u16,
+    icount: bool,
+) -> Result<(), DeviceError> {
+    let firmware = firmware.unwrap_or_else(link::default_firmware);
+    if !firmware.is_file() {
+        return Err(DeviceError::Input(format!(
+            "firmware {} not found: build it with `{}` (or pass --firmware ELF)",
+            firmware.display(),
+            link::FIRMWARE_BUILD
+        )));
+    }
+    let port = match port {
+        0 => std::net::TcpListener::bind(("127.0.0.1", 0))?
+            .local_addr()?
+            .port(),
+        p => p,
+    };
+    let mut options = QemuOptions::default();
+    if icount {
+        options.extra_args = vec!["-icount".into(), "shift=0".into()];
+    }
+    let mut command = link::qemu_command(
+        &firmware,
+        &options,
+        &format!("tcp:127.0.0.1:{port},server,nowait"),
+    );
+    let mut child = command.spawn().map_err(|e| {
+        DeviceError::Io(io::Error::new(
+            e.kind(),
+            format!(
+                "cannot start {} (apt-get install qemu-system-arm): {e}",
+                options.program.display()
+            ),
+        ))
+    })?;
+    println!("emulated board (mps2-an386, profile ram512k) on port tcp:127.0.0.1:{port}");
+    println!("  e.g. placedb stream --port tcp:127.0.0.1:{port} --demo --stride 8 --max-frames 30");
+    println!("       placedb export --port tcp:127.0.0.1:{port} -o out");
+    println!("  Ctrl-C stops it");
+    let status = child.wait()?;
+    if status.success() {
+        Ok(())
+    } else {
+        Err(DeviceError::Io(io::Error::other(format!(
+            "QEMU exited: {status}"
+        ))))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::link::LocalLink;
+    use crate::synth::{self, SynthConfig};
+
+    fn demo(frames: usize) -> Sequence {
+        let mut seq = synth::sequence(&SynthConfig::demo());
+        seq.frames.truncate(frames);
+        seq
+    }
+
+    fn setup(seq: &Sequence, window: u16) -> (ScanConfig, SelectorConfig, Config) {
+        let vcfg = VoxelConfig {
+            stride: 8,
+            ..VoxelConfig::default()
+        };
+        let scan = scan_config(seq, &vcfg).unwrap();
+        let sel = SelectorConfig {
+            mu: 0.3,
+            window,
+            sketch_margin: 0.05,
+        };
+        let cfg = device_config(&scan, &sel).unwrap();
+        (scan, sel, cfg)
+    }
+
+    #[test]
+    fn the_local_device_matches_the_replay_and_exports_resumably() {
+        let seq = demo(40);
+        let (scan, sel, cfg) = setup(&seq, 6);
+        let mut client = Client::new(LocalLink::start("ram256k").unwrap());
+        let opts = StreamOptions {
+            rows_per_message: 5,
+            ..StreamOptions::default()
+        };
+        let report = stream(&mut client, &seq, &cfg, "ram256k", &opts, None).unwrap();
+        let run = crate::online::replay(&seq, "ram256k", scan, sel, 8, None).unwrap();
+        let finals: Vec<_> = report
+            .decisions
+            .iter()
+            .map(|d| placedb::Decision::from(d.unwrap()))
+            .collect();
+        assert_eq!(finals, run.decisions);
+        assert_eq!(report.status.database_size as usize, run.database.len());
+        // Export into a directory, interrupted after the first batch, resumed.
+        let dir = std::env::temp_dir().join(format!("placedb-export-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let full = export_to(&mut client, &dir, None, true).unwrap();
+        let timestamps: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
+        let want = (
+            output::database_csv(&online_rows(&run.database)),
+            output::labels_csv(&timestamps, &run.labels),
+        );
+        assert_eq!(full.csv(), want);
+        assert_eq!(
+            std::fs::read_to_string(dir.join("database.csv")).unwrap(),
+            want.0
+        );
+        assert!(!dir.join(PARTIAL_EXPORT).exists());
+        // An interrupted export leaves its checked records; --from resumes.
+        let partial = dir.join(PARTIAL_EXPORT);
+        let mut head = vec![DeviceMessage::Status(full.status)];
+        head.extend(
+            full.records[..20]
+                .iter()
+                .map(|r| DeviceMessage::ExportRecord(*r)),
+        );
+        append_frames(&partial, &head).unwrap();
+        let (_, saved) = read_partial(&dir).unwrap();
+        assert_eq!(saved, full.records[..20]);
+        let resumed = export_to(&mut client, &dir, Some(12), true).unwrap();
+        assert_eq!(resumed.records, full.records);
+        assert!(export_to(&mut client, &dir, Some(12), true).is_err());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_profile_mismatch_is_refused_before_anything_is_sent() {
+        let seq = demo(2);
+        let (_, _, cfg) = setup(&seq, 4);
+        let mut client = Client::new(LocalLink::start("ram256k").unwrap());
+        let err = stream(
+            &mut client,
+            &seq,
+            &cfg,
+            "ram512k",
+            &StreamOptions::default(),
+            None,
+        )
+        .unwrap_err();
+        assert!(matches!(err, DeviceError::Profile(_)), "{err}");
+        assert_eq!(
+            status(&mut client, Duration::from_secs(5))
+                .unwrap()
+                .frames_seen,
+            0
+        );
+    }
+
+    #[test]
+    fn the_device_rejects_what_the_host_should_not_send() {
+        let seq = demo(3);
+        let (_, _, mut cfg) = setup(&seq, 4);
+        let mut client = Client::new(LocalLink::start("ram256k").unwrap());
+        stream(
+            &mut client,
+            &seq,
+            &cfg,
+            "ram256k",
+            &StreamOptions::default(),
+            None,
+        )
+        .unwrap();
+        // Streaming again without a reset would mix scans: refused, nothing changes.
+        cfg.mu = 0.5;
+        let opts = StreamOptions {
+            reset: false,
+            ..StreamOptions::default()
+        };
+        let err = stream(&mut client, &seq, &cfg, "ram256k", &opts, None).unwrap_err();
+        assert!(
+            matches!(
+                err,
+                DeviceError::Refused {
+                    kind: ErrorKind::NeedsReset,
+                    ..
+                }
+            ),
+            "{err}"
+        );
+        assert_eq!(
+            status(&mut client, Duration::from_secs(5))
+                .unwrap()
+                .frames_seen,
+            3
+        );
+    }
+}

@@ -1,0 +1,383 @@
+//! End to end on the emulated board: the QEMU firmware (boards/qemu-mps2-an386,
+//! profile ram512k, protocol on UART0) is fed real and synthetic depth through
+//! its UART; what it exports is byte-identical to the host replay of the core
+//! (`placedb select --solver online`: `placedb_host::online::replay` and the
+//! `placedb_host::output` writers) with the same profile and configuration.
+//! Bad input over the wire gets typed errors and changes nothing.
+//!
+//! Needs `qemu-system-arm` and the firmware, built first with
+//! `cd boards/qemu-mps2-an386 && cargo build --release` (or set
+//! `PLACEDB_QEMU_FIRMWARE`). Prints the firmware's memory figures, the frame
+//! rate over the emulated UART and the instructions per frame (QEMU runs with
+//! `-icount shift=0`); run with `--nocapture` to see them.
+
+use placedb::protocol::{
+    encode, CapacitySlot, DeviceMessage, ErrorKind, ExportRecord, HostFrame, HostMessage, Phase,
+    MAX_FRAME_LEN,
+};
+use placedb::{SelectorConfig, VoxelGrid};
+use placedb_host::device_cli::{self, ExportOptions, StreamOptions, StreamReport};
+use placedb_host::link::{Client, Qemu, QemuOptions, Received};
+use placedb_host::read::{self, ReadOptions};
+use placedb_host::synth::{self, SynthConfig};
+use placedb_host::{online, output, GridOrigin, Sequence, VoxelConfig};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+const PROFILE: &str = "ram512k";
+/// The budget of the board: memory.x.
+const FLASH_BUDGET: u64 = 4 << 20;
+const RAM_BUDGET: u64 = 512 << 10;
+const REPLY: Duration = Duration::from_secs(30);
+
+fn firmware() -> PathBuf {
+    placedb_host::link::built_firmware().unwrap_or_else(|e| panic!("{e}"))
+}
+
+fn boot(deadline: Duration) -> Client<Qemu> {
+    let options = QemuOptions {
+        extra_args: vec!["-icount".into(), "shift=0".into()],
+        deadline,
+        ..QemuOptions::default()
+    };
+    let qemu = Qemu::start_with(&firmware(), options).unwrap_or_else(|e| {
+        panic!("cannot start qemu-system-arm (apt-get install qemu-system-arm): {e}")
+    });
+    assert!(
+        qemu.wait_console("calibration", Duration::from_secs(10)),
+        "no boot lines; console: {}",
+        qemu.console()
+    );
+    Client::new(qemu)
+}
+
+/// `.text`, `.rodata`, `.data`, `.bss` sizes of a 32-bit little-endian ELF.
+fn section_sizes(elf: &Path) -> Vec<(String, u64)> {
+    let b = std::fs::read(elf).unwrap();
+    let u16_at = |o: usize| u16::from_le_bytes([b[o], b[o + 1]]) as usize;
+    let u32_at = |o: usize| u32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]]) as usize;
+    assert_eq!(&b[..5], b"\x7fELF\x01", "not a 32-bit ELF");
+    let (shoff, shentsize, shnum, shstrndx) =
+        (u32_at(0x20), u16_at(0x2E), u16_at(0x30), u16_at(0x32));
+    let sh = |i: usize| shoff + i * shentsize;
+    let strtab = u32_at(sh(shstrndx) + 0x10);
+    (0..shnum)
+        .map(|i| {
+            let name_at = strtab + u32_at(sh(i));
+            let end = b[name_at..].iter().position(|&c| c == 0).unwrap();
+            let name = String::from_utf8_lossy(&b[name_at..name_at + end]).into_owned();
+            (name, u32_at(sh(i) + 0x14) as u64)
+        })
+        .collect()
+}
+
+#[test]
+fn firmware_fits_its_budget() {
+    let sizes = section_sizes(&firmware());
+    let size = |n: &str| {
+        sizes
+            .iter()
+            .filter(|(s, _)| s == n)
+            .map(|(_, v)| *v)
+            .sum::<u64>()
+    };
+    let (text, rodata, data, bss) = (
+        size(".text") + size(".vector_table"),
+        size(".rodata"),
+        size(".data"),
+        size(".bss") + size(".uninit"),
+    );
+    let flash = text + rodata + data;
+    let ram = data + bss;
+    println!(
+        "qemu-mps2-an386 firmware ({PROFILE}): flash {flash} B of {FLASH_BUDGET} \
+         (.text {text}, .rodata {rodata}, .data init {data}); static RAM {ram} B of {RAM_BUDGET} \
+         (.data {data} + .bss {bss}), {} B left for the stack",
+        RAM_BUDGET - ram,
+    );
+    // A fresh device is all zero bytes: its static costs RAM (.bss) but no flash.
+    assert!(
+        data <= 1024,
+        "{data} B of .data: the device static is not all zero, so it is stored in flash too"
+    );
+    assert!(flash <= FLASH_BUDGET && ram <= RAM_BUDGET);
+    assert!(
+        RAM_BUDGET - ram >= 16 << 10,
+        "less than 16 KiB left for the stack"
+    );
+}
+
+/// database.csv and labels.csv of `placedb select --solver online`: the host
+/// replay of the core with the same profile and configuration.
+fn host_replay(seq: &Sequence, vcfg: &VoxelConfig, sel: SelectorConfig) -> (String, String) {
+    let scan = device_cli::scan_config(seq, vcfg).unwrap();
+    let run = online::replay(seq, PROFILE, scan, sel, 8, None).unwrap();
+    let timestamps: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
+    (
+        output::database_csv(&device_cli::online_rows(&run.database)),
+        output::labels_csv(&timestamps, &run.labels),
+    )
+}
+
+/// Streams `seq`, exports, and checks the files against the host replay.
+fn stream_and_compare(
+    client: &mut Client<Qemu>,
+    seq: &Sequence,
+    vcfg: &VoxelConfig,
+    sel: SelectorConfig,
+) -> (StreamReport, Vec<ExportRecord>) {
+    let scan = device_cli::scan_config(seq, vcfg).unwrap();
+    let cfg = device_cli::device_config(&scan, &sel).unwrap();
+    let report =
+        device_cli::stream(client, seq, &cfg, PROFILE, &StreamOptions::default(), None).unwrap();
+    assert_eq!(report.status.phase, Phase::Finished);
+    assert_eq!(report.status.frames_seen as usize, seq.frames.len());
+    assert!(report.decisions.iter().all(Option::is_some));
+    let export = device_cli::export(
+        client,
+        Vec::new(),
+        &ExportOptions::default(),
+        None,
+        &mut |_| Ok(()),
+    )
+    .unwrap();
+    let (db_csv, labels_csv) = export.csv();
+    let (want_db, want_labels) = host_replay(seq, vcfg, sel);
+    assert_eq!(db_csv, want_db, "database.csv differs on {}", seq.name);
+    assert_eq!(
+        labels_csv, want_labels,
+        "labels.csv differs on {}",
+        seq.name
+    );
+    assert_eq!(labels_csv.lines().count(), seq.frames.len() + 1);
+    let instr = report.ticks_per_frame().unwrap();
+    println!(
+        "{}: {} frames -> {} database frames, identical to the host replay; \
+         {:.2} frames/s over the emulated UART ({:.1} KB/s in); \
+         {:.0} instructions per frame on the device (max {}), {} export records",
+        seq.name,
+        report.frames,
+        report.status.database_size,
+        report.fps(),
+        report.bytes_sent as f64 / 1e3 / report.wall.as_secs_f64(),
+        instr,
+        report.status.cost.max,
+        export.records.len()
+    );
+    (report, export.records)
+}
+
+#[test]
+fn real_and_synthetic_scans_match_the_host_replay() {
+    let started = Instant::now();
+    let mut client = boot(Duration::from_secs(170));
+
+    // (a) the first 24 frames of a real 7-Scenes sequence at stride 8 (9.6 KB a frame).
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/7scenes-1000");
+    let mut real = read::open(&data, &ReadOptions::default()).unwrap();
+    real.frames.truncate(24);
+    let vcfg = VoxelConfig {
+        voxel: 0.05,
+        stride: 8,
+        ..VoxelConfig::default()
+    };
+    assert_eq!(vcfg.origin, GridOrigin::World);
+    let sel = SelectorConfig {
+        mu: 0.7,
+        window: 8,
+        sketch_margin: 0.05,
+    };
+    let (report, records) = stream_and_compare(&mut client, &real, &vcfg, sel);
+    assert!(report.status.database_size > 1);
+
+    // A resumed export: the checked records up to k are kept, the rest fetched.
+    let k = records.len() / 2;
+    let opts = ExportOptions {
+        batch: 5,
+        ..ExportOptions::default()
+    };
+    let mut batches = 0;
+    let resumed = device_cli::export(&mut client, records[..k].to_vec(), &opts, None, &mut |_| {
+        batches += 1;
+        Ok(())
+    })
+    .unwrap();
+    assert_eq!(resumed.records, records);
+    assert_eq!(batches, (records.len() - k).div_ceil(5));
+
+    // (b) 30 frames of the synthetic office scan at stride 8, select's defaults.
+    let mut demo = synth::sequence(&SynthConfig::demo());
+    demo.frames.truncate(30);
+    let vcfg = VoxelConfig {
+        stride: 8,
+        ..VoxelConfig::default()
+    };
+    let sel = SelectorConfig {
+        mu: 0.3,
+        window: 32,
+        sketch_margin: 0.05,
+    };
+    stream_and_compare(&mut client, &demo, &vcfg, sel);
+
+    let qemu = client.into_link();
+    let console = qemu.console();
+    if let Some(line) = console.lines().rev().find(|l| l.starts_with("stack peak")) {
+        println!("firmware {line}");
+    }
+    println!(
+        "firmware {}",
+        console
+            .lines()
+            .find(|l| l.starts_with("calibration"))
+            .unwrap_or("no calibration line")
+    );
+    assert!(
+        qemu.try_wait().unwrap().is_none(),
+        "firmware exited: {console}"
+    );
+    println!("end to end: {:.1} s", started.elapsed().as_secs_f64());
+}
+
+/// `msg` framed with one byte flipped so that the device sees a CRC error
+/// (and can still read the sequence number), checked with the decoder the
+/// firmware runs.
+fn corrupted(seq: u32, msg: HostMessage<'_>) -> Vec<u8> {
+    use placedb::protocol::{Feed, FrameDecoder, ProtocolError};
+    let mut buf = vec![0u8; MAX_FRAME_LEN];
+    let good = encode(&HostFrame { seq, msg }, &mut buf).unwrap().to_vec();
+    for pos in (0..good.len() - 1).rev() {
+        let mut bad = good.clone();
+        bad[pos] ^= 0x24;
+        if bad[pos] == 0 {
+            continue;
+        }
+        let mut decoder = FrameDecoder::<MAX_FRAME_LEN>::new();
+        if let Feed::Frame {
+            result:
+                Err(ProtocolError {
+                    kind: ErrorKind::BadCrc,
+                    seq: Some(s),
+                }),
+            remaining: [],
+        } = decoder.feed::<HostFrame>(&bad)
+        {
+            if s == seq {
+                return bad;
+            }
+        }
+    }
+    panic!("no byte to flip");
+}
+
+#[test]
+fn bad_input_gets_typed_errors_and_changes_nothing() {
+    let mut client = boot(Duration::from_secs(120));
+    let mut demo = synth::sequence(&SynthConfig::demo());
+    demo.frames.truncate(6);
+    let vcfg = VoxelConfig {
+        stride: 8,
+        ..VoxelConfig::default()
+    };
+    let sel = SelectorConfig {
+        mu: 0.3,
+        window: 3,
+        sketch_margin: 0.05,
+    };
+    let scan = device_cli::scan_config(&demo, &vcfg).unwrap();
+    assert_eq!(scan.grid, VoxelGrid::new(0.3, [0.0; 3]).unwrap());
+    let cfg = device_cli::device_config(&scan, &sel).unwrap();
+    let opts = StreamOptions {
+        in_flight: 1,
+        ..StreamOptions::default()
+    };
+    device_cli::stream(&mut client, &demo, &cfg, PROFILE, &opts, None).unwrap();
+    let export = |client: &mut Client<Qemu>| {
+        device_cli::export(
+            client,
+            Vec::new(),
+            &ExportOptions::default(),
+            None,
+            &mut |_| Ok(()),
+        )
+        .unwrap()
+    };
+    let before = export(&mut client);
+    assert!(before.status.database_size >= 1);
+
+    let refused = |client: &mut Client<Qemu>, msg: HostMessage<'_>| -> ErrorKind {
+        let (seq, replies) = client.request(msg, REPLY).unwrap();
+        match replies.as_slice() {
+            [Received::Message(DeviceMessage::Error { seq: s, kind })] => {
+                assert_eq!(*s, Some(seq));
+                *kind
+            }
+            other => panic!("{msg:?} was not refused: {other:?}"),
+        }
+    };
+    // A corrupted frame (a frame message that would be valid).
+    let seq = client.take_seq();
+    let begin = HostMessage::FrameBegin {
+        frame: 6,
+        timestamp: 99.0,
+        pose: placedb::Pose::IDENTITY,
+    };
+    client.send_raw(&corrupted(seq, begin)).unwrap();
+    let replies = client.replies_to(seq, REPLY).unwrap();
+    assert_eq!(
+        replies,
+        vec![Received::Message(DeviceMessage::Error {
+            seq: Some(seq),
+            kind: ErrorKind::BadCrc
+        })]
+    );
+    // Garbage, an oversized frame, and messages out of order after Finish.
+    client.send_raw(&[0x03, 0x01, 0x02, 0x00]).unwrap();
+    assert!(matches!(
+        client.recv(REPLY).unwrap(),
+        Received::Message(DeviceMessage::Error { .. })
+    ));
+    let mut long = vec![0x42u8; MAX_FRAME_LEN + 50];
+    long.push(0);
+    client.send_raw(&long).unwrap();
+    assert_eq!(
+        client.recv(REPLY).unwrap(),
+        Received::Message(DeviceMessage::Error {
+            seq: None,
+            kind: ErrorKind::Oversized
+        })
+    );
+    assert_eq!(refused(&mut client, begin), ErrorKind::Finished);
+    assert_eq!(
+        refused(&mut client, HostMessage::FrameEnd { frame: 6 }),
+        ErrorKind::Finished
+    );
+    let mut other = cfg;
+    other.mu = 0.5;
+    assert_eq!(
+        refused(&mut client, HostMessage::Hello(other)),
+        ErrorKind::NeedsReset
+    );
+    assert_eq!(
+        refused(
+            &mut client,
+            HostMessage::ExportRequest {
+                from_record: 10_000,
+                max_records: 1
+            }
+        ),
+        ErrorKind::ExportPastEnd
+    );
+
+    let after = export(&mut client);
+    assert_eq!(after.records, before.records);
+    assert_eq!(after.csv(), before.csv());
+    assert_eq!(after.status.refused, before.status.refused + 7);
+    assert_eq!(
+        after.status.capacity(CapacitySlot::RxFrame).peak,
+        MAX_FRAME_LEN as u32
+    );
+    println!(
+        "bad input: 7 refusals with typed errors, database unchanged ({} records)",
+        after.records.len()
+    );
+}
