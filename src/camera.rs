@@ -270,8 +270,13 @@ impl FrameProjector {
         }
         let (inv_fx, inv_fy) = (1.0 / intrinsics.fx, 1.0 / intrinsics.fy);
         // Largest |ray per unit| over the image, to keep raw * ray + t in i64.
-        let far = |c: f32, side: u16, inv: f32| libm::fmaxf(libm::fabsf(c), libm::fabsf(side as f32 - c)) * inv;
-        let (x_max, y_max) = (far(intrinsics.cx, intrinsics.width, inv_fx), far(intrinsics.cy, intrinsics.height, inv_fy));
+        let far = |c: f32, side: u16, inv: f32| {
+            libm::fmaxf(libm::fabsf(c), libm::fabsf(side as f32 - c)) * inv
+        };
+        let (x_max, y_max) = (
+            far(intrinsics.cx, intrinsics.width, inv_fx),
+            far(intrinsics.cy, intrinsics.height, inv_fy),
+        );
         let mut ray_max = 0.0f32;
         let mut centre_max = 0.0f32;
         for i in 0..3 {
@@ -435,7 +440,10 @@ fn valid_raw_range(metres_per_unit: f32, range: DepthRange) -> (u16, u16) {
     };
     let lo = first(&|raw| z(raw) > range.min);
     let past = first(&|raw| z(raw) > range.max);
-    match (u16::try_from(lo), past.checked_sub(1).and_then(|h| u16::try_from(h).ok())) {
+    match (
+        u16::try_from(lo),
+        past.checked_sub(1).and_then(|h| u16::try_from(h).ok()),
+    ) {
         (Ok(lo), Some(hi)) if lo <= hi && lo > 0 => (lo, hi),
         _ => (1, 0),
     }

@@ -495,6 +495,11 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
     /// `Pending` for this frame if it stays in the window.
     #[inline(never)]
     pub fn end_frame(&mut self, mut emit: impl FnMut(FrameDecision)) -> Result<(), SelectError> {
+        // Checked before the frame is closed, so a refusal changes nothing.
+        let cfg = match &self.config {
+            Some((_, cfg)) => *cfg,
+            None => return Err(SelectError::NotConfigured),
+        };
         let (meta, keys, stats) = self.ingest.end()?;
         let n = keys.len() as u32;
         let aabb = Aabb::of_sorted(keys);
@@ -512,11 +517,15 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
             len: self.len,
             slot: s,
         };
-        let cfg = match &self.config {
-            Some((_, cfg)) => *cfg,
-            None => return Err(SelectError::NotConfigured),
-        };
-        let mut slot = overlaps(&cfg, &self.pool, &self.db, &mut self.ring, window, new, keys);
+        let mut slot = overlaps(
+            &cfg,
+            &self.pool,
+            &self.db,
+            &mut self.ring,
+            window,
+            new,
+            keys,
+        );
         if let Some(a) = &aabb {
             slot.frame.keys = self.pool.store(keys, a);
         }
@@ -679,11 +688,12 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
     /// Frees a run of the key pool and shifts every run stored after it.
     fn release(&mut self, run: &KeyRun) {
         self.pool.free(run);
-        let runs = self
-            .db
-            .iter_mut()
-            .map(|s| &mut s.keys)
-            .chain(self.ring.iter_mut().filter_map(RingEntry::get_mut).map(|s| &mut s.frame.keys));
+        let runs = self.db.iter_mut().map(|s| &mut s.keys).chain(
+            self.ring
+                .iter_mut()
+                .filter_map(RingEntry::get_mut)
+                .map(|s| &mut s.frame.keys),
+        );
         for r in runs.flatten() {
             r.after_free(run);
         }

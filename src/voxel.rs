@@ -303,7 +303,12 @@ mod tests {
     fn wide_keys_check_every_axis() {
         let k = VoxelKey::from_wide(-3, 7, VoxelKey::MAX as i64).unwrap();
         assert_eq!(k.coords(), (-3, 7, VoxelKey::MAX));
-        for (x, y, z) in [(1i64 << 21, 0, 0), (0, -(1 << 20) - 1, 0), (0, 0, 1 << 32), (i64::MIN, 0, 0)] {
+        for (x, y, z) in [
+            (1i64 << 21, 0, 0),
+            (0, -(1 << 20) - 1, 0),
+            (0, 0, 1 << 32),
+            (i64::MIN, 0, 0),
+        ] {
             assert!(VoxelKey::from_wide(x, y, z).is_none(), "{x} {y} {z}");
         }
     }

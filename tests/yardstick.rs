@@ -10,8 +10,14 @@ use std::path::PathBuf;
 use std::sync::OnceLock;
 
 fn data(name: &str) -> PathBuf {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data").join(name);
-    assert!(p.is_dir(), "sample {} is missing: tests read ../shared/data", p.display());
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data")
+        .join(name);
+    assert!(
+        p.is_dir(),
+        "sample {} is missing: tests read ../shared/data",
+        p.display()
+    );
     p
 }
 
@@ -79,17 +85,40 @@ fn every_solver_covers_every_frame_and_labels_overlap() {
             let graph = case.prep.co.graph(mu);
             let exact = run(case, Solver::Exact, mu);
             let greedy = run(case, Solver::Greedy, mu);
-            assert!(exact.exact.is_some_and(|(optimal, _)| optimal), "{} exact not proven", case.seq.name);
-            assert!(exact.metrics.size <= greedy.metrics.size, "{} mu {mu}", case.seq.name);
-            for solver in [Solver::InOrder, Solver::Greedy, Solver::Exact, Solver::Online] {
-                let o = if solver == Solver::Exact { exact.clone() } else { run(case, solver, mu) };
+            assert!(
+                exact.exact.is_some_and(|(optimal, _)| optimal),
+                "{} exact not proven",
+                case.seq.name
+            );
+            assert!(
+                exact.metrics.size <= greedy.metrics.size,
+                "{} mu {mu}",
+                case.seq.name
+            );
+            for solver in [
+                Solver::InOrder,
+                Solver::Greedy,
+                Solver::Exact,
+                Solver::Online,
+            ] {
+                let o = if solver == Solver::Exact {
+                    exact.clone()
+                } else {
+                    run(case, solver, mu)
+                };
                 let name = format!("{} {} mu {mu}", case.seq.name, solver.name());
                 assert_eq!(o.metrics.uncovered, 0, "{name}");
                 assert_eq!(o.labels.len(), case.seq.frames.len(), "{name}");
                 for (f, &l) in o.labels.iter().enumerate() {
-                    assert!(o.database.binary_search(&l).is_ok(), "{name}: label {l} of {f} not in database");
+                    assert!(
+                        o.database.binary_search(&l).is_ok(),
+                        "{name}: label {l} of {f} not in database"
+                    );
                     if l != f {
-                        assert!(graph.has_edge(f, l), "{name}: frame {f} does not overlap its label {l}");
+                        assert!(
+                            graph.has_edge(f, l),
+                            "{name}: frame {f} does not overlap its label {l}"
+                        );
                     }
                 }
             }
@@ -108,8 +137,15 @@ fn online_beats_in_order_and_stays_near_greedy() {
             let in_order = run(case, Solver::InOrder, mu).metrics.size;
             let greedy = run(case, Solver::Greedy, mu).metrics.size;
             let exact = run(case, Solver::Exact, mu).metrics.size;
-            println!("{:<14} mu {mu}: online {online} in-order {in_order} greedy {greedy} exact {exact}", case.seq.name);
-            assert!(online <= in_order, "{} mu {mu}: online {online} > in-order {in_order}", case.seq.name);
+            println!(
+                "{:<14} mu {mu}: online {online} in-order {in_order} greedy {greedy} exact {exact}",
+                case.seq.name
+            );
+            assert!(
+                online <= in_order,
+                "{} mu {mu}: online {online} > in-order {in_order}",
+                case.seq.name
+            );
             online_sum += online;
             greedy_sum += greedy;
             exact_sum += exact;

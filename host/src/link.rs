@@ -424,7 +424,10 @@ pub fn built_firmware() -> Result<PathBuf, String> {
             if path.is_file() {
                 Ok(path)
             } else {
-                Err(format!("firmware {} is missing: build it with `{FIRMWARE_BUILD}`", path.display()))
+                Err(format!(
+                    "firmware {} is missing: build it with `{FIRMWARE_BUILD}`",
+                    path.display()
+                ))
             }
         })
         .clone()

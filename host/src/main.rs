@@ -282,7 +282,7 @@ fn open_full_sequence(a: &SeqArgs) -> Result<Sequence, Error> {
     Ok(read::open(path, &opts)?)
 }
 
-fn open_test(path: &PathBuf, a: &SeqArgs) -> Result<Sequence, Error> {
+fn open_test(path: &std::path::Path, a: &SeqArgs) -> Result<Sequence, Error> {
     let opts = ReadOptions {
         format: None,
         depth_scale: a.depth_scale,
@@ -368,7 +368,10 @@ fn metrics_json(
     put("frames", seq.frames.len().into());
     put("voxelize_s", prep.voxelize_wall.as_secs_f64().into());
     put("read_cpu_s", prep.sets.read_time.as_secs_f64().into());
-    put("voxelize_cpu_s", prep.sets.voxelize_time.as_secs_f64().into());
+    put(
+        "voxelize_cpu_s",
+        prep.sets.voxelize_time.as_secs_f64().into(),
+    );
     put("graph_s", prep.graph_wall.as_secs_f64().into());
     put("solve_s", o.solve_time.as_secs_f64().into());
     put("co_observing_pairs", prep.co.pair_count().into());
@@ -623,7 +626,12 @@ struct BenchArgs {
     #[arg(long, default_value = "../shared/data")]
     data: PathBuf,
     /// Solvers to time, comma separated.
-    #[arg(long, value_enum, value_delimiter = ',', default_value = "in-order,greedy,exact,online")]
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "in-order,greedy,exact,online"
+    )]
     solvers: Vec<Solver>,
     /// Pixel stride.
     #[arg(long, default_value_t = 1)]
@@ -652,7 +660,11 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
     let out = std::env::temp_dir().join(format!("placedb-bench-{}", std::process::id()));
     let mut inputs: Vec<(String, Vec<String>)> = vec![(
         format!("synthetic-{}", a.synthetic_frames),
-        vec!["--demo".into(), "--demo-frames".into(), a.synthetic_frames.to_string()],
+        vec![
+            "--demo".into(),
+            "--demo-frames".into(),
+            a.synthetic_frames.to_string(),
+        ],
     )];
     for name in ["7scenes-1000", "vprdb-test-db"] {
         let p = a.data.join(name);
@@ -664,14 +676,31 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
     }
     println!(
         "{:<16} {:<9} {:>6} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
-        "sequence", "solver", "frames", "total_s", "read*", "voxel*", "vox_wall", "graph_s", "solve_s", "peak_MB"
+        "sequence",
+        "solver",
+        "frames",
+        "total_s",
+        "read*",
+        "voxel*",
+        "vox_wall",
+        "graph_s",
+        "solve_s",
+        "peak_MB"
     );
     for (name, args) in &inputs {
         for solver in &a.solvers {
             let child = std::process::Command::new(&exe)
                 .arg("select")
                 .args(args)
-                .args(["--solver", solver.name(), "--stride", &a.stride.to_string(), "--json", "-q", "-o"])
+                .args([
+                    "--solver",
+                    solver.name(),
+                    "--stride",
+                    &a.stride.to_string(),
+                    "--json",
+                    "-q",
+                    "-o",
+                ])
                 .arg(&out)
                 .output()?;
             if !child.status.success() {
@@ -731,7 +760,10 @@ fn core_cost(a: &BenchArgs) -> Result<(), Error> {
         let child = std::process::Command::new("valgrind")
             .args(["--tool=callgrind", "--collect-atstart=no"])
             .arg(format!("--toggle-collect={pattern}"))
-            .arg(format!("--callgrind-out-file={}", dir.join("callgrind.out").display()))
+            .arg(format!(
+                "--callgrind-out-file={}",
+                dir.join("callgrind.out").display()
+            ))
             .arg(&exe)
             .args(["select", "--solver", "online", "--json", "-q", "--stride"])
             .arg(a.stride.to_string())
@@ -743,14 +775,21 @@ fn core_cost(a: &BenchArgs) -> Result<(), Error> {
             .output()
             .map_err(|e| format!("cannot run valgrind ({e}); install it to count instructions"))?;
         if !child.status.success() {
-            return Err(format!("callgrind run failed: {}", String::from_utf8_lossy(&child.stderr)).into());
+            return Err(format!(
+                "callgrind run failed: {}",
+                String::from_utf8_lossy(&child.stderr)
+            )
+            .into());
         }
         meta = serde_json::from_slice(&child.stdout)?;
         // valgrind's summary line: "==PID== Collected : N" (callgrind) or "I   refs: N".
         let stderr = String::from_utf8_lossy(&child.stderr);
         let n = stderr
             .lines()
-            .find_map(|l| l.split_once("Collected :").or_else(|| l.split_once("I   refs:")))
+            .find_map(|l| {
+                l.split_once("Collected :")
+                    .or_else(|| l.split_once("I   refs:"))
+            })
             .and_then(|(_, n)| n.trim().replace(',', "").parse::<f64>().ok())
             .ok_or("no instruction count in callgrind's output")?;
         counts.push(n);
@@ -772,8 +811,15 @@ fn core_cost(a: &BenchArgs) -> Result<(), Error> {
         }
         println!("{:<10} {:>14.0} {:>12.2}", part, n / frames, n / pixels);
     }
-    println!("{:<10} {:>14.0} {:>12.2}", "all", total / frames, total / pixels);
-    println!("end frame = sort the frame's voxels, sketch, overlaps with database and window, select");
+    println!(
+        "{:<10} {:>14.0} {:>12.2}",
+        "all",
+        total / frames,
+        total / pixels
+    );
+    println!(
+        "end frame = sort the frame's voxels, sketch, overlaps with database and window, select"
+    );
     let _ = std::fs::remove_dir_all(&dir);
     Ok(())
 }
@@ -800,8 +846,9 @@ fn main() -> ExitCode {
         Command::Export(a) => device_cli::export_cmd(&a.port, &a.out, a.from, a.quiet)
             .map(|_| ())
             .map_err(Into::into),
-        Command::Device(a) => device_cli::qemu_device_cmd(a.firmware, a.port, !a.no_icount)
-            .map_err(Into::into),
+        Command::Device(a) => {
+            device_cli::qemu_device_cmd(a.firmware, a.port, !a.no_icount).map_err(Into::into)
+        }
     };
     match r {
         Ok(()) => ExitCode::SUCCESS,

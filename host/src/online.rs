@@ -73,7 +73,7 @@ pub fn replay(
     std::thread::scope(|s| {
         let job = s.spawn_scoped_big(move || match profile {
             "ram256k" => run(
-                Box::new(Ram256K::new()),
+                &mut Box::new(Ram256K::new()),
                 seq,
                 scan,
                 cfg,
@@ -81,7 +81,7 @@ pub fn replay(
                 progress,
             ),
             "ram512k" => run(
-                Box::new(Ram512K::new()),
+                &mut Box::new(Ram512K::new()),
                 seq,
                 scan,
                 cfg,
@@ -89,7 +89,7 @@ pub fn replay(
                 progress,
             ),
             "ram1m" => run(
-                Box::new(Ram1M::new()),
+                &mut Box::new(Ram1M::new()),
                 seq,
                 scan,
                 cfg,
@@ -123,7 +123,7 @@ impl<'scope, 'env> SpawnBig<'scope> for std::thread::Scope<'scope, 'env> {
 }
 
 fn run<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const K: usize>(
-    mut sel: Box<Selector<FV, POOL, DB, W, K>>,
+    sel: &mut Selector<FV, POOL, DB, W, K>,
     seq: &Sequence,
     scan: ScanConfig,
     cfg: SelectorConfig,
