@@ -496,6 +496,9 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
     #[inline(never)]
     pub fn end_frame(&mut self, mut emit: impl FnMut(FrameDecision)) -> Result<(), SelectError> {
         // Checked before the frame is closed, so a refusal changes nothing.
+        if self.ingest.current().is_none() {
+            return Err(SelectError::Frame(FrameError::NoFrame));
+        }
         let cfg = match &self.config {
             Some((_, cfg)) => *cfg,
             None => return Err(SelectError::NotConfigured),
