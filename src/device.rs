@@ -63,12 +63,7 @@ use crate::protocol::{
 use crate::select::{FrameDecision, SelectError, Selector};
 use crate::{CameraError, FrameError};
 
-/// The device of the `ram256k` profile ([`crate::profile::Ram256K`]) with 4096 labels.
-pub type Device256K = Device<4096, 16384, 192, 16, 32, 4096>;
-/// The device of the `ram512k` profile ([`crate::profile::Ram512K`]) with 6144 labels.
-pub type Device512K = Device<4096, 65536, 384, 32, 32, 6144>;
-/// The device of the `ram1m` profile ([`crate::profile::Ram1M`]) with 3072 labels.
-pub type Device1M = Device<8192, 163840, 768, 48, 48, 3072>;
+pub use crate::profile::{Device1M, Device256K, Device512K};
 
 /// One device: a [`Selector`] of capacities `FV`, `POOL`, `DB`, `W`, `K` (see
 /// [`crate::profile`]), a receive buffer of [`MAX_FRAME_LEN`] bytes, and a

@@ -4,6 +4,7 @@
 //! fits its RAM (the firmware's `memory.x` makes an oversized choice fail to
 //! link). `placedb budget` prints each profile's exact size and what it holds.
 
+use crate::device::Device;
 use crate::select::Selector;
 
 /// Capacities of one profile, as plain numbers for reports.
@@ -23,15 +24,22 @@ pub struct Capacities {
     pub window: usize,
     /// Hashes per sketch.
     pub sketch: usize,
+    /// Frames whose labels the device stores for export.
+    pub labels: usize,
     /// `size_of` the selector, bytes.
     pub state_bytes: usize,
+    /// `size_of` the whole device (selector, receive buffer, labels), bytes.
+    pub device_bytes: usize,
 }
 
 macro_rules! profiles {
-    ($( $(#[$doc:meta])* $ty:ident = $name:literal, $ram:expr, [$fv:expr, $pool:expr, $db:expr, $w:expr, $k:expr]; )*) => {
+    ($( $(#[$doc:meta])* $ty:ident, $dev:ident = $name:literal, $ram:expr,
+        [$fv:expr, $pool:expr, $db:expr, $w:expr, $k:expr, $labels:expr]; )*) => {
         $(
             $(#[$doc])*
             pub type $ty = Selector<$fv, $pool, $db, $w, $k>;
+            #[doc = concat!("The device of profile `", $name, "`: its selector, receive buffer and labels.")]
+            pub type $dev = Device<$fv, $pool, $db, $w, $k, $labels>;
         )*
         /// Every profile's capacities.
         pub const PROFILES: &[Capacities] = &[$(
@@ -43,7 +51,9 @@ macro_rules! profiles {
                 database_frames: $db,
                 window: $w,
                 sketch: $k,
+                labels: $labels,
                 state_bytes: core::mem::size_of::<$ty>(),
+                device_bytes: core::mem::size_of::<$dev>(),
             },
         )*];
     };
@@ -51,11 +61,11 @@ macro_rules! profiles {
 
 profiles! {
     /// Boards with 256 KiB of RAM (e.g. RP2040).
-    Ram256K = "ram256k", 256 * 1024, [4096, 16384, 192, 16, 32];
+    Ram256K, Device256K = "ram256k", 256 * 1024, [4096, 16384, 192, 16, 32, 4096];
     /// Boards with 512 KiB of RAM (e.g. RP2350, STM32F7).
-    Ram512K = "ram512k", 512 * 1024, [4096, 65536, 384, 32, 32];
+    Ram512K, Device512K = "ram512k", 512 * 1024, [4096, 65536, 384, 32, 32, 6144];
     /// Boards with 1 MiB of RAM (e.g. Teensy 4.1, STM32H7).
-    Ram1M = "ram1m", 1024 * 1024, [8192, 163840, 768, 48, 48];
+    Ram1M, Device1M = "ram1m", 1024 * 1024, [8192, 163840, 768, 48, 48, 3072];
 }
 
 /// The profile named `name`.

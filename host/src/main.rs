@@ -601,22 +601,35 @@ fn synth_cmd(a: SynthArgs) -> Result<(), Error> {
 
 fn budget() -> Result<(), Error> {
     println!(
-        "{:<9} {:>9} {:>11} {:>10} {:>12} {:>10} {:>7} {:>7}",
-        "profile", "ram", "state", "headroom", "frame_voxels", "pool_keys", "db", "window"
+        "{:<8} {:>6} {:>10} {:>10} {:>9} {:>12} {:>9} {:>5} {:>6} {:>7}",
+        "profile",
+        "ram",
+        "selector",
+        "device",
+        "headroom",
+        "frame_voxels",
+        "pool_keys",
+        "db",
+        "window",
+        "labels"
     );
     for p in placedb::profile::PROFILES {
         println!(
-            "{:<9} {:>8}K {:>10}B {:>9}K {:>12} {:>10} {:>7} {:>7}",
+            "{:<8} {:>5}K {:>9}B {:>9}B {:>8}K {:>12} {:>9} {:>5} {:>6} {:>7}",
             p.name,
             p.ram / 1024,
             p.state_bytes,
-            (p.ram as i64 - p.state_bytes as i64) / 1024,
+            p.device_bytes,
+            (p.ram as i64 - p.device_bytes as i64) / 1024,
             p.frame_voxel_slots - p.frame_voxel_slots / 4,
             p.pool_words,
             p.database_frames,
-            p.window
+            p.window,
+            p.labels
         );
     }
+    println!("selector = the online core alone; device = selector + receive buffer + label store (what a board holds)");
+    println!("headroom = ram - device, for the stack and the board's own buffers");
     Ok(())
 }
 
