@@ -218,8 +218,8 @@ struct SynthArgs {
     /// Seed of the furniture layout.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Number of rooms.
-    #[arg(long, default_value_t = 8)]
+    /// Number of rooms off the corridor.
+    #[arg(long, default_value_t = 4)]
     rooms: usize,
 }
 

@@ -1,0 +1,115 @@
+//! Writes a sequence in the TUM RGB-D layout: `depth/<ts>.png` (16-bit grey),
+//! `rgb/<ts>.png` (8-bit RGB, shaded from the depth), `depth.txt`, `rgb.txt`,
+//! `groundtruth.txt`, plus `intrinsics.txt` (3x3 K, since the camera is not one
+//! of the Freiburg cameras TUM readers know).
+
+use super::shade::shade;
+use crate::error::ReadError;
+use crate::sequence::{DepthImage, Sequence};
+use indicatif::ProgressBar;
+use rayon::prelude::*;
+use std::path::{Path, PathBuf};
+
+/// Writes `seq` under `dir` (created if needed; existing files of the same
+/// names are replaced). Frames are rendered and encoded in parallel;
+/// `progress` advances once per frame. Depth values are written as they are:
+/// the layout states 5000 units per metre, so `seq.depth_scale` should be 5000.
+pub fn write_tum(
+    seq: &Sequence,
+    dir: &Path,
+    progress: Option<&ProgressBar>,
+) -> Result<(), ReadError> {
+    for sub in ["depth", "rgb"] {
+        let d = dir.join(sub);
+        std::fs::create_dir_all(&d).map_err(|source| ReadError::Io { path: d, source })?;
+    }
+    seq.frames
+        .par_iter()
+        .try_for_each(|f| -> Result<(), ReadError> {
+            let depth = seq.depth(f.index)?;
+            let ts = stamp(f.timestamp);
+            write_depth_png(&dir.join(format!("depth/{ts}.png")), &depth)?;
+            let rgb = shade(&depth, &seq.camera, seq.depth_scale, f.rotation);
+            write_png(
+                &dir.join(format!("rgb/{ts}.png")),
+                (depth.width, depth.height),
+                png::ColorType::Rgb,
+                png::BitDepth::Eight,
+                &rgb,
+            )?;
+            if let Some(p) = progress {
+                p.inc(1);
+            }
+            Ok(())
+        })?;
+    let header =
+        |what: &str, columns: &str| format!("# {what}\n# file: '{}'\n# {columns}\n", seq.name);
+    let mut depth_txt = header("depth maps", "timestamp filename");
+    let mut rgb_txt = header("color images", "timestamp filename");
+    let mut gt_txt = header("ground truth trajectory", "timestamp tx ty tz qx qy qz qw");
+    for f in &seq.frames {
+        let ts = stamp(f.timestamp);
+        depth_txt += &format!("{ts} depth/{ts}.png\n");
+        rgb_txt += &format!("{ts} rgb/{ts}.png\n");
+        let [tx, ty, tz] = f.translation;
+        let [qx, qy, qz, qw] = f.rotation;
+        // Shortest exact decimal forms: the poses read back bit for bit.
+        gt_txt += &format!("{ts} {tx} {ty} {tz} {qx} {qy} {qz} {qw}\n");
+    }
+    let c = &seq.camera;
+    let k = format!("{} 0 {}\n0 {} {}\n0 0 1\n", c.fx, c.cx, c.fy, c.cy);
+    for (name, text) in [
+        ("depth.txt", depth_txt),
+        ("rgb.txt", rgb_txt),
+        ("groundtruth.txt", gt_txt),
+        ("intrinsics.txt", k),
+    ] {
+        let path = dir.join(name);
+        std::fs::write(&path, text).map_err(|source| ReadError::Io { path, source })?;
+    }
+    Ok(())
+}
+
+/// A timestamp as TUM writes it: seconds with 6 decimals.
+fn stamp(t: f64) -> String {
+    format!("{t:.6}")
+}
+
+/// Writes a 16-bit grey PNG of `depth`.
+fn write_depth_png(path: &Path, depth: &DepthImage) -> Result<(), ReadError> {
+    let bytes: Vec<u8> = depth.data.iter().flat_map(|d| d.to_be_bytes()).collect();
+    write_png(
+        path,
+        (depth.width, depth.height),
+        png::ColorType::Grayscale,
+        png::BitDepth::Sixteen,
+        &bytes,
+    )
+}
+
+/// Encodes `data` (already in PNG sample order, big-endian for 16 bits) and
+/// writes it to `path`.
+fn write_png(
+    path: &Path,
+    size: (u16, u16),
+    color: png::ColorType,
+    depth: png::BitDepth,
+    data: &[u8],
+) -> Result<(), ReadError> {
+    let encoding = |e: png::EncodingError| ReadError::Png {
+        path: PathBuf::from(path),
+        reason: e.to_string(),
+    };
+    let mut bytes = Vec::with_capacity(data.len() / 2 + 1024);
+    let mut enc = png::Encoder::new(&mut bytes, size.0 as u32, size.1 as u32);
+    enc.set_color(color);
+    enc.set_depth(depth);
+    enc.set_compression(png::Compression::Fast);
+    let mut writer = enc.write_header().map_err(encoding)?;
+    writer.write_image_data(data).map_err(encoding)?;
+    writer.finish().map_err(encoding)?;
+    std::fs::write(path, bytes).map_err(|source| ReadError::Io {
+        path: PathBuf::from(path),
+        source,
+    })
+}
