@@ -9,11 +9,13 @@
 //! future). With a window of 1 this is exactly the paper's `in-order` rule; a
 //! longer window lets a later, better-placed frame cover a run of frames.
 //!
-//! Overlaps are exact (merge of stored keys) while keys fit the key pool;
-//! frames stored without keys are compared by bottom-k sketch, and then count as
-//! overlapping only above `mu + sketch_margin`, so that sketch noise does not
-//! claim coverage the exact sets would deny. Every degradation is counted in
-//! [`Status`].
+//! Overlaps are exact (merge of stored keys) while keys fit the key pool.
+//! When the pool is full, the oldest database frames give up their exact keys
+//! first (they are compared least, only on revisits), so the window stays
+//! exact; a frame without keys is compared by its bottom-k sketch, and then
+//! counts as overlapping only above `mu + sketch_margin`, so that sketch noise
+//! rarely claims coverage the exact sets would deny. Every degradation is
+//! counted in [`Status`].
 
 use crate::camera::Pose;
 use crate::frame::{FrameError, FrameIngest, FrameMeta, ScanConfig};
@@ -130,7 +132,8 @@ pub struct Status {
     pub window: Usage,
     /// Distinct voxels in one frame.
     pub frame_voxels: Usage,
-    /// Frames stored without exact keys (compared by sketch).
+    /// Frames stored without exact keys, or that gave theirs up to a newer
+    /// frame (compared by sketch).
     pub sketched_frames: u32,
     /// Frames whose voxel set was truncated.
     pub truncated_frames: u32,
@@ -531,6 +534,29 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
         );
         if let Some(a) = &aabb {
             slot.frame.keys = self.pool.store(keys, a);
+            // Pool full: the oldest database frames give up their exact keys
+            // (they are compared least, only on revisits) so that the frames
+            // of the window, compared with every new frame, stay exact.
+            let worth_it = a.fits_relative() && keys.len() <= POOL;
+            let mut next = 0;
+            while slot.frame.keys.is_none() && worth_it {
+                let Some(i) = (next..self.db.len()).find(|&i| self.db[i].keys.is_some()) else {
+                    break;
+                };
+                next = i + 1;
+                if let Some(run) = self.db[i].keys.take() {
+                    // A taken frame still in the window shares the run.
+                    for e in self.ring.iter_mut().filter_map(RingEntry::get_mut) {
+                        if e.frame.keys == Some(run) {
+                            e.frame.keys = None;
+                        }
+                    }
+                    release_run(&mut self.pool, &mut self.db, &mut self.ring, &run);
+                    self.status.sketched_frames += 1;
+                    self.status.flags |= flags::POOL_FULL;
+                }
+                slot.frame.keys = self.pool.store(keys, a);
+            }
         }
         // Bookkeeping of this frame's degradations.
         let st = &mut self.status;
@@ -690,15 +716,24 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
 
     /// Frees a run of the key pool and shifts every run stored after it.
     fn release(&mut self, run: &KeyRun) {
-        self.pool.free(run);
-        let runs = self.db.iter_mut().map(|s| &mut s.keys).chain(
-            self.ring
-                .iter_mut()
-                .filter_map(RingEntry::get_mut)
-                .map(|s| &mut s.frame.keys),
-        );
-        for r in runs.flatten() {
-            r.after_free(run);
-        }
+        release_run(&mut self.pool, &mut self.db, &mut self.ring, run);
+    }
+}
+
+/// Frees a run of the key pool and shifts every run stored after it.
+fn release_run<const POOL: usize, const DB: usize, const W: usize, const K: usize>(
+    pool: &mut KeyPool<POOL>,
+    db: &mut heapless::Vec<Stored<K>, DB>,
+    ring: &mut [RingEntry<W, K>; W],
+    run: &KeyRun,
+) {
+    pool.free(run);
+    let runs = db.iter_mut().map(|s| &mut s.keys).chain(
+        ring.iter_mut()
+            .filter_map(RingEntry::get_mut)
+            .map(|s| &mut s.frame.keys),
+    );
+    for r in runs.flatten() {
+        r.after_free(run);
     }
 }

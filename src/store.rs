@@ -52,7 +52,7 @@ impl Aabb {
     }
 
     /// Whether every key of the box fits the relative 32-bit encoding.
-    fn fits_relative(&self) -> bool {
+    pub fn fits_relative(&self) -> bool {
         let span = |a: usize| (self.max[a] as i64 - self.min[a] as i64) as u64;
         span(0) < (1 << DX_BITS) && span(1) < (1 << DY_BITS) && span(2) < (1 << DZ_BITS)
     }

@@ -375,6 +375,8 @@ fn metrics_json(
     put("graph_s", prep.graph_wall.as_secs_f64().into());
     put("solve_s", o.solve_time.as_secs_f64().into());
     put("co_observing_pairs", prep.co.pair_count().into());
+    put("labels_below_mu", o.labels_below_mu.into());
+    put("label_iou_min", f64::from(o.label_iou_min).into());
     if let Some((optimal, lb)) = o.exact {
         put("optimal", optimal.into());
         put("lower_bound", lb.into());

@@ -190,6 +190,11 @@ pub struct Outcome {
     pub exact: Option<(bool, usize)>,
     /// `online`: the replay (decisions, status, records).
     pub online: Option<OnlineRun>,
+    /// Frames whose label is another frame and whose exact IoU with it is
+    /// not above mu (0 for exact solvers; the price of sketches online).
+    pub labels_below_mu: usize,
+    /// Smallest exact IoU of a frame with its label (another frame); 1 if none.
+    pub label_iou_min: f32,
 }
 
 /// Why a solver failed.
@@ -287,6 +292,15 @@ pub fn solve(
     };
     let (eval_sets, eval_co) = prep.eval();
     let metrics = metrics::evaluate(&eval_sets.sets, eval_co, &database, mu);
+    // Labels judged on the solver's own (stride-s) sets, where coverage is promised.
+    let label_ious: Vec<f32> = labels
+        .iter()
+        .enumerate()
+        .filter(|&(f, &l)| f != l)
+        .map(|(f, &l)| prep.co.iou(f, l))
+        .collect();
+    let labels_below_mu = label_ious.iter().filter(|&&x| x <= mu).count();
+    let label_iou_min = label_ious.iter().copied().fold(1.0f32, f32::min);
     Ok(Outcome {
         solver,
         database,
@@ -295,6 +309,8 @@ pub fn solve(
         solve_time,
         exact,
         online,
+        labels_below_mu,
+        label_iou_min,
     })
 }
 
