@@ -98,7 +98,9 @@ fn firmware_fits_its_budget() {
     // A fresh device is all zero bytes: its static costs RAM (.bss) but no flash.
     assert!(
         data <= 1024,
-        "{data} B of .data: the device static is not all zero, so it is stored in flash too"
+        "{data} B of .data: the device static is not all zero, so it is stored in flash too \
+         (usually a new `Option<T>` field whose T has a niche: its None is a non-zero byte; \
+         use a plain flag beside T, as `RingEntry` in src/select.rs does)"
     );
     assert!(flash <= FLASH_BUDGET && ram <= RAM_BUDGET);
     assert!(
