@@ -191,3 +191,22 @@ fn sketch_mode_keeps_labels_close_to_mu() {
         "the pool never filled: the test does not exercise sketches"
     );
 }
+
+/// `oracle_recall@0.3` of a dominating set at mu >= 0.3, tested on its own
+/// sequence, is exactly 1: IoU > mu implies coverage s(q, b) >= IoU > 0.3.
+/// A baseline without the guarantee can fall below.
+#[test]
+fn oracle_recall_on_the_scan_itself() {
+    for case in cases().iter().filter(|c| c.seq.frames.len() < 1000) {
+        let test = pipeline::prepare_test(&case.seq, &case.prep, true).expect("voxelizes");
+        for solver in [Solver::InOrder, Solver::Greedy, Solver::Exact, Solver::Online] {
+            let mut o = run(case, solver, 0.3);
+            pipeline::add_oracle_recall(&mut o, &case.prep, &test);
+            assert_eq!(o.metrics.oracle_recall_0_3, Some(1.0), "{} {}", case.seq.name, solver.name());
+        }
+        let mut cube = run(case, Solver::Cube, 0.3);
+        pipeline::add_oracle_recall(&mut cube, &case.prep, &test);
+        let r = cube.metrics.oracle_recall_0_3.expect("computed");
+        assert!((0.0..=1.0).contains(&r));
+    }
+}
