@@ -199,10 +199,21 @@ fn sketch_mode_keeps_labels_close_to_mu() {
 fn oracle_recall_on_the_scan_itself() {
     for case in cases().iter().filter(|c| c.seq.frames.len() < 1000) {
         let test = pipeline::prepare_test(&case.seq, &case.prep, true).expect("voxelizes");
-        for solver in [Solver::InOrder, Solver::Greedy, Solver::Exact, Solver::Online] {
+        for solver in [
+            Solver::InOrder,
+            Solver::Greedy,
+            Solver::Exact,
+            Solver::Online,
+        ] {
             let mut o = run(case, solver, 0.3);
             pipeline::add_oracle_recall(&mut o, &case.prep, &test);
-            assert_eq!(o.metrics.oracle_recall_0_3, Some(1.0), "{} {}", case.seq.name, solver.name());
+            assert_eq!(
+                o.metrics.oracle_recall_0_3,
+                Some(1.0),
+                "{} {}",
+                case.seq.name,
+                solver.name()
+            );
         }
         let mut cube = run(case, Solver::Cube, 0.3);
         pipeline::add_oracle_recall(&mut cube, &case.prep, &test);
