@@ -237,12 +237,19 @@ impl<const CAP: usize> FrameVoxels<CAP> {
     /// order; the set is left unusable for insertion until [`Self::clear`].
     #[inline(never)]
     pub fn sorted(&mut self) -> &[u64] {
-        // EMPTY is the smallest word, so the keys end up at the back.
-        self.slots.sort_unstable();
-        let keys = &mut self.slots[CAP - self.len..];
-        for k in keys.iter_mut() {
-            *k -= 1;
+        // Gather the keys at the front first: a frame at a coarse stride holds
+        // a few hundred keys in thousands of slots, and sorting only those is
+        // what keeps this step small on a microcontroller.
+        let mut n = 0;
+        for i in 0..CAP {
+            let word = self.slots[i];
+            if word != EMPTY {
+                self.slots[n] = word - 1;
+                n += 1;
+            }
         }
+        let keys = &mut self.slots[..n];
+        keys.sort_unstable();
         keys
     }
 }
