@@ -35,6 +35,14 @@
 //! | ExportRequest | always | up to `max_records` `ExportRecord`s from `from_record`, then `ExportEnd` | `ExportPastEnd` (`from_record` beyond the last record + 1) |
 //! | Reset | always | forgets configuration, frames, database, labels, counters | — |
 //!
+//! Retransmission: the device remembers the sequence number, the message and
+//! the terminal reply of the last state-changing message it handled (Hello,
+//! FrameBegin, DepthRows, FrameEnd, Finish, Reset). The same message again
+//! with the same sequence number (a host retransmitting because the reply was
+//! lost or late) gets that reply again and is not applied twice; its
+//! `Decision`s are not sent again. StatusRequest and ExportRequest change
+//! nothing and are simply answered again.
+//!
 //! Labels: one per frame with a final decision, in frame order: its timestamp
 //! and class (the covering or nearest database frame, or itself). When the
 //! store of `LABELS` entries is full, later labels are counted in
@@ -107,6 +115,82 @@ struct Core<
     cost: FrameCost,
     /// Ticks of the open frame's FrameBegin and DepthRows so far.
     rows_ticks: u64,
+    /// The last state-changing message handled, to answer its retransmission.
+    last: Applied,
+}
+
+/// A state-changing message the device handled and its terminal reply.
+/// Plain integers only (no `Option`, whose `None` may be a non-zero niche):
+/// a new device stays all zero bytes, in `.bss`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Applied {
+    /// The message; [`MessageKey::NONE`] before any.
+    key: MessageKey,
+    seq: u32,
+    /// Accepted (Ack), else refused with `kind`.
+    accepted: bool,
+    kind: ErrorKind,
+}
+
+impl Applied {
+    const NONE: Applied = Applied {
+        key: MessageKey::NONE,
+        seq: 0,
+        accepted: false,
+        kind: ErrorKind::BadCrc,
+    };
+
+    /// The terminal reply it got.
+    fn reply(&self) -> DeviceMessage<'static> {
+        if self.accepted {
+            DeviceMessage::Ack { seq: self.seq }
+        } else {
+            DeviceMessage::Error {
+                seq: Some(self.seq),
+                kind: self.kind,
+            }
+        }
+    }
+}
+
+/// What identifies a state-changing message besides its sequence number (so
+/// that a restarted host reusing sequence numbers is not taken for a retry).
+/// A Hello is identified by its configuration: the one in force.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct MessageKey {
+    /// 0: none; 1 Hello, 2 FrameBegin, 3 DepthRows, 4 FrameEnd, 5 Finish, 6 Reset.
+    tag: u8,
+    frame: u32,
+    first_row: u16,
+    row_count: u16,
+}
+
+impl MessageKey {
+    const NONE: MessageKey = MessageKey {
+        tag: 0,
+        frame: 0,
+        first_row: 0,
+        row_count: 0,
+    };
+
+    /// The key of a state-changing message; `None` for requests that change nothing.
+    fn of(msg: &HostMessage<'_>) -> Option<MessageKey> {
+        let key = |tag, frame, first_row, row_count| MessageKey {
+            tag,
+            frame,
+            first_row,
+            row_count,
+        };
+        Some(match *msg {
+            HostMessage::Hello(_) => key(1, 0, 0, 0),
+            HostMessage::FrameBegin { frame, .. } => key(2, frame, 0, 0),
+            HostMessage::DepthRows(r) => key(3, r.frame, r.first_row, r.row_count),
+            HostMessage::FrameEnd { frame } => key(4, frame, 0, 0),
+            HostMessage::Finish => key(5, 0, 0, 0),
+            HostMessage::Reset => key(6, 0, 0, 0),
+            HostMessage::StatusRequest | HostMessage::ExportRequest { .. } => return None,
+        })
+    }
 }
 
 /// Timestamps and classes of decided frames, by frame index.
@@ -281,6 +365,7 @@ impl<
                     max: 0,
                 },
                 rows_ticks: 0,
+                last: Applied::NONE,
             },
         }
     }
@@ -380,6 +465,7 @@ impl<
             ..FrameCost::default()
         };
         self.rows_ticks = 0;
+        self.last = Applied::NONE;
     }
 
     fn phase(&self) -> Phase {
@@ -460,6 +546,16 @@ impl<
                 return self.out(send).reply(&error.reply());
             }
         };
+        let key = MessageKey::of(&msg);
+        let same_hello = match msg {
+            HostMessage::Hello(cfg) => self.hello == Some(cfg),
+            _ => true,
+        };
+        if key == Some(self.last.key) && self.last.seq == seq && same_hello {
+            // A retransmission of the message just handled: same reply, no effect.
+            let reply = self.last.reply();
+            return self.out(send).reply(&reply);
+        }
         let clock = self.clock;
         let result = match msg {
             HostMessage::Hello(cfg) => self.hello(cfg),
@@ -495,17 +591,19 @@ impl<
                 Ok(())
             }
         };
-        let reply = match result {
-            Ok(()) => DeviceMessage::Ack { seq },
-            Err(kind) => {
-                self.refused = self.refused.saturating_add(1);
-                DeviceMessage::Error {
-                    seq: Some(seq),
-                    kind,
-                }
-            }
+        if result.is_err() {
+            self.refused = self.refused.saturating_add(1);
+        }
+        let applied = Applied {
+            key: key.unwrap_or(MessageKey::NONE),
+            seq,
+            accepted: result.is_ok(),
+            kind: result.err().unwrap_or(ErrorKind::Internal),
         };
-        self.out(send).reply(&reply);
+        if key.is_some() {
+            self.last = applied;
+        }
+        self.out(send).reply(&applied.reply());
     }
 
     fn hello(&mut self, cfg: Config) -> Result<(), ErrorKind> {
@@ -1175,6 +1273,78 @@ mod tests {
                 whole.last(),
                 Some(DeviceMessage::ExportEnd { .. })
             ));
+        });
+    }
+
+    #[test]
+    fn a_retransmitted_message_is_answered_again_not_applied_twice() {
+        on_big_stack(|| {
+            let mut buf = vec![0u8; MAX_FRAME_LEN];
+            let mut frames: Vec<Vec<u8>> = Vec::new();
+            let mut push = |seq: u32, msg: HostMessage<'_>| {
+                frames.push(encode(&HostFrame { seq, msg }, &mut buf).unwrap().to_vec());
+            };
+            push(1, HostMessage::Hello(config(2)));
+            let mut seq = 2;
+            for i in 0..8 {
+                push(
+                    seq,
+                    HostMessage::FrameBegin {
+                        frame: i,
+                        timestamp: timestamp(i),
+                        pose: pose(i),
+                    },
+                );
+                let data: Vec<u8> = frame_rows(i).iter().flat_map(|d| d.to_le_bytes()).collect();
+                for (k, half) in data.chunks(data.len() / 2).enumerate() {
+                    push(
+                        seq + 1 + k as u32,
+                        HostMessage::DepthRows(DepthRows {
+                            frame: i,
+                            first_row: 12 * k as u16,
+                            row_count: 12,
+                            data: half,
+                        }),
+                    );
+                }
+                // A refused message (rows again) is answered the same way too.
+                push(seq + 3, HostMessage::FrameEnd { frame: i + 1 });
+                push(seq + 4, HostMessage::FrameEnd { frame: i });
+                seq += 5;
+            }
+            push(seq, HostMessage::Finish);
+            let mut clean = Bench::<Small>::new();
+            let mut twice = Bench::<Small>::new();
+            for f in &frames {
+                let once = clean.feed(f, f.len());
+                let first = twice.feed(f, f.len());
+                assert_eq!(first, once);
+                // The retransmission: only the terminal reply, again.
+                let again = twice.feed(f, 7);
+                assert_eq!(again.len(), 1);
+                assert_eq!(again.last(), once.last());
+            }
+            let (a, b) = (clean.status(), twice.status());
+            assert_eq!(a.frames_seen, 8);
+            assert_eq!(b.frames_seen, 8);
+            assert_eq!(b.refused, a.refused);
+            assert_eq!(twice.export(0), clean.export(0));
+            // The same sequence number with another message is not a retry.
+            let mut buf = vec![0u8; MAX_FRAME_LEN];
+            let reset = encode(
+                &HostFrame {
+                    seq,
+                    msg: HostMessage::Reset,
+                },
+                &mut buf,
+            )
+            .unwrap()
+            .to_vec();
+            assert_eq!(
+                twice.feed(&reset, reset.len()),
+                vec![DeviceMessage::Ack { seq }]
+            );
+            assert_eq!(twice.status().phase, Phase::Unconfigured);
         });
     }
 

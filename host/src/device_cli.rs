@@ -7,7 +7,16 @@
 //! --solver online` computes with the same profile and configuration, and the
 //! exported files are written by the same writers ([`crate::output`]), so they
 //! are byte-identical.
+//!
+//! Over a lossy link ([`StreamOptions::retries`] > 0, e.g. `placedb stream
+//! --drop-chance 0.05 --corrupt-chance 0.05`, which wraps the link in a
+//! [`crate::fault::FaultInjector`]) the host goes stop-and-wait and retransmits
+//! a message with the same sequence number when its reply is late or says the
+//! frame was damaged ([`exchange`]); the device answers a repeat without
+//! applying it twice. Export batches are checked by count and CRC and asked
+//! again, shorter, when they fail.
 
+use crate::fault::{FaultConfig, FaultInjector};
 use crate::link::{self, Client, Link, QemuOptions, Received};
 use crate::online::sampled_rows;
 use crate::output::{self, DbRow};
@@ -64,6 +73,16 @@ pub struct StreamOptions {
     pub reply_timeout: Duration,
     /// Reset the device before the Hello (a new scan).
     pub reset: bool,
+    /// Retransmissions allowed per message. 0: messages are pipelined
+    /// (`in_flight`) and the first error or timeout ends the stream. Above 0:
+    /// stop-and-wait, and a message whose terminal reply does not come within
+    /// `resend_after`, or is an error saying the frame was damaged, is sent
+    /// again with the same sequence number (the device answers a repeat
+    /// without applying it twice).
+    pub retries: usize,
+    /// With `retries > 0`: how long to wait for a terminal reply before
+    /// sending the message again.
+    pub resend_after: Duration,
 }
 
 impl Default for StreamOptions {
@@ -73,6 +92,8 @@ impl Default for StreamOptions {
             in_flight: 4,
             reply_timeout: Duration::from_secs(30),
             reset: true,
+            retries: 0,
+            resend_after: Duration::from_secs(2),
         }
     }
 }
@@ -92,6 +113,8 @@ pub struct StreamReport {
     pub bytes_sent: u64,
     /// Messages sent.
     pub messages: u64,
+    /// Messages sent again (lost or damaged on the way, or their reply was).
+    pub retransmissions: u64,
 }
 
 impl StreamReport {
@@ -201,6 +224,90 @@ pub fn status<L: Link>(client: &mut Client<L>, timeout: Duration) -> Result<Stat
     }
 }
 
+/// Sends `msg` and waits for its terminal reply, stop-and-wait: when none
+/// comes within `resend_after`, or an error says a frame was damaged on the
+/// way ([`ErrorKind::is_damage`]), the link is resynchronised and the same
+/// message is sent again with the same sequence number, at most `retries`
+/// times. Returns what arrived for it (decisions, logs, the terminal reply
+/// last; replies to other sequence numbers are dropped) and the number of
+/// retransmissions. A refusal (any other error) is returned as
+/// [`DeviceError::Refused`].
+pub fn exchange<L: Link>(
+    client: &mut Client<L>,
+    msg: HostMessage<'_>,
+    what: &str,
+    resend_after: Duration,
+    retries: usize,
+) -> Result<(Vec<Received>, u64), DeviceError> {
+    let seq = client.take_seq();
+    let mut got = Vec::new();
+    for attempt in 0..=retries {
+        if attempt > 0 {
+            client.resync()?;
+        }
+        client.send_as(seq, msg)?;
+        let deadline = Instant::now() + resend_after;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            let item = match client.recv(left) {
+                Ok(item) => item,
+                Err(e) if e.kind() == io::ErrorKind::TimedOut => break,
+                Err(e) => return Err(e.into()),
+            };
+            match &item {
+                // Under stop-and-wait a damaged frame is ours (or a harmless
+                // repeat): send again at once.
+                Received::Message(DeviceMessage::Error { kind, .. }) if kind.is_damage() => break,
+                Received::Message(DeviceMessage::Error { seq: Some(s), kind }) if *s == seq => {
+                    return Err(DeviceError::Refused {
+                        what: what.to_string(),
+                        seq,
+                        kind: *kind,
+                    })
+                }
+                _ => {}
+            }
+            match item.terminal_seq() {
+                Some(s) if s == seq => {
+                    got.push(item);
+                    return Ok((got, attempt as u64));
+                }
+                // A late reply to an earlier message.
+                Some(_) => {}
+                None => got.push(item),
+            }
+        }
+    }
+    Err(DeviceError::Protocol(format!(
+        "no reply to {what} (seq {seq}) after {retries} retransmissions, {resend_after:?} apart"
+    )))
+}
+
+/// One message of a stream's set-up, with or without retransmission.
+fn call<L: Link>(
+    client: &mut Client<L>,
+    msg: HostMessage<'_>,
+    what: &str,
+    opts: &StreamOptions,
+    resent: &mut u64,
+) -> Result<Vec<Received>, DeviceError> {
+    if opts.retries == 0 {
+        return request(client, msg, what, opts.reply_timeout);
+    }
+    let (replies, n) = exchange(client, msg, what, opts.resend_after, opts.retries)?;
+    *resent += n;
+    Ok(replies)
+}
+
+fn status_of(replies: &[Received]) -> Result<Status, DeviceError> {
+    match replies.last() {
+        Some(Received::Message(DeviceMessage::Status(s))) => Ok(*s),
+        other => Err(DeviceError::Protocol(format!(
+            "expected a Status, got {other:?}"
+        ))),
+    }
+}
+
 /// Messages in flight and what their replies told.
 struct Pipeline<'c, L: Link> {
     client: &'c mut Client<L>,
@@ -211,6 +318,10 @@ struct Pipeline<'c, L: Link> {
     status: Option<Status>,
     bytes: u64,
     messages: u64,
+    /// Retransmissions allowed per message (0: pipelined, no recovery).
+    retries: usize,
+    resend_after: Duration,
+    retransmissions: u64,
 }
 
 impl<L: Link> Pipeline<'_, L> {
@@ -226,10 +337,35 @@ impl<L: Link> Pipeline<'_, L> {
         self.bytes += encode(&placedb::protocol::HostFrame { seq: 0, msg }, &mut buf)
             .map(|f| f.len() as u64)
             .unwrap_or(0);
-        let seq = self.client.send(msg)?;
         self.messages += 1;
+        if self.retries > 0 {
+            let what = what();
+            let (replies, resent) =
+                exchange(self.client, msg, &what, self.resend_after, self.retries)?;
+            self.retransmissions += resent;
+            for item in &replies {
+                self.note(item);
+            }
+            return Ok(());
+        }
+        let seq = self.client.send(msg)?;
         self.outstanding.push_back((seq, what()));
         Ok(())
+    }
+
+    /// Keeps the final decisions and the last status.
+    fn note(&mut self, item: &Received) {
+        match item {
+            Received::Message(DeviceMessage::Decision { frame, kind })
+                if *kind != DecisionKind::Pending =>
+            {
+                if let Some(slot) = self.decisions.get_mut(*frame as usize) {
+                    *slot = Some(*kind);
+                }
+            }
+            Received::Message(DeviceMessage::Status(s)) => self.status = Some(*s),
+            _ => {}
+        }
     }
 
     /// Handles replies until the oldest outstanding message is answered.
@@ -244,15 +380,8 @@ impl<L: Link> Pipeline<'_, L> {
                     format!("waiting for the reply to {what}: {e}"),
                 ))
             })?;
+            self.note(&item);
             match &item {
-                Received::Message(DeviceMessage::Decision { frame, kind })
-                    if *kind != DecisionKind::Pending =>
-                {
-                    if let Some(slot) = self.decisions.get_mut(*frame as usize) {
-                        *slot = Some(*kind);
-                    }
-                }
-                Received::Message(DeviceMessage::Status(s)) => self.status = Some(*s),
                 Received::Message(DeviceMessage::Error { seq, kind }) => {
                     return Err(DeviceError::Refused {
                         what,
@@ -328,14 +457,21 @@ pub fn stream<L: Link>(
     progress: Option<&ProgressBar>,
 ) -> Result<StreamReport, DeviceError> {
     let timeout = opts.reply_timeout;
+    let mut resent = 0;
     client.resync()?;
-    let st = status(client, timeout)?;
+    let st = status_of(&call(
+        client,
+        HostMessage::StatusRequest,
+        "StatusRequest",
+        opts,
+        &mut resent,
+    )?)?;
     check_profile(&st, profile)?;
     if opts.reset {
-        request(client, HostMessage::Reset, "Reset", timeout)?;
+        call(client, HostMessage::Reset, "Reset", opts, &mut resent)?;
     }
     let started = Instant::now();
-    request(client, HostMessage::Hello(*cfg), "Hello", timeout)?;
+    call(client, HostMessage::Hello(*cfg), "Hello", opts, &mut resent)?;
     let n = seq.frames.len();
     let width = cfg.width_sent();
     let fit = depth_rows_per_message(width);
@@ -353,6 +489,9 @@ pub fn stream<L: Link>(
         status: None,
         bytes: 0,
         messages: 0,
+        retries: opts.retries,
+        resend_after: opts.resend_after,
+        retransmissions: resent,
     };
     for i in 0..n {
         let img = seq
@@ -391,7 +530,10 @@ pub fn stream<L: Link>(
             )?;
         }
         pipe.send(HostMessage::FrameEnd { frame }, || format!("FrameEnd {i}"))?;
-        pipe.send(HostMessage::StatusRequest, || "StatusRequest".into())?;
+        // The live line's status; stop-and-wait without a display skips it.
+        if opts.retries == 0 || progress.is_some() {
+            pipe.send(HostMessage::StatusRequest, || "StatusRequest".into())?;
+        }
         if let Some(p) = progress {
             p.set_position(i as u64 + 1);
             if let Some(st) = &pipe.status {
@@ -404,7 +546,14 @@ pub fn stream<L: Link>(
     pipe.drain()?;
     let wall = started.elapsed();
     let (decisions, bytes_sent, messages) = (pipe.decisions, pipe.bytes, pipe.messages);
-    let status = status(client, timeout)?;
+    let mut resent = pipe.retransmissions;
+    let status = status_of(&call(
+        client,
+        HostMessage::StatusRequest,
+        "StatusRequest",
+        opts,
+        &mut resent,
+    )?)?;
     Ok(StreamReport {
         frames: n,
         decisions,
@@ -412,17 +561,21 @@ pub fn stream<L: Link>(
         wall,
         bytes_sent,
         messages,
+        retransmissions: resent,
     })
 }
 
 /// How to export.
 #[derive(Debug, Clone)]
 pub struct ExportOptions {
-    /// Records per ExportRequest; each batch is checked by count and CRC.
+    /// Most records per ExportRequest; each batch is checked by count and
+    /// CRC. After a failed batch the next one is half as long (down to 1
+    /// record), after a good one a record longer (up to this).
     pub batch: u32,
-    /// Failed batches retried (from their first record) before giving up.
+    /// Failed attempts in a row (a batch re-requested from its first record,
+    /// a status request sent again) before giving up.
     pub retries: usize,
-    /// Longest wait for one reply.
+    /// Longest wait for one reply (the next record or the batch's end).
     pub reply_timeout: Duration,
 }
 
@@ -487,6 +640,12 @@ fn export_batch<L: Link>(
                 }
                 return Ok(got);
             }
+            // The request (or a record) was damaged on the way: ask again.
+            Received::Message(DeviceMessage::Error { kind, .. }) if kind.is_damage() => {
+                return Err(DeviceError::Protocol(format!(
+                    "export batch from {from}: the request was damaged ({kind})"
+                )));
+            }
             Received::Message(DeviceMessage::Error { seq: s, kind }) if s == Some(seq) => {
                 return Err(DeviceError::Refused {
                     what: format!("ExportRequest from {from}"),
@@ -511,8 +670,19 @@ pub fn export<L: Link>(
     saved: &mut dyn FnMut(&[ExportRecord]) -> io::Result<()>,
 ) -> Result<Export, DeviceError> {
     let timeout = opts.reply_timeout;
+    let retries = opts.retries.max(1);
     client.resync()?;
-    let first = status(client, timeout)?;
+    let ask_status = |client: &mut Client<L>| {
+        exchange(
+            client,
+            HostMessage::StatusRequest,
+            "StatusRequest",
+            timeout,
+            retries,
+        )
+        .and_then(|(replies, _)| status_of(&replies))
+    };
+    let first = ask_status(client)?;
     let total = first.export_records() as usize;
     if have.len() > total {
         return Err(DeviceError::Input(format!(
@@ -525,10 +695,14 @@ pub fn export<L: Link>(
         p.set_position(have.len() as u64);
     }
     let mut retried = 0;
+    let mut failed_in_a_row = 0;
+    let mut batch_len = opts.batch.max(1);
     while have.len() < total {
         let from = have.len() as u32;
-        match export_batch(client, from, opts.batch.max(1), timeout) {
+        match export_batch(client, from, batch_len, timeout) {
             Ok(batch) if !batch.is_empty() => {
+                failed_in_a_row = 0;
+                batch_len = batch_len.saturating_add(1).min(opts.batch.max(1));
                 saved(&batch)?;
                 have.extend(batch);
                 if let Some(p) = progress {
@@ -541,19 +715,21 @@ pub fn export<L: Link>(
                 )))
             }
             Err(e @ DeviceError::Refused { .. }) => return Err(e),
-            Err(e) if retried < opts.retries => {
+            Err(e) if failed_in_a_row < opts.retries => {
                 retried += 1;
+                failed_in_a_row += 1;
+                batch_len = (batch_len / 2).max(1);
                 if let Some(p) = progress {
                     p.println(format!("retrying from record {from}: {e}"));
                 }
                 // Let a broken reply finish, then resynchronise.
-                while client.recv(Duration::from_millis(200)).is_ok() {}
+                while client.recv(Duration::from_millis(200).min(timeout)).is_ok() {}
                 client.resync()?;
             }
             Err(e) => return Err(e),
         }
     }
-    let last = status(client, timeout)?;
+    let last = ask_status(client)?;
     if last.export_records() as usize != have.len()
         || (last.frames_seen, last.database_size) != (first.frames_seen, first.database_size)
     {
@@ -726,9 +902,62 @@ pub fn connect(port: &str) -> Result<Client<Box<dyn Link>>, DeviceError> {
     Ok(Client::new(link))
 }
 
+/// Fault injection and recovery for `placedb stream`.
+#[derive(Debug, Clone, Copy)]
+pub struct Recovery {
+    /// Faults injected into the link (none by default).
+    pub faults: FaultConfig,
+    /// Retransmissions per message; `None`: 0 without faults (pipelined), 20 with.
+    pub retries: Option<usize>,
+    /// How long to wait for a terminal reply before sending a message again
+    /// (also the export's wait for its next record).
+    pub resend_after: Duration,
+}
+
+impl Default for Recovery {
+    fn default() -> Self {
+        Recovery {
+            faults: FaultConfig::default(),
+            retries: None,
+            resend_after: Duration::from_secs(2),
+        }
+    }
+}
+
+impl Recovery {
+    /// Retransmissions per message.
+    pub fn retries(&self) -> usize {
+        self.retries
+            .unwrap_or(if self.faults.is_active() { 20 } else { 0 })
+    }
+
+    /// The stream options: stop-and-wait with retransmission when `retries() > 0`.
+    pub fn stream_options(&self) -> StreamOptions {
+        StreamOptions {
+            retries: self.retries(),
+            resend_after: self.resend_after,
+            ..StreamOptions::default()
+        }
+    }
+
+    /// The export options: short waits and small batches under faults.
+    pub fn export_options(&self) -> ExportOptions {
+        if self.retries() == 0 {
+            return ExportOptions::default();
+        }
+        ExportOptions {
+            batch: 8,
+            retries: self.retries().max(5),
+            reply_timeout: self.resend_after,
+        }
+    }
+}
+
 /// `placedb stream`: streams `seq` (configured by `vcfg` and `sel`, as
 /// `placedb select` is) to the device on `port`, which must run `profile`;
-/// prints a summary, and exports into `out` if given.
+/// prints a summary, and exports into `out` if given. `recovery` injects
+/// faults into the link and sets the retransmission policy.
+#[allow(clippy::too_many_arguments)]
 pub fn stream_cmd(
     port: &str,
     seq: &Sequence,
@@ -737,7 +966,9 @@ pub fn stream_cmd(
     profile: &str,
     out: Option<&Path>,
     quiet: bool,
+    recovery: &Recovery,
 ) -> Result<StreamReport, DeviceError> {
+    recovery.faults.validate().map_err(DeviceError::Input)?;
     if placedb::profile::by_name(profile).is_none() {
         return Err(DeviceError::Input(format!(
             "unknown --profile {profile:?}; see `placedb budget`"
@@ -749,7 +980,8 @@ pub fn stream_cmd(
         ..sel
     };
     let cfg = device_config(&scan, &sel)?;
-    let mut client = connect(port)?;
+    let link = link::open(port, Duration::from_secs(10))?;
+    let mut client = Client::new(FaultInjector::new(link, recovery.faults));
     let pb = (!quiet).then(|| {
         let pb = ProgressBar::new(seq.frames.len() as u64);
         if let Ok(style) = indicatif::ProgressStyle::with_template(
@@ -764,7 +996,7 @@ pub fn stream_cmd(
         seq,
         &cfg,
         profile,
-        &StreamOptions::default(),
+        &recovery.stream_options(),
         pb.as_ref(),
     )?;
     if let Some(pb) = &pb {
@@ -799,10 +1031,27 @@ pub fn stream_cmd(
             1e3 * t / f64::from(st.cost.clock_hz)
         );
     }
+    if recovery.faults.is_active() {
+        let f = client.link().stats();
+        let lost = report.decisions.iter().filter(|d| d.is_none()).count();
+        println!(
+            "  faults (seed {}): host->device {} of {} frames dropped, {} corrupted; \
+             device->host {} of {} dropped, {} corrupted; {} retransmissions; \
+             {lost} decisions lost on the way (the export has them)",
+            recovery.faults.seed,
+            f.sent_dropped,
+            f.sent,
+            f.sent_corrupted,
+            f.received_dropped,
+            f.received,
+            f.received_corrupted,
+            report.retransmissions
+        );
+    }
     println!("  {}", status_line(st));
     match out {
         Some(dir) => {
-            export_to(&mut client, dir, None, quiet)?;
+            export_to_with(&mut client, dir, None, quiet, &recovery.export_options())?;
         }
         None => println!("  pull the result with: placedb export --port {port} -o DIR"),
     }
@@ -830,11 +1079,29 @@ pub fn export_to<L: Link>(
     from: Option<u32>,
     quiet: bool,
 ) -> Result<Export, DeviceError> {
+    export_to_with(client, out, from, quiet, &ExportOptions::default())
+}
+
+/// [`export_to`] with `opts`.
+pub fn export_to_with<L: Link>(
+    client: &mut Client<L>,
+    out: &Path,
+    from: Option<u32>,
+    quiet: bool,
+    opts: &ExportOptions,
+) -> Result<Export, DeviceError> {
     std::fs::create_dir_all(out)?;
     let partial = out.join(PARTIAL_EXPORT);
-    let timeout = ExportOptions::default().reply_timeout;
+    let timeout = opts.reply_timeout;
     client.resync()?;
-    let now = status(client, timeout)?;
+    let (replies, _) = exchange(
+        client,
+        HostMessage::StatusRequest,
+        "StatusRequest",
+        timeout,
+        opts.retries.max(1),
+    )?;
+    let now = status_of(&replies)?;
     let have = match from {
         Some(k) => {
             let (was, mut records) = read_partial(out)?;
@@ -862,19 +1129,13 @@ pub fn export_to<L: Link>(
     head.extend(have.iter().map(|r| DeviceMessage::ExportRecord(*r)));
     append_frames(&partial, &head)?;
     let pb = (!quiet).then(|| ProgressBar::new(0));
-    let export = export(
-        client,
-        have,
-        &ExportOptions::default(),
-        pb.as_ref(),
-        &mut |batch| {
-            let msgs: Vec<_> = batch
-                .iter()
-                .map(|r| DeviceMessage::ExportRecord(*r))
-                .collect();
-            append_frames(&partial, &msgs)
-        },
-    )
+    let export = export(client, have, opts, pb.as_ref(), &mut |batch| {
+        let msgs: Vec<_> = batch
+            .iter()
+            .map(|r| DeviceMessage::ExportRecord(*r))
+            .collect();
+        append_frames(&partial, &msgs)
+    })
     .map_err(|e| match e {
         DeviceError::Io(io) => DeviceError::Io(io::Error::new(
             io.kind(),

@@ -4,6 +4,7 @@
 
 pub mod device_cli;
 pub mod error;
+pub mod fault;
 pub mod graph;
 pub mod link;
 pub mod metrics;

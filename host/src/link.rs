@@ -794,6 +794,14 @@ impl<L: Link> Client<L> {
         Ok(seq)
     }
 
+    /// Sends `msg` with sequence number `seq` (a retransmission keeps the
+    /// number of the first transmission; see [`placedb::protocol`]).
+    pub fn send_as(&mut self, seq: u32, msg: HostMessage<'_>) -> io::Result<()> {
+        let frame = encode(&HostFrame { seq, msg }, &mut self.tx)
+            .map_err(|e| io::Error::new(io::ErrorKind::InvalidInput, e))?;
+        self.link.send(frame)
+    }
+
     /// Sends raw bytes (e.g. a deliberately damaged frame).
     pub fn send_raw(&mut self, bytes: &[u8]) -> io::Result<()> {
         self.link.send(bytes)

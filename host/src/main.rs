@@ -68,6 +68,22 @@ struct StreamArgs {
     /// No progress bar.
     #[arg(long, short)]
     quiet: bool,
+    /// Fault injection: chance that a frame is dropped, each direction (0..1).
+    #[arg(long, default_value_t = 0.0)]
+    drop_chance: f64,
+    /// Fault injection: chance that a frame has one bit flipped, each direction (0..1).
+    #[arg(long, default_value_t = 0.0)]
+    corrupt_chance: f64,
+    /// Seed of the fault injector's PRNG (a run is reproducible).
+    #[arg(long, default_value_t = 1)]
+    fault_seed: u64,
+    /// Retransmissions per message (stop-and-wait). Default: 0 (pipelined, the
+    /// first error stops the stream) without fault injection, 20 with.
+    #[arg(long)]
+    retries: Option<usize>,
+    /// With retransmission: wait this many milliseconds for a reply before sending again.
+    #[arg(long, default_value_t = 2000)]
+    resend_ms: u64,
 }
 
 /// `placedb export`.
@@ -344,8 +360,10 @@ fn metrics_json(
         m.insert(k.to_string(), v);
     };
     put("solver", o.solver.name().into());
-    put("mu", f64::from(mu).into());
-    put("voxel", f64::from(c.voxel).into());
+    // As typed (0.1), not as the f32 widened (0.10000000149011612).
+    let decimal = |x: f32| x.to_string().parse::<f64>().unwrap_or(f64::from(x));
+    put("mu", decimal(mu).into());
+    put("voxel", decimal(c.voxel).into());
     put("stride", c.stride.into());
     put("depth_min", f64::from(c.range.min).into());
     put(
@@ -855,7 +873,16 @@ fn main() -> ExitCode {
                 sketch_margin: SolverParams::default().sketch_margin,
             };
             let out = a.out.as_deref();
-            device_cli::stream_cmd(&a.port, &seq, &v, sel, &a.profile, out, a.quiet)?;
+            let recovery = device_cli::Recovery {
+                faults: placedb_host::fault::FaultConfig::new(
+                    a.drop_chance,
+                    a.corrupt_chance,
+                    a.fault_seed,
+                ),
+                retries: a.retries,
+                resend_after: Duration::from_millis(a.resend_ms.max(1)),
+            };
+            device_cli::stream_cmd(&a.port, &seq, &v, sel, &a.profile, out, a.quiet, &recovery)?;
             Ok(())
         }),
         Command::Export(a) => device_cli::export_cmd(&a.port, &a.out, a.from, a.quiet)

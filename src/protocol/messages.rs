@@ -601,6 +601,22 @@ pub enum ErrorKind {
 }
 
 impl ErrorKind {
+    /// Whether the error says the frame was damaged on the way (CRC, framing,
+    /// length or decoding): the message was not applied and sending it again
+    /// (same sequence number) may succeed. Other errors are refusals of a
+    /// message the device read correctly.
+    pub const fn is_damage(self) -> bool {
+        matches!(
+            self,
+            ErrorKind::BadCrc
+                | ErrorKind::BadFraming
+                | ErrorKind::Oversized
+                | ErrorKind::Truncated
+                | ErrorKind::Decode
+                | ErrorKind::UnknownMessage
+        )
+    }
+
     /// Short human-readable description.
     pub const fn describe(self) -> &'static str {
         match self {

@@ -43,6 +43,15 @@
 //!   exist) and an ExportEnd whose count and CRC ([`export_crc`]) cover
 //!   exactly the records sent.
 //! - A refused message leaves the device's database exactly as it was.
+//! - Retransmission: a host that gets no terminal reply within its timeout, or
+//!   an error saying the frame was damaged ([`ErrorKind::is_damage`]), sends the
+//!   *same* message with the *same* sequence number again (stop-and-wait: one
+//!   message in flight). The device remembers the last state-changing message
+//!   (Hello, FrameBegin, DepthRows, FrameEnd, Finish, Reset) and its terminal
+//!   reply; the same message with the same sequence number gets that reply
+//!   again and is not applied twice (its decisions are not repeated: the export
+//!   is the record). StatusRequest and ExportRequest change nothing and are
+//!   answered afresh.
 //! - For a frame that fails CRC, [`DeviceMessage::Error::seq`] carries the sequence
 //!   number *claimed* by the damaged frame (its first varint) when one can be read;
 //!   it is a hint, not a verified value. Framing errors that lose the frame
