@@ -345,12 +345,8 @@ impl FrameProjector {
         if !self.samples_row(v) {
             return 0;
         }
-        let pixels = row
-            .iter()
-            .copied()
-            .enumerate()
-            .step_by(self.stride as usize);
-        self.project(v, pixels, out_of_range, emit)
+        let samples = row.iter().copied().step_by(self.stride as usize);
+        self.project(v, samples, out_of_range, emit)
     }
 
     /// Like [`Self::project_row`] for a row that is already subsampled, as the
@@ -366,12 +362,7 @@ impl FrameProjector {
         if !self.samples_row(v) {
             return 0;
         }
-        let stride = self.stride as usize;
-        let pixels = samples
-            .iter()
-            .enumerate()
-            .map(|(i, &raw)| (i * stride, raw));
-        self.project(v, pixels, out_of_range, emit)
+        self.project(v, samples.iter().copied(), out_of_range, emit)
     }
 
     /// Sampled columns per row: `ceil(width / stride)`.
@@ -384,36 +375,59 @@ impl FrameProjector {
         self.height.div_ceil(self.stride)
     }
 
-    /// The one back-projection loop: `pixels` yields `(u, raw depth)`.
+    /// The one back-projection loop: `samples` yields the raw depths of
+    /// pixels `u = 0, stride, 2 stride, ...` of row `v`.
     #[inline(always)]
     fn project(
         &self,
         v: u16,
-        pixels: impl Iterator<Item = (usize, u16)>,
+        samples: impl Iterator<Item = u16>,
+        out_of_range: &mut u32,
+        emit: impl FnMut(VoxelKey),
+    ) -> u32 {
+        // The usual shift as a constant: on a 32-bit core `>> 40` of an i64
+        // is one shift of its high word, a variable shift is a small loop.
+        if self.shift == MAX_SHIFT {
+            self.project_with(v, samples, out_of_range, emit, |x| x >> MAX_SHIFT)
+        } else {
+            let shift = self.shift;
+            self.project_with(v, samples, out_of_range, emit, move |x| x >> shift)
+        }
+    }
+
+    #[inline(always)]
+    fn project_with(
+        &self,
+        v: u16,
+        samples: impl Iterator<Item = u16>,
         out_of_range: &mut u32,
         mut emit: impl FnMut(VoxelKey),
+        floor: impl Fn(i64) -> i64,
     ) -> u32 {
         let m = &self.rotation;
         let one = libm::ldexpf(1.0, self.shift as i32);
         let fixed = |x: f32| (x * one) as i64;
-        // Ray per raw unit through pixel (u, v) is base + u * step.
+        // The ray per raw unit through pixel (u, v) is base + u * step; it is
+        // stepped from sample to sample, which integers do exactly.
         let y = (v as f32 - self.cy) * self.inv_fy;
         let x0 = -self.cx * self.inv_fx;
-        let base = [0, 1, 2].map(|a| fixed(m[a][0] * x0 + m[a][1] * y + m[a][2]));
-        let step = [0, 1, 2].map(|a| fixed(m[a][0] * self.inv_fx));
+        let mut ray = [0, 1, 2].map(|a| fixed(m[a][0] * x0 + m[a][1] * y + m[a][2]));
+        let step = [0, 1, 2].map(|a| fixed(m[a][0] * self.inv_fx) * self.stride as i64);
         let t = self.translation;
         let (lo, hi) = (self.raw_min, self.raw_max);
         let mut valid = 0u32;
-        for (u, raw) in pixels {
-            if raw < lo || raw > hi {
-                continue;
+        for raw in samples {
+            if raw >= lo && raw <= hi {
+                valid += 1;
+                let raw = raw as i64;
+                let axis = |a: usize| floor(raw * ray[a] + t[a]);
+                match VoxelKey::from_wide(axis(0), axis(1), axis(2)) {
+                    Some(key) => emit(key),
+                    None => *out_of_range = out_of_range.saturating_add(1),
+                }
             }
-            valid += 1;
-            let (u, raw) = (u as i64, raw as i64);
-            let axis = |a: usize| (raw * (base[a] + u * step[a]) + t[a]) >> self.shift;
-            match VoxelKey::from_wide(axis(0), axis(1), axis(2)) {
-                Some(key) => emit(key),
-                None => *out_of_range = out_of_range.saturating_add(1),
+            for (r, s) in ray.iter_mut().zip(&step) {
+                *r += s;
             }
         }
         valid
