@@ -50,7 +50,7 @@ fn host_replay(seq: &Sequence) -> (String, String) {
     let run = online::replay(seq, PROFILE, scan, sel(), 8, None).unwrap();
     let timestamps: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
     (
-        output::database_csv(&device_cli::online_rows(&run.database)),
+        output::database_csv(&output::rows_from_records(&run.database)),
         output::labels_csv(&timestamps, &run.labels),
     )
 }

@@ -19,7 +19,7 @@
 use crate::fault::{FaultConfig, FaultInjector};
 use crate::link::{self, Client, Link, QemuOptions, Received};
 use crate::online::sampled_rows;
-use crate::output::{self, DbRow};
+use crate::output;
 use crate::sequence::Sequence;
 use crate::voxelize::{self, GridOrigin, VoxelConfig};
 use indicatif::ProgressBar;
@@ -768,23 +768,6 @@ fn check_records(records: &[ExportRecord], database: usize) -> Result<(), Device
     Ok(())
 }
 
-/// `database.csv` rows of the online selector's database records, exactly
-/// as `placedb select --solver online` writes them (f32 pose widened to f64).
-pub fn online_rows(database: &[DbRecord]) -> Vec<DbRow> {
-    database
-        .iter()
-        .map(|r| {
-            let t = r.pose.translation.map(f64::from);
-            let q = r.pose.rotation.map(f64::from);
-            (
-                r.index as usize,
-                r.timestamp,
-                [t[0], t[1], t[2], q[0], q[1], q[2], q[3]],
-            )
-        })
-        .collect()
-}
-
 impl Export {
     /// The database records as the core's [`DbRecord`]s (voxel counts are not
     /// exported: 0).
@@ -818,7 +801,7 @@ impl Export {
     pub fn csv(&self) -> (String, String) {
         let (timestamps, labels) = self.labels();
         (
-            output::database_csv(&online_rows(&self.database())),
+            output::database_csv(&output::rows_from_records(&self.database())),
             output::labels_csv(&timestamps, &labels),
         )
     }
@@ -1274,7 +1257,7 @@ mod tests {
         let full = export_to(&mut client, &dir, None, true).unwrap();
         let timestamps: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
         let want = (
-            output::database_csv(&online_rows(&run.database)),
+            output::database_csv(&output::rows_from_records(&run.database)),
             output::labels_csv(&timestamps, &run.labels),
         );
         assert_eq!(full.csv(), want);

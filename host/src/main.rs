@@ -428,19 +428,7 @@ fn select(a: SelectArgs) -> Result<(), Error> {
     }
     let rows = match &o.online {
         // The device's own records: what an export from a board would hold.
-        Some(run) => run
-            .database
-            .iter()
-            .map(|r| {
-                let t = r.pose.translation.map(f64::from);
-                let q = r.pose.rotation.map(f64::from);
-                (
-                    r.index as usize,
-                    r.timestamp,
-                    [t[0], t[1], t[2], q[0], q[1], q[2], q[3]],
-                )
-            })
-            .collect(),
+        Some(run) => output::rows_from_records(&run.database),
         None => output::rows_from_sequence(&seq, &o.database),
     };
     let timestamps: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();

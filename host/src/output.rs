@@ -22,6 +22,23 @@ pub fn rows_from_sequence(seq: &Sequence, db: &[usize]) -> Vec<DbRow> {
         .collect()
 }
 
+/// `database.csv` rows of the online selector's database records, exactly
+/// as `placedb select --solver online` writes them (f32 pose widened to f64).
+pub fn rows_from_records(database: &[placedb::DbRecord]) -> Vec<DbRow> {
+    database
+        .iter()
+        .map(|r| {
+            let t = r.pose.translation.map(f64::from);
+            let q = r.pose.rotation.map(f64::from);
+            (
+                r.index as usize,
+                r.timestamp,
+                [t[0], t[1], t[2], q[0], q[1], q[2], q[3]],
+            )
+        })
+        .collect()
+}
+
 /// The text of `database.csv`: header and one line per database frame, in
 /// sequence order.
 pub fn database_csv(rows: &[DbRow]) -> String {
