@@ -277,6 +277,11 @@ impl FrameProjector {
             far(intrinsics.cx, intrinsics.width, inv_fx),
             far(intrinsics.cy, intrinsics.height, inv_fy),
         );
+        // An infinite factor would make `0 * inf = NaN` below, which `fmaxf`
+        // drops, and the bound would pass while the rays saturate i64.
+        if !(x_max.is_finite() && y_max.is_finite() && per_unit.is_finite()) {
+            return Err(CameraError::ScaleOutOfRange);
+        }
         let mut ray_max = 0.0f32;
         let mut centre_max = 0.0f32;
         for i in 0..3 {
@@ -507,6 +512,18 @@ mod tests {
             Pose::from_matrix(shear, [0.0; 3]),
             Err(CameraError::NotARotation)
         );
+    }
+
+    #[test]
+    fn extreme_intrinsics_are_refused_not_overflowed() {
+        // Found by fuzzing: 0 * inf = NaN slipped through the ray bound and
+        // raw * ray overflowed i64 (a panic in debug, wrong keys in release).
+        let grid = VoxelGrid::new(0.3, [0.0; 3]).unwrap();
+        let mut k = k();
+        k.cx = -5.9e29;
+        k.fx = 5e-13;
+        let r = FrameProjector::new(&k, 1000.0, DepthRange::default(), 1, &grid, &Pose::IDENTITY);
+        assert_eq!(r, Err(CameraError::ScaleOutOfRange));
     }
 
     #[test]

@@ -1,0 +1,5 @@
+//! Fuzz harnesses of placedb. The checks live in [`harness`], which the root
+//! test `tests/fuzz_corpus.rs` includes too, so the committed corpus replays
+//! the very same checks under `cargo test`.
+
+pub mod harness;
