@@ -678,23 +678,8 @@ impl<
             Some(m) if m.index == frame => {}
             _ => return Err(ErrorKind::FrameEndWithoutBegin),
         }
-        let clock = self.clock;
-        let Core {
-            selector,
-            labels,
-            tx,
-            ..
-        } = self;
-        let mut out = Out {
-            tx,
-            send,
-            clock,
-            ticks: 0,
-        };
-        selector
-            .end_frame(|d| decided(labels, &mut out, d))
-            .map_err(select_error)?;
-        let end = delta(clock, t0, out.ticks);
+        let sending = self.decide(send, |s, emit| s.end_frame(emit))?;
+        let end = delta(self.clock, t0, sending);
         let rows = self.rows_ticks;
         let c = &mut self.cost;
         c.frames = c.frames.saturating_add(1);
@@ -713,6 +698,22 @@ impl<
         if self.finished {
             return Ok(());
         }
+        self.decide(send, |s, emit| s.finish(emit))?;
+        self.finished = true;
+        Ok(())
+    }
+
+    /// Runs a selector step that decides frames: each decision is sent and
+    /// its label stored. Returns the ticks spent sending, which the frame
+    /// cost leaves out (they measure the link, not the device).
+    fn decide(
+        &mut self,
+        send: &mut dyn FnMut(&[u8]),
+        step: impl FnOnce(
+            &mut Selector<FV, POOL, DB, W, K>,
+            &mut dyn FnMut(FrameDecision),
+        ) -> Result<(), SelectError>,
+    ) -> Result<u64, ErrorKind> {
         let clock = self.clock;
         let Core {
             selector,
@@ -726,11 +727,8 @@ impl<
             clock,
             ticks: 0,
         };
-        selector
-            .finish(|d| decided(labels, &mut out, d))
-            .map_err(select_error)?;
-        self.finished = true;
-        Ok(())
+        step(selector, &mut |d| decided(labels, &mut out, d)).map_err(select_error)?;
+        Ok(out.ticks)
     }
 
     /// Total export records now.
