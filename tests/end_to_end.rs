@@ -12,11 +12,11 @@
 //! `-icount shift=0`); run with `--nocapture` to see them.
 
 use placedb::protocol::{
-    encode, CapacitySlot, DeviceMessage, ErrorKind, ExportRecord, HostFrame, HostMessage, Phase,
-    MAX_FRAME_LEN,
+    CapacitySlot, DeviceMessage, ErrorKind, ExportRecord, HostMessage, Phase, MAX_FRAME_LEN,
 };
 use placedb::{SelectorConfig, VoxelGrid};
 use placedb_host::device_cli::{self, ExportOptions, StreamOptions, StreamReport};
+use placedb_host::fault::damaged_frame;
 use placedb_host::link::{Client, Qemu, QemuOptions, Received};
 use placedb_host::read::{self, ReadOptions};
 use placedb_host::synth::{self, SynthConfig};
@@ -240,37 +240,6 @@ fn real_and_synthetic_scans_match_the_host_replay() {
     println!("end to end: {:.1} s", started.elapsed().as_secs_f64());
 }
 
-/// `msg` framed with one byte flipped so that the device sees a CRC error
-/// (and can still read the sequence number), checked with the decoder the
-/// firmware runs.
-fn corrupted(seq: u32, msg: HostMessage<'_>) -> Vec<u8> {
-    use placedb::protocol::{Feed, FrameDecoder, ProtocolError};
-    let mut buf = vec![0u8; MAX_FRAME_LEN];
-    let good = encode(&HostFrame { seq, msg }, &mut buf).unwrap().to_vec();
-    for pos in (0..good.len() - 1).rev() {
-        let mut bad = good.clone();
-        bad[pos] ^= 0x24;
-        if bad[pos] == 0 {
-            continue;
-        }
-        let mut decoder = FrameDecoder::<MAX_FRAME_LEN>::new();
-        if let Feed::Frame {
-            result:
-                Err(ProtocolError {
-                    kind: ErrorKind::BadCrc,
-                    seq: Some(s),
-                }),
-            remaining: [],
-        } = decoder.feed::<HostFrame>(&bad)
-        {
-            if s == seq {
-                return bad;
-            }
-        }
-    }
-    panic!("no byte to flip");
-}
-
 #[test]
 fn bad_input_gets_typed_errors_and_changes_nothing() {
     let mut client = boot(Duration::from_secs(120));
@@ -323,7 +292,9 @@ fn bad_input_gets_typed_errors_and_changes_nothing() {
         timestamp: 99.0,
         pose: placedb::Pose::IDENTITY,
     };
-    client.send_raw(&corrupted(seq, begin)).unwrap();
+    client
+        .send_raw(&damaged_frame(seq, begin).expect("a damaging byte"))
+        .unwrap();
     let replies = client.replies_to(seq, REPLY).unwrap();
     assert_eq!(
         replies,

@@ -290,6 +290,37 @@ impl<L: Link> Link for FaultInjector<L> {
     }
 }
 
+/// `msg` with sequence number `seq`, framed, with one byte flipped so that a
+/// device reports `BadCrc` and can still read the sequence number — checked
+/// with the decoder the firmware runs. `None` if no single flip does that.
+pub fn damaged_frame(seq: u32, msg: placedb::protocol::HostMessage<'_>) -> Option<Vec<u8>> {
+    use placedb::protocol::{
+        encode, ErrorKind, Feed, FrameDecoder, HostFrame, ProtocolError, MAX_FRAME_LEN,
+    };
+    let mut buf = vec![0u8; MAX_FRAME_LEN];
+    let good = encode(&HostFrame { seq, msg }, &mut buf).ok()?.to_vec();
+    // From the end (the CRC) backwards: the sequence number up front survives.
+    (0..good.len().saturating_sub(1)).rev().find_map(|pos| {
+        let mut bad = good.clone();
+        bad[pos] ^= 0x24;
+        if bad[pos] == 0 {
+            return None;
+        }
+        let mut decoder = FrameDecoder::<MAX_FRAME_LEN>::new();
+        match decoder.feed::<HostFrame>(&bad) {
+            Feed::Frame {
+                result:
+                    Err(ProtocolError {
+                        kind: ErrorKind::BadCrc,
+                        seq: Some(s),
+                    }),
+                remaining: [],
+            } if s == seq => Some(bad),
+            _ => None,
+        }
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -6,10 +6,8 @@
 //! `cd boards/qemu-mps2-an386 && cargo build --release`
 //! (or point `PLACEDB_QEMU_FIRMWARE` at another ELF).
 
-use placedb::protocol::{
-    encode, DeviceMessage, ErrorKind, Feed, FrameDecoder, HostFrame, HostMessage, Phase,
-    ProtocolError, MAX_FRAME_LEN,
-};
+use placedb::protocol::{DeviceMessage, ErrorKind, HostMessage, Phase, MAX_FRAME_LEN};
+use placedb_host::fault::damaged_frame;
 use placedb_host::link::{Client, Qemu, Received};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -18,45 +16,6 @@ const REPLY_TIMEOUT: Duration = Duration::from_secs(5);
 
 fn firmware() -> PathBuf {
     placedb_host::link::built_firmware().unwrap_or_else(|e| panic!("{e}"))
-}
-
-/// A StatusRequest frame with sequence number `seq`, damaged so that the
-/// device sees a CRC error but can still read the claimed sequence number.
-fn damaged_status_request(seq: u32) -> Vec<u8> {
-    let mut buf = [0u8; 64];
-    let good = encode(
-        &HostFrame {
-            seq,
-            msg: HostMessage::StatusRequest,
-        },
-        &mut buf,
-    )
-    .unwrap()
-    .to_vec();
-    // Flip bits from the end (the CRC) backwards until a position gives exactly
-    // that, checked with the same decoder the firmware runs.
-    for pos in (0..good.len() - 1).rev() {
-        let mut bad = good.clone();
-        bad[pos] ^= 0x24;
-        if bad[pos] == 0 {
-            continue;
-        }
-        let mut decoder = FrameDecoder::<MAX_FRAME_LEN>::new();
-        if let Feed::Frame {
-            result:
-                Err(ProtocolError {
-                    kind: ErrorKind::BadCrc,
-                    seq: Some(s),
-                }),
-            remaining: [],
-        } = decoder.feed::<HostFrame>(&bad)
-        {
-            if s == seq {
-                return bad;
-            }
-        }
-    }
-    panic!("no damaging position found");
 }
 
 fn expect_status(replies: &[Received], seq: u32) {
@@ -90,7 +49,9 @@ fn status_then_damaged_frame_then_status() {
     expect_status(&replies, seq);
 
     let seq = client.take_seq();
-    client.send_raw(&damaged_status_request(seq)).unwrap();
+    client
+        .send_raw(&damaged_frame(seq, HostMessage::StatusRequest).expect("a damaging byte"))
+        .unwrap();
     let replies = client.replies_to(seq, REPLY_TIMEOUT).unwrap();
     assert_eq!(
         replies,
