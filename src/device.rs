@@ -356,14 +356,7 @@ impl<
                 rx_last: 0,
                 rx_peak: 0,
                 clock: None,
-                cost: FrameCost {
-                    clock_hz: 0,
-                    frames: 0,
-                    total: 0,
-                    last_rows: 0,
-                    last_end: 0,
-                    max: 0,
-                },
+                cost: FrameCost::ZERO,
                 rows_ticks: 0,
                 last: Applied::NONE,
             },
@@ -462,7 +455,7 @@ impl<
         self.rx_peak = 0;
         self.cost = FrameCost {
             clock_hz: self.cost.clock_hz,
-            ..FrameCost::default()
+            ..FrameCost::ZERO
         };
         self.rows_ticks = 0;
         self.last = Applied::NONE;

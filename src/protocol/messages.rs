@@ -430,6 +430,19 @@ pub struct FrameCost {
     pub max: u32,
 }
 
+impl FrameCost {
+    /// Nothing measured, no clock (a `const`, so a device can start from it
+    /// in a static).
+    pub const ZERO: FrameCost = FrameCost {
+        clock_hz: 0,
+        frames: 0,
+        total: 0,
+        last_rows: 0,
+        last_end: 0,
+        max: 0,
+    };
+}
+
 /// Terminal reply to [`HostMessage::StatusRequest`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Status {
@@ -488,14 +501,7 @@ impl Status {
             out_of_range_points: 0,
             valid_pixels: 0,
             refused: 0,
-            cost: FrameCost {
-                clock_hz: 0,
-                frames: 0,
-                total: 0,
-                last_rows: 0,
-                last_end: 0,
-                max: 0,
-            },
+            cost: FrameCost::ZERO,
         }
     }
 
