@@ -12,6 +12,7 @@
 pub mod camera;
 pub mod device;
 pub mod frame;
+pub mod persist;
 pub mod profile;
 pub mod protocol;
 pub mod select;

@@ -53,6 +53,19 @@ impl<const K: usize> Sketch<K> {
         s
     }
 
+    /// A sketch from stored hashes, which must be strictly ascending and at
+    /// most `K` (as [`Self::hashes`] gives them); `None` otherwise.
+    pub fn from_hashes(hashes: impl Iterator<Item = u32>) -> Option<Self> {
+        let mut s = Self::default();
+        for h in hashes {
+            let len = s.len as usize;
+            let ascending = len == 0 || s.hashes.get(len - 1).is_some_and(|&p| p < h);
+            *s.hashes.get_mut(len).filter(|_| ascending)? = h;
+            s.len += 1;
+        }
+        Some(s)
+    }
+
     /// Keeps `h` if it is among the `K` smallest seen so far.
     fn offer(&mut self, h: u32) {
         let len = self.len as usize;
@@ -122,6 +135,22 @@ mod tests {
         let j = a.jaccard(&d);
         assert!((j - 1.0 / 3.0).abs() < 0.2, "{j}");
         assert!(a.hashes().windows(2).all(|w| w[0] < w[1]));
+    }
+
+    #[test]
+    fn stored_hashes_round_trip_and_bad_ones_are_refused() {
+        let a = Sketch::<8>::from_keys(0..100u64);
+        assert_eq!(
+            Sketch::<8>::from_hashes(a.hashes().iter().copied()),
+            Some(a)
+        );
+        assert_eq!(Sketch::<8>::from_hashes([3, 2].into_iter()), None);
+        assert_eq!(Sketch::<8>::from_hashes([3, 3].into_iter()), None);
+        assert_eq!(Sketch::<2>::from_hashes([1, 2, 3].into_iter()), None);
+        assert_eq!(
+            Sketch::<2>::from_hashes(core::iter::empty()),
+            Some(Sketch::EMPTY)
+        );
     }
 
     #[test]

@@ -16,7 +16,7 @@ const DY_BITS: u32 = 11;
 const DZ_BITS: u32 = 10;
 
 /// Axis-aligned bounding box of a voxel set, inclusive, in voxel coordinates.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct Aabb {
     /// Smallest x, y, z.
     pub min: [i32; 3],

@@ -23,6 +23,9 @@ use crate::sketch::Sketch;
 use crate::store::{Aabb, KeyPool, KeyRun};
 use crate::voxel::iou;
 
+mod restore;
+pub use restore::{DbSnapshot, RestoreError};
+
 /// Tuning of the selection rule.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SelectorConfig {
@@ -577,6 +580,17 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
         st.frames_seen += 1;
         self.ring[s] = RingEntry { live: true, slot };
         self.len += 1;
+        // A frame restored into the database before its own decision was
+        // stored (see `restore_database`) is streamed again: it takes its
+        // place back, with exact keys now, and counts as taken.
+        if let Some(i) = self.db.iter().rposition(|d| d.meta.index == meta.index) {
+            if let Some(slot) = self.ring[s].get_mut() {
+                slot.taken = true;
+                self.db[i] = slot.frame.clone();
+                self.status.sketched_frames = self.status.sketched_frames.saturating_sub(1);
+                self.cover_from(s);
+            }
+        }
         self.note_usage();
         while self.len >= cfg.window as usize {
             self.decide_oldest(&mut emit);
@@ -695,6 +709,15 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
             return;
         }
         slot.taken = true;
+        self.cover_from(t);
+    }
+
+    /// Updates every window frame's cover and nearest database frame with
+    /// the taken window frame in slot `t`.
+    fn cover_from(&mut self, t: usize) {
+        let Some(slot) = self.ring[t].get() else {
+            return;
+        };
         let idx = slot.frame.meta.index;
         for k in 0..self.len {
             let j = (self.head + k) % W;

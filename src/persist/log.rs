@@ -1,0 +1,453 @@
+//! An append-only log of CRC-checked records in NOR flash that survives a
+//! power cut at any instant, on any [`NorFlash`] (`embedded-storage`).
+//!
+//! # Layout
+//!
+//! The log's range is `n` erase sectors. A record is a 20-byte header and its
+//! payload, padded with 0xFF to the flash's write (and read) granularity:
+//!
+//! ```text
+//! "PDBL"  format u16  len u16  generation u32  seq u32  crc32 u32  payload…
+//! ```
+//!
+//! The CRC-32 (ISO-HDLC) covers the first 16 header bytes and the payload.
+//! Records never straddle a sector. A *generation* is one run of records with
+//! sequence numbers 0, 1, 2, … in consecutive sectors (wrapping at the end of
+//! the range), starting at the first byte of its head sector; a sector is
+//! erased right before the first record of a generation goes into it.
+//!
+//! # Why a power cut loses nothing that was written
+//!
+//! - A record counts only when its whole header and payload check out, so a
+//!   torn write or a torn erase reads as "no record here".
+//! - The live generation is the one with the highest number whose seq 0
+//!   record is intact. A new generation ([`Log::start`]) goes into a sector
+//!   *outside* the live one (a generation never uses more than `n - 1`
+//!   sectors), so tearing its first erase or write leaves the previous
+//!   generation exactly as it was.
+//! - Reading stops at the first record that does not check out, then goes on
+//!   at the next sector only if that sector opens with the expected sequence
+//!   number of the same generation. After a restore, and after any failed
+//!   write, appending resumes at the next sector (the current one is
+//!   *sealed*): a byte that a torn write may have touched is never written
+//!   again before an erase, and no intact record ever follows a damaged one
+//!   within a sector.
+//!
+//! What it does not do: wear levelling beyond the rotation of generations
+//! through the range, error correction (a bit that flips by itself in an old
+//! record ends the log there), or more than `n - 1` sectors per generation.
+
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::indexing_slicing,
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::panic
+    )
+)]
+
+use embedded_storage::nor_flash::{NorFlash, NorFlashError, NorFlashErrorKind};
+
+/// Bytes of a record header.
+pub const HEADER_LEN: usize = 20;
+/// The largest payload a record can carry.
+pub const MAX_PAYLOAD: usize = 1024;
+/// Layout version in every header; records of another version are not read.
+pub const FORMAT: u16 = 1;
+/// The coarsest write or read granularity the log supports.
+const MAX_ALIGN: usize = 32;
+const MAGIC: [u8; 4] = *b"PDBL";
+static CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+
+/// Why the log refused an operation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum LogError {
+    /// The flash reported an error.
+    Flash(FlashErrorKind),
+    /// The range is not whole sectors, has fewer than two, or the flash's
+    /// granularity is not supported.
+    BadRange,
+    /// The payload is longer than [`MAX_PAYLOAD`] or than a sector holds.
+    TooLarge,
+    /// The generation has no sector left for the record.
+    Full,
+    /// No live generation to append to ([`Log::start`] one first).
+    NotStarted,
+}
+
+/// [`NorFlashErrorKind`] in a form that can be stored and compared.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum FlashErrorKind {
+    /// Offset or length not aligned to the flash's granularity.
+    NotAligned,
+    /// Outside the flash.
+    OutOfBounds,
+    /// Anything else the driver reported.
+    Other,
+}
+
+impl<E: NorFlashError> From<E> for FlashErrorKind {
+    fn from(e: E) -> Self {
+        match e.kind() {
+            NorFlashErrorKind::NotAligned => FlashErrorKind::NotAligned,
+            NorFlashErrorKind::OutOfBounds => FlashErrorKind::OutOfBounds,
+            _ => FlashErrorKind::Other,
+        }
+    }
+}
+
+fn flash_err<E: NorFlashError>(e: E) -> LogError {
+    LogError::Flash(e.into())
+}
+
+/// A valid record header.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Header {
+    generation: u32,
+    seq: u32,
+    len: usize,
+}
+
+/// Where the live generation ends and the next record goes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Live {
+    generation: u32,
+    /// Sector of seq 0.
+    head: u32,
+    /// Sectors in use, head included (at most `n - 1`).
+    sectors: u32,
+    /// Records in the generation; the next one's sequence number.
+    records: u32,
+    /// Write offset in the last sector in use; `None` when it is sealed and
+    /// the next record opens a fresh sector.
+    offset: Option<u32>,
+}
+
+/// The log over `flash`, in sectors `[start, start + n * ERASE_SIZE)`.
+#[derive(Debug)]
+pub struct Log<F> {
+    flash: F,
+    start: u32,
+    sectors: u32,
+    /// Bytes a record occupies are a multiple of this.
+    align: usize,
+    /// Highest generation number seen anywhere in the range.
+    newest: u32,
+    live: Option<Live>,
+    buf: [u8; HEADER_LEN + MAX_PAYLOAD + MAX_ALIGN],
+}
+
+/// The header of record `seq` of generation `generation` carrying `payload`
+/// (at most [`MAX_PAYLOAD`] bytes).
+fn header(generation: u32, seq: u32, payload: &[u8]) -> [u8; HEADER_LEN] {
+    let len = (payload.len() as u16).to_le_bytes();
+    let (g, s) = (generation.to_le_bytes(), seq.to_le_bytes());
+    let [f0, f1] = FORMAT.to_le_bytes();
+    let [m0, m1, m2, m3] = MAGIC;
+    let mut head = [
+        m0, m1, m2, m3, f0, f1, len[0], len[1], g[0], g[1], g[2], g[3], s[0], s[1], s[2], s[3], 0,
+        0, 0, 0,
+    ];
+    let mut digest = CRC.digest();
+    digest.update(head.get(..16).unwrap_or_default());
+    digest.update(payload);
+    let crc = digest.finalize().to_le_bytes();
+    for (b, c) in head.iter_mut().skip(16).zip(crc) {
+        *b = c;
+    }
+    head
+}
+
+fn align_up(n: usize, align: usize) -> usize {
+    n.div_ceil(align).saturating_mul(align)
+}
+
+impl<F: NorFlash> Log<F> {
+    /// Opens the log in `flash` bytes `start..end` (whole erase sectors, at
+    /// least two) and finds its live generation, if any. Reads only.
+    pub fn open(flash: F, start: u32, end: u32) -> Result<Self, LogError> {
+        let sector = F::ERASE_SIZE;
+        let align = F::WRITE_SIZE.max(F::READ_SIZE).max(4);
+        let ok = sector > 0
+            && align <= MAX_ALIGN
+            && align.is_power_of_two()
+            && sector.is_multiple_of(align)
+            && sector >= align_up(HEADER_LEN + 64, align)
+            && (start as usize).is_multiple_of(sector)
+            && (end as usize).is_multiple_of(sector)
+            && end > start
+            && end as usize <= flash.capacity()
+            && (end - start) as usize / sector >= 2;
+        if !ok {
+            return Err(LogError::BadRange);
+        }
+        let mut log = Log {
+            flash,
+            start,
+            sectors: ((end - start) as usize / sector) as u32,
+            align,
+            newest: 0,
+            live: None,
+            buf: [0xFF; HEADER_LEN + MAX_PAYLOAD + MAX_ALIGN],
+        };
+        log.scan()?;
+        Ok(log)
+    }
+
+    /// The flash, for a board that shares it.
+    pub fn flash(&mut self) -> &mut F {
+        &mut self.flash
+    }
+
+    /// Gives the flash back.
+    pub fn into_flash(self) -> F {
+        self.flash
+    }
+
+    /// Records in the live generation (0 when there is none).
+    pub fn records(&self) -> u32 {
+        self.live.map_or(0, |l| l.records)
+    }
+
+    /// Sectors the log spans.
+    pub fn sector_count(&self) -> u32 {
+        self.sectors
+    }
+
+    /// Sectors the live generation occupies.
+    pub fn sectors_used(&self) -> u32 {
+        self.live.map_or(0, |l| l.sectors)
+    }
+
+    fn sector_len(&self) -> u32 {
+        F::ERASE_SIZE as u32
+    }
+
+    fn sector_offset(&self, sector: u32) -> u32 {
+        self.start + (sector % self.sectors) * self.sector_len()
+    }
+
+    /// Reads and checks the record at `sector`, `offset`; its payload is left
+    /// in `buf[HEADER_LEN..]`.
+    fn read_record(&mut self, sector: u32, offset: u32) -> Result<Option<Header>, LogError> {
+        let sector_len = self.sector_len() as usize;
+        let at = self.sector_offset(sector) + offset;
+        let head_len = align_up(HEADER_LEN, self.align);
+        if offset as usize + head_len > sector_len {
+            return Ok(None);
+        }
+        let (head, _) = self.buf.split_at_mut(head_len);
+        self.flash.read(at, head).map_err(flash_err)?;
+        let field = |i: usize| self.buf.get(i..i + 4).and_then(|b| b.try_into().ok());
+        let (Some(magic), Some(fl), Some(gen), Some(seq), Some(crc)) =
+            (field(0), field(4), field(8), field(12), field(16))
+        else {
+            return Ok(None);
+        };
+        let [f0, f1, l0, l1] = fl;
+        let len = usize::from(u16::from_le_bytes([l0, l1]));
+        let total = align_up(HEADER_LEN + len, self.align);
+        if magic != MAGIC
+            || u16::from_le_bytes([f0, f1]) != FORMAT
+            || len > MAX_PAYLOAD
+            || offset as usize + total > sector_len
+        {
+            return Ok(None);
+        }
+        if total > head_len {
+            let rest = self
+                .buf
+                .get_mut(head_len..total)
+                .ok_or(LogError::TooLarge)?;
+            self.flash
+                .read(at + head_len as u32, rest)
+                .map_err(flash_err)?;
+        }
+        let mut digest = CRC.digest();
+        digest.update(self.buf.get(..16).unwrap_or_default());
+        digest.update(
+            self.buf
+                .get(HEADER_LEN..HEADER_LEN + len)
+                .unwrap_or_default(),
+        );
+        if digest.finalize() != u32::from_le_bytes(crc) {
+            return Ok(None);
+        }
+        Ok(Some(Header {
+            generation: u32::from_le_bytes(gen),
+            seq: u32::from_le_bytes(seq),
+            len,
+        }))
+    }
+
+    /// Finds the newest generation number and the live generation's extent.
+    fn scan(&mut self) -> Result<(), LogError> {
+        let mut head: Option<(u32, u32)> = None; // (generation, sector)
+        for s in 0..self.sectors {
+            if let Some(h) = self.read_record(s, 0)? {
+                self.newest = self.newest.max(h.generation);
+                if h.seq == 0 && head.is_none_or(|(g, _)| h.generation > g) {
+                    head = Some((h.generation, s));
+                }
+            }
+        }
+        self.live = match head {
+            Some((generation, head)) => Some(self.walk(generation, head, &mut |_| {})?),
+            None => None,
+        };
+        Ok(())
+    }
+
+    /// Follows generation `generation` from sector `head`, handing each
+    /// payload to `visit`; returns its extent, sealed.
+    fn walk(
+        &mut self,
+        generation: u32,
+        head: u32,
+        visit: &mut dyn FnMut(&[u8]),
+    ) -> Result<Live, LogError> {
+        let mut live = Live {
+            generation,
+            head,
+            sectors: 1,
+            records: 0,
+            offset: None,
+        };
+        let sector_len = self.sector_len();
+        let mut offset = 0u32;
+        loop {
+            let sector = head + live.sectors - 1;
+            let found = self
+                .read_record(sector, offset)?
+                .filter(|h| h.generation == generation && h.seq == live.records);
+            match found {
+                Some(h) => {
+                    visit(
+                        self.buf
+                            .get(HEADER_LEN..HEADER_LEN + h.len)
+                            .unwrap_or_default(),
+                    );
+                    live.records += 1;
+                    offset += align_up(HEADER_LEN + h.len, self.align) as u32;
+                    if offset < sector_len {
+                        continue;
+                    }
+                }
+                None if offset == 0 => {
+                    // This sector does not continue the generation.
+                    live.sectors -= 1;
+                    return Ok(live);
+                }
+                None => {}
+            }
+            if live.sectors + 1 >= self.sectors {
+                return Ok(live);
+            }
+            live.sectors += 1;
+            offset = 0;
+        }
+    }
+
+    /// Hands every payload of the live generation, in order, to `visit`.
+    pub fn replay(&mut self, visit: &mut dyn FnMut(&[u8])) -> Result<u32, LogError> {
+        let Some(live) = self.live else {
+            return Ok(0);
+        };
+        let again = self.walk(live.generation, live.head, visit)?;
+        Ok(again.records)
+    }
+
+    /// Starts a new generation whose first record is `payload`; once this
+    /// returns `Ok`, it is the live generation and the previous one is gone.
+    /// On error the previous generation is still the live one.
+    pub fn start(&mut self, payload: &[u8]) -> Result<(), LogError> {
+        let head = match self.live {
+            Some(l) => (l.head + l.sectors) % self.sectors,
+            None => 0,
+        };
+        let next = Live {
+            generation: self.newest.wrapping_add(1),
+            head,
+            sectors: 0,
+            records: 0,
+            offset: None,
+        };
+        let previous = self.live;
+        self.live = Some(next);
+        let result = self.append(payload);
+        if result.is_err() {
+            self.live = previous;
+        }
+        self.newest = self.newest.max(next.generation);
+        result
+    }
+
+    /// Appends one record to the live generation; `Ok` means it is durable.
+    pub fn append(&mut self, payload: &[u8]) -> Result<(), LogError> {
+        let mut live = self.live.ok_or(LogError::NotStarted)?;
+        let total = align_up(HEADER_LEN + payload.len(), self.align);
+        if payload.len() > MAX_PAYLOAD || total > self.sector_len() as usize {
+            return Err(LogError::TooLarge);
+        }
+        let offset = match live.offset {
+            Some(o) if o as usize + total <= self.sector_len() as usize => o,
+            _ => {
+                if live.sectors + 1 >= self.sectors {
+                    return Err(LogError::Full);
+                }
+                let at = self.sector_offset(live.head + live.sectors);
+                // Counted as used only once erased: the walk at restore
+                // stops at a sector that does not open with the next record,
+                // so a sector that failed must be retried, not skipped.
+                self.flash
+                    .erase(at, at + self.sector_len())
+                    .map_err(flash_err)?;
+                live.sectors += 1;
+                0
+            }
+        };
+        let head = header(live.generation, live.records, payload);
+        let at = self.sector_offset(live.head + live.sectors - 1) + offset;
+        let record = self.buf.get_mut(..total).ok_or(LogError::TooLarge)?;
+        record.fill(0xFF);
+        for (b, v) in record.iter_mut().zip(head.iter().chain(payload)) {
+            *b = *v;
+        }
+        if let Err(e) = self.flash.write(at, record) {
+            // Bytes a failed write may have touched are never written again:
+            // the sector is sealed, or erased again if this was its first
+            // record (a sector that does not open with the next record ends
+            // the generation at restore).
+            if offset == 0 {
+                live.sectors -= 1;
+            }
+            live.offset = None;
+            self.live = Some(live);
+            return Err(flash_err(e));
+        }
+        live.records += 1;
+        live.offset = Some(offset + total as u32);
+        self.live = Some(live);
+        Ok(())
+    }
+
+    /// Whether `count` more records of up to `len` payload bytes each are
+    /// sure to fit in the live generation (or in a new one when none is live).
+    pub fn has_room(&self, count: usize, len: usize) -> bool {
+        let total = align_up(HEADER_LEN + len, self.align);
+        let sector_len = self.sector_len() as usize;
+        if len > MAX_PAYLOAD || total > sector_len {
+            return false;
+        }
+        let per_sector = sector_len / total;
+        let (free_sectors, in_current) = match self.live {
+            Some(l) => (
+                self.sectors - 1 - l.sectors,
+                l.offset.map_or(0, |o| (sector_len - o as usize) / total),
+            ),
+            None => (self.sectors - 1, 0),
+        };
+        in_current + free_sectors as usize * per_sector >= count
+    }
+}
