@@ -63,12 +63,15 @@
 )]
 
 use crate::frame::FrameMeta;
+use crate::persist::{Journal, Log, LogError, NoJournal, Record};
 use crate::protocol::{
     degradation, encode, Capacity, CapacitySlot, Config, DecisionKind, DeviceMessage, ErrorKind,
     ExportCrc, ExportRecord, FrameCost, FrameDecoder, HostFrame, HostMessage, Phase, ProtocolError,
     Push, RecordKind, Status, CAPACITY_SLOTS, MAX_FRAME_LEN, MAX_REPLY_LEN, MAX_ROW_VALUES,
 };
+use crate::select::{DbSnapshot, RestoreError};
 use crate::select::{FrameDecision, SelectError, Selector};
+use crate::sketch::Sketch;
 use crate::{CameraError, FrameError};
 
 pub use crate::profile::{Device1M, Device256K, Device512K};
@@ -117,6 +120,49 @@ struct Core<
     rows_ticks: u64,
     /// The last state-changing message handled, to answer its retransmission.
     last: Applied,
+    /// Decisions of the selection step in progress, held until durable.
+    decisions: heapless::Vec<FrameDecision, MAX_STEP_DECISIONS>,
+    /// Encoding buffer of one log record.
+    record: [u8; MAX_RECORD_LEN],
+    /// Database entries (in take order) already in the log.
+    durable_db: usize,
+    /// Records of this scan in the log (journals that keep records only).
+    stored: u32,
+    /// A log write failed during this scan; nothing more is written.
+    storage_failed: bool,
+    /// The scan came back from the log at boot.
+    restored: bool,
+}
+
+/// Most decisions one selection step makes: a full window and the Pending
+/// of the new frame.
+const MAX_STEP_DECISIONS: usize = 65;
+
+/// The largest log record: a database frame with its sketch (`K` ≤ 160).
+const MAX_RECORD_LEN: usize = 768;
+
+/// Why [`Device::restore`] found no usable scan; the device is left reset.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RestoreFailure {
+    /// The log could not be read.
+    Log(LogError),
+    /// Record `record` (0-based) is not a record of this format.
+    Malformed {
+        /// Its position in the log.
+        record: u32,
+    },
+    /// Record `record` does not fit the state before it.
+    Refused {
+        /// Its position in the log.
+        record: u32,
+        /// What the selector said.
+        error: RestoreError,
+    },
+    /// Record `record` holds a configuration this device refuses.
+    BadConfig {
+        /// Its position in the log.
+        record: u32,
+    },
 }
 
 /// A state-changing message the device handled and its terminal reply.
@@ -232,6 +278,11 @@ impl<const N: usize> Labels<N> {
         }
     }
 
+    /// Frame `index`'s timestamp as noted at its begin (0 beyond the store).
+    fn timestamp(&self, index: u32) -> f64 {
+        self.timestamps.get(index as usize).copied().unwrap_or(0.0)
+    }
+
     fn get(&self, i: usize) -> Option<(f64, u32)> {
         if i >= self.len {
             return None;
@@ -274,6 +325,14 @@ impl Out<'_> {
 
 fn now(clock: Option<fn() -> u64>) -> u64 {
     clock.map_or(0, |f| f())
+}
+
+/// Maps a failure of the journal to the wire.
+fn storage_error(e: LogError) -> ErrorKind {
+    match e {
+        LogError::Full | LogError::TooLarge => ErrorKind::StorageFull,
+        LogError::Flash(_) | LogError::BadRange | LogError::NotStarted => ErrorKind::StorageFailed,
+    }
 }
 
 /// Maps a refusal of the selector to the wire.
@@ -359,6 +418,12 @@ impl<
                 cost: FrameCost::ZERO,
                 rows_ticks: 0,
                 last: Applied::NONE,
+                decisions: heapless::Vec::new(),
+                record: [0; MAX_RECORD_LEN],
+                durable_db: 0,
+                stored: 0,
+                storage_failed: false,
+                restored: false,
             },
         }
     }
@@ -367,6 +432,17 @@ impl<
     /// each reply is passed to `send` as one complete encoded frame (COBS,
     /// trailing 0x00 included, at most [`MAX_REPLY_LEN`] bytes).
     pub fn receive(&mut self, bytes: &[u8], send: &mut dyn FnMut(&[u8])) {
+        self.receive_logged(bytes, &mut NoJournal, send);
+    }
+
+    /// As [`Self::receive`], making every state change durable in `journal`
+    /// first: a reply goes out only once what it acknowledges is stored.
+    pub fn receive_logged(
+        &mut self,
+        bytes: &[u8],
+        journal: &mut dyn Journal,
+        send: &mut dyn FnMut(&[u8]),
+    ) {
         let core = &mut self.core;
         let mut rest = bytes;
         loop {
@@ -384,7 +460,7 @@ impl<
                     core.note_rx(self.decoder.frame_len().saturating_add(1));
                     let t0 = now(core.clock);
                     let frame = self.decoder.decode::<HostFrame>();
-                    core.handle(frame, t0, send);
+                    core.handle(frame, t0, journal, send);
                     rest = remaining;
                 }
             }
@@ -403,6 +479,41 @@ impl<
     pub fn reset(&mut self) {
         self.decoder.clear();
         self.core.reset();
+    }
+
+    /// Rebuilds the scan kept in `log` (at boot): configuration, database,
+    /// labels, finished flag. Returns the records replayed; the host resumes
+    /// with frame `status().frames_seen`. On failure the device is reset
+    /// (the log is left as it is; the next Hello starts over).
+    pub fn restore<F: embedded_storage::nor_flash::NorFlash>(
+        &mut self,
+        log: &mut Log<F>,
+    ) -> Result<u32, RestoreFailure> {
+        self.reset();
+        let core = &mut self.core;
+        let (mut n, mut failure) = (0u32, None);
+        let replayed = log.replay(&mut |payload| {
+            if failure.is_none() {
+                failure = core.apply(payload, n).err();
+                n += 1;
+            }
+        });
+        match (replayed, failure) {
+            (Ok(records), None) => {
+                core.durable_db = core.selector.database_len();
+                core.stored = records;
+                core.restored = records > 0;
+                Ok(records)
+            }
+            (Err(e), _) => {
+                self.reset();
+                Err(RestoreFailure::Log(e))
+            }
+            (_, Some(f)) => {
+                self.reset();
+                Err(f)
+            }
+        }
     }
 
     /// The current status (with sequence number 0).
@@ -430,6 +541,14 @@ impl<
         const LABELS: usize,
     > Core<FV, POOL, DB, W, K, LABELS>
 {
+    /// Bound on the encoded length of a database record: postcard fields
+    /// (at most 96 bytes) and the sketch.
+    const DB_RECORD_LEN: usize = {
+        let len = 96 + 4 * K;
+        assert!(len <= MAX_RECORD_LEN, "sketch too large for a log record");
+        len
+    };
+
     fn out<'a>(&'a mut self, send: &'a mut dyn FnMut(&[u8])) -> Out<'a> {
         Out {
             tx: &mut self.tx,
@@ -459,6 +578,11 @@ impl<
         };
         self.rows_ticks = 0;
         self.last = Applied::NONE;
+        self.decisions.clear();
+        self.durable_db = 0;
+        self.stored = 0;
+        self.storage_failed = false;
+        self.restored = false;
     }
 
     fn phase(&self) -> Phase {
@@ -500,11 +624,10 @@ impl<
                 },
             };
         }
-        let labels_full = if self.labels.dropped > 0 {
-            degradation::LABELS_FULL
-        } else {
-            0
-        };
+        let flag = |on: bool, bit: u32| if on { bit } else { 0 };
+        let device_flags = flag(self.labels.dropped > 0, degradation::LABELS_FULL)
+            | flag(self.storage_failed, degradation::STORAGE_FAILED)
+            | flag(self.restored, degradation::RESTORED);
         Status {
             seq,
             phase: self.phase(),
@@ -512,7 +635,7 @@ impl<
             frames_decided: st.frames_decided,
             database_size: to_u32(self.selector.database_len()),
             capacities,
-            degradation: st.flags | labels_full,
+            degradation: st.flags | device_flags,
             sketched_frames: st.sketched_frames,
             truncated_frames: st.truncated_frames,
             uncovered_frames: st.uncovered_frames,
@@ -521,6 +644,7 @@ impl<
             valid_pixels: st.valid_pixels,
             refused: self.refused,
             cost: self.cost,
+            stored_records: self.stored,
         }
     }
 
@@ -530,6 +654,7 @@ impl<
         &mut self,
         frame: Result<HostFrame<'_>, ProtocolError>,
         t0: u64,
+        journal: &mut dyn Journal,
         send: &mut dyn FnMut(&[u8]),
     ) {
         let HostFrame { seq, msg } = match frame {
@@ -551,7 +676,7 @@ impl<
         }
         let clock = self.clock;
         let result = match msg {
-            HostMessage::Hello(cfg) => self.hello(cfg),
+            HostMessage::Hello(cfg) => self.hello(cfg, journal),
             HostMessage::FrameBegin {
                 frame,
                 timestamp,
@@ -566,8 +691,8 @@ impl<
             HostMessage::DepthRows(rows) => self.depth_rows(&rows).map(|()| {
                 self.rows_ticks = self.rows_ticks.saturating_add(delta(clock, t0, 0));
             }),
-            HostMessage::FrameEnd { frame } => self.frame_end(frame, t0, send),
-            HostMessage::Finish => self.finish(send),
+            HostMessage::FrameEnd { frame } => self.frame_end(frame, t0, journal, send),
+            HostMessage::Finish => self.finish(journal, send),
             HostMessage::StatusRequest => {
                 let status = self.status(seq);
                 self.out(send).reply(&DeviceMessage::Status(status));
@@ -579,10 +704,7 @@ impl<
             } => {
                 return self.export(seq, from_record, max_records, send);
             }
-            HostMessage::Reset => {
-                self.reset();
-                Ok(())
-            }
+            HostMessage::Reset => self.reset_logged(journal),
         };
         if result.is_err() {
             self.refused = self.refused.saturating_add(1);
@@ -599,7 +721,7 @@ impl<
         self.out(send).reply(&applied.reply());
     }
 
-    fn hello(&mut self, cfg: Config) -> Result<(), ErrorKind> {
+    fn hello(&mut self, cfg: Config, journal: &mut dyn Journal) -> Result<(), ErrorKind> {
         if self.selector.current_frame().is_some() {
             return Err(ErrorKind::MidFrameReconfig);
         }
@@ -611,10 +733,86 @@ impl<
                 Err(ErrorKind::NeedsReset)
             };
         }
+        let previous = self.hello;
+        self.configure(cfg)?;
+        // A new scan: a new log generation, replacing the old one once durable.
+        let stored = Record::Begin(cfg)
+            .encode(&[], &mut self.record)
+            .map_err(|_| ErrorKind::Internal)
+            .and_then(|payload| journal.start(payload).map_err(storage_error));
+        if let Err(e) = stored {
+            match previous {
+                Some(p) => self.configure(p)?,
+                None => self.selector.reset(),
+            }
+            self.hello = previous;
+            return Err(e);
+        }
+        self.stored = u32::from(journal.keeps());
+        self.durable_db = 0;
+        self.storage_failed = false;
+        Ok(())
+    }
+
+    /// Configures the selector with `cfg` (no frames seen yet).
+    fn configure(&mut self, cfg: Config) -> Result<(), ErrorKind> {
         self.selector
             .configure(cfg.scan_config(), cfg.selector_config())
             .map_err(select_error)?;
         self.hello = Some(cfg);
+        Ok(())
+    }
+
+    /// Reset: forgets the scan, in the log first.
+    fn reset_logged(&mut self, journal: &mut dyn Journal) -> Result<(), ErrorKind> {
+        let payload = Record::Cleared
+            .encode(&[], &mut self.record)
+            .map_err(|_| ErrorKind::Internal)?;
+        journal.start(payload).map_err(storage_error)?;
+        self.reset();
+        Ok(())
+    }
+
+    /// Replays log record number `n` at boot.
+    fn apply(&mut self, payload: &[u8], n: u32) -> Result<(), RestoreFailure> {
+        let malformed = RestoreFailure::Malformed { record: n };
+        let refused = |error| RestoreFailure::Refused { record: n, error };
+        let (record, hashes) = Record::decode(payload).map_err(|_| malformed)?;
+        match record {
+            Record::Begin(cfg) if n == 0 => {
+                cfg.validate()
+                    .and_then(|()| self.configure(cfg))
+                    .map_err(|_| RestoreFailure::BadConfig { record: n })?;
+            }
+            Record::Cleared if n == 0 => {}
+            Record::Begin(_) | Record::Cleared => return Err(malformed),
+            Record::Database {
+                meta, voxels, aabb, ..
+            } => {
+                let sketch = Sketch::from_hashes(hashes.iter()).ok_or(malformed)?;
+                let frame = DbSnapshot {
+                    meta,
+                    voxels,
+                    aabb,
+                    sketch,
+                };
+                self.selector.restore_database(&frame).map_err(refused)?;
+            }
+            Record::Decided {
+                frame,
+                timestamp,
+                kind,
+            } => {
+                self.selector
+                    .restore_decided(frame, kind.into())
+                    .map_err(refused)?;
+                self.labels.begin(frame, timestamp);
+                if let Some(class) = kind.class(frame) {
+                    self.labels.decide(frame, class);
+                }
+            }
+            Record::Finished => self.finished = true,
+        }
         Ok(())
     }
 
@@ -664,6 +862,7 @@ impl<
         &mut self,
         frame: u32,
         t0: u64,
+        journal: &mut dyn Journal,
         send: &mut dyn FnMut(&[u8]),
     ) -> Result<(), ErrorKind> {
         self.scanning()?;
@@ -671,7 +870,7 @@ impl<
             Some(m) if m.index == frame => {}
             _ => return Err(ErrorKind::FrameEndWithoutBegin),
         }
-        let sending = self.decide(send, |s, emit| s.end_frame(emit))?;
+        let sending = self.decide(journal, send, |s, emit| s.end_frame(emit))?;
         let end = delta(self.clock, t0, sending);
         let rows = self.rows_ticks;
         let c = &mut self.cost;
@@ -684,34 +883,104 @@ impl<
         Ok(())
     }
 
-    fn finish(&mut self, send: &mut dyn FnMut(&[u8])) -> Result<(), ErrorKind> {
+    fn finish(
+        &mut self,
+        journal: &mut dyn Journal,
+        send: &mut dyn FnMut(&[u8]),
+    ) -> Result<(), ErrorKind> {
         if self.hello.is_none() {
             return Err(ErrorKind::NotConfigured);
         }
         if self.finished {
             return Ok(());
         }
-        self.decide(send, |s, emit| s.finish(emit))?;
+        self.decide(journal, send, |s, emit| s.finish(emit))?;
         self.finished = true;
+        self.persist(journal, &Record::Finished);
         Ok(())
+    }
+
+    /// Appends a record unless a write already failed in this scan (a later
+    /// record after a missing one would not restore).
+    fn persist(&mut self, journal: &mut dyn Journal, record: &Record) {
+        self.persist_with(journal, record, &[]);
+    }
+
+    fn persist_with(&mut self, journal: &mut dyn Journal, record: &Record, sketch: &[u32]) {
+        if self.storage_failed {
+            return;
+        }
+        let written = record
+            .encode(sketch, &mut self.record)
+            .map_err(|_| LogError::TooLarge)
+            .and_then(|payload| journal.append(payload));
+        match written {
+            Ok(()) => self.stored = self.stored.saturating_add(u32::from(journal.keeps())),
+            Err(_) => self.storage_failed = true,
+        }
     }
 
     /// Runs a selector step that decides frames: each decision is sent and
     /// its label stored. Returns the ticks spent sending, which the frame
     /// cost leaves out (they measure the link, not the device).
+    ///
+    /// The decisions are held until the database frames taken and the final
+    /// decisions are in the journal; only then do they go out.
     fn decide(
         &mut self,
+        journal: &mut dyn Journal,
         send: &mut dyn FnMut(&[u8]),
         step: impl FnOnce(
             &mut Selector<FV, POOL, DB, W, K>,
             &mut dyn FnMut(FrameDecision),
         ) -> Result<(), SelectError>,
     ) -> Result<u64, ErrorKind> {
-        let clock = self.clock;
+        // Worst case of one step: every window frame decided and taken, and
+        // the Finished mark. Checked first so that a refusal changes nothing.
+        if !self.storage_failed && !journal.has_room(2 * W + 1, Self::DB_RECORD_LEN) {
+            return Err(ErrorKind::StorageFull);
+        }
         let Core {
             selector,
+            decisions,
+            ..
+        } = self;
+        decisions.clear();
+        step(selector, &mut |d| {
+            // At most W final decisions and one Pending per step.
+            let _ = decisions.push(d);
+        })
+        .map_err(select_error)?;
+        for i in self.durable_db..self.selector.database_len() {
+            if let Some(f) = self.selector.database_snapshot(i) {
+                let record = Record::Database {
+                    meta: f.meta,
+                    voxels: f.voxels,
+                    aabb: f.aabb,
+                    hashes: f.sketch.hashes().len() as u16,
+                };
+                self.persist_with(journal, &record, f.sketch.hashes());
+            }
+        }
+        self.durable_db = self.selector.database_len();
+        for i in 0..self.decisions.len() {
+            let Some(&d) = self.decisions.get(i) else {
+                break;
+            };
+            if d.decision != crate::Decision::Pending {
+                let record = Record::Decided {
+                    frame: d.index,
+                    timestamp: self.labels.timestamp(d.index),
+                    kind: d.decision.into(),
+                };
+                self.persist(journal, &record);
+            }
+        }
+        let clock = self.clock;
+        let Core {
             labels,
             tx,
+            decisions,
             ..
         } = self;
         let mut out = Out {
@@ -720,7 +989,9 @@ impl<
             clock,
             ticks: 0,
         };
-        step(selector, &mut |d| decided(labels, &mut out, d)).map_err(select_error)?;
+        for &d in decisions.iter() {
+            decided(labels, &mut out, d);
+        }
         Ok(out.ticks)
     }
 

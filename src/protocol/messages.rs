@@ -408,6 +408,12 @@ pub mod degradation {
     /// The label store was full; labels of later frames were not stored
     /// (selection went on; the export holds the first labels only).
     pub const LABELS_FULL: u32 = 1 << 8;
+    /// A flash write failed during a selection step: decisions from then on
+    /// are not durable (until the next scan starts).
+    pub const STORAGE_FAILED: u32 = 1 << 9;
+    /// The database was restored from flash at boot; its frames are compared
+    /// by sketch (their exact keys are not stored).
+    pub const RESTORED: u32 = 1 << 10;
 }
 
 /// Cost of frames on the device, measured with a board clock (all zero when
@@ -476,6 +482,8 @@ pub struct Status {
     pub refused: u32,
     /// Cost of frames on the device.
     pub cost: FrameCost,
+    /// Records of this scan durable in flash (0 on a device without flash).
+    pub stored_records: u32,
 }
 
 impl Status {
@@ -502,6 +510,7 @@ impl Status {
             valid_pixels: 0,
             refused: 0,
             cost: FrameCost::ZERO,
+            stored_records: 0,
         }
     }
 
@@ -604,6 +613,11 @@ pub enum ErrorKind {
     NeedsReset,
     /// FrameEnd before every strided row of the frame arrived (the frame stays open).
     MissingRows,
+    /// The flash log has no room for what the message would decide: FrameEnd
+    /// and Finish are refused (the frame stays open); export still works.
+    StorageFull,
+    /// The flash failed to erase or write; the message was not applied.
+    StorageFailed,
 }
 
 impl ErrorKind {
@@ -649,6 +663,8 @@ impl ErrorKind {
             ErrorKind::Internal => "internal error",
             ErrorKind::NeedsReset => "scan in progress; reset before reconfiguring",
             ErrorKind::MissingRows => "frame end before all its rows",
+            ErrorKind::StorageFull => "flash log full",
+            ErrorKind::StorageFailed => "flash write failed",
         }
     }
 }

@@ -99,7 +99,9 @@ pub use messages::{
 /// - 2: `Config` carries the grid origin, window and sketch margin;
 ///   `DecisionKind::Uncovered`; `ExportRequest::max_records`; `Status` reports every selector counter, peak
 ///   usage and frame cost; `ErrorKind::NeedsReset` and `MissingRows`.
-pub const PROTOCOL_VERSION: u16 = 2;
+/// - 3: durable storage: `Status::stored_records`, `ErrorKind::StorageFull`
+///   and `StorageFailed`, degradations `STORAGE_FAILED` and `RESTORED`.
+pub const PROTOCOL_VERSION: u16 = 3;
 
 /// Largest encoded frame (delimiter included) of any [`DeviceMessage`] but a
 /// [`DeviceMessage::Log`]: a device's transmit buffer. Longer logs are dropped.
