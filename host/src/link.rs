@@ -349,6 +349,73 @@ pub struct QemuOptions {
     pub connect_timeout: Duration,
     /// QEMU is killed this long after the start, whatever happens.
     pub deadline: Duration,
+    /// A file holding the board's emulated NOR flash (PSRAM); kept across
+    /// runs. QEMU maps the board's 16 MiB PSRAM (`0x2100_0000`, QEMU's machine
+    /// RAM) from it, shared, so what the firmware stores there survives QEMU
+    /// being killed; the firmware uses its first 1 MiB as flash. A missing (or
+    /// empty) file is created holding [`FLASH_FILE_SIZE`] bytes of 0xFF, an
+    /// erased chip. `None` (the default): the PSRAM is fresh zeroed memory.
+    pub flash: Option<PathBuf>,
+}
+
+/// Size of a [`QemuOptions::flash`] file: the whole PSRAM of `mps2-an386`
+/// (QEMU insists the machine RAM of the MPS2 boards is exactly 16 MiB).
+pub const FLASH_FILE_SIZE: u64 = 16 << 20;
+
+/// QEMU object id of the memory backend holding the flash file.
+const FLASH_BACKEND_ID: &str = "placedb-flash";
+
+/// Creates the flash file `path` (holding [`FLASH_FILE_SIZE`] bytes of 0xFF, an
+/// erased chip) if it is missing or empty; leaves an existing one as it is.
+/// Errors if it exists with another size (QEMU would refuse it).
+pub fn prepare_flash_file(path: &Path) -> io::Result<()> {
+    match std::fs::metadata(path) {
+        Ok(meta) if meta.len() == FLASH_FILE_SIZE => return Ok(()),
+        Ok(meta) if meta.len() != 0 => {
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidData,
+                format!(
+                    "flash file {} holds {} bytes, expected {FLASH_FILE_SIZE} (16 MiB)",
+                    path.display(),
+                    meta.len()
+                ),
+            ))
+        }
+        Ok(_) => {}
+        Err(e) if e.kind() == io::ErrorKind::NotFound => {}
+        Err(e) => return Err(e),
+    }
+    // Written beside the target and renamed into place, so a file cut short
+    // by a crash is never taken for a flash image.
+    let mut name = path.file_name().unwrap_or_default().to_os_string();
+    name.push(format!(".tmp{}", std::process::id()));
+    let tmp = path.with_file_name(name);
+    let written = (|| {
+        let mut file = std::fs::File::create(&tmp)?;
+        let erased = vec![0xFFu8; 1 << 20];
+        for _ in 0..FLASH_FILE_SIZE / (1 << 20) {
+            file.write_all(&erased)?;
+        }
+        file.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if written.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    written.map_err(|e| {
+        io::Error::new(
+            e.kind(),
+            format!("cannot create flash file {}: {e}", path.display()),
+        )
+    })
+}
+
+/// `path` as a QEMU option value: commas doubled.
+fn qemu_option_path(path: &Path) -> std::ffi::OsString {
+    match path.to_str() {
+        Some(text) => text.replace(',', ",,").into(),
+        None => path.as_os_str().to_os_string(),
+    }
 }
 
 impl Default for QemuOptions {
@@ -360,6 +427,7 @@ impl Default for QemuOptions {
             extra_args: Vec::new(),
             connect_timeout: Duration::from_secs(10),
             deadline: Duration::from_secs(600),
+            flash: None,
         }
     }
 }
@@ -367,10 +435,36 @@ impl Default for QemuOptions {
 /// The QEMU command line booting `firmware` with UART0 on chardev `serial`
 /// (e.g. `tcp:127.0.0.1:PORT` to connect to a host listening there, or
 /// `tcp:127.0.0.1:PORT,server,nowait` to listen). Standard input is closed.
+///
+/// With [`QemuOptions::flash`] the machine RAM comes from that file:
+/// `-machine MACHINE,memory-backend=placedb-flash -object
+/// memory-backend-file,id=placedb-flash,size=16M,mem-path=FILE,share=on`, and
+/// the file is created first if missing ([`prepare_flash_file`]; an error
+/// there is left for QEMU to report, [`Qemu::start_with`] reports it itself).
 pub fn qemu_command(firmware: &Path, options: &QemuOptions, serial: &str) -> Command {
     let mut command = Command::new(&options.program);
+    command.args(["-cpu", &options.cpu]);
+    match &options.flash {
+        None => {
+            command.args(["-machine", &options.machine]);
+        }
+        Some(file) => {
+            let _ = prepare_flash_file(file);
+            let mut backend = std::ffi::OsString::from(format!(
+                "memory-backend-file,id={FLASH_BACKEND_ID},size={FLASH_FILE_SIZE},share=on,mem-path="
+            ));
+            backend.push(qemu_option_path(file));
+            command
+                .arg("-machine")
+                .arg(format!(
+                    "{},memory-backend={FLASH_BACKEND_ID}",
+                    options.machine
+                ))
+                .arg("-object")
+                .arg(backend);
+        }
+    }
     command
-        .args(["-cpu", &options.cpu, "-machine", &options.machine])
         .args(["-display", "none", "-monitor", "none"])
         .args(["-semihosting-config", "enable=on,target=native"])
         .arg("-serial")
@@ -476,6 +570,9 @@ impl Qemu {
                 io::ErrorKind::NotFound,
                 format!("firmware ELF {} not found", firmware.display()),
             ));
+        }
+        if let Some(file) = &options.flash {
+            prepare_flash_file(file)?;
         }
         let started = Instant::now();
         let listener = TcpListener::bind(("127.0.0.1", 0))?;
@@ -984,6 +1081,65 @@ mod tests {
                 .map(|e| e.kind()),
             Some(io::ErrorKind::InvalidInput)
         );
+    }
+
+    #[test]
+    fn qemu_command_maps_the_flash_file() {
+        let plain = qemu_command(Path::new("fw.elf"), &QemuOptions::default(), "null");
+        let args: Vec<_> = plain.get_args().map(|a| a.to_string_lossy()).collect();
+        assert!(args.windows(2).any(|w| w == ["-machine", "mps2-an386"]));
+        assert!(!args.iter().any(|a| a.contains("memory-backend")));
+
+        let dir = std::env::temp_dir().join(format!("placedb-flash-cmd-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("a,b.flash");
+        let options = QemuOptions {
+            flash: Some(file.clone()),
+            ..QemuOptions::default()
+        };
+        let command = qemu_command(Path::new("fw.elf"), &options, "null");
+        let args: Vec<_> = command.get_args().map(|a| a.to_string_lossy()).collect();
+        assert!(args
+            .windows(2)
+            .any(|w| w == ["-machine", "mps2-an386,memory-backend=placedb-flash"]));
+        let object = format!(
+            "memory-backend-file,id=placedb-flash,size=16777216,share=on,mem-path={}",
+            file.display().to_string().replace(',', ",,")
+        );
+        assert!(args.windows(2).any(|w| w[0] == "-object" && w[1] == object));
+        // The file was created erased.
+        assert_eq!(std::fs::metadata(&file).unwrap().len(), FLASH_FILE_SIZE);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn flash_file_is_created_erased_and_then_kept() {
+        let dir = std::env::temp_dir().join(format!("placedb-flash-file-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("board.flash");
+        prepare_flash_file(&file).unwrap();
+        let bytes = std::fs::read(&file).unwrap();
+        assert_eq!(bytes.len() as u64, FLASH_FILE_SIZE);
+        assert!(bytes.iter().all(|&b| b == 0xFF));
+        // An existing image is left alone.
+        let mut kept = bytes;
+        kept[0] = 0x12;
+        std::fs::write(&file, &kept).unwrap();
+        prepare_flash_file(&file).unwrap();
+        assert_eq!(std::fs::read(&file).unwrap()[0], 0x12);
+        // An empty file is filled; a file of another size is refused.
+        std::fs::write(&file, b"").unwrap();
+        prepare_flash_file(&file).unwrap();
+        assert_eq!(std::fs::metadata(&file).unwrap().len(), FLASH_FILE_SIZE);
+        std::fs::write(&file, [0u8; 10]).unwrap();
+        let err = prepare_flash_file(&file).unwrap_err();
+        assert_eq!(err.kind(), io::ErrorKind::InvalidData);
+        assert_eq!(
+            std::fs::read_dir(&dir).unwrap().count(),
+            1,
+            "no temporary left"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

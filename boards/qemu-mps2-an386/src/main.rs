@@ -10,11 +10,19 @@
 //! device's status in nanoseconds of virtual time = instructions under
 //! `-icount shift=0`.
 //!
-//! Semihosting prints a boot line, the SysTick calibration, and the stack
-//! high-water mark whenever a scan finishes (`stack peak N of M bytes`).
+//! The scan is durable: the device writes its decisions to a log in an
+//! emulated NOR flash (the board's PSRAM, see [`flash`]) before it
+//! acknowledges them, and restores them at boot. Start QEMU with the PSRAM
+//! backed by a file (`placedb_host::link::QemuOptions::flash`) for the log to
+//! outlive the emulator; without it every boot starts empty.
+//!
+//! Semihosting prints a boot line, what was restored, the SysTick
+//! calibration, and the stack high-water mark whenever a scan finishes
+//! (`stack peak N of M bytes`).
 #![no_std]
 #![no_main]
 
+mod flash;
 mod uart;
 
 use core::sync::atomic::{AtomicU32, Ordering};
@@ -24,6 +32,7 @@ use cortex_m_rt::{entry, exception, ExceptionFrame};
 use cortex_m_semihosting::{debug, hprintln};
 use embedded_io::{Read, Write};
 use placedb::device::Device512K;
+use placedb::persist::Log;
 use placedb::protocol::{Phase, MAX_FRAME_LEN, PROTOCOL_VERSION};
 
 /// Bytes read from the transport per call (the UART returns what it has).
@@ -139,13 +148,39 @@ fn main() -> ! {
     );
     device.set_clock(nanos, 1_000_000_000);
 
+    let Some(flash) = flash::PsramFlash::take() else {
+        hprintln!("flash unavailable");
+        fail();
+    };
+    let mut log = match Log::open(flash, 0, flash::FLASH_SIZE as u32) {
+        Ok(log) => log,
+        Err(e) => {
+            hprintln!("flash log unusable: {:?}", e);
+            fail();
+        }
+    };
+    match device.restore(&mut log) {
+        Ok(records) => {
+            let st = device.status();
+            hprintln!(
+                "restored {} records: {} frames decided, database {}, log {} of {} sectors",
+                records,
+                st.frames_decided,
+                st.database_size,
+                log.sectors_used(),
+                log.sector_count()
+            );
+        }
+        Err(e) => hprintln!("nothing restored ({:?}): starting empty", e),
+    }
+
     let mut rx = [0u8; RX_CHUNK];
     let mut finished = false;
     loop {
         // The UART's error type is `Infallible`.
         let Ok(n) = uart.read(&mut rx);
         let bytes = rx.get(..n).unwrap_or_default();
-        device.receive(bytes, &mut |frame: &[u8]| {
+        device.receive_logged(bytes, &mut log, &mut |frame: &[u8]| {
             let _ = uart.write_all(frame);
         });
         let now_finished = device.phase() == Phase::Finished;
