@@ -26,8 +26,8 @@ use indicatif::ProgressBar;
 use placedb::profile::{Capacities, PROFILES};
 use placedb::protocol::{
     depth_rows_per_message, encode, export_crc, CapacitySlot, Config, DecisionKind, DepthRows,
-    DeviceMessage, ErrorKind, ExportRecord, Feed, FrameDecoder, HostMessage, RecordKind, Status,
-    MAX_FRAME_LEN,
+    DeviceMessage, ErrorKind, ExportRecord, Feed, FrameDecoder, HostMessage, Phase, RecordKind,
+    Status, MAX_FRAME_LEN,
 };
 use placedb::{DbRecord, ScanConfig, SelectorConfig, VoxelGrid};
 use std::collections::VecDeque;
@@ -73,6 +73,12 @@ pub struct StreamOptions {
     pub reply_timeout: Duration,
     /// Reset the device before the Hello (a new scan).
     pub reset: bool,
+    /// Go on with the scan the device holds (after a power cut it restores
+    /// it from flash): no Reset, the same Hello (the device accepts an
+    /// identical one), frames from the device's `frames_seen` on.
+    pub resume: bool,
+    /// End with Finish (decides the frames still pending).
+    pub finish: bool,
     /// Retransmissions allowed per message. 0: messages are pipelined
     /// (`in_flight`) and the first error or timeout ends the stream. Above 0:
     /// stop-and-wait, and a message whose terminal reply does not come within
@@ -92,6 +98,8 @@ impl Default for StreamOptions {
             in_flight: 4,
             reply_timeout: Duration::from_secs(30),
             reset: true,
+            resume: false,
+            finish: true,
             retries: 0,
             resend_after: Duration::from_secs(2),
         }
@@ -467,12 +475,17 @@ pub fn stream<L: Link>(
         &mut resent,
     )?)?;
     check_profile(&st, profile)?;
-    if opts.reset {
+    let n = seq.frames.len();
+    let first = if opts.resume {
+        resume_point(&st, n)?
+    } else {
+        0
+    };
+    if opts.reset && !opts.resume {
         call(client, HostMessage::Reset, "Reset", opts, &mut resent)?;
     }
     let started = Instant::now();
     call(client, HostMessage::Hello(*cfg), "Hello", opts, &mut resent)?;
-    let n = seq.frames.len();
     let width = cfg.width_sent();
     let fit = depth_rows_per_message(width);
     let rows_per_msg = match opts.rows_per_message {
@@ -493,7 +506,10 @@ pub fn stream<L: Link>(
         resend_after: opts.resend_after,
         retransmissions: resent,
     };
-    for i in 0..n {
+    if let Some(p) = progress {
+        p.set_position(first as u64);
+    }
+    for i in first..n {
         let img = seq
             .depth(i)
             .map_err(|e| DeviceError::Input(format!("frame {i}: {e}")))?;
@@ -542,7 +558,9 @@ pub fn stream<L: Link>(
             }
         }
     }
-    pipe.send(HostMessage::Finish, || "Finish".into())?;
+    if opts.finish {
+        pipe.send(HostMessage::Finish, || "Finish".into())?;
+    }
     pipe.drain()?;
     let wall = started.elapsed();
     let (decisions, bytes_sent, messages) = (pipe.decisions, pipe.bytes, pipe.messages);
@@ -555,7 +573,7 @@ pub fn stream<L: Link>(
         &mut resent,
     )?)?;
     Ok(StreamReport {
-        frames: n,
+        frames: n - first,
         decisions,
         status,
         wall,
@@ -563,6 +581,24 @@ pub fn stream<L: Link>(
         messages,
         retransmissions: resent,
     })
+}
+
+/// The first frame to send when resuming the scan whose status is `st`
+/// (with `n` frames in the sequence).
+fn resume_point(st: &Status, n: usize) -> Result<usize, DeviceError> {
+    if st.phase == Phase::InFrame {
+        return Err(DeviceError::Input(
+            "the device has a frame open: restart it (it resumes from flash) or stream without --resume"
+                .into(),
+        ));
+    }
+    let seen = st.frames_seen as usize;
+    if seen > n {
+        return Err(DeviceError::Input(format!(
+            "the device has seen {seen} frames, the sequence has {n}: not this sequence?"
+        )));
+    }
+    Ok(seen)
 }
 
 /// How to export.
@@ -895,6 +931,10 @@ pub struct Recovery {
     /// How long to wait for a terminal reply before sending a message again
     /// (also the export's wait for its next record).
     pub resend_after: Duration,
+    /// Resume the scan the device holds (see [`StreamOptions::resume`]).
+    pub resume: bool,
+    /// End the stream with Finish ([`StreamOptions::finish`]).
+    pub finish: bool,
 }
 
 impl Default for Recovery {
@@ -903,6 +943,8 @@ impl Default for Recovery {
             faults: FaultConfig::default(),
             retries: None,
             resend_after: Duration::from_secs(2),
+            resume: false,
+            finish: true,
         }
     }
 }
@@ -919,6 +961,8 @@ impl Recovery {
         StreamOptions {
             retries: self.retries(),
             resend_after: self.resend_after,
+            resume: self.resume,
+            finish: self.finish,
             ..StreamOptions::default()
         }
     }
@@ -1159,6 +1203,7 @@ pub fn qemu_device_cmd(
     firmware: Option<PathBuf>,
     port: u16,
     icount: bool,
+    flash: Option<PathBuf>,
 ) -> Result<(), DeviceError> {
     let firmware = firmware.unwrap_or_else(link::default_firmware);
     if !firmware.is_file() {
@@ -1174,7 +1219,13 @@ pub fn qemu_device_cmd(
             .port(),
         p => p,
     };
-    let mut options = QemuOptions::default();
+    if let Some(f) = &flash {
+        link::prepare_flash_file(f)?;
+    }
+    let mut options = QemuOptions {
+        flash,
+        ..QemuOptions::default()
+    };
     if icount {
         options.extra_args = vec!["-icount".into(), "shift=0".into()];
     }
@@ -1195,6 +1246,13 @@ pub fn qemu_device_cmd(
     println!("emulated board (mps2-an386, profile ram512k) on port tcp:127.0.0.1:{port}");
     println!("  e.g. placedb stream --port tcp:127.0.0.1:{port} --demo --stride 8 --max-frames 30");
     println!("       placedb export --port tcp:127.0.0.1:{port} -o out");
+    match &options.flash {
+        Some(f) => println!(
+            "  flash kept in {}: after a restart, `placedb stream --resume` goes on with the scan",
+            f.display()
+        ),
+        None => println!("  no --flash file: the board starts empty every time"),
+    }
     println!("  Ctrl-C stops it");
     let status = child.wait()?;
     if status.success() {

@@ -14,6 +14,7 @@ pub mod pipeline;
 pub mod plot;
 pub mod read;
 pub mod sequence;
+pub mod sim_flash;
 pub mod solve;
 pub mod synth;
 pub mod voxelize;

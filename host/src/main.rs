@@ -84,6 +84,13 @@ struct StreamArgs {
     /// With retransmission: wait this many milliseconds for a reply before sending again.
     #[arg(long, default_value_t = 2000)]
     resend_ms: u64,
+    /// Go on with the scan the device holds (e.g. restored from flash after a
+    /// power cut) from its first undecided frame, instead of starting over.
+    #[arg(long)]
+    resume: bool,
+    /// Leave the scan open (no Finish): more frames can follow with --resume.
+    #[arg(long)]
+    no_finish: bool,
 }
 
 /// `placedb export`.
@@ -118,6 +125,10 @@ struct DeviceArgs {
     /// Run without -icount shift=0 (faster, but no exact instruction counts).
     #[arg(long)]
     no_icount: bool,
+    /// File holding the board's flash (its database log); created erased if
+    /// missing and kept across runs, so a restarted board restores its scan.
+    #[arg(long)]
+    flash: Option<PathBuf>,
 }
 
 /// Where the frames come from and how they become voxel sets.
@@ -869,6 +880,8 @@ fn main() -> ExitCode {
                 ),
                 retries: a.retries,
                 resend_after: Duration::from_millis(a.resend_ms.max(1)),
+                resume: a.resume,
+                finish: !a.no_finish,
             };
             device_cli::stream_cmd(&a.port, &seq, &v, sel, &a.profile, out, a.quiet, &recovery)?;
             Ok(())
@@ -877,7 +890,8 @@ fn main() -> ExitCode {
             .map(|_| ())
             .map_err(Into::into),
         Command::Device(a) => {
-            device_cli::qemu_device_cmd(a.firmware, a.port, !a.no_icount).map_err(Into::into)
+            device_cli::qemu_device_cmd(a.firmware, a.port, !a.no_icount, a.flash)
+                .map_err(Into::into)
         }
     };
     match r {

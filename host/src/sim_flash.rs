@@ -1,0 +1,247 @@
+//! A NOR flash in RAM that can lose power: the flash of an in-process device
+//! in tests and `placedb stream --flash`.
+//!
+//! NOR rules are enforced so that a log relying on anything else fails here:
+//! erasing sets a sector to 0xFF, writing can only clear bits (and is refused
+//! over bytes not erased, where real parts misbehave). Every `erase` and
+//! `write` call is one *step*; [`SimFlash::cut_at`] makes step `n` the last
+//! one before the power goes, torn as [`Tear`] says, and every operation after
+//! it fails until [`SimFlash::power_on`].
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+use embedded_storage::nor_flash::{
+    ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
+};
+
+/// What the step that loses power leaves behind.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Tear {
+    /// Nothing of it reached the flash.
+    Before,
+    /// Its first half (bytes, or the sector's first half for an erase); the
+    /// first byte not written is left half programmed (its low bits).
+    Half,
+    /// All of it, but the caller never learns it succeeded.
+    After,
+}
+
+/// Why a flash operation failed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SimFlashError {
+    /// Not aligned to the granularity.
+    NotAligned,
+    /// Outside the flash.
+    OutOfBounds,
+    /// A write over bytes that are not erased.
+    NotErased,
+    /// The power is off.
+    PowerCut,
+}
+
+impl NorFlashError for SimFlashError {
+    fn kind(&self) -> NorFlashErrorKind {
+        match self {
+            SimFlashError::NotAligned => NorFlashErrorKind::NotAligned,
+            SimFlashError::OutOfBounds => NorFlashErrorKind::OutOfBounds,
+            _ => NorFlashErrorKind::Other,
+        }
+    }
+}
+
+/// `SECTORS` sectors of 4 KiB, written in 4-byte words.
+#[derive(Debug, Clone)]
+pub struct SimFlash {
+    bytes: Vec<u8>,
+    steps: u64,
+    cut: Option<(u64, Tear)>,
+    off: Arc<AtomicBool>,
+}
+
+impl SimFlash {
+    /// Sector size.
+    pub const SECTOR: usize = 4096;
+
+    /// An erased flash of `sectors` sectors.
+    pub fn new(sectors: usize) -> Self {
+        SimFlash {
+            bytes: vec![0xFF; sectors * Self::SECTOR],
+            steps: 0,
+            cut: None,
+            off: Arc::new(AtomicBool::new(false)),
+        }
+    }
+
+    /// Erase and write steps taken so far.
+    pub fn steps(&self) -> u64 {
+        self.steps
+    }
+
+    /// Step number `step` (counted from 0 by [`Self::steps`]) is the last
+    /// before the power goes, torn as `tear` says.
+    pub fn cut_at(&mut self, step: u64, tear: Tear) {
+        self.cut = Some((step, tear));
+    }
+
+    /// Whether the power is off.
+    pub fn is_off(&self) -> bool {
+        self.off.load(Ordering::Relaxed)
+    }
+
+    /// A handle that tells whether the power is off, for code that cannot
+    /// reach the flash (e.g. a reply callback: a device without power sends
+    /// nothing).
+    pub fn power(&self) -> Arc<AtomicBool> {
+        Arc::clone(&self.off)
+    }
+
+    /// Power comes back: operations work again, no cut is pending.
+    pub fn power_on(&mut self) {
+        self.off.store(false, Ordering::Relaxed);
+        self.cut = None;
+    }
+
+    /// The raw contents.
+    pub fn bytes(&self) -> &[u8] {
+        &self.bytes
+    }
+
+    /// Counts a step; `Some(tear)` when it is the one that loses power.
+    fn step(&mut self) -> Result<Option<Tear>, SimFlashError> {
+        if self.is_off() {
+            return Err(SimFlashError::PowerCut);
+        }
+        let n = self.steps;
+        self.steps += 1;
+        Ok(match self.cut {
+            Some((at, tear)) if at == n => {
+                self.off.store(true, Ordering::Relaxed);
+                Some(tear)
+            }
+            _ => None,
+        })
+    }
+
+    fn range(
+        &self,
+        offset: u32,
+        len: usize,
+        align: usize,
+    ) -> Result<std::ops::Range<usize>, SimFlashError> {
+        let start = offset as usize;
+        if !start.is_multiple_of(align) || !len.is_multiple_of(align) {
+            return Err(SimFlashError::NotAligned);
+        }
+        let end = start.checked_add(len).ok_or(SimFlashError::OutOfBounds)?;
+        if end > self.bytes.len() {
+            return Err(SimFlashError::OutOfBounds);
+        }
+        Ok(start..end)
+    }
+}
+
+/// How much of a torn step of `len` bytes lands.
+fn landed(len: usize, tear: Option<Tear>) -> usize {
+    match tear {
+        None | Some(Tear::After) => len,
+        Some(Tear::Before) => 0,
+        Some(Tear::Half) => len / 2,
+    }
+}
+
+impl ErrorType for SimFlash {
+    type Error = SimFlashError;
+}
+
+impl ReadNorFlash for SimFlash {
+    const READ_SIZE: usize = 1;
+
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        if self.is_off() {
+            return Err(SimFlashError::PowerCut);
+        }
+        let range = self.range(offset, bytes.len(), 1)?;
+        bytes.copy_from_slice(&self.bytes[range]);
+        Ok(())
+    }
+
+    fn capacity(&self) -> usize {
+        self.bytes.len()
+    }
+}
+
+impl NorFlash for SimFlash {
+    const WRITE_SIZE: usize = 4;
+    const ERASE_SIZE: usize = Self::SECTOR;
+
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        let len = (to as usize)
+            .checked_sub(from as usize)
+            .ok_or(SimFlashError::OutOfBounds)?;
+        let range = self.range(from, len, Self::SECTOR)?;
+        let tear = self.step()?;
+        let n = landed(len, tear);
+        self.bytes[range.start..range.start + n].fill(0xFF);
+        if tear == Some(Tear::Half) {
+            // The rest is left as it was but weakened: some bits set.
+            if let Some(b) = self.bytes.get_mut(range.start + n) {
+                *b |= 0x0F;
+            }
+        }
+        if tear.is_some() {
+            return Err(SimFlashError::PowerCut);
+        }
+        Ok(())
+    }
+
+    fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Self::Error> {
+        let range = self.range(offset, data.len(), Self::WRITE_SIZE)?;
+        if self.bytes[range.clone()].iter().any(|&b| b != 0xFF) {
+            return Err(SimFlashError::NotErased);
+        }
+        let tear = self.step()?;
+        let n = landed(data.len(), tear);
+        for (b, d) in self.bytes[range.start..range.start + n]
+            .iter_mut()
+            .zip(data)
+        {
+            *b &= d;
+        }
+        if tear == Some(Tear::Half) {
+            if let (Some(b), Some(d)) = (self.bytes.get_mut(range.start + n), data.get(n)) {
+                *b &= d | 0xF0;
+            }
+        }
+        if tear.is_some() {
+            return Err(SimFlashError::PowerCut);
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nor_rules_and_power_cuts() {
+        let mut f = SimFlash::new(2);
+        f.write(0, &[0x0F, 0xF0, 0xFF, 0x00]).unwrap();
+        assert_eq!(f.write(0, &[0; 4]), Err(SimFlashError::NotErased));
+        assert_eq!(f.write(1, &[0; 4]), Err(SimFlashError::NotAligned));
+        assert_eq!(f.erase(0, 100), Err(SimFlashError::NotAligned));
+        assert_eq!(f.write(8192, &[0; 4]), Err(SimFlashError::OutOfBounds));
+        f.erase(0, 4096).unwrap();
+        assert_eq!(&f.bytes()[..4], &[0xFF; 4]);
+        assert_eq!(f.steps(), 2);
+        f.cut_at(2, Tear::Half);
+        assert_eq!(f.write(0, &[0; 8]), Err(SimFlashError::PowerCut));
+        assert_eq!(&f.bytes()[..5], &[0, 0, 0, 0, 0xF0]);
+        let mut buf = [0; 4];
+        assert_eq!(f.read(0, &mut buf), Err(SimFlashError::PowerCut));
+        f.power_on();
+        f.read(0, &mut buf).unwrap();
+        assert_eq!(buf, [0; 4]);
+    }
+}
