@@ -1,5 +1,6 @@
-//! Puts this board's `memory.x` (Pico: BOOT2 + 2 MiB flash, 256 KiB RAM) on
-//! the link search path and links with cortex-m-rt's `link.x`.
+//! Puts this board's `memory.x` (Pico: BOOT2 + the first MiB of flash for the
+//! program, 256 KiB RAM) on the link search path and links with cortex-m-rt's
+//! `link.x`.
 
 use std::{env, fs, path::PathBuf};
 

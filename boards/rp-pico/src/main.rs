@@ -6,15 +6,22 @@
 //! time) and queue every reply frame it produces on the [`link::Link`], which
 //! never drops a reply byte and stops reading while its queue is full. The
 //! on-board LED (GPIO25) toggles on every reply frame.
+//!
+//! The scan is durable: the device writes its database frames and decisions
+//! to a log in the second MiB of flash ([`flash`]) before it acknowledges
+//! them, and restores the scan from it at boot, so a board that lost power
+//! goes on where it was (`placedb stream --resume`).
 #![no_std]
 #![no_main]
 
+mod flash;
 mod link;
 
 use core::cell::{Cell, RefCell};
 use critical_section::Mutex;
 use embedded_hal::digital::StatefulOutputPin;
 use placedb::device::Device256K;
+use placedb::persist::Log;
 use rp2040_hal::{self as hal, pac, usb::UsbBus};
 use usb_device::class_prelude::UsbBusAllocator;
 use usb_device::device::{StringDescriptors, UsbDeviceBuilder, UsbVidPid};
@@ -73,6 +80,18 @@ fn main() -> ! {
         DEVICE.borrow_ref_mut(cs).set_clock(ticks, TIMER_HZ);
     });
 
+    // SAFETY: this firmware never starts core 1 and uses no DMA, so nothing
+    // but PicoFlash accesses flash during its erases and writes.
+    let storage = unsafe { flash::PicoFlash::new() };
+    let Ok(mut log) = Log::open(storage, 0, flash::REGION_LEN as u32) else {
+        halt()
+    };
+    // A log that does not restore leaves the device empty: the host sees an
+    // unconfigured device and starts over.
+    critical_section::with(|cs| {
+        let _ = DEVICE.borrow_ref_mut(cs).restore(&mut log);
+    });
+
     let sio = hal::Sio::new(pac.SIO);
     let pins = hal::gpio::Pins::new(
         pac.IO_BANK0,
@@ -109,10 +128,12 @@ fn main() -> ! {
             continue;
         }
         critical_section::with(|cs| {
-            DEVICE.borrow_ref_mut(cs).receive(bytes, &mut |frame| {
-                let Ok(()) = led.toggle();
-                link.send(frame);
-            });
+            DEVICE
+                .borrow_ref_mut(cs)
+                .receive_logged(bytes, &mut log, &mut |frame| {
+                    let Ok(()) = led.toggle();
+                    link.send(frame);
+                });
         });
     }
 }
