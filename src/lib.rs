@@ -9,6 +9,10 @@
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
 
+// Only the test flash (feature `sim-flash`) uses std.
+#[cfg(feature = "sim-flash")]
+extern crate std;
+
 pub mod camera;
 pub mod device;
 pub mod frame;

@@ -13,16 +13,23 @@
 
 use placedb::camera::{DepthRange, Intrinsics, Pose};
 use placedb::device::Device;
+use placedb::persist::sim::SimFlash;
+use placedb::persist::Log;
 use placedb::protocol::{
-    depth_rows_per_message, encode, export_crc, strided_len, CapacitySlot, Config, DecisionKind,
-    DepthRows, DeviceMessage, ErrorKind, ExportRecord, Feed, FrameDecoder, HostFrame, HostMessage,
-    Phase, ProtocolError, RecordKind, Status, MAX_FRAME_LEN, MAX_REPLY_LEN, PROTOCOL_VERSION,
+    degradation, depth_rows_per_message, encode, export_crc, strided_len, CapacitySlot, Config,
+    DecisionKind, DepthRows, DeviceMessage, ErrorKind, ExportRecord, Feed, FrameDecoder, HostFrame,
+    HostMessage, Phase, ProtocolError, RecordKind, Status, MAX_FRAME_LEN, MAX_REPLY_LEN,
+    PROTOCOL_VERSION,
 };
 
 /// The device under test: far smaller than the profiles, so that an input
 /// runs fast and every capacity (frame voxels, pool, database, window,
 /// labels) runs out within a few frames.
 pub type FuzzDevice = Device<256, 1024, 4, 4, 8, 16>;
+
+/// Sectors of the device's flash log: small, so that inputs fill it
+/// (`StorageFull`) and generations wrap around it.
+const LOG_SECTORS: usize = 8;
 
 /// Most ops one structured input runs.
 const MAX_OPS: usize = 256;
@@ -332,17 +339,45 @@ fn check_export(records: &[ExportRecord], from_record: u32, count: u32, crc32: u
     }
 }
 
-/// A device being fed, with everything it was fed and everything it sent.
+/// A device being fed, with its flash log, everything it was fed and
+/// everything it sent.
 struct Run {
     device: Box<FuzzDevice>,
+    log: Log<SimFlash>,
     stream: Vec<u8>,
     replies: Vec<Vec<u8>>,
+}
+
+fn open_log(flash: SimFlash) -> Log<SimFlash> {
+    let end = (LOG_SECTORS * SimFlash::SECTOR) as u32;
+    Log::open(flash, 0, end).expect("open the log")
+}
+
+/// Every record of a device's export, through the wire.
+fn export_of(device: &mut FuzzDevice, log: &mut Log<SimFlash>) -> Vec<ExportRecord> {
+    let mut buf = vec![0u8; MAX_FRAME_LEN];
+    let msg = HostMessage::ExportRequest {
+        from_record: 0,
+        max_records: u32::MAX,
+    };
+    let frame = encode(&HostFrame { seq: 1, msg }, &mut buf).expect("encode");
+    let mut replies = Vec::new();
+    device.receive_logged(&[0], log, &mut |f: &[u8]| replies.push(f.to_vec()));
+    device.receive_logged(frame, log, &mut |f: &[u8]| replies.push(f.to_vec()));
+    replies
+        .iter()
+        .filter_map(|f| match decode_reply(f) {
+            Reply::Record(r) => Some(r),
+            _ => None,
+        })
+        .collect()
 }
 
 impl Run {
     fn new() -> Self {
         Run {
             device: Box::new(FuzzDevice::new()),
+            log: open_log(SimFlash::new(LOG_SECTORS)),
             stream: Vec::new(),
             replies: Vec::new(),
         }
@@ -355,7 +390,9 @@ impl Run {
             let before = self.replies.len();
             let replies = &mut self.replies;
             self.device
-                .receive(chunk, &mut |frame: &[u8]| replies.push(frame.to_vec()));
+                .receive_logged(chunk, &mut self.log, &mut |frame: &[u8]| {
+                    replies.push(frame.to_vec())
+                });
             if self.replies.len() != before {
                 check_status(&self.device.status());
             }
@@ -454,6 +491,17 @@ impl Run {
                 assert_eq!(r.frame as usize, i - db, "labels in frame order");
             }
         }
+
+        // Power cut now: a fresh device restores from the flash exactly the
+        // database and labels the live one exports (frames still pending in
+        // the window are not decided, so neither has their labels).
+        assert_eq!(st.degradation & degradation::STORAGE_FAILED, 0);
+        let mut log = open_log(self.log.into_flash());
+        let mut restored = Box::new(FuzzDevice::new());
+        restored.restore(&mut log).expect("the log restores");
+        check_status(&restored.status());
+        assert_eq!(restored.status().frames_decided, st.frames_decided);
+        assert_eq!(export_of(&mut restored, &mut log), records);
     }
 }
 

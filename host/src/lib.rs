@@ -14,11 +14,12 @@ pub mod pipeline;
 pub mod plot;
 pub mod read;
 pub mod sequence;
-pub mod sim_flash;
 pub mod solve;
 pub mod synth;
 pub mod voxelize;
 
 pub use error::ReadError;
+/// The simulated NOR flash of the core (feature `sim-flash`).
+pub use placedb::persist::sim as sim_flash;
 pub use sequence::{CameraModel, DepthImage, DepthSource, Format, FrameInfo, Sequence};
 pub use voxelize::{voxelize, voxelize_on, GridOrigin, VoxelConfig, VoxelSets};

@@ -11,6 +11,8 @@
 
 pub mod log;
 pub mod record;
+#[cfg(feature = "sim-flash")]
+pub mod sim;
 
 pub use log::{FlashErrorKind, Log, LogError};
 pub use record::{Record, RecordError};

@@ -1,5 +1,5 @@
-//! A NOR flash in RAM that can lose power: the flash of an in-process device
-//! in tests and `placedb stream --flash`.
+//! A NOR flash in RAM that can lose power, for tests and fuzzing of the log
+//! and the device on a workstation (feature `sim-flash`, which needs `std`).
 //!
 //! NOR rules are enforced so that a log relying on anything else fails here:
 //! erasing sets a sector to 0xFF, writing can only clear bits (and is refused
@@ -10,6 +10,8 @@
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
+use std::vec;
+use std::vec::Vec;
 
 use embedded_storage::nor_flash::{
     ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
