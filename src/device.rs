@@ -500,9 +500,11 @@ impl<
         });
         match (replayed, failure) {
             (Ok(records), None) => {
+                // A log holding only `Cleared` (a Reset) restores nothing.
+                let scan = core.hello.is_some();
                 core.durable_db = core.selector.database_len();
-                core.stored = records;
-                core.restored = records > 0;
+                core.stored = if scan { records } else { 0 };
+                core.restored = scan;
                 Ok(records)
             }
             (Err(e), _) => {

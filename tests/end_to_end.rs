@@ -121,6 +121,18 @@ fn host_replay(seq: &Sequence, vcfg: &VoxelConfig, sel: SelectorConfig) -> (Stri
     )
 }
 
+/// Every record the device holds, with the default export options.
+fn export_all(client: &mut Client<Qemu>) -> device_cli::Export {
+    device_cli::export(
+        client,
+        Vec::new(),
+        &ExportOptions::default(),
+        None,
+        &mut |_| Ok(()),
+    )
+    .unwrap()
+}
+
 /// Streams `seq`, exports, and checks the files against the host replay.
 fn stream_and_compare(
     client: &mut Client<Qemu>,
@@ -135,14 +147,7 @@ fn stream_and_compare(
     assert_eq!(report.status.phase, Phase::Finished);
     assert_eq!(report.status.frames_seen as usize, seq.frames.len());
     assert!(report.decisions.iter().all(Option::is_some));
-    let export = device_cli::export(
-        client,
-        Vec::new(),
-        &ExportOptions::default(),
-        None,
-        &mut |_| Ok(()),
-    )
-    .unwrap();
+    let export = export_all(client);
     let (db_csv, labels_csv) = export.csv();
     let (want_db, want_labels) = host_replay(seq, vcfg, sel);
     assert_eq!(db_csv, want_db, "database.csv differs on {}", seq.name);
@@ -262,17 +267,7 @@ fn bad_input_gets_typed_errors_and_changes_nothing() {
         ..StreamOptions::default()
     };
     device_cli::stream(&mut client, &demo, &cfg, PROFILE, &opts, None).unwrap();
-    let export = |client: &mut Client<Qemu>| {
-        device_cli::export(
-            client,
-            Vec::new(),
-            &ExportOptions::default(),
-            None,
-            &mut |_| Ok(()),
-        )
-        .unwrap()
-    };
-    let before = export(&mut client);
+    let before = export_all(&mut client);
     assert!(before.status.database_size >= 1);
 
     let refused = |client: &mut Client<Qemu>, msg: HostMessage<'_>| -> ErrorKind {
@@ -341,7 +336,7 @@ fn bad_input_gets_typed_errors_and_changes_nothing() {
         ErrorKind::ExportPastEnd
     );
 
-    let after = export(&mut client);
+    let after = export_all(&mut client);
     assert_eq!(after.records, before.records);
     assert_eq!(after.csv(), before.csv());
     assert_eq!(after.status.refused, before.status.refused + 7);
@@ -434,14 +429,7 @@ fn a_board_killed_mid_scan_restores_from_flash_and_resumes() {
     assert_eq!(st.frames_seen, report.status.frames_decided);
     assert_eq!(st.frames_decided, report.status.frames_decided);
     assert_ne!(st.degradation & placedb::protocol::degradation::RESTORED, 0);
-    let restored = device_cli::export(
-        &mut client,
-        Vec::new(),
-        &ExportOptions::default(),
-        None,
-        &mut |_| Ok(()),
-    )
-    .unwrap();
+    let restored = export_all(&mut client);
     let (_, labels_before) = restored.csv();
     for &(frame, kind) in &acknowledged {
         let class = kind.class(frame);
@@ -458,14 +446,7 @@ fn a_board_killed_mid_scan_restores_from_flash_and_resumes() {
     let report2 = device_cli::stream(&mut client, &demo, &cfg, PROFILE, &resume, None).unwrap();
     assert_eq!(report2.frames, 24 - st.frames_seen as usize);
     assert_eq!(report2.status.phase, Phase::Finished);
-    let export = device_cli::export(
-        &mut client,
-        Vec::new(),
-        &ExportOptions::default(),
-        None,
-        &mut |_| Ok(()),
-    )
-    .unwrap();
+    let export = export_all(&mut client);
     let (db_csv, labels_csv) = export.csv();
     let (want_db, want_labels) = host_replay(&demo, &vcfg, sel);
     assert_eq!(db_csv, want_db);

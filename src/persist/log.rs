@@ -37,16 +37,6 @@
 //! through the range, error correction (a bit that flips by itself in an old
 //! record ends the log there), or more than `n - 1` sectors per generation.
 
-#![cfg_attr(
-    not(test),
-    deny(
-        clippy::indexing_slicing,
-        clippy::unwrap_used,
-        clippy::expect_used,
-        clippy::panic
-    )
-)]
-
 use embedded_storage::nor_flash::{NorFlash, NorFlashError, NorFlashErrorKind};
 
 /// Bytes of a record header.

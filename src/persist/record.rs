@@ -2,16 +2,6 @@
 //! with postcard. A database frame's sketch follows its record as raw
 //! little-endian `u32`s, so that the record type needs no sketch capacity.
 
-#![cfg_attr(
-    not(test),
-    deny(
-        clippy::indexing_slicing,
-        clippy::unwrap_used,
-        clippy::expect_used,
-        clippy::panic
-    )
-)]
-
 use crate::frame::FrameMeta;
 use crate::protocol::{Config, DecisionKind};
 use crate::store::Aabb;

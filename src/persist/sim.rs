@@ -8,6 +8,9 @@
 //! one before the power goes, torn as [`Tear`] says, and every operation after
 //! it fails until [`SimFlash::power_on`].
 
+// Host-only test code: plain indexing of its own vector is fine here.
+#![allow(clippy::indexing_slicing)]
+
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::vec;
