@@ -12,11 +12,14 @@ use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 /// Why a camera or pose description was refused.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum CameraError {
-    /// A focal length is zero, negative or not finite, or the principal point is not finite.
+    /// A focal length is not within [`Intrinsics::FOCAL_RANGE`] or not finite,
+    /// or the principal point is not finite or lies more than an image
+    /// side outside the image.
     BadIntrinsics,
     /// Width or height is zero or larger than [`Intrinsics::MAX_SIDE`].
     BadImageSize,
-    /// The depth scale (units per metre) is zero, negative or not finite.
+    /// The depth scale (units per metre) is not within
+    /// [`FrameProjector::DEPTH_SCALE_RANGE`].
     BadDepthScale,
     /// The depth range is empty, negative or NaN.
     BadDepthRange,
@@ -54,6 +57,10 @@ impl Intrinsics {
     /// Largest accepted image side; far above any depth sensor, small enough that
     /// pixel coordinates are exact in `f32`.
     pub const MAX_SIDE: u16 = 8192;
+    /// Plausible focal lengths, pixels: below 1 the field of view is all but
+    /// 180 degrees, above 1e6 it is under a thousandth of a degree on the
+    /// widest image: such values are a unit or parsing mistake.
+    pub const FOCAL_RANGE: core::ops::RangeInclusive<f32> = 1.0..=1.0e6;
 
     /// Checks that the model can back-project: finite positive focal lengths, a
     /// finite principal point and a non-empty image.
@@ -62,15 +69,20 @@ impl Intrinsics {
             && self.fy.is_finite()
             && self.cx.is_finite()
             && self.cy.is_finite();
-        if !finite || self.fx <= 0.0 || self.fy <= 0.0 {
-            return Err(CameraError::BadIntrinsics);
-        }
         if self.width == 0
             || self.height == 0
             || self.width > Self::MAX_SIDE
             || self.height > Self::MAX_SIDE
         {
             return Err(CameraError::BadImageSize);
+        }
+        let (w, h) = (f32::from(self.width), f32::from(self.height));
+        let plausible = Self::FOCAL_RANGE.contains(&self.fx)
+            && Self::FOCAL_RANGE.contains(&self.fy)
+            && (-w..=2.0 * w).contains(&self.cx)
+            && (-h..=2.0 * h).contains(&self.cy);
+        if !finite || !plausible {
+            return Err(CameraError::BadIntrinsics);
         }
         Ok(())
     }
@@ -238,6 +250,10 @@ const MAX_SHIFT: u32 = 40;
 const MIN_SHIFT: u32 = 20;
 
 impl FrameProjector {
+    /// Plausible depth scales, units per metre: from metres (1) to
+    /// micrometres (1e6); sensors use 1000 (mm) or 5000 (TUM).
+    pub const DEPTH_SCALE_RANGE: core::ops::RangeInclusive<f32> = 1.0..=1.0e6;
+
     /// Prepares the projection of one frame; validates every input.
     pub fn new(
         intrinsics: &Intrinsics,
@@ -251,7 +267,7 @@ impl FrameProjector {
         range.validate()?;
         grid.validate()?;
         pose.validate()?;
-        if !depth_scale.is_finite() || depth_scale <= 0.0 {
+        if !Self::DEPTH_SCALE_RANGE.contains(&depth_scale) {
             return Err(CameraError::BadDepthScale);
         }
         if stride == 0 || stride > Intrinsics::MAX_SIDE {
@@ -491,6 +507,11 @@ mod tests {
         bad = k();
         bad.cy = f32::NAN;
         assert_eq!(bad.validate(), Err(CameraError::BadIntrinsics));
+        for (fx, cx) in [(0.5, 320.0), (2e6, 320.0), (585.0, 2000.0), (585.0, -700.0)] {
+            bad = k();
+            (bad.fx, bad.cx) = (fx, cx);
+            assert_eq!(bad.validate(), Err(CameraError::BadIntrinsics), "{fx} {cx}");
+        }
         bad = k();
         bad.width = 0;
         assert_eq!(bad.validate(), Err(CameraError::BadImageSize));
@@ -523,6 +544,11 @@ mod tests {
         k.cx = -5.9e29;
         k.fx = 5e-13;
         let r = FrameProjector::new(&k, 1000.0, DepthRange::default(), 1, &grid, &Pose::IDENTITY);
+        assert_eq!(r, Err(CameraError::BadIntrinsics));
+        // Plausible intrinsics, a camera 1e12 m away: the fixed-point range
+        // is what refuses it.
+        let far = Pose::from_quaternion([1e12, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]).unwrap();
+        let r = FrameProjector::new(&self::k(), 1000.0, DepthRange::default(), 1, &grid, &far);
         assert_eq!(r, Err(CameraError::ScaleOutOfRange));
     }
 

@@ -72,7 +72,7 @@ use crate::protocol::{
 use crate::select::{DbSnapshot, RestoreError};
 use crate::select::{FrameDecision, SelectError, Selector};
 use crate::sketch::Sketch;
-use crate::{CameraError, FrameError};
+use crate::FrameError;
 
 pub use crate::profile::{Device1M, Device256K, Device512K};
 
@@ -342,10 +342,10 @@ fn select_error(e: SelectError) -> ErrorKind {
         SelectError::FrameInProgress => ErrorKind::OutOfOrder,
         SelectError::BadConfig => ErrorKind::BadConfig,
         SelectError::Frame(f) => match f {
-            FrameError::Camera(CameraError::NonFinitePose | CameraError::NotARotation) => {
-                ErrorKind::BadPose
-            }
-            FrameError::Camera(_) => ErrorKind::BadConfig,
+            // The configuration was checked at Hello: at FrameBegin only the
+            // pose can be at fault (non-finite, not a rotation, or so far
+            // away that coordinates leave the fixed-point range).
+            FrameError::Camera(_) => ErrorKind::BadPose,
             FrameError::FrameInProgress
             | FrameError::WrongIndex { .. }
             | FrameError::RowOutOfOrder { .. } => ErrorKind::OutOfOrder,

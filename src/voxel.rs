@@ -123,10 +123,9 @@ impl VoxelGrid {
         Ok(grid)
     }
 
-    /// Checks a finite positive voxel size (at least 1 mm) and a finite origin.
+    /// Checks a voxel size from 1 mm to 100 m and a finite origin.
     pub fn validate(&self) -> Result<(), CameraError> {
-        if !(self.voxel_size >= 1e-3 && self.voxel_size.is_finite())
-            || self.origin.iter().any(|c| !c.is_finite())
+        if !(1e-3..=100.0).contains(&self.voxel_size) || self.origin.iter().any(|c| !c.is_finite())
         {
             return Err(CameraError::BadVoxelSize);
         }

@@ -166,8 +166,7 @@ impl Config {
             && self.stride >= 1
             && self.stride <= Intrinsics::MAX_SIDE
             && self.window >= 1
-            && self.sketch_margin.is_finite()
-            && self.sketch_margin >= 0.0
+            && (0.0..=1.0).contains(&self.sketch_margin)
             && self.intrinsics.validate().is_ok()
             && self.depth_range.validate().is_ok()
             && self.scan_config().validate().is_ok();
@@ -587,7 +586,9 @@ pub enum ErrorKind {
     NotConfigured,
     /// Hello with unusable values.
     BadConfig,
-    /// FrameBegin with a non-finite or non-unit pose, or a non-finite timestamp.
+    /// FrameBegin with a non-finite or non-unit pose, a non-finite timestamp,
+    /// or a camera so far from the grid origin that its coordinates leave the
+    /// fixed-point range.
     BadPose,
     /// DepthRows beyond the strided image height.
     RowOutOfRange,

@@ -419,7 +419,7 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
             return Err(SelectError::FrameInProgress);
         }
         scan.validate().map_err(|_| SelectError::BadConfig)?;
-        let margin_ok = cfg.sketch_margin.is_finite() && cfg.sketch_margin >= 0.0;
+        let margin_ok = (0.0..=1.0).contains(&cfg.sketch_margin);
         if !((0.0..1.0).contains(&cfg.mu) && margin_ok) || cfg.window == 0 {
             return Err(SelectError::BadConfig);
         }
