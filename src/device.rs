@@ -735,21 +735,17 @@ impl<
                 Err(ErrorKind::NeedsReset)
             };
         }
-        let previous = self.hello;
-        self.configure(cfg)?;
-        // A new scan: a new log generation, replacing the old one once durable.
-        let stored = Record::Begin(cfg)
+        // A new scan: a new log generation, replacing the old one once
+        // durable; a refusal leaves the old one and the state as they were.
+        let payload = Record::Begin(cfg)
             .encode(&[], &mut self.record)
-            .map_err(|_| ErrorKind::Internal)
-            .and_then(|payload| journal.start(payload).map_err(storage_error));
-        if let Err(e) = stored {
-            match previous {
-                Some(p) => self.configure(p)?,
-                None => self.selector.reset(),
-            }
-            self.hello = previous;
-            return Err(e);
-        }
+            .map_err(|_| ErrorKind::Internal)?;
+        journal.start(payload).map_err(storage_error)?;
+        // No frame was seen, but a restore may have brought back a database
+        // frame taken before its first decision was stored: not this scan's.
+        self.selector.reset();
+        self.restored = false;
+        self.configure(cfg)?;
         self.stored = u32::from(journal.keeps());
         self.durable_db = 0;
         self.storage_failed = false;

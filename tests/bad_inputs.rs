@@ -37,6 +37,7 @@
 //! list of every case.
 
 use placedb::device::Device256K;
+use placedb::persist::sim::SimFlash;
 use placedb::persist::Log;
 use placedb::protocol::{
     depth_rows_per_message, encode, pack_rows, CapacitySlot, Config, DepthRows, DeviceMessage,
@@ -45,7 +46,6 @@ use placedb::protocol::{
 };
 use placedb::{Intrinsics, Pose, SelectorConfig};
 use placedb_host::fault::damaged_frame;
-use placedb_host::sim_flash::SimFlash;
 use placedb_host::synth::{self, SynthConfig};
 use placedb_host::{device_cli, DepthImage, VoxelConfig};
 use std::time::Instant;

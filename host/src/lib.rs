@@ -19,7 +19,5 @@ pub mod synth;
 pub mod voxelize;
 
 pub use error::ReadError;
-/// The simulated NOR flash of the core (feature `sim-flash`).
-pub use placedb::persist::sim as sim_flash;
 pub use sequence::{CameraModel, DepthImage, DepthSource, Format, FrameInfo, Sequence};
 pub use voxelize::{voxelize, voxelize_on, GridOrigin, VoxelConfig, VoxelSets};

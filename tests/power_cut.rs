@@ -1,0 +1,1462 @@
+//! Power cuts on the host: a device writing its scan to a simulated NOR
+//! flash (`placedb::persist::sim::SimFlash`) loses power at every single
+//! erase and write step of a full run, reboots, restores from the log, and
+//! finishes the scan.
+//!
+//! What is proven, for every cut point of a full run ([`FRAMES`] = 120
+//! synthetic frames at stride 8 on the `ram512k` profile, a flash of 64
+//! sectors of 4 KiB): step `k` of the run (each of its `N` erases and
+//! writes) is the last one before the power goes, torn before it, half way
+//! through it, or after it ([`Tear`]): `3 N` cut points, plus a second cut
+//! at a later step of the resumed run for every 3rd step. After each cut the
+//! host keeps only what it saw (a device without power sends nothing); a new
+//! device opens the log on the same flash and restores, and:
+//!
+//! - every final decision the host received is in the restored export, with
+//!   the same class; every frame it received as `Taken` is a database record
+//!   with the pose and timestamp the host sent; an acknowledged Hello is in
+//!   force and an acknowledged Finish is still finished;
+//! - nothing corrupt comes back: the restore succeeds, the export decodes
+//!   and its count and CRC check, labels are frames `0..frames_decided` in
+//!   order with their own timestamps, every class is a database frame,
+//!   database frames are distinct and carry their own pose and timestamp;
+//!   the restored state is a prefix of what the device held in RAM when the
+//!   power went (labels a prefix, database a subset) and, for a first cut, of
+//!   the uninterrupted run;
+//! - the log loses no completed write: the records restored grow by at most
+//!   one per step, a torn step adds none, and a cut after the last step
+//!   restores every record;
+//! - the scan continues: the host sends the same Hello again (a no-op on a
+//!   restored scan), the frames from `status.frames_seen`, and Finish; then
+//!   every frame has a label, every class is a database frame, and a further
+//!   reboot restores exactly what the device exports (the flash still works).
+//!
+//! The uninterrupted run with a log sends exactly the decisions and exports
+//! exactly the records of a device without journal (`receive`). After a cut,
+//! the final database may differ slightly from the uninterrupted one
+//! (restored database frames are compared by sketch); the summary line
+//! reports by how much.
+//!
+//! Counts (printed with `--nocapture`): the full run writes 161 records in
+//! 3 sectors in 164 flash steps, so 492 cut points plus 165 second cuts:
+//! 657 cuts and as many restores. The whole file runs in about 4 s in
+//! release on 2 cores.
+//!
+//! Also here, on a small device and small flashes: generations rotating
+//! around the end of a 4-sector range ([`generations_rotate_around_the_range`]),
+//! a torn start of a new generation ([`a_torn_start_is_never_a_mix`]), a
+//! full log ([`a_full_log_refuses_frame_end_and_changes_nothing`]), a flash
+//! that stops working ([`a_failing_flash_degrades_and_restores_a_prefix`]),
+//! and a new scan started after a restore that had brought back a database
+//! frame of the old one before its first decision
+//! ([`a_new_scan_after_a_restore_holds_nothing_of_the_old_one`]; this test
+//! found that bug).
+//! No sleeps, no clocks.
+
+use placedb::device::{Device, Device512K, RestoreFailure};
+use placedb::persist::sim::{SimFlash, Tear};
+use placedb::persist::{Journal, Log, NoJournal};
+use placedb::protocol::{
+    degradation, depth_rows_per_message, encode, export_crc, Config, DecisionKind, DepthRows,
+    DeviceMessage, ErrorKind, ExportRecord, Feed, FrameDecoder, HostFrame, HostMessage, Phase,
+    RecordKind, Status, MAX_FRAME_LEN, MAX_REPLY_LEN,
+};
+use placedb::{Pose, SelectorConfig};
+use placedb_host::synth::{self, SynthConfig};
+use placedb_host::{device_cli, online, VoxelConfig};
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+/// Frames of the full run.
+const FRAMES: usize = 120;
+/// Sectors of the flash of the full run.
+const SECTORS: usize = 64;
+/// Every how many cut points the resumed run is cut again.
+const DOUBLE_EVERY: u64 = 3;
+const TEARS: [Tear; 3] = [Tear::Before, Tear::Half, Tear::After];
+
+/// The device of the full run: a board profile.
+type Big = Device512K;
+/// A small device for the focused tests: window 8, sketches of 16 hashes
+/// (log records of at most 180 bytes), 64 database frames, 512 labels.
+type Small = Device<4096, 16384, 64, 8, 16, 512>;
+
+// ---------------------------------------------------------------- the scan
+
+/// One frame as the host sends it.
+struct Frame {
+    timestamp: f64,
+    pose: Pose,
+    /// DepthRows payloads: first strided row, row count, bytes.
+    rows: Vec<(u16, u16, Vec<u8>)>,
+}
+
+/// A scan: its Hello and its frames, cut into messages once.
+struct Scan {
+    cfg: Config,
+    frames: Vec<Frame>,
+}
+
+impl Scan {
+    /// Frames `skip..skip + frames` of the demo route (sampled 4 times more
+    /// sparsely than the demo, so that more frames join the database) at
+    /// stride 8, as frames 0, 1, 2, … of a scan with selection window
+    /// `window`.
+    fn synthetic(skip: usize, frames: usize, window: u16) -> Scan {
+        let synth = SynthConfig {
+            frames: 150,
+            ..SynthConfig::demo()
+        };
+        let seq = synth::sequence(&synth);
+        assert!(skip + frames <= seq.frames.len());
+        let vcfg = VoxelConfig {
+            stride: 8,
+            ..VoxelConfig::default()
+        };
+        let scan = device_cli::scan_config(&seq, &vcfg).unwrap();
+        let sel = SelectorConfig {
+            mu: 0.3,
+            window,
+            sketch_margin: 0.05,
+        };
+        let cfg = device_cli::device_config(&scan, &sel).unwrap();
+        let per_msg = usize::from(depth_rows_per_message(cfg.width_sent()));
+        let frames = (skip..skip + frames)
+            .map(|i| {
+                let img = seq.depth(i).unwrap();
+                let (w, values) = online::sampled_rows(&img, cfg.stride);
+                assert_eq!(w, usize::from(cfg.width_sent()));
+                let rows = values
+                    .chunks(w * per_msg)
+                    .enumerate()
+                    .map(|(k, chunk)| {
+                        let data = chunk.iter().flat_map(|d| d.to_le_bytes()).collect();
+                        ((k * per_msg) as u16, (chunk.len() / w) as u16, data)
+                    })
+                    .collect();
+                Frame {
+                    timestamp: seq.frames[i].timestamp,
+                    pose: seq.frames[i].pose().unwrap(),
+                    rows,
+                }
+            })
+            .collect();
+        Scan { cfg, frames }
+    }
+
+    fn len(&self) -> u32 {
+        self.frames.len() as u32
+    }
+}
+
+// ------------------------------------------------------ the device and rig
+
+/// What the tests need of a device of any capacities.
+trait Dut: Send + 'static {
+    fn boxed() -> Box<Self>;
+    fn feed(&mut self, bytes: &[u8], journal: &mut dyn Journal, send: &mut dyn FnMut(&[u8]));
+    fn restore_from(&mut self, log: &mut Log<SimFlash>) -> Result<u32, RestoreFailure>;
+}
+
+impl<
+        const FV: usize,
+        const POOL: usize,
+        const DB: usize,
+        const W: usize,
+        const K: usize,
+        const L: usize,
+    > Dut for Device<FV, POOL, DB, W, K, L>
+{
+    fn boxed() -> Box<Self> {
+        Box::new(Self::new())
+    }
+
+    fn feed(&mut self, bytes: &[u8], journal: &mut dyn Journal, send: &mut dyn FnMut(&[u8])) {
+        self.receive_logged(bytes, journal, send);
+    }
+
+    fn restore_from(&mut self, log: &mut Log<SimFlash>) -> Result<u32, RestoreFailure> {
+        self.restore(log)
+    }
+}
+
+/// A reply as the host decoded it.
+#[derive(Debug, Clone, PartialEq)]
+enum Reply {
+    Ack(u32),
+    Error(Option<u32>, ErrorKind),
+    Decision(u32, DecisionKind),
+    Status(Box<Status>),
+    Record(ExportRecord),
+    End { seq: u32, count: u32, crc32: u32 },
+}
+
+impl Reply {
+    /// Decodes one reply frame; anything but exactly one valid frame fails.
+    fn decode(frame: &[u8]) -> Reply {
+        assert!(frame.len() <= MAX_REPLY_LEN);
+        let mut decoder = FrameDecoder::<MAX_REPLY_LEN>::new();
+        match decoder.feed::<DeviceMessage>(frame) {
+            Feed::Frame {
+                result: Ok(msg),
+                remaining: [],
+            } => match msg {
+                DeviceMessage::Ack { seq } => Reply::Ack(seq),
+                DeviceMessage::Error { seq, kind } => Reply::Error(seq, kind),
+                DeviceMessage::Decision { frame, kind } => Reply::Decision(frame, kind),
+                DeviceMessage::Status(s) => Reply::Status(Box::new(s)),
+                DeviceMessage::ExportRecord(r) => Reply::Record(r),
+                DeviceMessage::ExportEnd {
+                    seq, count, crc32, ..
+                } => Reply::End { seq, count, crc32 },
+                DeviceMessage::Log(text) => panic!("the device does not log: {text}"),
+            },
+            other => panic!("bad reply frame {frame:?}: {other:?}"),
+        }
+    }
+}
+
+/// Whose replies the host hears.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Listen {
+    /// Only while the power is on: a device without power sends nothing.
+    WhilePowered,
+    /// Always: the flash failed but the device itself still runs.
+    Always,
+}
+
+/// A device, its log on a simulated flash (or no journal), and the host's
+/// side of the link.
+struct Rig<D: Dut> {
+    device: Box<D>,
+    log: Option<Log<SimFlash>>,
+    power: Arc<AtomicBool>,
+    listen: Listen,
+    seq: u32,
+}
+
+/// The replies to one message.
+struct Sent {
+    replies: Vec<Reply>,
+    /// The device kept power until the message was handled.
+    powered: bool,
+}
+
+impl<D: Dut> Rig<D> {
+    /// A device without flash (`receive`, no journal).
+    fn without_flash() -> Self {
+        Rig {
+            device: D::boxed(),
+            log: None,
+            power: Arc::new(AtomicBool::new(false)),
+            listen: Listen::WhilePowered,
+            seq: 0,
+        }
+    }
+
+    /// Power on: a new device (all state as after power-on), the log opened
+    /// on `flash`, and the scan restored from it.
+    fn boot(mut flash: SimFlash) -> (Self, Result<u32, RestoreFailure>) {
+        flash.power_on();
+        let power = flash.power();
+        let end = flash.bytes().len() as u32;
+        let mut log = Log::open(flash, 0, end).expect("the log opens on any flash contents");
+        let mut device = D::boxed();
+        let restored = device.restore_from(&mut log);
+        let rig = Rig {
+            device,
+            log: Some(log),
+            power,
+            listen: Listen::WhilePowered,
+            seq: 0,
+        };
+        (rig, restored)
+    }
+
+    /// Power off for good: the flash as the power left it.
+    fn into_flash(self) -> SimFlash {
+        self.log.expect("a device with flash").into_flash()
+    }
+
+    fn flash(&mut self) -> &mut SimFlash {
+        self.log.as_mut().expect("a device with flash").flash()
+    }
+
+    /// Flash steps so far (`None` without flash).
+    fn steps(&mut self) -> Option<u64> {
+        self.log.as_mut().map(|log| log.flash().steps())
+    }
+
+    fn is_off(&self) -> bool {
+        self.power.load(Ordering::Relaxed)
+    }
+
+    /// Sends `msg` with the next sequence number; the replies the host
+    /// hears. A host does not talk to a device without power.
+    fn send(&mut self, msg: HostMessage<'_>) -> Sent {
+        assert!(
+            self.listen == Listen::Always || !self.is_off(),
+            "the host talks to a device without power"
+        );
+        self.seq = self.seq.wrapping_add(1);
+        let mut buf = vec![0u8; MAX_FRAME_LEN];
+        let frame = encode(&HostFrame { seq: self.seq, msg }, &mut buf).unwrap();
+        let mut raw: Vec<Vec<u8>> = Vec::new();
+        let (power, listen) = (Arc::clone(&self.power), self.listen);
+        let mut hear = |f: &[u8]| {
+            if listen == Listen::Always || !power.load(Ordering::Relaxed) {
+                raw.push(f.to_vec());
+            }
+        };
+        match self.log.as_mut() {
+            Some(log) => self.device.feed(frame, log, &mut hear),
+            None => self.device.feed(frame, &mut NoJournal, &mut hear),
+        }
+        let replies: Vec<Reply> = raw.iter().map(|f| Reply::decode(f)).collect();
+        // With `Listen::Always` only the flash lost power, not the device.
+        let powered = self.listen == Listen::Always || !self.is_off();
+        if powered {
+            assert_eq!(
+                replies.last().and_then(terminal_seq),
+                Some(self.seq),
+                "{msg:?} -> {replies:?}"
+            );
+            assert_eq!(
+                replies.iter().filter_map(terminal_seq).count(),
+                1,
+                "{msg:?} -> {replies:?}"
+            );
+        }
+        Sent { replies, powered }
+    }
+
+    /// Sends `msg`, which must be acknowledged; its replies.
+    fn ok(&mut self, msg: HostMessage<'_>) -> Vec<Reply> {
+        let sent = self.send(msg);
+        assert!(sent.powered);
+        assert_eq!(sent.replies.last(), Some(&Reply::Ack(self.seq)), "{msg:?}");
+        sent.replies
+    }
+
+    /// Sends `msg`, which must be refused; why.
+    fn refused(&mut self, msg: HostMessage<'_>) -> ErrorKind {
+        let sent = self.send(msg);
+        match sent.replies.as_slice() {
+            [Reply::Error(Some(s), kind)] if *s == self.seq => *kind,
+            other => panic!("{msg:?} not refused: {other:?}"),
+        }
+    }
+
+    /// The device's status (changes nothing; also from a device whose power
+    /// is off, to look at its RAM).
+    fn status(&mut self) -> Status {
+        let listen = std::mem::replace(&mut self.listen, Listen::Always);
+        let sent = self.send(HostMessage::StatusRequest);
+        self.listen = listen;
+        match sent.replies.as_slice() {
+            [Reply::Status(s)] => **s,
+            other => panic!("no status: {other:?}"),
+        }
+    }
+
+    /// The whole export, checked by count and CRC (changes nothing; also
+    /// from a device whose power is off, to look at its RAM).
+    fn export(&mut self) -> Vec<ExportRecord> {
+        let listen = std::mem::replace(&mut self.listen, Listen::Always);
+        let sent = self.send(HostMessage::ExportRequest {
+            from_record: 0,
+            max_records: u32::MAX,
+        });
+        self.listen = listen;
+        let (last, records) = sent.replies.split_last().expect("an ExportEnd");
+        let records: Vec<ExportRecord> = records
+            .iter()
+            .map(|r| match r {
+                Reply::Record(r) => *r,
+                other => panic!("unexpected {other:?} in an export"),
+            })
+            .collect();
+        match last {
+            Reply::End { seq, count, crc32 } => {
+                assert_eq!(*seq, self.seq);
+                assert_eq!(*count as usize, records.len(), "export count");
+                assert_eq!(*crc32, export_crc(&records), "export CRC");
+            }
+            other => panic!("no ExportEnd: {other:?}"),
+        }
+        for (k, r) in records.iter().enumerate() {
+            assert_eq!(r.record, k as u32, "export record numbers");
+        }
+        records
+    }
+}
+
+fn terminal_seq(reply: &Reply) -> Option<u32> {
+    match reply {
+        Reply::Ack(seq) | Reply::End { seq, .. } => Some(*seq),
+        Reply::Status(s) => Some(s.seq),
+        Reply::Error(seq, _) => Some(seq.unwrap_or(u32::MAX)),
+        Reply::Decision(..) | Reply::Record(_) => None,
+    }
+}
+
+// ------------------------------------------------------------ the host side
+
+/// What the host saw acknowledged, over every boot of one scan.
+#[derive(Debug, Default)]
+struct Seen {
+    /// Final decisions received, by frame.
+    finals: BTreeMap<u32, DecisionKind>,
+    /// Every decision received, in order (Pending included).
+    decisions: Vec<(u32, DecisionKind)>,
+    hello: bool,
+    /// Finish was sent (acknowledged or not).
+    finish_sent: bool,
+    finish: bool,
+}
+
+impl Seen {
+    fn note(&mut self, replies: &[Reply], ctx: &str) {
+        for r in replies {
+            if let Reply::Decision(frame, kind) = *r {
+                self.decisions.push((frame, kind));
+                if kind != DecisionKind::Pending {
+                    let before = self.finals.insert(frame, kind);
+                    assert!(
+                        before.is_none(),
+                        "{ctx}: frame {frame} decided twice: {before:?}, then {kind:?}"
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// Sends one message of a scan; `false` when the power went while the device
+/// handled it (the host stops there).
+fn step<D: Dut>(rig: &mut Rig<D>, msg: HostMessage<'_>, seen: &mut Seen, ctx: &str) -> bool {
+    let sent = rig.send(msg);
+    seen.note(&sent.replies, ctx);
+    if !sent.powered {
+        return false;
+    }
+    assert_eq!(
+        sent.replies.last(),
+        Some(&Reply::Ack(rig.seq)),
+        "{ctx}: {msg:?} not acknowledged"
+    );
+    true
+}
+
+/// Streams frame `i` of `scan`; `false` when the power went.
+fn send_frame<D: Dut>(rig: &mut Rig<D>, scan: &Scan, i: u32, seen: &mut Seen, ctx: &str) -> bool {
+    let f = &scan.frames[i as usize];
+    let begin = HostMessage::FrameBegin {
+        frame: i,
+        timestamp: f.timestamp,
+        pose: f.pose,
+    };
+    if !step(rig, begin, seen, ctx) {
+        return false;
+    }
+    for (first_row, row_count, data) in &f.rows {
+        let rows = HostMessage::DepthRows(DepthRows {
+            frame: i,
+            first_row: *first_row,
+            row_count: *row_count,
+            data,
+        });
+        if !step(rig, rows, seen, ctx) {
+            return false;
+        }
+    }
+    step(rig, HostMessage::FrameEnd { frame: i }, seen, ctx)
+}
+
+/// The host's run, as after any boot: Hello (the same again on a restored
+/// scan), the frames from `status.frames_seen`, Finish. `true` when it got
+/// to the end, `false` when the power went.
+fn drive<D: Dut>(rig: &mut Rig<D>, scan: &Scan, seen: &mut Seen, ctx: &str) -> bool {
+    let st = rig.status();
+    let from = st.frames_seen;
+    let steps = rig.steps();
+    if !step(rig, HostMessage::Hello(scan.cfg), seen, ctx) {
+        return false;
+    }
+    seen.hello = true;
+    if from > 0 || st.phase == Phase::Finished {
+        assert_eq!(rig.steps(), steps, "{ctx}: Hello again is not a no-op");
+        assert_eq!(rig.status().frames_seen, from, "{ctx}: Hello again");
+    }
+    for i in from..scan.len() {
+        if !send_frame(rig, scan, i, seen, ctx) {
+            return false;
+        }
+    }
+    seen.finish_sent = true;
+    if !step(rig, HostMessage::Finish, seen, ctx) {
+        return false;
+    }
+    seen.finish = true;
+    true
+}
+
+// ----------------------------------------------------------------- checks
+
+/// An export split into its database (by frame) and its labels (classes).
+#[derive(Debug, Clone, PartialEq)]
+struct Parsed {
+    db: BTreeMap<u32, ExportRecord>,
+    classes: Vec<u32>,
+}
+
+/// Checks that an export is well formed for `scan` (nothing corrupt): the
+/// database first, frames distinct and increasing with their own pose and
+/// timestamp; then labels of frames 0, 1, 2, … with their own timestamps,
+/// every class a database frame.
+fn parse(export: &[ExportRecord], scan: &Scan, ctx: &str) -> Parsed {
+    let mut db = BTreeMap::new();
+    let mut classes = Vec::new();
+    for r in export {
+        match r.kind {
+            RecordKind::Database { pose } => {
+                assert!(classes.is_empty(), "{ctx}: database record after labels");
+                assert!(
+                    db.keys().next_back().is_none_or(|&last| r.frame > last),
+                    "{ctx}: database frames not distinct and increasing: {r:?}"
+                );
+                let f = scan
+                    .frames
+                    .get(r.frame as usize)
+                    .unwrap_or_else(|| panic!("{ctx}: database frame {} not sent", r.frame));
+                assert_eq!(pose, f.pose, "{ctx}: pose of database frame {}", r.frame);
+                assert_eq!(r.timestamp, f.timestamp, "{ctx}: timestamp of {}", r.frame);
+                db.insert(r.frame, *r);
+            }
+            RecordKind::Label { class } => {
+                let j = classes.len() as u32;
+                assert_eq!(r.frame, j, "{ctx}: labels out of order");
+                let f = scan
+                    .frames
+                    .get(j as usize)
+                    .unwrap_or_else(|| panic!("{ctx}: label of frame {j} not sent"));
+                assert_eq!(r.timestamp, f.timestamp, "{ctx}: timestamp of label {j}");
+                assert!(
+                    db.contains_key(&class),
+                    "{ctx}: label {j} has class {class}, not a database frame"
+                );
+                classes.push(class);
+            }
+        }
+    }
+    Parsed { db, classes }
+}
+
+/// `part` is what `whole` held at some point: labels a prefix, database a
+/// subset (records identical).
+fn assert_prefix(part: &Parsed, whole: &Parsed, what: &str, ctx: &str) {
+    assert!(
+        part.classes.len() <= whole.classes.len()
+            && part.classes[..] == whole.classes[..part.classes.len()],
+        "{ctx}: restored labels are not a prefix of {what}:\n{:?}\n{:?}",
+        part.classes,
+        whole.classes
+    );
+    for (f, r) in &part.db {
+        let mut r = *r;
+        let w = whole.db.get(f).map(|w| {
+            r.record = w.record;
+            *w
+        });
+        assert_eq!(
+            Some(r),
+            w,
+            "{ctx}: restored database frame {f} is not in {what}"
+        );
+    }
+}
+
+/// Every final decision the host received is in the export, same class;
+/// every frame received as Taken is a database frame.
+fn assert_acknowledged(got: &Parsed, seen: &Seen, ctx: &str) {
+    for (&f, &kind) in &seen.finals {
+        let class = kind.class(f).unwrap();
+        assert_eq!(
+            got.classes.get(f as usize),
+            Some(&class),
+            "{ctx}: acknowledged decision {kind:?} of frame {f} lost ({} labels)",
+            got.classes.len()
+        );
+        if kind == DecisionKind::Taken {
+            assert!(
+                got.db.contains_key(&f),
+                "{ctx}: frame {f} acknowledged as taken is not in the database"
+            );
+        }
+    }
+}
+
+/// After a reboot: the restore worked and holds everything the host saw
+/// acknowledged, nothing corrupt, and a prefix of what the device held in RAM
+/// when the power went (`ram`) and, for a first cut, of the uninterrupted
+/// run (`reference`). Returns the restored status.
+fn check_restored<D: Dut>(
+    rig: &mut Rig<D>,
+    restored: Result<u32, RestoreFailure>,
+    scan: &Scan,
+    seen: &Seen,
+    ram: &Parsed,
+    reference: Option<&Parsed>,
+    ctx: &str,
+) -> Status {
+    let records = restored.unwrap_or_else(|e| panic!("{ctx}: restore failed: {e:?}"));
+    let st = rig.status();
+    let export = rig.export();
+    let got = parse(&export, scan, ctx);
+    assert_eq!(st.stored_records, records, "{ctx}: stored records");
+    assert_eq!(
+        st.degradation & degradation::RESTORED != 0,
+        records > 0,
+        "{ctx}: RESTORED flag, {records} records"
+    );
+    assert_eq!(st.degradation & degradation::STORAGE_FAILED, 0, "{ctx}");
+    assert_eq!(
+        st.frames_seen, st.frames_decided,
+        "{ctx}: a window came back"
+    );
+    assert_eq!(got.classes.len() as u32, st.frames_decided, "{ctx}: labels");
+    assert_eq!(
+        got.db.len() as u32,
+        st.database_size,
+        "{ctx}: database size"
+    );
+    assert_ne!(st.phase, Phase::InFrame, "{ctx}: a frame came back open");
+    if seen.hello {
+        assert_ne!(
+            st.phase,
+            Phase::Unconfigured,
+            "{ctx}: acknowledged Hello lost"
+        );
+    }
+    if seen.finish {
+        assert_eq!(st.phase, Phase::Finished, "{ctx}: acknowledged Finish lost");
+    } else if !seen.finish_sent {
+        assert_ne!(
+            st.phase,
+            Phase::Finished,
+            "{ctx}: Finish before it was sent"
+        );
+    }
+    if st.phase == Phase::Unconfigured {
+        assert!(export.is_empty(), "{ctx}: records without a configuration");
+    }
+    assert_acknowledged(&got, seen, ctx);
+    assert_prefix(&got, ram, "the device's RAM at the cut", ctx);
+    if let Some(reference) = reference {
+        assert_prefix(&got, reference, "the uninterrupted run", ctx);
+    }
+    st
+}
+
+/// After the scan went to the end: every frame has a label, every class is
+/// a database frame, every acknowledged decision holds, and a further
+/// reboot restores exactly this export. Returns the rig after that reboot
+/// and the export.
+fn check_complete<D: Dut>(
+    mut rig: Rig<D>,
+    scan: &Scan,
+    seen: &Seen,
+    ctx: &str,
+) -> (Rig<D>, Parsed) {
+    let st = rig.status();
+    let export = rig.export();
+    let got = parse(&export, scan, ctx);
+    assert_eq!(st.phase, Phase::Finished, "{ctx}");
+    assert_eq!(
+        (st.frames_seen, st.frames_decided),
+        (scan.len(), scan.len()),
+        "{ctx}"
+    );
+    assert_eq!(
+        got.classes.len() as u32,
+        scan.len(),
+        "{ctx}: a frame has no label"
+    );
+    assert!(
+        got.db.len() <= scan.frames.len(),
+        "{ctx}: more database frames than frames"
+    );
+    assert_eq!(st.degradation & degradation::STORAGE_FAILED, 0, "{ctx}");
+    assert_acknowledged(&got, seen, ctx);
+    // The flash still works: all of it is durable.
+    let (mut again, restored) = Rig::<D>::boot(rig.into_flash());
+    assert_eq!(restored, Ok(st.stored_records), "{ctx}: final restore");
+    assert_eq!(again.export(), export, "{ctx}: final restore differs");
+    let st2 = again.status();
+    assert_eq!(
+        (st2.phase, st2.frames_seen, st2.database_size),
+        (st.phase, st.frames_seen, st.database_size),
+        "{ctx}: final restore"
+    );
+    (again, got)
+}
+
+// ---------------------------------------------------------------- helpers
+
+fn on_big_stack<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> T {
+    std::thread::Builder::new()
+        .stack_size(64 << 20)
+        .spawn(f)
+        .unwrap()
+        .join()
+        .unwrap()
+}
+
+fn tear_name(t: Tear) -> &'static str {
+    match t {
+        Tear::Before => "before",
+        Tear::Half => "half",
+        Tear::After => "after",
+    }
+}
+
+// ------------------------------------------------------------ the full run
+
+/// The uninterrupted run with a log.
+struct Reference {
+    /// Flash steps (erases and writes) of the whole run.
+    steps: u64,
+    export: Parsed,
+    database: usize,
+}
+
+/// What one cut point ended with.
+#[derive(Debug, Default, Clone)]
+struct Tally {
+    cuts: u64,
+    double_cuts: u64,
+    restores: u64,
+    /// Database size of each completed run after resuming.
+    databases: Vec<usize>,
+    /// Completed runs whose export equals the uninterrupted one.
+    identical: u64,
+    /// Records restored after a first cut: (step, tear, records).
+    restored: Vec<(u64, usize, u32)>,
+}
+
+impl Tally {
+    fn add(&mut self, other: Tally) {
+        self.cuts += other.cuts;
+        self.double_cuts += other.double_cuts;
+        self.restores += other.restores;
+        self.databases.extend(other.databases);
+        self.identical += other.identical;
+        self.restored.extend(other.restored);
+    }
+}
+
+/// A cut after a reboot, at this many steps into the resumed run.
+fn second_cut(k: u64, reference: &Reference) -> Option<(u64, Tear)> {
+    k.is_multiple_of(DOUBLE_EVERY).then(|| {
+        // Anywhere from the first step of the resumed run (a new sector, or
+        // the Begin of a new generation) to about the end of the scan.
+        let n = k / DOUBLE_EVERY;
+        let left = reference.steps.saturating_sub(k).max(1);
+        ((n * 11) % left, TEARS[n as usize % 3])
+    })
+}
+
+/// One cut point: the run is cut at step `k` (torn as `tear`), rebooted,
+/// checked, resumed (cut again if `second` says so, and checked), finished
+/// and checked.
+fn cut_point(
+    scan: &Scan,
+    reference: &Reference,
+    k: u64,
+    tear: Tear,
+    second: Option<(u64, Tear)>,
+) -> Tally {
+    let mut tally = Tally::default();
+    let mut ctx = format!("cut at step {k} ({})", tear_name(tear));
+    let (mut rig, restored) = Rig::<Big>::boot(SimFlash::new(SECTORS));
+    assert_eq!(restored, Ok(0), "{ctx}: a blank flash");
+    rig.flash().cut_at(k, tear);
+    let mut seen = Seen::default();
+    assert!(!drive(&mut rig, scan, &mut seen, &ctx), "{ctx}: no cut");
+    tally.cuts += 1;
+    let ram = parse(&rig.export(), scan, &ctx);
+    let (mut rig, restored) = Rig::<Big>::boot(rig.into_flash());
+    tally.restores += 1;
+    let t = TEARS.iter().position(|&t| t == tear).unwrap();
+    tally.restored.push((k, t, restored.unwrap_or(u32::MAX)));
+    let mut st = check_restored(
+        &mut rig,
+        restored,
+        scan,
+        &seen,
+        &ram,
+        Some(&reference.export),
+        &ctx,
+    );
+    if let Some((after, tear2)) = second {
+        let at = rig.flash().steps() + after;
+        rig.flash().cut_at(at, tear2);
+        if !drive(&mut rig, scan, &mut seen, &ctx) {
+            ctx = format!("{ctx}, then at step {at} ({})", tear_name(tear2));
+            tally.double_cuts += 1;
+            let ram = parse(&rig.export(), scan, &ctx);
+            let (again, restored) = Rig::<Big>::boot(rig.into_flash());
+            rig = again;
+            tally.restores += 1;
+            st = check_restored(&mut rig, restored, scan, &seen, &ram, None, &ctx);
+        } else {
+            rig.flash().power_on();
+        }
+    }
+    let steps = rig.flash().steps();
+    if !seen.finish {
+        assert!(drive(&mut rig, scan, &mut seen, &ctx), "{ctx}: cut again");
+    }
+    if st.phase != Phase::Finished {
+        assert!(
+            rig.flash().steps() > steps,
+            "{ctx}: the resumed run wrote nothing"
+        );
+    }
+    let (_, got) = check_complete(rig, scan, &seen, &ctx);
+    tally.identical += u64::from(got == reference.export);
+    tally.databases.push(got.db.len());
+    tally
+}
+
+/// The log itself, from the records restored after each first cut: a cut
+/// before step 0 leaves nothing, a cut after the last step everything; a
+/// step torn half way counts as not done; each step adds at most one record
+/// (a write) and never loses one (an erase touches no live sector), and a
+/// cut after step `k` restores what a cut before step `k + 1` does. So every
+/// completed write is durable, in order.
+fn durable_records_grow_one_write_at_a_time(
+    restored: &[(u64, usize, u32)],
+    steps: u64,
+    total: u32,
+) {
+    let mut at = vec![[u32::MAX; 3]; steps as usize];
+    for &(k, t, records) in restored {
+        at[k as usize][t] = records;
+    }
+    assert_eq!(at[0][0], 0, "a cut before the first step restores records");
+    assert_eq!(
+        at[steps as usize - 1][2],
+        total,
+        "a cut after the last step"
+    );
+    let mut writes = 0;
+    for (k, [before, half, after]) in at.iter().copied().enumerate() {
+        assert_eq!(half, before, "step {k}: a torn step counts");
+        assert!(
+            after == before || after == before + 1,
+            "step {k}: {before} records before it, {after} after it"
+        );
+        writes += after - before;
+        if let Some(next) = at.get(k + 1) {
+            assert_eq!(next[0], after, "steps {k} and {}", k + 1);
+        }
+    }
+    assert_eq!(writes, total);
+}
+
+#[test]
+fn a_power_cut_at_every_flash_step_loses_nothing_acknowledged() {
+    on_big_stack(|| {
+        let scan = Arc::new(Scan::synthetic(0, FRAMES, 8));
+        // Without a journal.
+        let mut plain = Rig::<Big>::without_flash();
+        let mut plain_seen = Seen::default();
+        assert!(drive(&mut plain, &scan, &mut plain_seen, "no journal"));
+        let plain_export = plain.export();
+        // With the log, uninterrupted: exactly the same replies and export.
+        let (mut rig, restored) = Rig::<Big>::boot(SimFlash::new(SECTORS));
+        assert_eq!(restored, Ok(0));
+        let mut seen = Seen::default();
+        assert!(drive(&mut rig, &scan, &mut seen, "uninterrupted"));
+        assert_eq!(seen.decisions, plain_seen.decisions, "decisions with a log");
+        let export = rig.export();
+        assert_eq!(export, plain_export, "export with a log");
+        let steps = rig.flash().steps();
+        let sectors = rig.log.as_ref().unwrap().sectors_used();
+        let st = rig.status();
+        assert!(sectors >= 3, "the run fits in {sectors} sectors");
+        let (_, parsed) = check_complete(rig, &scan, &seen, "uninterrupted");
+        let reference = Arc::new(Reference {
+            steps,
+            database: parsed.db.len(),
+            export: parsed,
+        });
+        assert!(reference.database > 1);
+        // Every step, every tear; spread over threads.
+        let threads = std::thread::available_parallelism().map_or(2, |n| n.get().min(4));
+        let handles: Vec<_> = (0..threads)
+            .map(|t| {
+                let (scan, reference) = (Arc::clone(&scan), Arc::clone(&reference));
+                std::thread::Builder::new()
+                    .stack_size(64 << 20)
+                    .spawn(move || {
+                        let mut tally = Tally::default();
+                        for k in (t as u64..reference.steps).step_by(threads) {
+                            for tear in TEARS {
+                                let second = second_cut(k, &reference);
+                                tally.add(cut_point(&scan, &reference, k, tear, second));
+                            }
+                        }
+                        tally
+                    })
+                    .unwrap()
+            })
+            .collect();
+        let mut tally = Tally::default();
+        for h in handles {
+            tally.add(h.join().unwrap());
+        }
+        assert_eq!(tally.cuts, 3 * steps);
+        durable_records_grow_one_write_at_a_time(&tally.restored, steps, st.stored_records);
+        assert!(tally.double_cuts > 0);
+        let dbs = &tally.databases;
+        let (min, max) = (dbs.iter().min().unwrap(), dbs.iter().max().unwrap());
+        let mean = dbs.iter().sum::<usize>() as f64 / dbs.len() as f64;
+        assert!(*max <= FRAMES);
+        println!(
+            "power cuts: {FRAMES} frames, {} records in {sectors} of {SECTORS} sectors, {steps} flash steps; \
+             {} cut points tried ({steps} steps x 3 tears) + {} second cuts while resuming = {} cuts, \
+             {} restores, all acknowledged records intact; database after resuming: \
+             min {min} / max {max} / mean {mean:.2} frames vs {} uninterrupted \
+             (identical export in {} of {} runs)",
+            st.stored_records,
+            tally.cuts,
+            tally.double_cuts,
+            tally.cuts + tally.double_cuts,
+            tally.restores,
+            reference.database,
+            tally.identical,
+            dbs.len(),
+        );
+    });
+}
+
+// ------------------------------------------------------- focused: the log
+
+/// The live generation's number and head sector, read from the raw flash
+/// (the layout of `placedb::persist::log`: "PDBL", format, length,
+/// generation, seq, CRC; seq 0 opens the head sector).
+fn live_head(flash: &SimFlash) -> (u32, usize) {
+    let word = |b: &[u8], at: usize| u32::from_le_bytes(b[at..at + 4].try_into().unwrap());
+    flash
+        .bytes()
+        .chunks(SimFlash::SECTOR)
+        .enumerate()
+        .filter(|(_, s)| &s[..4] == b"PDBL" && word(s, 12) == 0)
+        .map(|(i, s)| (word(s, 8), i))
+        .max()
+        .expect("a live generation")
+}
+
+/// Reboots `rig` and checks that the scan comes back exactly as the device
+/// exported it (labels, database, counters).
+fn reboot_exact<D: Dut>(rig: Rig<D>, ctx: &str) -> Rig<D> {
+    let mut rig = rig;
+    let st = rig.status();
+    let export = rig.export();
+    let (mut rig, restored) = Rig::<D>::boot(rig.into_flash());
+    assert_eq!(restored, Ok(st.stored_records), "{ctx}: records restored");
+    assert_eq!(
+        rig.export(),
+        export,
+        "{ctx}: the scan does not restore exactly"
+    );
+    let back = rig.status();
+    let key = |s: &Status| (s.phase, s.frames_decided, s.database_size, s.stored_records);
+    assert_eq!(key(&back), key(&st), "{ctx}: status after restore");
+    assert_ne!(back.degradation & degradation::RESTORED, 0, "{ctx}");
+    rig
+}
+
+#[test]
+fn generations_rotate_around_the_range() {
+    on_big_stack(|| {
+        let scan = Scan::synthetic(0, 40, 8);
+        let (mut rig, restored) = Rig::<Small>::boot(SimFlash::new(4));
+        assert_eq!(restored, Ok(0));
+        let mut heads = Vec::new();
+        let (mut scans, mut resets) = (0, 0);
+        for cycle in 0..30usize {
+            let ctx = format!("cycle {cycle}");
+            if cycle > 0 {
+                rig.ok(HostMessage::Reset);
+            }
+            if cycle % 5 == 4 {
+                // Only a Reset: a generation holding nothing but `Cleared`.
+                let (again, restored) = Rig::<Small>::boot(rig.into_flash());
+                rig = again;
+                assert_eq!(restored, Ok(1), "{ctx}");
+                assert_eq!(rig.status().phase, Phase::Unconfigured, "{ctx}");
+                assert!(rig.export().is_empty(), "{ctx}");
+                heads.push(live_head(rig.flash()));
+                resets += 1;
+                continue;
+            }
+            let mut seen = Seen::default();
+            rig.ok(HostMessage::Hello(scan.cfg));
+            let frames = 6 + (cycle * 7) % 34;
+            for i in 0..frames as u32 {
+                assert!(send_frame(&mut rig, &scan, i, &mut seen, &ctx));
+            }
+            let finish = cycle % 3 != 1;
+            if finish {
+                assert!(step(&mut rig, HostMessage::Finish, &mut seen, &ctx));
+            }
+            rig = reboot_exact(rig, &ctx);
+            heads.push(live_head(rig.flash()));
+            if !finish {
+                // The restored scan goes on to the end.
+                assert!(drive(&mut rig, &scan, &mut seen, &ctx));
+                rig = check_complete(rig, &scan, &seen, &ctx).0;
+            }
+            scans += 1;
+        }
+        // Generation numbers grow; the head went through every sector and
+        // wrapped around the end of the range again and again.
+        assert!(heads.windows(2).all(|w| w[1].0 > w[0].0), "{heads:?}");
+        let sectors: BTreeSet<usize> = heads.iter().map(|h| h.1).collect();
+        assert_eq!(sectors.len(), 4, "{heads:?}");
+        let wraps = heads.windows(2).filter(|w| w[1].1 <= w[0].1).count();
+        assert!(wraps >= 5, "{heads:?}");
+        println!(
+            "rotation: {scans} scans and {resets} resets on 4 sectors, generation {} last, \
+             the head wrapped {wraps} times; every last scan restored exactly",
+            heads.last().unwrap().0
+        );
+    });
+}
+
+/// What a restore after a torn switch from scan A to scan B gave.
+#[derive(Debug, Default)]
+struct Outcomes {
+    a: u32,
+    cleared: u32,
+    b: u32,
+}
+
+/// The switch from a finished scan A to scan B: Reset (if `reset`), Hello
+/// B, the first frames of B. `false` when the power went.
+fn switch<D: Dut>(
+    rig: &mut Rig<D>,
+    b: &Scan,
+    reset: bool,
+    seen: &mut Seen,
+    reset_acked: &mut bool,
+    ctx: &str,
+) -> bool {
+    if reset {
+        if !step(rig, HostMessage::Reset, seen, ctx) {
+            return false;
+        }
+        *reset_acked = true;
+    }
+    if !step(rig, HostMessage::Hello(b.cfg), seen, ctx) {
+        return false;
+    }
+    seen.hello = true;
+    (0..8).all(|i| send_frame(rig, b, i, seen, ctx))
+}
+
+/// Boots on `flash` (holding the finished scan A): restored, or, without
+/// `restore`, a device that did not restore (say, one whose firmware does
+/// not know the log): it starts over with the next Hello.
+fn boot_on_a(flash: &SimFlash, restore: bool, a_export: &[ExportRecord]) -> Rig<Small> {
+    let (mut rig, restored) = Rig::<Small>::boot(flash.clone());
+    assert!(restored.is_ok());
+    assert_eq!(rig.export(), a_export);
+    if !restore {
+        rig.device = Small::boxed();
+    }
+    rig
+}
+
+#[test]
+fn a_torn_start_is_never_a_mix() {
+    on_big_stack(|| {
+        let a = Scan::synthetic(0, 12, 8);
+        // Other frames (other timestamps and poses) and another window.
+        let b = Scan::synthetic(60, 10, 6);
+        let short = Scan::synthetic(20, 10, 8);
+        let mut outcomes = Outcomes::default();
+        let mut cuts = 0;
+        for phase in 0..4 {
+            // Earlier scans shift where A lies in the 4-sector range.
+            let (mut rig, _) = Rig::<Small>::boot(SimFlash::new(4));
+            for p in 0..phase {
+                let ctx = format!("phase {phase}, scan {p}");
+                assert!(drive(&mut rig, &short, &mut Seen::default(), &ctx));
+                rig.ok(HostMessage::Reset);
+            }
+            assert!(drive(&mut rig, &a, &mut Seen::default(), "scan A"));
+            let a_export = rig.export();
+            let flash_a = rig.into_flash();
+            for restore in [true, false] {
+                // Reset then Hello on the restored scan, or a Hello on a
+                // device that did not restore.
+                let reset = restore;
+                let mut rig = boot_on_a(&flash_a, restore, &a_export);
+                let base = rig.flash().steps();
+                let (mut seen, mut acked) = (Seen::default(), false);
+                assert!(switch(&mut rig, &b, reset, &mut seen, &mut acked, "uncut"));
+                let m = rig.flash().steps() - base;
+                assert!(m >= 4, "{m} steps");
+                for j in 0..m {
+                    for tear in TEARS {
+                        let ctx = format!(
+                            "phase {phase}, {}, cut at step {j} of {m} ({})",
+                            if reset {
+                                "Reset + Hello"
+                            } else {
+                                "Hello, no restore"
+                            },
+                            tear_name(tear)
+                        );
+                        let mut rig = boot_on_a(&flash_a, restore, &a_export);
+                        rig.flash().cut_at(base + j, tear);
+                        let (mut seen, mut reset_acked) = (Seen::default(), false);
+                        assert!(
+                            !switch(&mut rig, &b, reset, &mut seen, &mut reset_acked, &ctx),
+                            "{ctx}: no cut"
+                        );
+                        cuts += 1;
+                        let ram = rig.export();
+                        let (mut rig, restored) = Rig::<Small>::boot(rig.into_flash());
+                        let records = restored.unwrap_or_else(|e| panic!("{ctx}: {e:?}"));
+                        let st = rig.status();
+                        let export = rig.export();
+                        match st.phase {
+                            Phase::Finished => {
+                                // A, exactly.
+                                assert_eq!(export, a_export, "{ctx}: A is not intact");
+                                assert!(!reset_acked && !seen.hello, "{ctx}: A came back");
+                                outcomes.a += 1;
+                                rig.ok(HostMessage::Reset);
+                            }
+                            Phase::Unconfigured => {
+                                // Reset, exactly.
+                                assert!(reset, "{ctx}: A lost without a Reset");
+                                assert_eq!(records, 1, "{ctx}: neither A nor the Reset restored");
+                                assert!(export.is_empty(), "{ctx}");
+                                assert!(!seen.hello, "{ctx}: acknowledged Hello B lost");
+                                outcomes.cleared += 1;
+                            }
+                            Phase::Ready => {
+                                // B, and only B.
+                                let got = parse(&export, &b, &ctx);
+                                assert_prefix(&got, &parse(&ram, &b, &ctx), "B in RAM", &ctx);
+                                assert_acknowledged(&got, &seen, &ctx);
+                                if st.frames_seen > 0 {
+                                    assert_eq!(
+                                        rig.refused(HostMessage::Hello(a.cfg)),
+                                        ErrorKind::NeedsReset,
+                                        "{ctx}: not B's configuration"
+                                    );
+                                }
+                                outcomes.b += 1;
+                            }
+                            Phase::InFrame => panic!("{ctx}: a frame came back open"),
+                        }
+                        // Either way, scan B goes on to the end.
+                        assert!(drive(&mut rig, &b, &mut seen, &ctx), "{ctx}");
+                        check_complete(rig, &b, &seen, &ctx);
+                    }
+                }
+            }
+        }
+        assert!(outcomes.a > 0 && outcomes.cleared > 0 && outcomes.b > 0);
+        println!(
+            "torn start: {cuts} cuts while switching from a finished scan A to a scan B; \
+             restored A intact {} times, Reset {} times, B {} times, never a mix",
+            outcomes.a, outcomes.cleared, outcomes.b
+        );
+    });
+}
+
+#[test]
+fn a_full_log_refuses_frame_end_and_changes_nothing() {
+    on_big_stack(|| {
+        let scan = Scan::synthetic(0, 120, 8);
+        // 3 sectors: a generation holds at most 2.
+        let (mut rig, _) = Rig::<Small>::boot(SimFlash::new(3));
+        let mut seen = Seen::default();
+        rig.ok(HostMessage::Hello(scan.cfg));
+        let mut full_at = None;
+        for i in 0..scan.len() {
+            let ctx = format!("frame {i}");
+            let f = &scan.frames[i as usize];
+            rig.ok(HostMessage::FrameBegin {
+                frame: i,
+                timestamp: f.timestamp,
+                pose: f.pose,
+            });
+            for (first_row, row_count, data) in &f.rows {
+                rig.ok(HostMessage::DepthRows(DepthRows {
+                    frame: i,
+                    first_row: *first_row,
+                    row_count: *row_count,
+                    data,
+                }));
+            }
+            let (st, export, steps) = (rig.status(), rig.export(), rig.flash().steps());
+            let sent = rig.send(HostMessage::FrameEnd { frame: i });
+            seen.note(&sent.replies, &ctx);
+            match sent.replies.as_slice() {
+                [.., Reply::Ack(_)] => continue,
+                [Reply::Error(_, ErrorKind::StorageFull)] => {}
+                other => panic!("{ctx}: {other:?}"),
+            }
+            // Refused: nothing changed, the frame is still open.
+            let same = |s: &Status| {
+                (
+                    s.phase,
+                    s.frames_seen,
+                    s.frames_decided,
+                    s.database_size,
+                    s.stored_records,
+                    s.degradation,
+                )
+            };
+            let after = rig.status();
+            assert_eq!(same(&after), same(&st), "{ctx}: status changed");
+            assert_eq!(after.phase, Phase::InFrame);
+            assert_eq!(after.refused, st.refused + 1);
+            assert_eq!(rig.export(), export, "{ctx}: export changed");
+            assert_eq!(rig.flash().steps(), steps, "{ctx}: the flash was written");
+            // Again, and Finish: refused too.
+            assert_eq!(
+                rig.refused(HostMessage::FrameEnd { frame: i }),
+                ErrorKind::StorageFull
+            );
+            assert_eq!(rig.refused(HostMessage::Finish), ErrorKind::StorageFull);
+            assert_eq!(same(&rig.status()), same(&st), "{ctx}");
+            full_at = Some(i);
+            break;
+        }
+        let full_at = full_at.expect("the log never filled up");
+        assert!(full_at > 8, "full at frame {full_at}");
+        // Everything decided is durable: the reboot restores it exactly.
+        let ctx = format!("full at frame {full_at}");
+        let decided = rig.status().frames_decided;
+        let export = rig.export();
+        let (mut rig, restored) = Rig::<Small>::boot(rig.into_flash());
+        assert!(restored.is_ok(), "{ctx}: {restored:?}");
+        assert_eq!(rig.export(), export, "{ctx}: restore");
+        assert_acknowledged(&parse(&export, &scan, &ctx), &seen, &ctx);
+        let st = rig.status();
+        assert_eq!((st.frames_seen, st.frames_decided), (decided, decided));
+        // Still full: the first frame that would decide is refused again.
+        rig.ok(HostMessage::Hello(scan.cfg));
+        let mut refused_again = false;
+        for i in decided..scan.len() {
+            let sent_ok = send_frame_until_refused(&mut rig, &scan, i);
+            if !sent_ok {
+                refused_again = true;
+                break;
+            }
+        }
+        assert!(refused_again, "{ctx}: room after the restore");
+        // A Reset starts a new generation: scans fit again.
+        rig.ok(HostMessage::Reset);
+        let short = Scan::synthetic(0, 30, 8);
+        assert!(drive(&mut rig, &short, &mut Seen::default(), &ctx));
+        let rig = reboot_exact(rig, &ctx);
+        check_complete(rig, &short, &Seen::default(), &ctx);
+        println!(
+            "full log: FrameEnd of frame {full_at} refused with StorageFull ({} records \
+             durable), nothing changed, export and restore intact",
+            st.stored_records
+        );
+    });
+}
+
+/// Streams frame `i`; `false` when its FrameEnd is refused with StorageFull.
+fn send_frame_until_refused<D: Dut>(rig: &mut Rig<D>, scan: &Scan, i: u32) -> bool {
+    let f = &scan.frames[i as usize];
+    rig.ok(HostMessage::FrameBegin {
+        frame: i,
+        timestamp: f.timestamp,
+        pose: f.pose,
+    });
+    for (first_row, row_count, data) in &f.rows {
+        rig.ok(HostMessage::DepthRows(DepthRows {
+            frame: i,
+            first_row: *first_row,
+            row_count: *row_count,
+            data,
+        }));
+    }
+    let sent = rig.send(HostMessage::FrameEnd { frame: i });
+    match sent.replies.as_slice() {
+        [.., Reply::Ack(_)] => true,
+        [Reply::Error(_, ErrorKind::StorageFull)] => false,
+        other => panic!("frame {i}: {other:?}"),
+    }
+}
+
+#[test]
+fn a_failing_flash_degrades_and_restores_a_prefix() {
+    on_big_stack(|| {
+        let scan = Scan::synthetic(0, 40, 8);
+        // The uninterrupted run.
+        let (mut rig, _) = Rig::<Small>::boot(SimFlash::new(SECTORS));
+        let mut reference_seen = Seen::default();
+        assert!(drive(&mut rig, &scan, &mut reference_seen, "uninterrupted"));
+        let steps = rig.flash().steps();
+        let reference = rig.export();
+        let reference_parsed = parse(&reference, &scan, "uninterrupted");
+        let (mut hello_refusals, mut degraded, mut transient_runs) = (0, 0, 0);
+        for k in 0..steps {
+            // Every 5th time the flash comes back right after the failure,
+            // without a reboot; otherwise it stays dead until one.
+            let transient = k.is_multiple_of(5);
+            let ctx = format!(
+                "flash {} at step {k}",
+                if transient { "failing once" } else { "dead" }
+            );
+            let (mut rig, _) = Rig::<Small>::boot(SimFlash::new(SECTORS));
+            // The device itself keeps running: the host hears every reply.
+            rig.listen = Listen::Always;
+            rig.flash().cut_at(k, Tear::Half);
+            let hello = rig.send(HostMessage::Hello(scan.cfg));
+            if rig.is_off() {
+                // The scan could not start: Hello refused, nothing configured.
+                assert_eq!(
+                    hello.replies,
+                    vec![Reply::Error(Some(rig.seq), ErrorKind::StorageFailed)],
+                    "{ctx}"
+                );
+                assert_eq!(rig.status().phase, Phase::Unconfigured, "{ctx}");
+                assert_eq!(rig.refused(HostMessage::Finish), ErrorKind::NotConfigured);
+                hello_refusals += 1;
+                let (mut rig, restored) = Rig::<Small>::boot(rig.into_flash());
+                assert_eq!(restored, Ok(0), "{ctx}");
+                let mut seen = Seen::default();
+                assert!(drive(&mut rig, &scan, &mut seen, &ctx));
+                check_complete(rig, &scan, &seen, &ctx);
+                continue;
+            }
+            assert_eq!(hello.replies, vec![Reply::Ack(rig.seq)], "{ctx}");
+            let mut seen = Seen {
+                hello: true,
+                ..Seen::default()
+            };
+            // What the host saw before the flash failed.
+            let mut before = Seen {
+                hello: true,
+                ..Seen::default()
+            };
+            let mut failed_at = None;
+            for i in 0..=scan.len() {
+                if i < scan.len() {
+                    assert!(send_frame(&mut rig, &scan, i, &mut seen, &ctx), "{ctx}");
+                } else {
+                    assert!(step(&mut rig, HostMessage::Finish, &mut seen, &ctx));
+                }
+                if failed_at.is_none() && rig.is_off() {
+                    failed_at = Some(rig.flash().steps());
+                    if transient {
+                        rig.flash().power_on();
+                    }
+                }
+                if failed_at.is_none() {
+                    before.finals.clone_from(&seen.finals);
+                }
+            }
+            let failed_at = failed_at.expect("the flash failed");
+            // Selection went on as if nothing happened; the status tells.
+            assert_eq!(seen.decisions, reference_seen.decisions, "{ctx}");
+            assert_eq!(rig.export(), reference, "{ctx}");
+            let st = rig.status();
+            assert_ne!(st.degradation & degradation::STORAGE_FAILED, 0, "{ctx}");
+            assert_eq!(st.phase, Phase::Finished, "{ctx}");
+            degraded += 1;
+            let ram = parse(&rig.export(), &scan, &ctx);
+            if transient {
+                // Nothing more was written in this scan (a record after a
+                // missing one would not restore); a new scan writes again.
+                assert_eq!(
+                    rig.flash().steps(),
+                    failed_at,
+                    "{ctx}: written after a failure"
+                );
+                rig.ok(HostMessage::Reset);
+                let mut again = Seen::default();
+                assert!(drive(&mut rig, &scan, &mut again, &ctx));
+                let st = rig.status();
+                assert_eq!(st.degradation & degradation::STORAGE_FAILED, 0, "{ctx}");
+                let rig = reboot_exact(rig, &ctx);
+                check_complete(rig, &scan, &again, &ctx);
+                transient_runs += 1;
+                continue;
+            }
+            // A Reset would come undone at the next boot: refused.
+            assert_eq!(rig.refused(HostMessage::Reset), ErrorKind::StorageFailed);
+            assert_eq!(rig.status().phase, Phase::Finished, "{ctx}");
+            // A real reboot: a consistent prefix, with every decision the
+            // host saw before the flash failed.
+            let (mut rig, restored) = Rig::<Small>::boot(rig.into_flash());
+            let reference = Some(&reference_parsed);
+            check_restored(&mut rig, restored, &scan, &before, &ram, reference, &ctx);
+            assert!(drive(&mut rig, &scan, &mut before, &ctx));
+            check_complete(rig, &scan, &before, &ctx);
+        }
+        assert!(hello_refusals > 0 && degraded > 0 && transient_runs > 0);
+        println!(
+            "failing flash at each of {steps} steps: Hello refused {hello_refusals} times, \
+             {degraded} scans finished degraded (STORAGE_FAILED), {transient_runs} of them \
+             recovered with a new scan without a reboot, the others restored a consistent prefix"
+        );
+    });
+}
+
+/// The power went between the two records of the first deciding step: a
+/// database frame is durable, no decision is. After the reboot no frame was
+/// seen, so a Hello with another configuration starts a new scan; that scan
+/// must hold nothing of the old one.
+#[test]
+fn a_new_scan_after_a_restore_holds_nothing_of_the_old_one() {
+    on_big_stack(|| {
+        let old = Scan::synthetic(0, 20, 8);
+        // One frame of elsewhere on the route, another window.
+        let new = Scan::synthetic(100, 1, 6);
+        let mut cases = 0;
+        for k in 0..40 {
+            for tear in TEARS {
+                let ctx = format!("cut at step {k} ({})", tear_name(tear));
+                let (mut rig, _) = Rig::<Small>::boot(SimFlash::new(8));
+                rig.flash().cut_at(k, tear);
+                if drive(&mut rig, &old, &mut Seen::default(), &ctx) {
+                    continue;
+                }
+                let (mut rig, restored) = Rig::<Small>::boot(rig.into_flash());
+                assert!(restored.is_ok(), "{ctx}");
+                let st = rig.status();
+                if st.frames_seen > 0 || st.database_size == 0 {
+                    continue;
+                }
+                cases += 1;
+                let mut seen = Seen::default();
+                assert!(drive(&mut rig, &new, &mut seen, &ctx));
+                parse(&rig.export(), &new, &ctx);
+                let (mut rig, _) = Rig::<Small>::boot(rig.into_flash());
+                parse(&rig.export(), &new, &format!("{ctx}, after a reboot"));
+            }
+        }
+        assert!(
+            cases > 0,
+            "no cut leaves a database frame without a decision"
+        );
+    });
+}
