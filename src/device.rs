@@ -29,15 +29,24 @@
 //! | Hello | no frame open, no frame seen since reset | configures (replaces an earlier Hello) | `WrongVersion`, `BadConfig`, `MidFrameReconfig`; after frames: `NeedsReset` unless identical (then a no-op Ack) |
 //! | FrameBegin | configured, not finished, no frame open | opens frame `frames_seen` | `NotConfigured`, `Finished`, `OutOfOrder` (open frame or wrong index), `BadPose` |
 //! | DepthRows | the open frame, next strided row | voxelizes the rows | `OutOfOrder`, `RowOutOfRange`, `RowTooLong`, `RowTooShort` |
-//! | FrameEnd | the open frame, all rows in | selection step; `Decision`s, then Ack | `FrameEndWithoutBegin`, `MissingRows` (frame stays open) |
-//! | Finish | configured, no frame open | decides every pending frame (`Decision`s); phase Finished; a repeated Finish is a no-op | `NotConfigured`, `OutOfOrder` |
+//! | FrameEnd | the open frame, all rows in | selection step; `Decision`s, then Ack | `FrameEndWithoutBegin`, `MissingRows` (frame stays open), `StorageFull` (idem) |
+//! | FrameAbort | the open frame | drops it; the next FrameBegin has its index | `FrameEndWithoutBegin`, `NotConfigured`, `Finished` |
+//! | Finish | configured, no frame open | decides every pending frame (`Decision`s); phase Finished; a repeated Finish is a no-op | `NotConfigured`, `OutOfOrder`, `StorageFull` |
 //! | StatusRequest | always | `Status` | — |
 //! | ExportRequest | always | up to `max_records` `ExportRecord`s from `from_record`, then `ExportEnd` | `ExportPastEnd` (`from_record` beyond the last record + 1) |
-//! | Reset | always | forgets configuration, frames, database, labels, counters | — |
+//! | Reset | always | forgets configuration, frames, database, labels, counters | `StorageFailed` |
+//!
+//! Durability ([`Device::receive_logged`] with a [`Log`]): the Hello, every
+//! database frame and every final decision are written before the replies
+//! that acknowledge them. FrameEnd is refused with `StorageFull` unless the
+//! log has room for its worst case *and* a Finish after it, so a scan whose
+//! log fills up still ends cleanly: FrameAbort the open frame, then Finish.
+//! A failed write (not a full log) sets `STORAGE_FAILED`; the step's replies
+//! still go out but nothing more is written in this scan.
 //!
 //! Retransmission: the device remembers the sequence number, the message and
 //! the terminal reply of the last state-changing message it handled (Hello,
-//! FrameBegin, DepthRows, FrameEnd, Finish, Reset). The same message again
+//! FrameBegin, DepthRows, FrameEnd, Finish, Reset, FrameAbort). The same message again
 //! with the same sequence number (a host retransmitting because the reply was
 //! lost or late) gets that reply again and is not applied twice; its
 //! `Decision`s are not sent again. StatusRequest and ExportRequest change
@@ -204,7 +213,8 @@ impl Applied {
 /// A Hello is identified by its configuration: the one in force.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 struct MessageKey {
-    /// 0: none; 1 Hello, 2 FrameBegin, 3 DepthRows, 4 FrameEnd, 5 Finish, 6 Reset.
+    /// 0: none; 1 Hello, 2 FrameBegin, 3 DepthRows, 4 FrameEnd, 5 Finish,
+    /// 6 Reset, 7 FrameAbort.
     tag: u8,
     frame: u32,
     first_row: u16,
@@ -234,6 +244,7 @@ impl MessageKey {
             HostMessage::FrameEnd { frame } => key(4, frame, 0, 0),
             HostMessage::Finish => key(5, 0, 0, 0),
             HostMessage::Reset => key(6, 0, 0, 0),
+            HostMessage::FrameAbort { frame } => key(7, frame, 0, 0),
             HostMessage::StatusRequest | HostMessage::ExportRequest { .. } => return None,
         })
     }
@@ -707,6 +718,7 @@ impl<
                 return self.export(seq, from_record, max_records, send);
             }
             HostMessage::Reset => self.reset_logged(journal),
+            HostMessage::FrameAbort { frame } => self.frame_abort(frame),
         };
         if result.is_err() {
             self.refused = self.refused.saturating_add(1);
@@ -868,7 +880,9 @@ impl<
             Some(m) if m.index == frame => {}
             _ => return Err(ErrorKind::FrameEndWithoutBegin),
         }
-        let sending = self.decide(journal, send, |s, emit| s.end_frame(emit))?;
+        // Room for this step and, after it, a Finish of a full window, so
+        // that a scan whose log is full still ends with every frame decided.
+        let sending = self.decide(journal, 4 * W + 2, send, |s, emit| s.end_frame(emit))?;
         let end = delta(self.clock, t0, sending);
         let rows = self.rows_ticks;
         let c = &mut self.cost;
@@ -877,6 +891,17 @@ impl<
         c.last_rows = u32::try_from(rows).unwrap_or(u32::MAX);
         c.last_end = u32::try_from(end).unwrap_or(u32::MAX);
         c.max = c.max.max(c.last_rows.saturating_add(c.last_end));
+        self.rows_ticks = 0;
+        Ok(())
+    }
+
+    fn frame_abort(&mut self, frame: u32) -> Result<(), ErrorKind> {
+        self.scanning()?;
+        match self.selector.current_frame() {
+            Some(m) if m.index == frame => {}
+            _ => return Err(ErrorKind::FrameEndWithoutBegin),
+        }
+        self.selector.abort_frame();
         self.rows_ticks = 0;
         Ok(())
     }
@@ -892,7 +917,7 @@ impl<
         if self.finished {
             return Ok(());
         }
-        self.decide(journal, send, |s, emit| s.finish(emit))?;
+        self.decide(journal, 2 * W + 1, send, |s, emit| s.finish(emit))?;
         self.finished = true;
         self.persist(journal, &Record::Finished);
         Ok(())
@@ -918,7 +943,8 @@ impl<
         }
     }
 
-    /// Runs a selector step that decides frames: each decision is sent and
+    /// Runs a selector step that decides frames, if the journal has room for
+    /// `records` records: each decision is sent and
     /// its label stored. Returns the ticks spent sending, which the frame
     /// cost leaves out (they measure the link, not the device).
     ///
@@ -927,15 +953,17 @@ impl<
     fn decide(
         &mut self,
         journal: &mut dyn Journal,
+        records: usize,
         send: &mut dyn FnMut(&[u8]),
         step: impl FnOnce(
             &mut Selector<FV, POOL, DB, W, K>,
             &mut dyn FnMut(FrameDecision),
         ) -> Result<(), SelectError>,
     ) -> Result<u64, ErrorKind> {
-        // Worst case of one step: every window frame decided and taken, and
-        // the Finished mark. Checked first so that a refusal changes nothing.
-        if !self.storage_failed && !journal.has_room(2 * W + 1, Self::DB_RECORD_LEN) {
+        // `records` bounds what may be written (worst case of a step: every
+        // window frame decided and taken, and the Finished mark). Checked
+        // first so that a refusal changes nothing.
+        if !self.storage_failed && !journal.has_room(records, Self::DB_RECORD_LEN) {
             return Err(ErrorKind::StorageFull);
         }
         let Core {

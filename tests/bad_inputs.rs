@@ -667,6 +667,11 @@ fn before_hello(scan: &Scan, t: &mut Table) {
     );
     t.msg("Finish before Hello", HostMessage::Finish, NotConfigured);
     t.msg(
+        "FrameAbort before Hello",
+        HostMessage::FrameAbort { frame: 0 },
+        NotConfigured,
+    );
+    t.msg(
         "ExportRequest past the end of an empty export",
         HostMessage::ExportRequest {
             from_record: 1,
@@ -829,8 +834,8 @@ fn damaged_frames(scan: &Scan, t: &mut Table, would_apply: HostMessage<'_>) {
     // The CRC matches, the message is of a later protocol.
     let seq = t.seq();
     t.raw(
-        "message tag 8 (one past Reset)",
-        with_crc(&seq_then(seq, &[8])),
+        "message tag 9 (one past FrameAbort)",
+        with_crc(&seq_then(seq, &[9])),
         Some(seq),
         UnknownMessage,
     );
@@ -1073,6 +1078,16 @@ fn between_frames(scan: &Scan, t: &mut Table, next: u32, export_len: u32) {
         HostMessage::FrameEnd { frame: next - 1 },
         FrameEndWithoutBegin,
     );
+    t.msg(
+        "FrameAbort with no frame open",
+        HostMessage::FrameAbort { frame: next },
+        FrameEndWithoutBegin,
+    );
+    t.msg(
+        "FrameAbort of the last frame after its FrameEnd",
+        HostMessage::FrameAbort { frame: next - 1 },
+        FrameEndWithoutBegin,
+    );
     export_past_end(t, export_len);
 }
 
@@ -1273,6 +1288,11 @@ fn in_frame(scan: &Scan, t: &mut Table, open: u32, next_row: u16, export_len: u3
         HostMessage::FrameEnd { frame: open + 1 },
         FrameEndWithoutBegin,
     );
+    t.msg(
+        "FrameAbort of another frame than the open one",
+        HostMessage::FrameAbort { frame: open - 1 },
+        FrameEndWithoutBegin,
+    );
     t.msg("Finish inside a frame", HostMessage::Finish, OutOfOrder);
     export_past_end(t, export_len);
 }
@@ -1289,6 +1309,11 @@ fn finished(scan: &Scan, t: &mut Table, frames: u32, export_len: u32) {
     t.msg(
         "FrameBegin of frame 0 after Finish",
         scan.begin(0),
+        Finished,
+    );
+    t.msg(
+        "FrameAbort after Finish",
+        HostMessage::FrameAbort { frame: frames },
         Finished,
     );
     t.msg(

@@ -847,6 +847,13 @@ impl Conversation<'_, '_> {
                 frame[at] ^= self.r.u8() | 1;
                 self.run.feed(&frame, &mut self.chunker);
             }
+            14 => {
+                let frame = match self.r.u8() & 1 {
+                    0 => self.open_frame().unwrap_or(0),
+                    _ => self.r.u32(),
+                };
+                self.send(HostMessage::FrameAbort { frame });
+            }
             _ => {
                 // Whole frames: begin, every row, end.
                 for _ in 0..1 + self.r.u8() % 8 {
@@ -861,7 +868,7 @@ impl Conversation<'_, '_> {
 
 /// Target `device_structured`: the input describes a conversation of valid
 /// messages (sane or insane Hellos, frames with synthetic depth rows, ends,
-/// finish, status, export, reset) mixed with garbage and damaged frames, so
+/// aborts, finish, status, export, reset) mixed with garbage and damaged frames, so
 /// the fuzzer reaches full databases, windows and label stores. Same checks
 /// as [`device`].
 pub fn device_structured(data: &[u8]) {

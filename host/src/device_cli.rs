@@ -123,6 +123,9 @@ pub struct StreamReport {
     pub messages: u64,
     /// Messages sent again (lost or damaged on the way, or their reply was).
     pub retransmissions: u64,
+    /// The device's flash log filled up: frames from this one on were not
+    /// scanned (the open one was dropped, the scan finished with the rest).
+    pub log_full_at: Option<usize>,
 }
 
 impl StreamReport {
@@ -509,7 +512,85 @@ pub fn stream<L: Link>(
     if let Some(p) = progress {
         p.set_position(first as u64);
     }
-    for i in first..n {
+    let mut log_full_at = None;
+    match send_frames(
+        &mut pipe,
+        seq,
+        cfg,
+        first..n,
+        rows_per_msg,
+        progress,
+        started,
+    ) {
+        Ok(()) => {}
+        Err(DeviceError::Refused {
+            kind: ErrorKind::StorageFull,
+            ..
+        }) => {
+            // The device's flash log is full: it kept room to end the scan,
+            // so drop the open frame and Finish with every frame so far.
+            pipe.outstanding.clear();
+            let st = status_of(&call(
+                pipe.client,
+                HostMessage::StatusRequest,
+                "StatusRequest",
+                opts,
+                &mut pipe.retransmissions,
+            )?)?;
+            let frame = st.frames_seen;
+            if st.phase == Phase::InFrame {
+                call(
+                    pipe.client,
+                    HostMessage::FrameAbort { frame },
+                    "FrameAbort",
+                    opts,
+                    &mut pipe.retransmissions,
+                )?;
+            }
+            log_full_at = Some(frame as usize);
+        }
+        Err(e) => return Err(e),
+    }
+    if opts.finish {
+        pipe.send(HostMessage::Finish, || "Finish".into())?;
+    }
+    pipe.drain()?;
+    let wall = started.elapsed();
+    let (decisions, bytes_sent, messages) = (pipe.decisions, pipe.bytes, pipe.messages);
+    let mut resent = pipe.retransmissions;
+    let status = status_of(&call(
+        client,
+        HostMessage::StatusRequest,
+        "StatusRequest",
+        opts,
+        &mut resent,
+    )?)?;
+    Ok(StreamReport {
+        frames: log_full_at.unwrap_or(n) - first,
+        log_full_at,
+        decisions,
+        status,
+        wall,
+        bytes_sent,
+        messages,
+        retransmissions: resent,
+    })
+}
+
+/// Sends frames `range` of `seq` (FrameBegin, DepthRows, FrameEnd, and a
+/// StatusRequest for the live line) through `pipe`.
+fn send_frames<L: Link>(
+    pipe: &mut Pipeline<'_, L>,
+    seq: &Sequence,
+    cfg: &Config,
+    range: std::ops::Range<usize>,
+    rows_per_msg: u16,
+    progress: Option<&ProgressBar>,
+    started: Instant,
+) -> Result<(), DeviceError> {
+    let width = cfg.width_sent();
+    let first = range.start;
+    for i in range {
         let img = seq
             .depth(i)
             .map_err(|e| DeviceError::Input(format!("frame {i}: {e}")))?;
@@ -547,40 +628,18 @@ pub fn stream<L: Link>(
         }
         pipe.send(HostMessage::FrameEnd { frame }, || format!("FrameEnd {i}"))?;
         // The live line's status; stop-and-wait without a display skips it.
-        if opts.retries == 0 || progress.is_some() {
+        if pipe.retries == 0 || progress.is_some() {
             pipe.send(HostMessage::StatusRequest, || "StatusRequest".into())?;
         }
         if let Some(p) = progress {
             p.set_position(i as u64 + 1);
             if let Some(st) = &pipe.status {
-                let fps = (i + 1) as f64 / started.elapsed().as_secs_f64().max(1e-9);
+                let fps = (i + 1 - first) as f64 / started.elapsed().as_secs_f64().max(1e-9);
                 p.set_message(format!("{fps:.2} fps | {}", status_line(st)));
             }
         }
     }
-    if opts.finish {
-        pipe.send(HostMessage::Finish, || "Finish".into())?;
-    }
-    pipe.drain()?;
-    let wall = started.elapsed();
-    let (decisions, bytes_sent, messages) = (pipe.decisions, pipe.bytes, pipe.messages);
-    let mut resent = pipe.retransmissions;
-    let status = status_of(&call(
-        client,
-        HostMessage::StatusRequest,
-        "StatusRequest",
-        opts,
-        &mut resent,
-    )?)?;
-    Ok(StreamReport {
-        frames: n - first,
-        decisions,
-        status,
-        wall,
-        bytes_sent,
-        messages,
-        retransmissions: resent,
-    })
+    Ok(())
 }
 
 /// The first frame to send when resuming the scan whose status is `st`
@@ -1056,6 +1115,14 @@ pub fn stream_cmd(
             f64::from(st.cost.max) / 1e6,
             st.cost.clock_hz,
             1e3 * t / f64::from(st.cost.clock_hz)
+        );
+    }
+    if let Some(k) = report.log_full_at {
+        println!(
+            "  the device's flash log is full: frames {k}..{} were not scanned; the scan \
+             was finished with frames 0..{k} (Reset the device, or give it more flash, \
+             for a longer scan)",
+            seq.frames.len()
         );
     }
     if recovery.faults.is_active() {

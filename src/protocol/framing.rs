@@ -118,7 +118,7 @@ pub trait WireMessage {
 
 impl WireMessage for HostFrame<'_> {
     const SEQ_PREFIX: bool = true;
-    const VARIANTS: u32 = 8;
+    const VARIANTS: u32 = 9;
 }
 
 impl WireMessage for DeviceMessage<'_> {

@@ -71,6 +71,14 @@ pub enum HostMessage<'a> {
     },
     /// Forget everything: configuration, database, labels, counters.
     Reset,
+    /// Drop the open frame `frame`: its rows so far are forgotten and the
+    /// next FrameBegin carries the same index. For a frame that cannot be
+    /// completed, e.g. after FrameEnd was refused with
+    /// [`ErrorKind::StorageFull`], before ending the scan with Finish.
+    FrameAbort {
+        /// Index of the open frame.
+        frame: u32,
+    },
 }
 
 /// Configuration carried by [`HostMessage::Hello`]: everything the device's
@@ -615,7 +623,8 @@ pub enum ErrorKind {
     /// FrameEnd before every strided row of the frame arrived (the frame stays open).
     MissingRows,
     /// The flash log has no room for what the message would decide: FrameEnd
-    /// and Finish are refused (the frame stays open); export still works.
+    /// is refused while there is still room for a Finish (the frame stays
+    /// open: FrameAbort it, then Finish); export still works.
     StorageFull,
     /// The flash failed to erase or write; the message was not applied.
     StorageFailed,

@@ -100,7 +100,8 @@ pub use messages::{
 ///   `DecisionKind::Uncovered`; `ExportRequest::max_records`; `Status` reports every selector counter, peak
 ///   usage and frame cost; `ErrorKind::NeedsReset` and `MissingRows`.
 /// - 3: durable storage: `Status::stored_records`, `ErrorKind::StorageFull`
-///   and `StorageFailed`, degradations `STORAGE_FAILED` and `RESTORED`.
+///   and `StorageFailed`, degradations `STORAGE_FAILED` and `RESTORED`;
+///   `HostMessage::FrameAbort`.
 pub const PROTOCOL_VERSION: u16 = 3;
 
 /// Largest encoded frame (delimiter included) of any [`DeviceMessage`] but a

@@ -73,6 +73,7 @@ fn host_messages(data: &[u8]) -> Vec<HostMessage<'_>> {
             max_records: 100,
         },
         HostMessage::Reset,
+        HostMessage::FrameAbort { frame: 42 },
     ]
 }
 
@@ -358,8 +359,8 @@ fn bad_crc_reports_the_claimed_sequence_number() {
 
 #[test]
 fn unknown_and_undecodable_messages_are_typed() {
-    // seq 9, variant 8 (one past Reset), valid CRC.
-    let got = run_host(&[&raw_frame(&[9, 8], true)]);
+    // seq 9, variant 9 (one past FrameAbort), valid CRC.
+    let got = run_host(&[&raw_frame(&[9, 9], true)]);
     assert_eq!(
         got,
         vec![Err(ProtocolError {
@@ -543,7 +544,7 @@ fn splitting_the_stream_anywhere_gives_the_same_frames() {
         stream.extend_from_slice(&encode_vec(&frame));
     }
     let whole = run_host(&[&stream]);
-    assert_eq!(whole.len(), 8);
+    assert_eq!(whole.len(), 9);
     assert!(whole.iter().all(|r| r.is_ok()));
     for cut in 0..=stream.len() {
         let (a, b) = stream.split_at(cut);
