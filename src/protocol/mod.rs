@@ -29,14 +29,19 @@
 //!   opaque and echoes it back.
 //! - Every host frame gets exactly one *terminal* reply carrying its sequence
 //!   number: [`DeviceMessage::Ack`] (Hello, FrameBegin, DepthRows, FrameEnd,
-//!   Finish, Reset), [`DeviceMessage::Status`] (StatusRequest),
+//!   Finish, Reset, FrameAbort), [`DeviceMessage::Status`] (StatusRequest),
 //!   [`DeviceMessage::ExportEnd`] (ExportRequest), or [`DeviceMessage::Error`]
 //!   (anything refused). Decisions and export records caused by a message are sent
 //!   before its terminal reply, so a host may keep several messages in flight and
 //!   match replies by sequence number.
 //! - A scan is: Hello, then for each frame `i = 0, 1, ...` FrameBegin, DepthRows
 //!   (every strided row, in order, any chunking), FrameEnd; then Finish. Export
-//!   and status requests are accepted at any time; Reset starts over.
+//!   and status requests are accepted at any time; Reset starts over;
+//!   FrameAbort drops a frame that cannot be completed (the next FrameBegin
+//!   reuses its index).
+//! - A device with a flash log (see [`crate::persist`]) replies only once
+//!   what it acknowledges is durable, and comes back from a power cut with
+//!   the scan it held: `Status::frames_seen` says where to resume.
 //! - An export is every database record (in frame order), then one label record
 //!   per decided frame (in frame order), numbered from 0; ExportRequest
 //!   `from_record = k, max_records = m` sends records `k..k+m` (as many as
@@ -47,7 +52,7 @@
 //!   an error saying the frame was damaged ([`ErrorKind::is_damage`]), sends the
 //!   *same* message with the *same* sequence number again (stop-and-wait: one
 //!   message in flight). The device remembers the last state-changing message
-//!   (Hello, FrameBegin, DepthRows, FrameEnd, Finish, Reset) and its terminal
+//!   (Hello, FrameBegin, DepthRows, FrameEnd, Finish, Reset, FrameAbort) and its terminal
 //!   reply; the same message with the same sequence number gets that reply
 //!   again and is not applied twice (its decisions are not repeated: the export
 //!   is the record). StatusRequest and ExportRequest change nothing and are
