@@ -424,26 +424,8 @@ impl Snapshot {
 }
 
 fn owned(msg: DeviceMessage<'_>) -> DeviceMessage<'static> {
-    use DeviceMessage as M;
-    match msg {
-        M::Ack { seq } => M::Ack { seq },
-        M::Error { seq, kind } => M::Error { seq, kind },
-        M::Decision { frame, kind } => M::Decision { frame, kind },
-        M::Status(s) => M::Status(s),
-        M::ExportRecord(r) => M::ExportRecord(r),
-        M::ExportEnd {
-            seq,
-            from_record,
-            count,
-            crc32,
-        } => M::ExportEnd {
-            seq,
-            from_record,
-            count,
-            crc32,
-        },
-        M::Log(text) => panic!("the device logged {text:?}"),
-    }
+    msg.into_static()
+        .unwrap_or_else(|| panic!("the device logged {msg:?}"))
 }
 
 /// Decodes one reply frame, checking it is one complete frame within the

@@ -310,6 +310,21 @@ fn call<L: Link>(
     Ok(replies)
 }
 
+/// A StatusRequest through [`call`].
+fn call_status<L: Link>(
+    client: &mut Client<L>,
+    opts: &StreamOptions,
+    resent: &mut u64,
+) -> Result<Status, DeviceError> {
+    status_of(&call(
+        client,
+        HostMessage::StatusRequest,
+        "StatusRequest",
+        opts,
+        resent,
+    )?)
+}
+
 fn status_of(replies: &[Received]) -> Result<Status, DeviceError> {
     match replies.last() {
         Some(Received::Message(DeviceMessage::Status(s))) => Ok(*s),
@@ -470,13 +485,7 @@ pub fn stream<L: Link>(
     let timeout = opts.reply_timeout;
     let mut resent = 0;
     client.resync()?;
-    let st = status_of(&call(
-        client,
-        HostMessage::StatusRequest,
-        "StatusRequest",
-        opts,
-        &mut resent,
-    )?)?;
+    let st = call_status(client, opts, &mut resent)?;
     check_profile(&st, profile)?;
     let n = seq.frames.len();
     let first = if opts.resume {
@@ -530,13 +539,7 @@ pub fn stream<L: Link>(
             // The device's flash log is full: it kept room to end the scan,
             // so drop the open frame and Finish with every frame so far.
             pipe.outstanding.clear();
-            let st = status_of(&call(
-                pipe.client,
-                HostMessage::StatusRequest,
-                "StatusRequest",
-                opts,
-                &mut pipe.retransmissions,
-            )?)?;
+            let st = call_status(pipe.client, opts, &mut pipe.retransmissions)?;
             let frame = st.frames_seen;
             if st.phase == Phase::InFrame {
                 call(
@@ -558,13 +561,7 @@ pub fn stream<L: Link>(
     let wall = started.elapsed();
     let (decisions, bytes_sent, messages) = (pipe.decisions, pipe.bytes, pipe.messages);
     let mut resent = pipe.retransmissions;
-    let status = status_of(&call(
-        client,
-        HostMessage::StatusRequest,
-        "StatusRequest",
-        opts,
-        &mut resent,
-    )?)?;
+    let status = call_status(client, opts, &mut resent)?;
     Ok(StreamReport {
         frames: log_full_at.unwrap_or(n) - first,
         log_full_at,

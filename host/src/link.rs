@@ -807,26 +807,11 @@ pub enum Received {
 
 impl Received {
     fn from_message(msg: DeviceMessage<'_>) -> Received {
-        use DeviceMessage as M;
-        Received::Message(match msg {
-            M::Log(text) => return Received::Log(text.to_owned()),
-            M::Ack { seq } => M::Ack { seq },
-            M::Error { seq, kind } => M::Error { seq, kind },
-            M::Decision { frame, kind } => M::Decision { frame, kind },
-            M::Status(status) => M::Status(status),
-            M::ExportRecord(record) => M::ExportRecord(record),
-            M::ExportEnd {
-                seq,
-                from_record,
-                count,
-                crc32,
-            } => M::ExportEnd {
-                seq,
-                from_record,
-                count,
-                crc32,
-            },
-        })
+        match (msg, msg.into_static()) {
+            (_, Some(owned)) => Received::Message(owned),
+            (DeviceMessage::Log(text), None) => Received::Log(text.to_owned()),
+            (other, None) => Received::Log(format!("{other:?}")),
+        }
     }
 
     /// The sequence number if this is the terminal reply of a host message

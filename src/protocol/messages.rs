@@ -282,6 +282,33 @@ pub enum DeviceMessage<'a> {
     Log(&'a str),
 }
 
+impl DeviceMessage<'_> {
+    /// The message without a borrow of the receive buffer, for keeping it;
+    /// `None` for a [`DeviceMessage::Log`], whose text is borrowed.
+    pub fn into_static(self) -> Option<DeviceMessage<'static>> {
+        use DeviceMessage as M;
+        Some(match self {
+            M::Ack { seq } => M::Ack { seq },
+            M::Error { seq, kind } => M::Error { seq, kind },
+            M::Decision { frame, kind } => M::Decision { frame, kind },
+            M::Status(s) => M::Status(s),
+            M::ExportRecord(r) => M::ExportRecord(r),
+            M::ExportEnd {
+                seq,
+                from_record,
+                count,
+                crc32,
+            } => M::ExportEnd {
+                seq,
+                from_record,
+                count,
+                crc32,
+            },
+            M::Log(_) => return None,
+        })
+    }
+}
+
 /// Verdict on one frame (the wire form of [`Decision`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum DecisionKind {
