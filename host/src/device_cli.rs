@@ -1114,6 +1114,13 @@ pub fn stream_cmd(
             1e3 * t / f64::from(st.cost.clock_hz)
         );
     }
+    if st.degradation & placedb::protocol::degradation::STORAGE_FAILED != 0 {
+        println!(
+            "  WARNING: the device's flash failed a write: only {} records of this scan are \
+             durable; a power cut now would lose the rest (export it now)",
+            st.stored_records
+        );
+    }
     if let Some(k) = report.log_full_at {
         println!(
             "  the device's flash log is full: frames {k}..{} were not scanned; the scan \
