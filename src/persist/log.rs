@@ -433,10 +433,10 @@ impl<F: NorFlash> Log<F> {
         let per_sector = sector_len / total;
         let (free_sectors, in_current) = match self.live {
             Some(l) => (
-                self.sectors - 1 - l.sectors,
+                self.sectors.saturating_sub(1 + l.sectors),
                 l.offset.map_or(0, |o| (sector_len - o as usize) / total),
             ),
-            None => (self.sectors - 1, 0),
+            None => (self.sectors.saturating_sub(1), 0),
         };
         in_current + free_sectors as usize * per_sector >= count
     }
