@@ -39,6 +39,9 @@
 
 use embedded_storage::nor_flash::{NorFlash, NorFlashError, NorFlashErrorKind};
 
+// The wire protocol's CRC-32 (one table in flash for both).
+use crate::protocol::CRC;
+
 /// Bytes of a record header.
 pub const HEADER_LEN: usize = 20;
 /// The largest payload a record can carry.
@@ -48,7 +51,6 @@ pub const FORMAT: u16 = 1;
 /// The coarsest write or read granularity the log supports.
 const MAX_ALIGN: usize = 32;
 const MAGIC: [u8; 4] = *b"PDBL";
-static CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
 /// Why the log refused an operation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
