@@ -51,3 +51,8 @@ fn device_corpus() {
 fn device_structured_corpus() {
     replay("device_structured", harness::device_structured);
 }
+
+#[test]
+fn restore_corpus() {
+    replay("restore", harness::restore);
+}

@@ -112,6 +112,11 @@ impl SimFlash {
         &self.bytes
     }
 
+    /// The raw contents, to damage them in a test (not a flash step).
+    pub fn bytes_mut(&mut self) -> &mut [u8] {
+        &mut self.bytes
+    }
+
     /// Counts a step; `Some(tear)` when it is the one that loses power.
     fn step(&mut self) -> Result<Option<Tear>, SimFlashError> {
         if self.is_off() {
