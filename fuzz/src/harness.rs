@@ -969,7 +969,7 @@ pub fn restore(data: &[u8]) {
         let Ok(payload) = record.encode(&hashes, &mut buf) else {
             continue;
         };
-        let _ = if i == 0 || r.u8() % 16 == 0 {
+        let _ = if i == 0 || r.u8().is_multiple_of(16) {
             log.start(payload)
         } else {
             log.append(payload)
