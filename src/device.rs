@@ -147,7 +147,8 @@ struct Core<
 /// of the new frame.
 const MAX_STEP_DECISIONS: usize = 65;
 
-/// The largest log record: a database frame with its sketch (`K` ≤ 160).
+/// The largest log record: a database frame with its sketch (`K` ≤ 168,
+/// checked at compile time by `DB_RECORD_LEN`).
 const MAX_RECORD_LEN: usize = 768;
 
 /// Why [`Device::restore`] found no usable scan; the device is left reset.
@@ -591,7 +592,6 @@ impl<
         };
         self.rows_ticks = 0;
         self.last = Applied::NONE;
-        self.decisions.clear();
         self.durable_db = 0;
         self.stored = 0;
         self.storage_failed = false;
