@@ -438,9 +438,9 @@ impl Default for QemuOptions {
 ///
 /// With [`QemuOptions::flash`] the machine RAM comes from that file:
 /// `-machine MACHINE,memory-backend=placedb-flash -object
-/// memory-backend-file,id=placedb-flash,size=16M,mem-path=FILE,share=on`, and
-/// the file is created first if missing ([`prepare_flash_file`]; an error
-/// there is left for QEMU to report, [`Qemu::start_with`] reports it itself).
+/// memory-backend-file,id=placedb-flash,size=16M,mem-path=FILE,share=on`;
+/// the caller creates the file first ([`prepare_flash_file`], as
+/// [`Qemu::start_with`] does).
 pub fn qemu_command(firmware: &Path, options: &QemuOptions, serial: &str) -> Command {
     let mut command = Command::new(&options.program);
     command.args(["-cpu", &options.cpu]);
@@ -449,7 +449,6 @@ pub fn qemu_command(firmware: &Path, options: &QemuOptions, serial: &str) -> Com
             command.args(["-machine", &options.machine]);
         }
         Some(file) => {
-            let _ = prepare_flash_file(file);
             let mut backend = std::ffi::OsString::from(format!(
                 "memory-backend-file,id={FLASH_BACKEND_ID},size={FLASH_FILE_SIZE},share=on,mem-path="
             ));
