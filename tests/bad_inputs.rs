@@ -199,27 +199,14 @@ fn seq_then(seq: u32, rest: &[u8]) -> Vec<u8> {
     out
 }
 
-/// COBS of `data` and the 0x00 delimiter.
+/// COBS of `data` and the 0x00 delimiter (postcard's flavour, as the
+/// protocol's own encoder uses).
 fn cobs(data: &[u8]) -> Vec<u8> {
-    let mut out = vec![0u8];
-    let mut code_at = 0;
-    for &b in data {
-        if b == 0 {
-            out[code_at] = (out.len() - code_at) as u8;
-            code_at = out.len();
-            out.push(0);
-        } else {
-            out.push(b);
-            if out.len() - code_at == 0xFF {
-                out[code_at] = 0xFF;
-                code_at = out.len();
-                out.push(0);
-            }
-        }
-    }
-    out[code_at] = (out.len() - code_at) as u8;
-    out.push(0);
-    out
+    use postcard::ser_flavors::{Cobs, Flavor, Slice};
+    let mut buf = vec![0u8; data.len() + data.len() / 254 + 2];
+    let mut cobs = Cobs::try_new(Slice::new(&mut buf)).unwrap();
+    cobs.try_extend(data).unwrap();
+    cobs.finalize().unwrap().to_vec()
 }
 
 /// A frame of `payload` with its correct CRC: it passes the CRC check,

@@ -184,31 +184,18 @@ fn run_host(chunks: &[&[u8]]) -> Vec<Result<Vec<u8>, ProtocolError>> {
     out
 }
 
-/// Test-only COBS encoder of raw payload bytes (plus CRC unless `crc` is false).
+/// A frame of raw payload bytes (plus CRC unless `crc` is false), COBS-encoded
+/// by postcard's flavour (as [`encode`] does) with its 0x00 delimiter.
 fn raw_frame(payload: &[u8], crc: bool) -> Vec<u8> {
+    use postcard::ser_flavors::{Cobs, Flavor, Slice};
     let mut data = payload.to_vec();
     if crc {
         data.extend_from_slice(&CRC.checksum(payload).to_le_bytes());
     }
-    let mut out = vec![0u8];
-    let mut code_at = 0;
-    for &b in &data {
-        if b == 0 {
-            out[code_at] = (out.len() - code_at) as u8;
-            code_at = out.len();
-            out.push(0);
-        } else {
-            out.push(b);
-            if out.len() - code_at == 0xFF {
-                out[code_at] = 0xFF;
-                code_at = out.len();
-                out.push(0);
-            }
-        }
-    }
-    out[code_at] = (out.len() - code_at) as u8;
-    out.push(0);
-    out
+    let mut buf = vec![0u8; data.len() + data.len() / 254 + 2];
+    let mut cobs = Cobs::try_new(Slice::new(&mut buf)).unwrap();
+    cobs.try_extend(&data).unwrap();
+    cobs.finalize().unwrap().to_vec()
 }
 
 #[test]
