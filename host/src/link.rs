@@ -391,6 +391,9 @@ pub fn prepare_flash_file(path: &Path) -> io::Result<()> {
     name.push(format!(".tmp{}", std::process::id()));
     let tmp = path.with_file_name(name);
     let written = (|| {
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir)?;
+        }
         let mut file = std::fs::File::create(&tmp)?;
         let erased = vec![0xFFu8; 1 << 20];
         for _ in 0..FLASH_FILE_SIZE / (1 << 20) {
