@@ -18,19 +18,17 @@
 
 use crate::fault::{FaultConfig, FaultInjector};
 use crate::link::{self, Client, Link, QemuOptions, Received};
-use crate::online::sampled_rows;
 use crate::output;
 use crate::sequence::Sequence;
+use crate::session::{DepthFrame, ScanState};
 use crate::voxelize::{self, GridOrigin, VoxelConfig};
 use indicatif::ProgressBar;
 use placedb::profile::{Capacities, PROFILES};
 use placedb::protocol::{
-    depth_rows_per_message, encode, export_crc, CapacitySlot, Config, DecisionKind, DepthRows,
-    DeviceMessage, ErrorKind, ExportRecord, Feed, FrameDecoder, HostMessage, Phase, RecordKind,
-    Status, MAX_FRAME_LEN,
+    encode, export_crc, CapacitySlot, Config, DecisionKind, DeviceMessage, ErrorKind, ExportRecord,
+    Feed, FrameDecoder, HostMessage, RecordKind, Status, MAX_FRAME_LEN,
 };
 use placedb::{DbRecord, ScanConfig, SelectorConfig, VoxelGrid};
-use std::collections::VecDeque;
 use std::io;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -188,7 +186,7 @@ pub fn device_profile(st: &Status) -> Option<&'static Capacities> {
     })
 }
 
-fn check_profile(st: &Status, profile: &str) -> Result<(), DeviceError> {
+pub(crate) fn check_profile(st: &Status, profile: &str) -> Result<(), DeviceError> {
     match device_profile(st) {
         Some(p) if p.name == profile => Ok(()),
         Some(p) => Err(DeviceError::Profile(format!(
@@ -295,7 +293,7 @@ pub fn exchange<L: Link>(
 }
 
 /// One message of a stream's set-up, with or without retransmission.
-fn call<L: Link>(
+pub(crate) fn call<L: Link>(
     client: &mut Client<L>,
     msg: HostMessage<'_>,
     what: &str,
@@ -311,7 +309,7 @@ fn call<L: Link>(
 }
 
 /// A StatusRequest through [`call`].
-fn call_status<L: Link>(
+pub(crate) fn call_status<L: Link>(
     client: &mut Client<L>,
     opts: &StreamOptions,
     resent: &mut u64,
@@ -331,117 +329,6 @@ fn status_of(replies: &[Received]) -> Result<Status, DeviceError> {
         other => Err(DeviceError::Protocol(format!(
             "expected a Status, got {other:?}"
         ))),
-    }
-}
-
-/// Messages in flight and what their replies told.
-struct Pipeline<'c, L: Link> {
-    client: &'c mut Client<L>,
-    outstanding: VecDeque<(u32, String)>,
-    in_flight: usize,
-    timeout: Duration,
-    decisions: Vec<Option<DecisionKind>>,
-    status: Option<Status>,
-    bytes: u64,
-    messages: u64,
-    /// Retransmissions allowed per message (0: pipelined, no recovery).
-    retries: usize,
-    resend_after: Duration,
-    retransmissions: u64,
-}
-
-impl<L: Link> Pipeline<'_, L> {
-    fn send(
-        &mut self,
-        msg: HostMessage<'_>,
-        what: impl FnOnce() -> String,
-    ) -> Result<(), DeviceError> {
-        while self.outstanding.len() >= self.in_flight.max(1) {
-            self.pump()?;
-        }
-        let mut buf = vec![0u8; MAX_FRAME_LEN];
-        self.bytes += encode(&placedb::protocol::HostFrame { seq: 0, msg }, &mut buf)
-            .map(|f| f.len() as u64)
-            .unwrap_or(0);
-        self.messages += 1;
-        if self.retries > 0 {
-            let what = what();
-            let (replies, resent) =
-                exchange(self.client, msg, &what, self.resend_after, self.retries)?;
-            self.retransmissions += resent;
-            for item in &replies {
-                self.note(item);
-            }
-            return Ok(());
-        }
-        let seq = self.client.send(msg)?;
-        self.outstanding.push_back((seq, what()));
-        Ok(())
-    }
-
-    /// Keeps the final decisions and the last status.
-    fn note(&mut self, item: &Received) {
-        match item {
-            Received::Message(DeviceMessage::Decision { frame, kind })
-                if *kind != DecisionKind::Pending =>
-            {
-                if let Some(slot) = self.decisions.get_mut(*frame as usize) {
-                    *slot = Some(*kind);
-                }
-            }
-            Received::Message(DeviceMessage::Status(s)) => self.status = Some(*s),
-            _ => {}
-        }
-    }
-
-    /// Handles replies until the oldest outstanding message is answered.
-    fn pump(&mut self) -> Result<(), DeviceError> {
-        let Some((want, what)) = self.outstanding.front().cloned() else {
-            return Ok(());
-        };
-        loop {
-            let item = self.client.recv(self.timeout).map_err(|e| {
-                DeviceError::Io(io::Error::new(
-                    e.kind(),
-                    format!("waiting for the reply to {what}: {e}"),
-                ))
-            })?;
-            self.note(&item);
-            match &item {
-                Received::Message(DeviceMessage::Error { seq, kind }) => {
-                    return Err(DeviceError::Refused {
-                        what,
-                        seq: seq.unwrap_or(want),
-                        kind: *kind,
-                    })
-                }
-                Received::Damaged(e) => {
-                    return Err(DeviceError::Protocol(format!(
-                        "damaged reply while waiting for {what}: {e}"
-                    )))
-                }
-                _ => {}
-            }
-            match item.terminal_seq() {
-                Some(s) if s == want => {
-                    self.outstanding.pop_front();
-                    return Ok(());
-                }
-                Some(s) => {
-                    return Err(DeviceError::Protocol(format!(
-                        "reply to seq {s} while waiting for seq {want} ({what})"
-                    )))
-                }
-                None => {}
-            }
-        }
-    }
-
-    fn drain(&mut self) -> Result<(), DeviceError> {
-        while !self.outstanding.is_empty() {
-            self.pump()?;
-        }
-        Ok(())
     }
 }
 
@@ -473,7 +360,8 @@ pub fn status_line(st: &Status) -> String {
 /// Streams `seq` to the device behind `client`: (Reset,) Hello with `cfg`,
 /// every frame as FrameBegin, DepthRows, FrameEnd (and a StatusRequest for
 /// the live line), then Finish. The device must run capacity profile
-/// `profile`.
+/// `profile`. The frames go through the client API's code
+/// ([`crate::session`]), as a robot's would.
 pub fn stream<L: Link>(
     client: &mut Client<L>,
     seq: &Sequence,
@@ -482,110 +370,54 @@ pub fn stream<L: Link>(
     opts: &StreamOptions,
     progress: Option<&ProgressBar>,
 ) -> Result<StreamReport, DeviceError> {
-    let timeout = opts.reply_timeout;
-    let mut resent = 0;
-    client.resync()?;
-    let st = call_status(client, opts, &mut resent)?;
-    check_profile(&st, profile)?;
     let n = seq.frames.len();
-    let first = if opts.resume {
-        resume_point(&st, n)?
-    } else {
-        0
-    };
-    if opts.reset && !opts.resume {
-        call(client, HostMessage::Reset, "Reset", opts, &mut resent)?;
-    }
-    let started = Instant::now();
-    call(client, HostMessage::Hello(*cfg), "Hello", opts, &mut resent)?;
-    let width = cfg.width_sent();
-    let fit = depth_rows_per_message(width);
-    let rows_per_msg = match opts.rows_per_message {
-        0 => fit,
-        r => r.min(fit),
-    }
-    .max(1);
-    let mut pipe = Pipeline {
-        client,
-        outstanding: VecDeque::new(),
-        in_flight: opts.in_flight,
-        timeout,
-        decisions: vec![None; n],
-        status: None,
-        bytes: 0,
-        messages: 0,
-        retries: opts.retries,
-        resend_after: opts.resend_after,
-        retransmissions: resent,
-    };
+    let mut scan = ScanState::new(opts.clone());
+    scan.begin(client, cfg, Some(profile), Some(n))?;
+    let first = scan.next_frame as usize;
+    scan.decisions = vec![None; n];
+    let started = scan.started.unwrap_or_else(Instant::now);
     if let Some(p) = progress {
         p.set_position(first as u64);
     }
     let mut log_full_at = None;
-    match send_frames(
-        &mut pipe,
-        seq,
-        cfg,
-        first..n,
-        rows_per_msg,
-        progress,
-        started,
-    ) {
+    match send_frames(client, &mut scan, seq, cfg, first..n, progress, started) {
         Ok(()) => {}
-        Err(DeviceError::Refused {
-            kind: ErrorKind::StorageFull,
-            ..
-        }) => {
-            // The device's flash log is full: it kept room to end the scan,
-            // so drop the open frame and Finish with every frame so far.
-            pipe.outstanding.clear();
-            let st = call_status(pipe.client, opts, &mut pipe.retransmissions)?;
-            let frame = st.frames_seen;
-            if st.phase == Phase::InFrame {
-                call(
-                    pipe.client,
-                    HostMessage::FrameAbort { frame },
-                    "FrameAbort",
-                    opts,
-                    &mut pipe.retransmissions,
-                )?;
-            }
-            log_full_at = Some(frame as usize);
+        // The device's flash log is full: it kept room to end the scan, so
+        // drop the open frame and Finish with every frame so far.
+        Err(e) if ScanState::is_log_full(&e) => {
+            log_full_at = Some(scan.abandon_open_frame(client)? as usize);
         }
         Err(e) => return Err(e),
     }
     if opts.finish {
-        pipe.send(HostMessage::Finish, || "Finish".into())?;
+        scan.send(client, HostMessage::Finish, || "Finish".into())?;
     }
-    pipe.drain()?;
+    scan.drain(client)?;
     let wall = started.elapsed();
-    let (decisions, bytes_sent, messages) = (pipe.decisions, pipe.bytes, pipe.messages);
-    let mut resent = pipe.retransmissions;
-    let status = call_status(client, opts, &mut resent)?;
+    let status = call_status(client, opts, &mut scan.retransmissions)?;
     Ok(StreamReport {
         frames: log_full_at.unwrap_or(n) - first,
         log_full_at,
-        decisions,
+        decisions: scan.decisions,
         status,
         wall,
-        bytes_sent,
-        messages,
-        retransmissions: resent,
+        bytes_sent: scan.bytes,
+        messages: scan.messages,
+        retransmissions: scan.retransmissions,
     })
 }
 
 /// Sends frames `range` of `seq` (FrameBegin, DepthRows, FrameEnd, and a
-/// StatusRequest for the live line) through `pipe`.
+/// StatusRequest for the live line) through `scan`.
 fn send_frames<L: Link>(
-    pipe: &mut Pipeline<'_, L>,
+    client: &mut Client<L>,
+    scan: &mut ScanState,
     seq: &Sequence,
     cfg: &Config,
     range: std::ops::Range<usize>,
-    rows_per_msg: u16,
     progress: Option<&ProgressBar>,
     started: Instant,
 ) -> Result<(), DeviceError> {
-    let width = cfg.width_sent();
     let first = range.start;
     for i in range {
         let img = seq
@@ -594,67 +426,30 @@ fn send_frames<L: Link>(
         let pose = seq.frames[i]
             .pose()
             .map_err(|e| DeviceError::Input(format!("frame {i}: pose: {e:?}")))?;
-        let (w, rows) = sampled_rows(&img, cfg.stride);
-        if w != usize::from(width) {
-            return Err(DeviceError::Input(format!(
-                "frame {i}: {w} sampled columns, the configuration says {width}"
-            )));
-        }
-        let frame = i as u32;
-        pipe.send(
-            HostMessage::FrameBegin {
-                frame,
+        scan.push(
+            client,
+            &DepthFrame {
                 timestamp: seq.frames[i].timestamp,
                 pose,
+                intrinsics: cfg.intrinsics,
+                depth: &img.data,
             },
-            || format!("FrameBegin {i}"),
         )?;
-        let per_msg = w * usize::from(rows_per_msg);
-        for (k, chunk) in rows.chunks(per_msg.max(1)).enumerate() {
-            let data: Vec<u8> = chunk.iter().flat_map(|d| d.to_le_bytes()).collect();
-            let first_row = (k * usize::from(rows_per_msg)) as u16;
-            pipe.send(
-                HostMessage::DepthRows(DepthRows {
-                    frame,
-                    first_row,
-                    row_count: (chunk.len() / w.max(1)) as u16,
-                    data: &data,
-                }),
-                || format!("DepthRows {i}:{first_row}"),
-            )?;
-        }
-        pipe.send(HostMessage::FrameEnd { frame }, || format!("FrameEnd {i}"))?;
         // The live line's status; stop-and-wait without a display skips it.
-        if pipe.retries == 0 || progress.is_some() {
-            pipe.send(HostMessage::StatusRequest, || "StatusRequest".into())?;
+        if scan.opts.retries == 0 || progress.is_some() {
+            scan.send(client, HostMessage::StatusRequest, || {
+                "StatusRequest".into()
+            })?;
         }
         if let Some(p) = progress {
             p.set_position(i as u64 + 1);
-            if let Some(st) = &pipe.status {
+            if let Some(st) = &scan.status {
                 let fps = (i + 1 - first) as f64 / started.elapsed().as_secs_f64().max(1e-9);
                 p.set_message(format!("{fps:.2} fps | {}", status_line(st)));
             }
         }
     }
     Ok(())
-}
-
-/// The first frame to send when resuming the scan whose status is `st`
-/// (with `n` frames in the sequence).
-fn resume_point(st: &Status, n: usize) -> Result<usize, DeviceError> {
-    if st.phase == Phase::InFrame {
-        return Err(DeviceError::Input(
-            "the device has a frame open: restart it (it resumes from flash) or stream without --resume"
-                .into(),
-        ));
-    }
-    let seen = st.frames_seen as usize;
-    if seen > n {
-        return Err(DeviceError::Input(format!(
-            "the device has seen {seen} frames, the sequence has {n}: not this sequence?"
-        )));
-    }
-    Ok(seen)
 }
 
 /// How to export.

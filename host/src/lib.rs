@@ -14,6 +14,7 @@ pub mod pipeline;
 pub mod plot;
 pub mod read;
 pub mod sequence;
+pub mod session;
 pub mod solve;
 pub mod synth;
 pub mod voxelize;

@@ -50,13 +50,22 @@ pub enum ReplayError {
 
 /// The rows a board receives for one frame: sampled rows of sampled columns.
 pub fn sampled_rows(img: &DepthImage, stride: u16) -> (usize, Vec<u16>) {
+    sampled_rows_of(&img.data, img.width, stride)
+}
+
+/// [`sampled_rows`] of a row-major buffer `width` values wide (a frame held
+/// in memory, e.g. a camera driver's): its rows `0, stride, 2 stride, ...`,
+/// each sampled the same way. A last partial row is ignored.
+pub fn sampled_rows_of(data: &[u16], width: u16, stride: u16) -> (usize, Vec<u16>) {
     let s = stride.max(1) as usize;
-    let width = (img.width as usize).div_ceil(s);
-    let mut out = Vec::with_capacity(width * (img.height as usize).div_ceil(s));
-    for v in (0..img.height).step_by(s) {
-        out.extend(img.row(v).iter().step_by(s));
+    let w = width as usize;
+    let height = data.len().checked_div(w).unwrap_or(0);
+    let sampled = w.div_ceil(s);
+    let mut out = Vec::with_capacity(sampled * height.div_ceil(s));
+    for row in data.chunks_exact(w.max(1)).take(height).step_by(s) {
+        out.extend(row.iter().step_by(s));
     }
-    (width, out)
+    (sampled, out)
 }
 
 /// Runs `seq` through a selector of profile `profile` (see `placedb::profile`).
