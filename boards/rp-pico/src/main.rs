@@ -113,7 +113,13 @@ fn main() -> ! {
         .manufacturer("placedb")
         .product("placedb device")
         .serial_number("0001");
-    let Ok(builder) = UsbDeviceBuilder::new(&bus, USB_VID_PID).strings(&[strings]) else {
+    // EP0 packets of 64 bytes (usb-device's default is 8): the whole 9-byte
+    // configuration descriptor header fits one packet, which full-speed
+    // hosts (and the rp2040js USB host the CI harness uses) expect.
+    let Ok(builder) = UsbDeviceBuilder::new(&bus, USB_VID_PID)
+        .strings(&[strings])
+        .and_then(|b| b.max_packet_size_0(64))
+    else {
         halt()
     };
     let usb = builder.device_class(USB_CLASS_CDC).build();

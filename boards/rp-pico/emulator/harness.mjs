@@ -1,0 +1,756 @@
+#!/usr/bin/env node
+// The placedb Raspberry Pi Pico firmware under rp2040js, instruction by
+// instruction: the real boot ROM and boot2, the Pico's 2 MiB QSPI flash
+// (backed by a file), and a USB host that enumerates the firmware's CDC-ACM
+// port and bridges its bulk endpoints to one TCP connection on 127.0.0.1.
+//
+//   node harness.mjs --elf FIRMWARE.elf --bootrom bootrom-b1.bin
+//                    [--port N] [--flash FILE] [--deadline SECONDS]
+//
+// stdout, one line each (tests and `placedb device --rp2040` read them):
+//   "listening tcp:127.0.0.1:PORT"     ready for the host (one client at a time)
+//   "usb configured ..."               enumeration done, descriptors parsed
+//   "client connected" / "client closed"
+//   "stats cycles=N ..."               on exit (SIGTERM, SIGINT, deadline)
+// A fatal condition prints "error: ..." on stderr and exits 2 (3: deadline).
+//
+// Flash: rp2040js does not model the QSPI flash chip; the boot ROM's flash
+// functions run but change nothing. This harness stops the core at the
+// entry of `flash_range_erase` and `flash_range_program` (found through the
+// ROM's function table, as firmware finds them), does the operation on the
+// emulator's flash array (erase: 0xFF; program: bitwise AND, as NOR does),
+// writes the touched bytes through to the --flash file at once (so a killed
+// emulator leaves exactly what was programmed), and returns to the caller.
+// Every ROM flash call (connect_internal_flash, flash_exit_xip, erase,
+// program, flash_flush_cache, flash_enter_cmd_xip) made from outside the ROM
+// must return into RAM: on silicon XIP is off during these calls, so code in
+// flash cannot run; a call that would return into XIP flash ends the run.
+
+import { RP2040, BasePeripheral } from 'rp2040js';
+import fs from 'node:fs';
+import net from 'node:net';
+import process from 'node:process';
+
+const FLASH_SIZE = 2 * 1024 * 1024; // the Pico's W25Q16JV
+const XIP_BASE = 0x10000000;
+const XIP_END = 0x14000000; // XIP, XIP_NOALLOC, XIP_NOCACHE, XIP_NOCACHE_NOALLOC
+const ROM_END = 0x4000;
+const SECTOR = 4096;
+const PAGE = 256;
+const NANOS_PER_CYCLE = 8; // clk_sys 125 MHz, as rp2040-hal's init_clocks_and_plls sets it
+const CHUNK = 200000; // instructions between looks at the event loop
+
+function usage(msg) {
+  if (msg) process.stderr.write(`error: ${msg}\n`);
+  process.stderr.write(
+    'usage: node harness.mjs --elf FIRMWARE.elf --bootrom bootrom-b1.bin [--port N] [--flash FILE] [--deadline SECONDS]\n',
+  );
+  process.exit(2);
+}
+
+function parseArgs(argv) {
+  const opts = { port: 0, flash: null, deadline: 0, elf: null, bootrom: null, quiet: false };
+  for (let i = 0; i < argv.length; i++) {
+    const a = argv[i];
+    const value = () => {
+      if (i + 1 >= argv.length) usage(`${a} needs a value`);
+      return argv[++i];
+    };
+    switch (a) {
+      case '--elf':
+        opts.elf = value();
+        break;
+      case '--bootrom':
+        opts.bootrom = value();
+        break;
+      case '--flash':
+        opts.flash = value();
+        break;
+      case '--port': {
+        const p = Number(value());
+        if (!Number.isInteger(p) || p < 0 || p > 65535) usage('--port takes 0..65535');
+        opts.port = p;
+        break;
+      }
+      case '--deadline': {
+        const d = Number(value());
+        if (!(d >= 0)) usage('--deadline takes seconds');
+        opts.deadline = d;
+        break;
+      }
+      case '--quiet':
+        opts.quiet = true;
+        break;
+      case '-h':
+      case '--help':
+        usage();
+        break;
+      default:
+        usage(`unknown argument ${a}`);
+    }
+  }
+  if (!opts.elf) usage('--elf is required');
+  if (!opts.bootrom) usage('--bootrom is required');
+  return opts;
+}
+
+function fatal(msg, code = 2) {
+  process.stderr.write(`error: ${msg}\n`);
+  finish(code);
+}
+
+const hex = (n) => '0x' + (n >>> 0).toString(16).padStart(8, '0');
+
+// ---------------------------------------------------------------- ELF
+
+/** PT_LOAD segments of a 32-bit little-endian ARM ELF: [{ paddr, bytes }]. */
+function elfSegments(buf) {
+  const bad = (why) => {
+    throw new Error(`not a 32-bit little-endian ARM ELF: ${why}`);
+  };
+  if (buf.length < 52 || buf.readUInt32BE(0) !== 0x7f454c46) bad('no ELF magic');
+  if (buf[4] !== 1 || buf[5] !== 1) bad('class or byte order');
+  if (buf.readUInt16LE(18) !== 40) bad('machine is not ARM');
+  const phoff = buf.readUInt32LE(28);
+  const phentsize = buf.readUInt16LE(42);
+  const phnum = buf.readUInt16LE(44);
+  const segments = [];
+  for (let i = 0; i < phnum; i++) {
+    const at = phoff + i * phentsize;
+    if (at + 32 > buf.length) bad('program header out of the file');
+    const type = buf.readUInt32LE(at);
+    const offset = buf.readUInt32LE(at + 4);
+    const paddr = buf.readUInt32LE(at + 12);
+    const filesz = buf.readUInt32LE(at + 16);
+    if (type !== 1 || filesz === 0) continue;
+    if (offset + filesz > buf.length) bad('segment out of the file');
+    segments.push({ paddr, bytes: buf.subarray(offset, offset + filesz) });
+  }
+  return segments;
+}
+
+// ---------------------------------------------------------------- flash file
+
+/** Opens (creating it erased if missing or empty) the flash image file. */
+function openFlashFile(path) {
+  let size = -1;
+  try {
+    size = fs.statSync(path).size;
+  } catch (e) {
+    if (e.code !== 'ENOENT') throw e;
+  }
+  if (size > 0 && size !== FLASH_SIZE) {
+    throw new Error(`flash file ${path} holds ${size} bytes, expected ${FLASH_SIZE} (2 MiB)`);
+  }
+  if (size <= 0) {
+    const tmp = `${path}.tmp${process.pid}`;
+    fs.writeFileSync(tmp, Buffer.alloc(FLASH_SIZE, 0xff));
+    fs.renameSync(tmp, path);
+  }
+  const fd = fs.openSync(path, 'r+');
+  const image = Buffer.alloc(FLASH_SIZE);
+  fs.readSync(fd, image, 0, FLASH_SIZE, 0);
+  return { fd, image };
+}
+
+// ---------------------------------------------------------------- machine
+
+const opts = parseArgs(process.argv.slice(2));
+const debug = process.env.PICO_DEBUG ? (line) => process.stderr.write(`debug: ${line}\n`) : () => {};
+const log = (line) => {
+  if (!opts.quiet || line.startsWith('listening') || line.startsWith('stats')) {
+    process.stdout.write(line + '\n');
+  }
+};
+
+const mcu = new RP2040();
+// rp2040js logs to the console and throws on errors by default: keep warnings
+// quiet, turn errors into a failed run with the message.
+mcu.logger = {
+  debug() {},
+  info() {},
+  warn() {},
+  error(component, message) {
+    fatal(`rp2040js ${component}: ${message} (pc ${hex(mcu.core.PC)})`);
+  },
+};
+
+/** VREG_AND_CHIP_RESET, which rp2040js leaves unimplemented (its reads give
+ * 0xFFFFFFFF, and the boot ROM takes a set PSM_RESTART_FLAG in CHIP_RESET for
+ * a debugger's rescue request and halts): a power-on reset. */
+class VregAndChipReset extends BasePeripheral {
+  constructor(rp2040, name) {
+    super(rp2040, name);
+    this.regs = [0xb1, 0x91, 0x100]; // VREG, BOD, CHIP_RESET (HAD_POR)
+  }
+  readUint32(offset) {
+    return this.regs[offset >> 2] ?? 0;
+  }
+  writeUint32(offset, value) {
+    if (offset === 8) this.regs[2] &= ~(value & 0x01000000); // PSM_RESTART_FLAG: write 1 to clear
+    else if (offset < 8) this.regs[offset >> 2] = value;
+  }
+}
+mcu.peripherals[0x40064] = new VregAndChipReset(mcu, 'VREG_AND_CHIP_RESET_BASE');
+// BOOTSEL not pressed: the QSPI chip select reads high (the boot ROM samples
+// it to choose between flash boot and USB mass-storage boot). rp2040js's
+// QSPI pads come up with their input disabled, so the pin is pinned high.
+Object.defineProperty(mcu.qspi[1], 'inputValue', { get: () => true });
+
+/** The QSPI flash chip behind the SSI, as far as the boot ROM and boot2
+ * talk to it in serial mode (rp2040js's SSI answers every read with 0, so the
+ * ROM cannot load boot2): one response byte per byte sent. Commands: 0x03
+ * read data (3 address bytes, then data until chip select goes high), 0x05 /
+ * 0x35 read status register 1 / 2 (not busy; QE set, so boot2 leaves the
+ * status registers alone), 0x9F JEDEC id (W25Q16JV), anything else answered
+ * with 0. Erase and program are not done here: the ROM's functions for them
+ * are stopped at their entry (see flashCall). A transaction ends when the
+ * chip select is forced high (IO_QSPI SS override) or the SSI is disabled. */
+const spi = {
+  cmd: -1,
+  n: 0,
+  addr: 0,
+  rx: [],
+  end() {
+    this.cmd = -1;
+    this.n = 0;
+    this.rx = [];
+  },
+  byte(b) {
+    if (this.cmd < 0) {
+      this.cmd = b;
+      this.n = 0;
+      return 0;
+    }
+    const i = this.n++;
+    switch (this.cmd) {
+      case 0x03:
+        if (i < 3) {
+          this.addr = ((this.addr << 8) | b) & 0xffffff;
+          return 0;
+        }
+        return mcu.flash[this.addr++ % FLASH_SIZE];
+      case 0x05:
+        return 0x00;
+      case 0x35:
+        return 0x02;
+      case 0x9f:
+        return [0xef, 0x40, 0x15][i] ?? 0;
+      default:
+        return 0;
+    }
+  },
+};
+{
+  const ssi = mcu.peripherals[0x18000];
+  const [read, write] = [ssi.readUint32.bind(ssi), ssi.writeUint32.bind(ssi)];
+  ssi.readUint32 = (offset) => {
+    switch (offset) {
+      case 0x60: // DR0
+        return spi.rx.shift() ?? 0;
+      case 0x20: // TXFLR: sent at once
+        return 0;
+      case 0x24: // RXFLR
+        return Math.min(spi.rx.length, 16);
+      case 0x28: // SR: TX FIFO empty and not full, RX FIFO not empty if so, never busy
+        return 0x6 | (spi.rx.length ? 0x8 : 0);
+      default:
+        return read(offset);
+    }
+  };
+  ssi.writeUint32 = (offset, value) => {
+    if (offset === 0x60) {
+      // The status reads of boot2's read_flash_sreg are a fresh command
+      // each: their transactions end when the TX FIFO empties, which an
+      // instant model cannot see, so they end after their one data byte.
+      const cmd = spi.cmd;
+      spi.rx.push(spi.byte(value & 0xff));
+      if ((cmd === 0x05 || cmd === 0x35) && spi.n >= 1) spi.cmd = -1;
+    } else if (offset === 0x08) {
+      spi.end();
+    }
+    write(offset, value);
+  };
+}
+/** IO_QSPI (unimplemented in rp2040js): registers kept; forcing the chip
+ * select high ends a flash transaction. */
+class IoQspi extends BasePeripheral {
+  constructor(rp2040, name) {
+    super(rp2040, name);
+    this.regs = new Array(12).fill(0);
+  }
+  readUint32(offset) {
+    return this.regs[offset >> 2] ?? 0;
+  }
+  writeUint32(offset, value) {
+    if (offset >> 2 < this.regs.length) this.regs[offset >> 2] = value;
+    if (offset === 0x0c && ((value >> 8) & 3) === 3) spi.end(); // SS_CTRL OUTOVER: high
+  }
+}
+mcu.peripherals[0x40018] = new IoQspi(mcu, 'IO_QSPI_BASE');
+
+let bootrom;
+try {
+  bootrom = fs.readFileSync(opts.bootrom);
+} catch (e) {
+  usage(`cannot read the boot ROM ${opts.bootrom}: ${e.message}`);
+}
+if (bootrom.length !== 16384) usage(`boot ROM ${opts.bootrom} is ${bootrom.length} bytes, expected 16384`);
+mcu.loadBootrom(new Uint32Array(bootrom.buffer.slice(bootrom.byteOffset, bootrom.byteOffset + 16384)));
+
+let flashFd = null;
+if (opts.flash) {
+  try {
+    const { fd, image } = openFlashFile(opts.flash);
+    flashFd = fd;
+    mcu.flash.set(image, 0);
+  } catch (e) {
+    usage(e.message);
+  }
+}
+
+// Program the firmware into flash, like a UF2 drag and drop: every sector the
+// ELF's load segments touch is erased and programmed; the rest is kept.
+let elf;
+try {
+  elf = elfSegments(fs.readFileSync(opts.elf));
+} catch (e) {
+  usage(`${opts.elf}: ${e.message}`);
+}
+const programmed = new Set();
+for (const { paddr, bytes } of elf) {
+  if (paddr >= 0x20000000) continue; // RAM-only (e.g. .bss has no file bytes anyway)
+  if (paddr < XIP_BASE || paddr + bytes.length > XIP_BASE + FLASH_SIZE) {
+    usage(`${opts.elf}: segment at ${hex(paddr)} (${bytes.length} bytes) is not in the 2 MiB flash`);
+  }
+  const off = paddr - XIP_BASE;
+  const first = off - (off % SECTOR);
+  const end = Math.ceil((off + bytes.length) / SECTOR) * SECTOR;
+  for (let s = first; s < end; s += SECTOR) {
+    // Sectors shared by two segments: erase once (the first segment's bytes stay).
+    if (!programmed.has(s)) mcu.flash.fill(0xff, s, s + SECTOR);
+    programmed.add(s);
+  }
+  mcu.flash.set(bytes, off);
+  persist(first, end - first);
+}
+function persist(offset, length) {
+  if (flashFd === null) return;
+  fs.writeSync(flashFd, mcu.flash, offset, length, offset);
+}
+
+// ---------------------------------------------------------------- boot ROM hooks
+
+/** The ROM's function table: code ('I','F' -> 0x4649) to address. */
+function romFunctions() {
+  const rd16 = (a) => bootrom.readUInt16LE(a);
+  const table = new Map();
+  for (let at = rd16(0x14); at + 4 <= bootrom.length; at += 4) {
+    const code = rd16(at);
+    if (code === 0) break;
+    table.set(String.fromCharCode(code & 0xff, code >> 8), rd16(at + 2));
+  }
+  return table;
+}
+const rom = romFunctions();
+const FLASH_CALLS = {
+  IF: 'connect_internal_flash',
+  EX: 'flash_exit_xip',
+  RE: 'flash_range_erase',
+  RP: 'flash_range_program',
+  FC: 'flash_flush_cache',
+  CX: 'flash_enter_cmd_xip',
+};
+/** hooks[pc >> 1] for pc in the ROM: the flash call starting there. */
+const hooks = new Array(ROM_END >> 1).fill(null);
+for (const [code, name] of Object.entries(FLASH_CALLS)) {
+  const addr = rom.get(code);
+  if (addr === undefined) usage(`the boot ROM's function table has no ${code} (${name})`);
+  hooks[(addr & ~1) >> 1] = code;
+}
+
+const stats = {
+  erases: 0,
+  programs: 0,
+  romFlashCalls: 0,
+  bytesIn: 0,
+  bytesOut: 0,
+};
+
+const inRam = (a) => a >= 0x20000000 && a < 0x20042000;
+const inXip = (a) => a >= XIP_BASE && a < XIP_END;
+
+/** Runs at the first instruction of a ROM flash function; true if it was
+ * completed here (the core then returns to the caller). */
+function flashCall(code) {
+  const core = mcu.core;
+  const lr = core.LR >>> 0;
+  const ret = lr & ~1;
+  if (ret < ROM_END) return false; // the ROM's own boot path
+  stats.romFlashCalls++;
+  if (inXip(ret)) {
+    fatal(
+      `${FLASH_CALLS[code]} called from XIP flash (return address ${hex(lr)}): ` +
+        'on silicon XIP is off during ROM flash calls, so this would crash',
+    );
+    return true;
+  }
+  if (!inRam(ret)) {
+    fatal(`${FLASH_CALLS[code]} would return to ${hex(lr)}, outside RAM`);
+    return true;
+  }
+  const r = core.registers;
+  if (code === 'RE') {
+    const [addr, count] = [r[0] >>> 0, r[1] >>> 0];
+    if (addr % SECTOR || count % SECTOR || addr + count > FLASH_SIZE) {
+      fatal(`flash_range_erase(${hex(addr)}, ${count}): not whole 4 KiB sectors inside the 2 MiB flash`);
+      return true;
+    }
+    mcu.flash.fill(0xff, addr, addr + count);
+    persist(addr, count);
+    stats.erases += count / SECTOR;
+  } else if (code === 'RP') {
+    const [addr, data, count] = [r[0] >>> 0, r[1] >>> 0, r[2] >>> 0];
+    if (addr % PAGE || count % PAGE || addr + count > FLASH_SIZE) {
+      fatal(`flash_range_program(${hex(addr)}, ${hex(data)}, ${count}): not whole 256-byte pages inside the 2 MiB flash`);
+      return true;
+    }
+    if (!inRam(data) || !inRam(data + count - 1)) {
+      fatal(`flash_range_program source ${hex(data)} is not in RAM (XIP is off during the call)`);
+      return true;
+    }
+    for (let i = 0; i < count; i++) {
+      mcu.flash[addr + i] &= mcu.readUint8(data + i);
+    }
+    persist(addr, count);
+    stats.programs += count / PAGE;
+  } else {
+    return false; // the others run in the ROM (they change nothing here)
+  }
+  core.PC = ret;
+  core.cycles += 50; // the call itself; flash busy time is not modelled
+  return true;
+}
+
+// ---------------------------------------------------------------- USB host
+
+const usb = mcu.usbCtrl;
+const host = {
+  configured: false,
+  control: null, // the control transfer in progress
+  queue: [], // control transfers still to do
+  ep0OutArmed: false,
+  bulkIn: -1,
+  bulkOut: -1,
+  outArmed: 0, // bytes the firmware's bulk OUT buffer takes (0: not armed)
+  rx: [], // Buffers from the TCP client, for bulk OUT
+  rxBytes: 0,
+  activity: 0,
+  descriptors: {},
+};
+
+function setup(bmRequestType, bRequest, wValue, wIndex, wLength, data = null, name = '') {
+  const s = new Uint8Array(8);
+  s[0] = bmRequestType;
+  s[1] = bRequest;
+  s[2] = wValue & 0xff;
+  s[3] = wValue >> 8;
+  s[4] = wIndex & 0xff;
+  s[5] = wIndex >> 8;
+  s[6] = wLength & 0xff;
+  s[7] = wLength >> 8;
+  return { setup: s, data, wLength, name, received: [], sentData: false, inDir: !!(bmRequestType & 0x80) };
+}
+
+function startNextControl() {
+  host.control = host.queue.shift() ?? null;
+  debug(`control ${host.control ? host.control.name : 'done'}`);
+  if (host.control) usb.sendSetupPacket(host.control.setup);
+}
+
+/** The next control transfer starts this long after one ends, so that the
+ * status stage (delivered after rp2040js's 10 us read delay) reaches the
+ * firmware before the next SETUP does, as on a real bus. */
+const CONTROL_GAP_NS = 100000;
+const nextControl = mcu.clock.createAlarm(() => startNextControl());
+
+function controlDone(c) {
+  const bytes = Buffer.concat(c.received.map((b) => Buffer.from(b)));
+  host.control = null;
+  if (c.onDone) c.onDone(bytes);
+  nextControl.schedule(CONTROL_GAP_NS);
+}
+
+function enumerate() {
+  const lineCoding = new Uint8Array([0x00, 0xc2, 0x01, 0x00, 0, 0, 8]); // 115200 8N1
+  const q = [
+    setup(0x00, 5, 1, 0, 0, null, 'SET_ADDRESS'),
+    Object.assign(setup(0x80, 6, 0x0100, 0, 18, null, 'GET_DESCRIPTOR(device)'), {
+      onDone: (b) => (host.descriptors.device = b),
+    }),
+    Object.assign(setup(0x80, 6, 0x0200, 0, 9, null, 'GET_DESCRIPTOR(configuration, 9)'), {
+      onDone: (b) => {
+        const total = b.length >= 4 ? b.readUInt16LE(2) : 0;
+        if (total < 9) return fatal(`configuration descriptor header is ${b.length} bytes`);
+        host.queue.unshift(
+          Object.assign(setup(0x80, 6, 0x0200, 0, total, null, 'GET_DESCRIPTOR(configuration)'), {
+            onDone: (all) => {
+              host.descriptors.configuration = all;
+              parseConfiguration(all);
+            },
+          }),
+        );
+      },
+    }),
+    setup(0x00, 9, 1, 0, 0, null, 'SET_CONFIGURATION'),
+    // CDC-ACM class requests, to the communication interface.
+    setup(0x21, 0x20, 0, 0, 7, lineCoding, 'SET_LINE_CODING'),
+    Object.assign(setup(0xa1, 0x21, 0, 0, 7, null, 'GET_LINE_CODING'), {
+      onDone: (b) => (host.descriptors.lineCoding = b),
+    }),
+    Object.assign(setup(0x21, 0x22, 0x0003, 0, 0, null, 'SET_CONTROL_LINE_STATE'), {
+      onDone: () => {
+        host.configured = true;
+        const d = host.descriptors.device ?? Buffer.alloc(0);
+        const vidpid = d.length >= 12 ? `${d.readUInt16LE(8).toString(16).padStart(4, '0')}:${d.readUInt16LE(10).toString(16).padStart(4, '0')}` : '?';
+        const lc = host.descriptors.lineCoding ?? Buffer.alloc(0);
+        const baud = lc.length === 7 ? lc.readUInt32LE(0) : 0;
+        log(
+          `usb configured ${vidpid} ep0 ${d[7] ?? '?'} B, bulk in ${host.bulkIn} out ${host.bulkOut}, ` +
+            `line coding ${baud} baud, at ${(mcu.clock.nanos / 1e6).toFixed(1)} ms`,
+        );
+        feedOut();
+      },
+    }),
+  ];
+  host.queue = q;
+  startNextControl();
+}
+
+function parseConfiguration(d) {
+  for (let i = 0; i + 2 <= d.length && d[i] >= 2; i += d[i]) {
+    if (d[i + 1] === 5 && d[i] === 7 && (d[i + 3] & 3) === 2) {
+      if (d[i + 2] & 0x80) host.bulkIn = d[i + 2] & 0xf;
+      else host.bulkOut = d[i + 2] & 0xf;
+    }
+  }
+  if (host.bulkIn < 0 || host.bulkOut < 0) fatal('no bulk IN and OUT endpoints in the configuration descriptor');
+}
+
+if (process.env.PICO_DEBUG) {
+  const dpram = usb.DPRAMUpdated.bind(usb);
+  usb.DPRAMUpdated = (offset, value) => {
+    if (offset >= 0x80 && offset < 0x100) debug(`bufctrl ${offset.toString(16)} = ${(value >>> 0).toString(16)}`);
+    dpram(offset, value);
+  };
+}
+usb.onUSBEnabled = () => {
+  debug('usb enabled');
+  usb.resetDevice();
+};
+usb.onResetReceived = () => {
+  debug('bus reset');
+  enumerate();
+};
+
+usb.onEndpointWrite = (ep, buffer) => {
+  host.activity++;
+  debug(`IN ep${ep} ${buffer.length} B ${ep === 0 ? Buffer.from(buffer).toString('hex') : ''}`);
+  if (ep === 0) {
+    const c = host.control;
+    if (!c) return;
+    if (c.inDir) {
+      if (buffer.length > 0) {
+        c.received.push(buffer);
+        const got = c.received.reduce((n, b) => n + b.length, 0);
+        const mps = host.descriptors.device?.[7] ?? 64;
+        if (got >= c.wLength || buffer.length < mps) {
+          c.awaitingStatus = true;
+          answerEp0Out();
+        }
+      } else if (c.awaitingStatus) {
+        controlDone(c); // not expected: IN status on an IN transfer
+      }
+    } else if (buffer.length === 0) {
+      // The status stage of a control OUT (or no-data) transfer.
+      controlDone(c);
+    }
+    return;
+  }
+  if (ep === host.bulkIn) {
+    stats.bytesOut += buffer.length;
+    if (client && !client.destroyed) client.write(Buffer.from(buffer));
+  }
+};
+
+usb.onEndpointRead = (ep, size) => {
+  host.activity++;
+  debug(`OUT ep${ep} armed ${size} B`);
+  if (ep === 0) {
+    host.ep0OutArmed = true;
+    answerEp0Out();
+    return;
+  }
+  if (ep === host.bulkOut || (host.bulkOut < 0 && ep !== 0)) {
+    host.outArmed = size;
+    feedOut();
+  }
+};
+
+/** EP0 OUT armed by the firmware: the data stage of a control OUT, or the
+ * zero-length status stage of a control IN. */
+function answerEp0Out() {
+  const c = host.control;
+  if (!c || !host.ep0OutArmed) return;
+  if (!c.inDir && c.data && !c.sentData) {
+    host.ep0OutArmed = false;
+    c.sentData = true;
+    usb.endpointReadDone(0, c.data);
+  } else if (c.inDir && c.awaitingStatus) {
+    host.ep0OutArmed = false;
+    usb.endpointReadDone(0, new Uint8Array(0));
+    controlDone(c);
+  }
+}
+
+/** Hands the firmware one bulk OUT packet if it has a buffer armed. */
+function feedOut() {
+  if (!host.configured || host.outArmed === 0 || host.rxBytes === 0) return;
+  const want = Math.min(host.outArmed, 64);
+  const chunks = [];
+  let n = 0;
+  while (n < want && host.rx.length) {
+    const head = host.rx[0];
+    const take = Math.min(want - n, head.length);
+    chunks.push(head.subarray(0, take));
+    n += take;
+    if (take === head.length) host.rx.shift();
+    else host.rx[0] = head.subarray(take);
+  }
+  host.rxBytes -= n;
+  host.outArmed = 0;
+  stats.bytesIn += n;
+  usb.endpointReadDone(host.bulkOut, new Uint8Array(Buffer.concat(chunks)));
+  if (client && client.isPaused() && host.rxBytes < 64 * 1024) client.resume();
+}
+
+// ---------------------------------------------------------------- TCP bridge
+
+let client = null;
+const server = net.createServer({ noDelay: true }, (socket) => {
+  if (client && !client.destroyed) {
+    socket.destroy(); // one host at a time
+    return;
+  }
+  client = socket;
+  socket.setNoDelay(true);
+  log('client connected');
+  socket.on('data', (data) => {
+    host.rx.push(data);
+    host.rxBytes += data.length;
+    if (host.rxBytes >= 256 * 1024) socket.pause();
+    feedOut();
+    wake();
+  });
+  socket.on('drain', wake);
+  socket.on('error', () => {});
+  socket.on('close', () => {
+    log('client closed');
+    if (client === socket) client = null;
+    // Bytes not yet taken by the firmware are lost with the connection, as
+    // unread data of a closed serial port is.
+    host.rx = [];
+    host.rxBytes = 0;
+  });
+});
+server.on('error', (e) => fatal(`cannot listen on 127.0.0.1:${opts.port}: ${e.message}`));
+server.listen(opts.port, '127.0.0.1', () => {
+  log(`listening tcp:127.0.0.1:${server.address().port}`);
+});
+
+// ---------------------------------------------------------------- run loop
+
+let stopped = false;
+let sleeping = null;
+const started = Date.now();
+
+function wake() {
+  if (sleeping) {
+    clearTimeout(sleeping);
+    sleeping = null;
+    setImmediate(run);
+  }
+}
+
+/** USB register reads in this chunk: many of them and no traffic means the
+ * firmware is idle in its polling loop. */
+let usbReads = 0;
+const usbRead = usb.readUint32.bind(usb);
+usb.readUint32 = (offset) => {
+  usbReads++;
+  return usbRead(offset);
+};
+
+function run() {
+  if (stopped) return;
+  const { core, clock } = mcu;
+  const activityBefore = host.activity;
+  usbReads = 0;
+  for (let i = 0; i < CHUNK && !stopped; i++) {
+    if (core.waiting) {
+      const next = clock.nanosToNextAlarm;
+      clock.tick(next > 0 ? next : 1000);
+      continue;
+    }
+    const pc = core.PC;
+    if (pc < ROM_END) {
+      const code = hooks[pc >> 1];
+      if (code !== null && flashCall(code)) continue;
+    }
+    const cycles = core.executeInstruction();
+    clock.tick(cycles * NANOS_PER_CYCLE);
+  }
+  if (stopped) return;
+  if (opts.deadline && Date.now() - started > opts.deadline * 1000) {
+    process.stderr.write(`error: deadline of ${opts.deadline} s reached\n`);
+    return finish(3);
+  }
+  // Back-pressure: a TCP client that does not read stops the board.
+  const blocked = client && client.writableLength > 1024 * 1024;
+  const idle =
+    host.configured &&
+    host.activity === activityBefore &&
+    host.rxBytes === 0 &&
+    usbReads > CHUNK / 100;
+  if (blocked || idle) {
+    sleeping = setTimeout(() => {
+      sleeping = null;
+      run();
+    }, blocked ? 10 : 20);
+  } else {
+    setImmediate(run);
+  }
+}
+
+function finish(code = 0) {
+  if (stopped) return;
+  stopped = true;
+  if (sleeping) clearTimeout(sleeping);
+  const cycles = mcu.core.cycles;
+  process.stdout.write(
+    `stats pc=${hex(mcu.core.PC)} cycles=${cycles} emulated_ms=${(mcu.clock.nanos / 1e6).toFixed(1)} ` +
+      `wall_ms=${Date.now() - started} rom_flash_calls=${stats.romFlashCalls} ` +
+      `sectors_erased=${stats.erases} pages_programmed=${stats.programs} ` +
+      `usb_bytes_in=${stats.bytesIn} usb_bytes_out=${stats.bytesOut}\n`,
+  );
+  if (flashFd !== null) {
+    try {
+      fs.fsyncSync(flashFd);
+    } catch {}
+  }
+  process.exit(code);
+}
+
+process.on('SIGTERM', () => finish(0));
+process.on('SIGINT', () => finish(0));
+setImmediate(run);
