@@ -2,6 +2,7 @@
 //! graph, dominating-set solvers, baselines, metrics), replay of the core, and
 //! the `placedb` command line built on them.
 
+pub mod dataset;
 pub mod device_cli;
 pub mod error;
 pub mod fault;
@@ -20,5 +21,7 @@ pub mod synth;
 pub mod voxelize;
 
 pub use error::ReadError;
-pub use sequence::{CameraModel, DepthImage, DepthSource, Format, FrameInfo, Sequence};
+pub use sequence::{
+    CameraModel, ColorImage, DepthImage, DepthSource, Format, FrameInfo, Sequence,
+};
 pub use voxelize::{voxelize, voxelize_on, GridOrigin, VoxelConfig, VoxelSets};

@@ -3,7 +3,7 @@
 //! write synthetic sequences, print the device budgets.
 
 use clap::{Args, Parser, Subcommand};
-use placedb_host::device_cli;
+use placedb_host::{dataset, device_cli};
 use placedb_host::pipeline::{self, Outcome, Prepared, Solver, SolverParams};
 use placedb_host::read::{self, ReadOptions};
 use placedb_host::synth::{self, SynthConfig};
@@ -93,6 +93,21 @@ struct StreamArgs {
     no_finish: bool,
 }
 
+/// One line about a written dataset.
+fn print_dataset(dir: &std::path::Path, d: &dataset::DatasetSummary) {
+    println!(
+        "  dataset: {} frames ({} in database/), {}, in {}",
+        d.frames,
+        d.database,
+        if d.color {
+            "with colour"
+        } else {
+            "no colour (the sequence has none for every frame)"
+        },
+        dir.display()
+    );
+}
+
 /// `placedb export`.
 #[derive(Args)]
 struct ExportArgs {
@@ -105,6 +120,18 @@ struct ExportArgs {
     /// Resume an interrupted export into the same directory from record K.
     #[arg(long)]
     from: Option<u32>,
+    /// Also write a training-ready dataset (as `select --dataset`) from the
+    /// exported labels and the frames of --sequence (the sequence streamed).
+    #[arg(long, requires = "sequence")]
+    dataset: Option<PathBuf>,
+    /// With --dataset: the sequence that was streamed (directory or ROS 2 bag).
+    #[arg(long, requires = "dataset")]
+    sequence: Option<PathBuf>,
+    /// With --dataset: the sequence's layout (detected when omitted).
+    #[arg(long, value_enum)]
+    format: Option<Format>,
+    #[command(flatten)]
+    ros2: Ros2Args,
     /// No progress bar.
     #[arg(long, short)]
     quiet: bool,
@@ -134,7 +161,7 @@ struct DeviceArgs {
 /// Where the frames come from and how they become voxel sets.
 #[derive(Args, Clone)]
 struct SeqArgs {
-    /// Sequence directory (TUM RGB-D, 7-Scenes or the reference code's layout).
+    /// Sequence directory (TUM RGB-D, 7-Scenes, the reference code's layout) or ROS 2 bag (folder or .mcap).
     #[arg(required_unless_present = "demo")]
     seq: Option<PathBuf>,
     /// Use the built-in synthetic office scan (600 frames, 320x240) instead of a directory.
@@ -167,6 +194,44 @@ struct SeqArgs {
     /// Use only the first N frames of the sequence.
     #[arg(long)]
     max_frames: Option<usize>,
+    #[command(flatten)]
+    ros2: Ros2Args,
+}
+
+/// Which topics of a ROS 2 bag to read (each defaults to the only candidate).
+#[derive(Args, Clone, Default)]
+struct Ros2Args {
+    /// ROS 2 bag: the depth topic (sensor_msgs/msg/Image, 16UC1 or 32FC1).
+    #[arg(long)]
+    depth_topic: Option<String>,
+    /// ROS 2 bag: the pose topic (PoseStamped, Odometry, or /tf with --pose-frame).
+    #[arg(long)]
+    pose_topic: Option<String>,
+    /// ROS 2 bag: the CameraInfo topic.
+    #[arg(long)]
+    camera_info_topic: Option<String>,
+    /// ROS 2 bag: the colour topic (rgb8, bgr8, rgba8, bgra8, mono8), for --dataset.
+    #[arg(long)]
+    color_topic: Option<String>,
+    /// ROS 2 bag: take poses from /tf, as the transform to this child frame (the camera's optical frame).
+    #[arg(long)]
+    pose_frame: Option<String>,
+    /// ROS 2 bag: largest time difference between a depth frame and its pose, seconds.
+    #[arg(long, default_value_t = read::ros2::POSE_TOLERANCE)]
+    pose_tolerance: f64,
+}
+
+impl Ros2Args {
+    fn options(&self) -> read::ros2::Ros2Options {
+        read::ros2::Ros2Options {
+            depth_topic: self.depth_topic.clone(),
+            pose_topic: self.pose_topic.clone(),
+            camera_info_topic: self.camera_info_topic.clone(),
+            color_topic: self.color_topic.clone(),
+            pose_frame: self.pose_frame.clone(),
+            pose_tolerance: Some(self.pose_tolerance),
+        }
+    }
 }
 
 /// Solver parameters shared by select and compare.
@@ -208,6 +273,10 @@ struct SelectArgs {
     /// Output directory for database.csv, labels.csv, metrics.json, topview.png.
     #[arg(short, long)]
     out: PathBuf,
+    /// Also write a training-ready dataset here: color/, depth/, poses.txt,
+    /// intrinsics.txt and classes.csv of every frame, and database/ (the reference code's layout).
+    #[arg(long)]
+    dataset: Option<PathBuf>,
     /// Which solver or baseline.
     #[arg(long, value_enum, default_value_t = Solver::Online)]
     solver: Solver,
@@ -305,6 +374,7 @@ fn open_full_sequence(a: &SeqArgs) -> Result<Sequence, Error> {
         format: a.format,
         depth_scale: a.depth_scale,
         intrinsics: a.intrinsics,
+        ros2: a.ros2.options(),
     };
     Ok(read::open(path, &opts)?)
 }
@@ -314,6 +384,7 @@ fn open_test(path: &std::path::Path, a: &SeqArgs) -> Result<Sequence, Error> {
         format: None,
         depth_scale: a.depth_scale,
         intrinsics: a.intrinsics,
+        ros2: a.ros2.options(),
     };
     Ok(read::open(path, &opts)?)
 }
@@ -449,6 +520,10 @@ fn select(a: SelectArgs) -> Result<(), Error> {
         json["peak_rss_mb"] = mb.into();
     }
     output::write_database_dir(&a.out, &rows, &timestamps, &o.labels, &json)?;
+    let dataset = match &a.dataset {
+        Some(dir) => Some((dir, dataset::write(dir, &seq, &o.labels)?)),
+        None => None,
+    };
     plot::topview(
         &a.out.join("topview.png"),
         &seq,
@@ -509,6 +584,9 @@ fn select(a: SelectArgs) -> Result<(), Error> {
             "  wrote {}/{{database.csv,labels.csv,metrics.json,topview.png}}",
             a.out.display()
         );
+        if let Some((dir, d)) = &dataset {
+            print_dataset(dir, d);
+        }
     }
     Ok(())
 }
@@ -592,6 +670,41 @@ fn compare(a: CompareArgs) -> Result<(), Error> {
     }
     if all.iter().any(|(_, o)| matches!(o.exact, Some((false, _)))) {
         println!("* exact hit its time limit: best set found, not proven minimum");
+    }
+    Ok(())
+}
+
+/// `placedb export`, and the dataset of the exported labels when asked.
+fn export(a: ExportArgs) -> Result<(), Error> {
+    // The sequence first: a wrong path fails before the device is touched.
+    let seq = match &a.sequence {
+        Some(path) => {
+            let opts = ReadOptions {
+                format: a.format,
+                ros2: a.ros2.options(),
+                ..ReadOptions::default()
+            };
+            Some(read::open(path, &opts)?)
+        }
+        None => None,
+    };
+    let export = device_cli::export_cmd(&a.port, &a.out, a.from, a.quiet)?;
+    if let (Some(dir), Some(seq)) = (&a.dataset, &seq) {
+        let (timestamps, labels) = export.labels();
+        // The device's timestamps are the sequence's: a different sequence shows.
+        if let Some(i) = timestamps
+            .iter()
+            .zip(&seq.frames)
+            .position(|(t, f)| *t != f.timestamp)
+        {
+            return Err(format!(
+                "--sequence {}: frame {i} has timestamp {}, the device's has {}: not the streamed sequence?",
+                seq.name, seq.frames[i].timestamp, timestamps[i]
+            )
+            .into());
+        }
+        let d = dataset::write(dir, seq, &labels)?;
+        print_dataset(dir, &d);
     }
     Ok(())
 }
@@ -886,9 +999,7 @@ fn main() -> ExitCode {
             device_cli::stream_cmd(&a.port, &seq, &v, sel, &a.profile, out, a.quiet, &recovery)?;
             Ok(())
         }),
-        Command::Export(a) => device_cli::export_cmd(&a.port, &a.out, a.from, a.quiet)
-            .map(|_| ())
-            .map_err(Into::into),
+        Command::Export(a) => export(a),
         Command::Device(a) => {
             device_cli::qemu_device_cmd(a.firmware, a.port, !a.no_icount, a.flash)
                 .map_err(Into::into)

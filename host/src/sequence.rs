@@ -75,14 +75,34 @@ pub enum Format {
     SevenScenes,
     /// The reference code's layout: depth/, color/, poses file, intrinsics.txt.
     Vprdb,
+    /// A ROS 2 recording (rosbag2, MCAP storage): a bag folder or a `.mcap` file.
+    Ros2,
     /// The built-in synthetic renderer.
     Synthetic,
+}
+
+/// A colour image: `width * height` RGB triples, row after row.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ColorImage {
+    /// Width in pixels.
+    pub width: u16,
+    /// Height in pixels.
+    pub height: u16,
+    /// `3 * width * height` bytes.
+    pub rgb: Vec<u8>,
 }
 
 /// Produces the depth image of frame `i` on demand.
 pub trait DepthSource: Send + Sync {
     /// Decodes (or renders) frame `i`'s depth.
     fn depth(&self, i: usize) -> Result<DepthImage, ReadError>;
+
+    /// Frame `i`'s colour image when the source holds it itself (a ROS 2
+    /// bag); `None` when it has none, or when colour is a file
+    /// ([`FrameInfo::color_path`]).
+    fn color(&self, _i: usize) -> Result<Option<ColorImage>, ReadError> {
+        Ok(None)
+    }
 }
 
 /// A sequence: metadata for every frame, camera, and a way to get depth.

@@ -426,6 +426,7 @@ fn overrides_replace_defaults_and_files() {
         format: None,
         depth_scale: Some(2500.0),
         intrinsics: Some(k),
+        ..Default::default()
     };
     // 7-Scenes without and with a camera-intrinsics.txt.
     let s = seven_scenes_dir("override-7s", 2);

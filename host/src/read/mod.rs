@@ -1,5 +1,5 @@
-//! Sequence readers (TUM RGB-D, 7-Scenes, the reference code's layout) and
-//! format detection.
+//! Sequence readers (TUM RGB-D, 7-Scenes, the reference code's layout, ROS 2
+//! bags) and format detection.
 //!
 //! [`open`] reads a sequence directory's metadata (poses, timestamps,
 //! intrinsics, the size of the first depth image) up front; depth images are
@@ -12,11 +12,13 @@
 //! | [`Format::Tum`] ([`tum`]) | 5000 | fx = fy = 525, cx = 319.5, cy = 239.5 | depth.txt's |
 //! | [`Format::SevenScenes`] ([`sevenscenes`]) | 1000 | fx = fy = 585, cx = 320, cy = 240 | frame number |
 //! | [`Format::Vprdb`] ([`vprdb`]) | 1000 | required (`intrinsics.txt`) | pose file's, else index |
+//! | [`Format::Ros2`] ([`ros2`]) | 1000 | required (CameraInfo topic) | header stamp |
 //!
 //! [`ReadOptions`] overrides the depth scale and the intrinsics of any format
 //! (the intrinsics file is then not read).
 
 mod png;
+pub mod ros2;
 pub mod sevenscenes;
 mod text;
 pub mod tum;
@@ -35,9 +37,11 @@ pub struct ReadOptions {
     pub depth_scale: Option<f64>,
     /// Intrinsics, replacing the sequence's file and the format's default.
     pub intrinsics: Option<CameraModel>,
+    /// ROS 2 bags: which topics to read.
+    pub ros2: ros2::Ros2Options,
 }
 
-/// Reads the sequence in directory `path`, detecting its format when
+/// Reads the sequence in directory (or bag file) `path`, detecting its format when
 /// `opts.format` is `None`.
 pub fn open(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError> {
     if let Some(scale) = opts.depth_scale {
@@ -60,6 +64,7 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError> {
         Format::Tum => tum::read(path, opts),
         Format::SevenScenes => sevenscenes::read(path, opts),
         Format::Vprdb => vprdb::read(path, opts),
+        Format::Ros2 => ros2::read(path, opts),
         Format::Synthetic => Err(text::layout(
             path,
             "the synthetic format is rendered, not read from a directory",
@@ -67,7 +72,8 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError> {
     }
 }
 
-/// Recognises the layout of directory `path`: 7-Scenes if it holds
+/// Recognises the layout of `path`: a ROS 2 bag if it is a `.mcap` file or
+/// a directory with `metadata.yaml` or `*.mcap`; 7-Scenes if it holds
 /// `frame-*.depth.png` files, TUM if it holds `depth.txt` and
 /// `groundtruth.txt`, the reference layout if it has a `depth/` directory.
 pub fn detect(path: &Path) -> Result<Format, ReadError> {
@@ -75,8 +81,11 @@ pub fn detect(path: &Path) -> Result<Format, ReadError> {
         path: path.to_path_buf(),
         source,
     })?;
+    if ros2::looks_like_bag(path) {
+        return Ok(Format::Ros2);
+    }
     if !meta.is_dir() {
-        return Err(text::layout(path, "not a directory"));
+        return Err(text::layout(path, "not a directory (nor a .mcap file)"));
     }
     let names = text::list_dir(path)?;
     if names.iter().any(|n| sevenscenes::frame_number(n).is_some()) {
@@ -91,7 +100,8 @@ pub fn detect(path: &Path) -> Result<Format, ReadError> {
     Err(text::layout(
         path,
         "unknown sequence layout: looked for frame-*.depth.png (7scenes), \
-         depth.txt and groundtruth.txt (tum), a depth/ directory (vprdb)",
+         depth.txt and groundtruth.txt (tum), a depth/ directory (vprdb), \
+         metadata.yaml or *.mcap (ros2)",
     ))
 }
 

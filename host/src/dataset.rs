@@ -1,0 +1,250 @@
+//! A training-ready dataset (`placedb select --dataset DIR`, `placedb export
+//! --dataset DIR --sequence SEQ`): the frames of a selection in the
+//! reference code's layout, with the class of every frame, for fine-tuning
+//! and querying a VPR network (NetVLAD, CosPlace):
+//!
+//! ```text
+//! DIR/
+//!   color/NNNNNN.{png,jpg}  every labelled frame's colour image (when the sequence has colour)
+//!   depth/NNNNNN.png        its depth, 16-bit PNG in millimetres (0 = no measurement)
+//!   poses.txt               "timestamp tx ty tz qx qy qz qw" per frame, camera to world
+//!   intrinsics.txt          3x3 K
+//!   classes.csv             name,index,timestamp,class_index,in_database
+//!   database/               the database frames alone, same layout (no classes.csv)
+//! ```
+//!
+//! `NNNNNN` is the frame's index in the sequence, so names sort in frame
+//! order and `DIR` and `DIR/database` read back as the reference layout
+//! (`--format vprdb`). A frame's class is the index of the database frame
+//! that covers it (itself for a database frame), as in `labels.csv`.
+//! Colour files are copied as they are; colour held in the sequence itself
+//! (a ROS 2 bag's colour topic) is written as PNG. When some frames have no
+//! colour, `color/` is left out (the layout needs one per depth image).
+
+use crate::error::ReadError;
+use crate::sequence::{ColorImage, Sequence};
+use rayon::prelude::*;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+/// Depth units per metre of the layout's depth PNGs.
+pub const DEPTH_SCALE: f64 = 1000.0;
+
+/// Why a dataset could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum DatasetError {
+    /// Reading a frame failed.
+    #[error(transparent)]
+    Read(#[from] ReadError),
+    /// Writing a file failed.
+    #[error("{path}: {source}")]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// Labels or database that do not fit the sequence.
+    #[error("{0}")]
+    Mismatch(String),
+}
+
+/// What was written.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct DatasetSummary {
+    /// Labelled frames written.
+    pub frames: usize,
+    /// Database frames written (also under `database/`).
+    pub database: usize,
+    /// Whether `color/` was written.
+    pub color: bool,
+}
+
+fn write_err(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
+    move |source| DatasetError::Write {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// Where frame `i`'s colour comes from.
+enum Color {
+    File(PathBuf),
+    Held,
+}
+
+/// Writes the dataset of `seq` labelled by `labels` (one class, a frame
+/// index, per frame from 0; a device's export may hold fewer frames than the
+/// sequence) into `dir`.
+pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSummary, DatasetError> {
+    if labels.len() > seq.frames.len() {
+        return Err(DatasetError::Mismatch(format!(
+            "{} labels for a sequence of {} frames",
+            labels.len(),
+            seq.frames.len()
+        )));
+    }
+    if let Some((i, &c)) = labels
+        .iter()
+        .enumerate()
+        .find(|&(_, &c)| c >= labels.len() || labels[c] != c)
+    {
+        return Err(DatasetError::Mismatch(format!(
+            "frame {i} has class {c}, which is not a database frame"
+        )));
+    }
+    let frames: Vec<usize> = (0..labels.len()).collect();
+    let database: Vec<usize> = frames.iter().copied().filter(|&i| labels[i] == i).collect();
+    // Colour for every frame, or none at all.
+    let mut colors = Vec::with_capacity(frames.len());
+    for &i in &frames {
+        colors.push(match &seq.frames[i].color_path {
+            Some(p) => Some(Color::File(p.clone())),
+            None if seq.source.color(i)?.is_some() => Some(Color::Held),
+            None => None,
+        });
+    }
+    let color = !colors.is_empty() && colors.iter().all(Option::is_some);
+    let database_dir = dir.join("database");
+    for d in [dir, &database_dir] {
+        std::fs::create_dir_all(d.join("depth")).map_err(write_err(d))?;
+        if color {
+            std::fs::create_dir_all(d.join("color")).map_err(write_err(d))?;
+        }
+    }
+    let name = |i: usize| format!("{i:06}");
+    frames
+        .par_iter()
+        .try_for_each(|&i| -> Result<(), DatasetError> {
+            let in_db = labels[i] == i;
+            let targets: Vec<&Path> = if in_db {
+                vec![dir, &database_dir]
+            } else {
+                vec![dir]
+            };
+            let depth = seq.depth(i)?;
+            let mm: Vec<u16> = depth
+                .data
+                .iter()
+                .map(|&v| {
+                    let m = (f64::from(v) * DEPTH_SCALE / seq.depth_scale).round();
+                    if m > 0.0 && m <= f64::from(u16::MAX) {
+                        m as u16
+                    } else {
+                        0
+                    }
+                })
+                .collect();
+            for t in &targets {
+                let path = t.join("depth").join(format!("{}.png", name(i)));
+                write_png16(&path, depth.width, depth.height, &mm)?;
+            }
+            if color {
+                match &colors[i] {
+                    Some(Color::File(src)) => {
+                        let ext = src.extension().and_then(|e| e.to_str()).unwrap_or("png");
+                        for t in &targets {
+                            let path = t.join("color").join(format!("{}.{ext}", name(i)));
+                            std::fs::copy(src, &path).map_err(write_err(&path))?;
+                        }
+                    }
+                    _ => {
+                        let img = seq.source.color(i)?.ok_or_else(|| {
+                            DatasetError::Mismatch(format!("frame {i}: colour vanished"))
+                        })?;
+                        for t in &targets {
+                            let path = t.join("color").join(format!("{}.png", name(i)));
+                            write_png_rgb(&path, &img)?;
+                        }
+                    }
+                }
+            }
+            Ok(())
+        })?;
+    let k = &seq.camera;
+    let intrinsics = format!("{} 0 {}\n0 {} {}\n0 0 1\n", k.fx, k.cx, k.fy, k.cy);
+    let poses = |which: &[usize]| {
+        let mut s = String::new();
+        for &i in which {
+            let f = &seq.frames[i];
+            let [tx, ty, tz] = f.translation;
+            let [qx, qy, qz, qw] = f.rotation;
+            let _ = writeln!(s, "{:.6} {tx} {ty} {tz} {qx} {qy} {qz} {qw}", f.timestamp);
+        }
+        s
+    };
+    let mut classes = String::from("name,index,timestamp,class_index,in_database\n");
+    for &i in &frames {
+        let _ = writeln!(
+            classes,
+            "{},{i},{:.6},{},{}",
+            name(i),
+            seq.frames[i].timestamp,
+            labels[i],
+            u8::from(labels[i] == i)
+        );
+    }
+    for (d, which) in [(dir, &frames), (&database_dir, &database)] {
+        for (file, text) in [
+            ("poses.txt", poses(which)),
+            ("intrinsics.txt", intrinsics.clone()),
+        ] {
+            let path = d.join(file);
+            std::fs::write(&path, text).map_err(write_err(&path))?;
+        }
+    }
+    let path = dir.join("classes.csv");
+    std::fs::write(&path, classes).map_err(write_err(&path))?;
+    Ok(DatasetSummary {
+        frames: frames.len(),
+        database: database.len(),
+        color,
+    })
+}
+
+fn write_png16(path: &Path, w: u16, h: u16, data: &[u16]) -> Result<(), DatasetError> {
+    let bytes: Vec<u8> = data.iter().flat_map(|v| v.to_be_bytes()).collect();
+    write_png(
+        path,
+        u32::from(w),
+        u32::from(h),
+        png::ColorType::Grayscale,
+        png::BitDepth::Sixteen,
+        &bytes,
+    )
+}
+
+fn write_png_rgb(path: &Path, img: &ColorImage) -> Result<(), DatasetError> {
+    write_png(
+        path,
+        u32::from(img.width),
+        u32::from(img.height),
+        png::ColorType::Rgb,
+        png::BitDepth::Eight,
+        &img.rgb,
+    )
+}
+
+fn write_png(
+    path: &Path,
+    w: u32,
+    h: u32,
+    color: png::ColorType,
+    depth: png::BitDepth,
+    bytes: &[u8],
+) -> Result<(), DatasetError> {
+    let file = std::fs::File::create(path).map_err(write_err(path))?;
+    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), w, h);
+    enc.set_color(color);
+    enc.set_depth(depth);
+    // Fast compression: a dataset of thousands of frames is written once.
+    enc.set_compression(png::Compression::Fast);
+    let png_err = |e: png::EncodingError| DatasetError::Write {
+        path: path.to_path_buf(),
+        source: std::io::Error::other(e),
+    };
+    enc.write_header()
+        .map_err(png_err)?
+        .write_image_data(bytes)
+        .map_err(png_err)
+}

@@ -1,0 +1,251 @@
+//! The MCAP files of a rosbag2 recording, read with the `mcap` crate's record
+//! parser and chunk reader (which decompresses zstd and lz4 chunks).
+//!
+//! A bag can hold gigabytes of depth, so nothing is kept whole: [`scan`] walks
+//! the top-level records once (reading one chunk at a time) and hands every
+//! message to a visitor with its [`Location`] — the file, the top-level
+//! record's offset and length and, for a message inside a chunk, its ordinal
+//! there — and [`fetch`] reads one message back on demand. This works on
+//! indexed and unindexed files alike (a recording cut short has no summary).
+
+use mcap::records::{op, Record};
+use std::collections::HashMap;
+use std::fs::File;
+use std::io::{BufReader, Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
+
+/// Where a message is, to read it again.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Location {
+    /// Index of the file in the bag.
+    pub file: usize,
+    /// Offset of the top-level record's body.
+    pub offset: u64,
+    /// Length of that body.
+    pub len: u64,
+    /// For a message inside a chunk: its ordinal among the chunk's messages.
+    pub in_chunk: Option<u32>,
+}
+
+/// A channel: its topic, the schema's name and the message encoding.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Channel {
+    /// `/camera/depth/image_rect_raw`.
+    pub topic: String,
+    /// `sensor_msgs/msg/Image`.
+    pub schema: String,
+    /// `cdr` for ROS 2.
+    pub encoding: String,
+}
+
+/// One message handed to a visitor.
+pub struct Message<'a> {
+    /// Its channel.
+    pub channel: &'a Channel,
+    /// Log time, nanoseconds.
+    pub log_time: u64,
+    /// The serialized message.
+    pub data: &'a [u8],
+    /// Where to find it again.
+    pub at: Location,
+}
+
+/// What went wrong, for [`super`] to turn into a `ReadError` naming the file.
+pub type BagError = (PathBuf, String);
+
+fn err(path: &Path, reason: impl Into<String>) -> BagError {
+    (path.to_path_buf(), reason.into())
+}
+
+/// Channels and schemas seen so far (by id, per file).
+#[derive(Default)]
+struct Channels {
+    schemas: HashMap<u16, String>,
+    channels: HashMap<u16, Channel>,
+}
+
+impl Channels {
+    fn note(&mut self, path: &Path, record: &Record<'_>) -> Result<(), BagError> {
+        match record {
+            Record::Schema { header, .. } => {
+                self.schemas.insert(header.id, header.name.clone());
+            }
+            Record::Channel(c) => {
+                let schema = match c.schema_id {
+                    0 => String::new(),
+                    id => self.schemas.get(&id).cloned().ok_or_else(|| {
+                        err(
+                            path,
+                            format!("channel {} names unknown schema {id}", c.topic),
+                        )
+                    })?,
+                };
+                self.channels.insert(
+                    c.id,
+                    Channel {
+                        topic: c.topic.clone(),
+                        schema,
+                        encoding: c.message_encoding.clone(),
+                    },
+                );
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+}
+
+/// Reads the 9-byte record head (opcode, body length) at the reader's position;
+/// `None` at the end of the file.
+fn record_head(r: &mut impl Read) -> std::io::Result<Option<(u8, u64)>> {
+    let mut head = [0u8; 9];
+    let mut got = 0;
+    while got < head.len() {
+        match r.read(&mut head[got..])? {
+            0 if got == 0 => return Ok(None),
+            0 => return Err(std::io::ErrorKind::UnexpectedEof.into()),
+            n => got += n,
+        }
+    }
+    let len = u64::from_le_bytes(head[1..].try_into().unwrap_or([0; 8]));
+    Ok(Some((head[0], len)))
+}
+
+/// Walks every message of file `index` (`path`), in file order. Returns
+/// how many bytes at its end were cut short (a recording that stopped
+/// mid-write), 0 for a whole file.
+pub fn scan(
+    index: usize,
+    path: &Path,
+    visit: &mut dyn FnMut(Message<'_>) -> Result<(), BagError>,
+) -> Result<u64, BagError> {
+    let io = |e: std::io::Error| err(path, e.to_string());
+    let file = File::open(path).map_err(io)?;
+    let size = file.metadata().map_err(io)?.len();
+    let mut r = BufReader::with_capacity(1 << 16, file);
+    let mut magic = [0u8; 8];
+    r.read_exact(&mut magic)
+        .map_err(|_| err(path, "too short for an MCAP file"))?;
+    if magic != mcap::MAGIC {
+        return Err(err(path, "not an MCAP file (bad magic)"));
+    }
+    let mut channels = Channels::default();
+    let mut pos = 8u64;
+    let mut body = Vec::new();
+    loop {
+        let Some((opcode, len)) = record_head(&mut r).map_err(io)? else {
+            return Ok(0);
+        };
+        let offset = pos + 9;
+        if len > size.saturating_sub(offset) {
+            // The recording stopped mid-record: keep what came before.
+            return Ok(size - pos);
+        }
+        pos = offset + len;
+        match opcode {
+            op::DATA_END | op::FOOTER => return Ok(0),
+            op::SCHEMA | op::CHANNEL | op::MESSAGE | op::CHUNK => {}
+            _ => {
+                r.seek_relative(len as i64).map_err(io)?;
+                continue;
+            }
+        }
+        body.resize(len as usize, 0);
+        r.read_exact(&mut body).map_err(io)?;
+        let record = mcap::parse_record(opcode, &body)
+            .map_err(|e| err(path, format!("record at byte {offset}: {e}")))?;
+        let at = Location {
+            file: index,
+            offset,
+            len,
+            in_chunk: None,
+        };
+        match record {
+            Record::Chunk { header, data } => {
+                let chunk = mcap::read::ChunkReader::new(header, &data)
+                    .map_err(|e| err(path, format!("chunk at byte {offset}: {e}")))?;
+                let mut ordinal = 0u32;
+                for inner in chunk {
+                    let inner =
+                        inner.map_err(|e| err(path, format!("chunk at byte {offset}: {e}")))?;
+                    if let Record::Message { header, data } = &inner {
+                        let at = Location {
+                            in_chunk: Some(ordinal),
+                            ..at
+                        };
+                        ordinal += 1;
+                        deliver(path, &channels, header, data, at, visit)?;
+                    } else {
+                        channels.note(path, &inner)?;
+                    }
+                }
+            }
+            Record::Message { header, data } => {
+                deliver(path, &channels, &header, &data, at, visit)?
+            }
+            other => channels.note(path, &other)?,
+        }
+    }
+}
+
+fn deliver(
+    path: &Path,
+    channels: &Channels,
+    header: &mcap::records::MessageHeader,
+    data: &[u8],
+    at: Location,
+    visit: &mut dyn FnMut(Message<'_>) -> Result<(), BagError>,
+) -> Result<(), BagError> {
+    let channel = channels.channels.get(&header.channel_id).ok_or_else(|| {
+        err(
+            path,
+            format!(
+                "message at byte {} is on unknown channel {}",
+                at.offset, header.channel_id
+            ),
+        )
+    })?;
+    visit(Message {
+        channel,
+        log_time: header.log_time,
+        data,
+        at,
+    })
+}
+
+/// Reads back the message at `at` in file `path`.
+pub fn fetch(path: &Path, at: Location) -> Result<Vec<u8>, BagError> {
+    let io = |e: std::io::Error| err(path, e.to_string());
+    let mut file = File::open(path).map_err(io)?;
+    file.seek(SeekFrom::Start(at.offset)).map_err(io)?;
+    let mut body = vec![0u8; at.len as usize];
+    file.read_exact(&mut body).map_err(io)?;
+    let op = if at.in_chunk.is_some() {
+        op::CHUNK
+    } else {
+        op::MESSAGE
+    };
+    let bad = |e: mcap::McapError| err(path, format!("record at byte {}: {e}", at.offset));
+    match (mcap::parse_record(op, &body).map_err(bad)?, at.in_chunk) {
+        (Record::Message { data, .. }, None) => Ok(data.into_owned()),
+        (Record::Chunk { header, data }, Some(k)) => {
+            let mut n = 0;
+            for inner in mcap::read::ChunkReader::new(header, &data).map_err(bad)? {
+                if let Record::Message { data, .. } = inner.map_err(bad)? {
+                    if n == k {
+                        return Ok(data.into_owned());
+                    }
+                    n += 1;
+                }
+            }
+            Err(err(
+                path,
+                format!("chunk at byte {} has no message {k}", at.offset),
+            ))
+        }
+        _ => Err(err(
+            path,
+            format!("no message record at byte {}", at.offset),
+        )),
+    }
+}

@@ -1,0 +1,938 @@
+//! ROS 2 recordings (rosbag2 with MCAP storage): a bag folder (its
+//! `metadata.yaml` and `*.mcap` files) or a single `.mcap` file.
+//!
+//! - depth: `sensor_msgs/msg/Image`, `16UC1` (millimetres, depth scale 1000,
+//!   or `--depth-scale`) or `32FC1` (metres, converted to `u16` at the depth
+//!   scale; NaN, infinities, values <= 0 or beyond the `u16` range mean "no
+//!   measurement"); `is_bigendian` and `step` are honoured. A compressed image
+//!   or another encoding is refused, naming topic and time.
+//! - intrinsics: the first `sensor_msgs/msg/CameraInfo` (`k`, row-major 3x3;
+//!   skew is refused, distortion is ignored with a warning), unless given.
+//! - poses: `geometry_msgs/msg/PoseStamped`, `nav_msgs/msg/Odometry`, or the
+//!   transforms of `/tf` (and `/tf_static`) whose child is `--pose-frame`
+//!   (taken as the pose of that frame in its parent; TF chains are not
+//!   composed). The pose must be that of the depth camera's optical frame.
+//! - colour (for `--dataset`): an Image topic in `rgb8`, `bgr8`, `rgba8`,
+//!   `bgra8` or `mono8`.
+//!
+//! Each kind's topic is the one given, else the only candidate in the bag
+//! (several candidates: an error listing them). Times are the header stamps
+//! (the log time when a stamp is zero). Frames are in stamp order; each
+//! takes the pose (and colour image) nearest in time within
+//! [`Ros2Options::pose_tolerance`]; a frame with no pose that close is
+//! skipped with a counted warning, and a bag where no frame has one is an
+//! error naming the topics and times.
+
+pub mod bag;
+pub mod cdr;
+pub mod msgs;
+
+use super::{text, ReadOptions};
+use crate::error::ReadError;
+use crate::sequence::{
+    CameraModel, ColorImage, DepthImage, DepthSource, Format, FrameInfo, Sequence,
+};
+use bag::{Channel, Location, Message};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// Depth units per metre of `16UC1` (millimetres), and of the `u16` that
+/// `32FC1` metres are converted to.
+pub const DEPTH_SCALE: f64 = 1000.0;
+
+/// Default largest time difference, seconds, between a depth frame and its
+/// pose (or colour image).
+pub const POSE_TOLERANCE: f64 = 0.05;
+
+/// Which topics to read; `Default`: the only candidate of each kind.
+#[derive(Debug, Clone, Default)]
+pub struct Ros2Options {
+    /// The depth Image topic.
+    pub depth_topic: Option<String>,
+    /// The pose topic (PoseStamped, Odometry or a TFMessage topic).
+    pub pose_topic: Option<String>,
+    /// The CameraInfo topic.
+    pub camera_info_topic: Option<String>,
+    /// The colour Image topic.
+    pub color_topic: Option<String>,
+    /// Poses from `/tf`: the child frame whose pose is the camera's.
+    pub pose_frame: Option<String>,
+    /// Seconds; [`POSE_TOLERANCE`] when `None`.
+    pub pose_tolerance: Option<f64>,
+}
+
+/// Whether `path` is a ROS 2 recording: a `.mcap` file, or a directory with
+/// `metadata.yaml` or a `*.mcap` file.
+pub fn looks_like_bag(path: &Path) -> bool {
+    if path.is_file() {
+        return path.extension().is_some_and(|e| e == "mcap");
+    }
+    path.join("metadata.yaml").is_file()
+        || text::list_dir(path).is_ok_and(|names| names.iter().any(|n| n.ends_with(".mcap")))
+}
+
+/// The MCAP files of the recording at `path`, in name order.
+fn bag_files(path: &Path) -> Result<Vec<PathBuf>, ReadError> {
+    if path.is_file() {
+        return Ok(vec![path.to_path_buf()]);
+    }
+    let meta = path.join("metadata.yaml");
+    if meta.is_file() {
+        let yaml = text::read_text(&meta)?;
+        let field = |key: &str| {
+            yaml.lines()
+                .find_map(|l| l.trim().strip_prefix(key))
+                .map(|v| v.trim().trim_matches('"').to_string())
+        };
+        if let Some(storage) = field("storage_identifier:").filter(|s| s != "mcap") {
+            return Err(text::layout(
+                &meta,
+                format!(
+                    "storage `{storage}` is not supported, only mcap \
+                     (convert with `ros2 bag convert`)"
+                ),
+            ));
+        }
+        if let Some(mode) = field("compression_mode:").filter(|m| !m.is_empty()) {
+            return Err(text::layout(
+                &meta,
+                format!(
+                    "bag compression mode `{mode}` (compressed files) is not supported: \
+                     decompress it with `ros2 bag decompress`; MCAP chunk compression is fine"
+                ),
+            ));
+        }
+    }
+    let mut names: Vec<String> = text::list_dir(path)?
+        .into_iter()
+        .filter(|n| n.ends_with(".mcap"))
+        .collect();
+    names.sort();
+    if names.is_empty() {
+        return Err(text::layout(path, "no *.mcap file in the bag folder"));
+    }
+    Ok(names.into_iter().map(|n| path.join(n)).collect())
+}
+
+/// One image message's metadata (its pixels stay in the bag).
+#[derive(Debug, Clone)]
+struct ImageRef {
+    stamp: f64,
+    width: u32,
+    height: u32,
+    encoding: String,
+    at: Location,
+}
+
+/// A pose message.
+#[derive(Debug, Clone, Copy)]
+struct Stamped {
+    stamp: f64,
+    pose: msgs::PoseMsg,
+}
+
+/// Everything the scan of the bag found, per topic.
+#[derive(Default)]
+struct Topics {
+    /// Topic -> schema name.
+    kinds: BTreeMap<String, String>,
+    images: BTreeMap<String, Vec<ImageRef>>,
+    infos: BTreeMap<String, Vec<msgs::CameraInfo>>,
+    poses: BTreeMap<String, Vec<Stamped>>,
+    /// TF topic -> child frame -> poses.
+    tf: BTreeMap<String, BTreeMap<String, Vec<Stamped>>>,
+}
+
+fn secs(ns: u64) -> f64 {
+    ns as f64 * 1e-9
+}
+
+/// The header stamp, or the log time when the stamp is zero (unset).
+fn stamp_or(stamp: f64, log_time: u64) -> f64 {
+    if stamp == 0.0 {
+        secs(log_time)
+    } else {
+        stamp
+    }
+}
+
+impl Topics {
+    fn visit(&mut self, path: &Path, m: Message<'_>) -> Result<(), bag::BagError> {
+        let Channel {
+            topic,
+            schema,
+            encoding,
+        } = m.channel;
+        self.kinds
+            .entry(topic.clone())
+            .or_insert_with(|| schema.clone());
+        let wanted = [
+            msgs::IMAGE,
+            msgs::CAMERA_INFO,
+            msgs::POSE_STAMPED,
+            msgs::ODOMETRY,
+            msgs::TF_MESSAGE,
+        ];
+        if !wanted.contains(&schema.as_str()) {
+            return Ok(());
+        }
+        let bad = |reason: String| {
+            (
+                path.to_path_buf(),
+                format!("{topic} at t={:.6}: {reason}", secs(m.log_time)),
+            )
+        };
+        if encoding != "cdr" {
+            return Err(bad(format!(
+                "message encoding `{encoding}`, expected cdr (ROS 2)"
+            )));
+        }
+        let cdr = |e: cdr::CdrError| bad(format!("{schema} does not decode: {e}"));
+        match schema.as_str() {
+            msgs::IMAGE => {
+                let img = msgs::image(m.data).map_err(cdr)?;
+                self.images
+                    .entry(topic.clone())
+                    .or_default()
+                    .push(ImageRef {
+                        stamp: stamp_or(img.header.stamp, m.log_time),
+                        width: img.width,
+                        height: img.height,
+                        encoding: img.encoding,
+                        at: m.at,
+                    });
+            }
+            msgs::CAMERA_INFO => {
+                let info = msgs::camera_info(m.data).map_err(cdr)?;
+                let list = self.infos.entry(topic.clone()).or_default();
+                // The first one and any that differs are enough.
+                if list.last().is_none_or(|l| l.k != info.k) {
+                    list.push(info);
+                }
+            }
+            msgs::POSE_STAMPED | msgs::ODOMETRY => {
+                let (h, pose) = if schema == msgs::ODOMETRY {
+                    msgs::odometry(m.data)
+                } else {
+                    msgs::pose_stamped(m.data)
+                }
+                .map_err(cdr)?;
+                self.poses.entry(topic.clone()).or_default().push(Stamped {
+                    stamp: stamp_or(h.stamp, m.log_time),
+                    pose,
+                });
+            }
+            _ => {
+                let frames = self.tf.entry(topic.clone()).or_default();
+                for t in msgs::tf_message(m.data).map_err(cdr)? {
+                    frames.entry(t.child_frame_id).or_default().push(Stamped {
+                        stamp: stamp_or(t.header.stamp, m.log_time),
+                        pose: t.pose,
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn of_kind(&self, kinds: &[&str]) -> Vec<&str> {
+        self.kinds
+            .iter()
+            .filter(|(_, k)| kinds.contains(&k.as_str()))
+            .map(|(t, _)| t.as_str())
+            .collect()
+    }
+
+    /// Image topics whose first message has one of `encodings`.
+    fn images_in(&self, encodings: &[&str]) -> Vec<&str> {
+        self.images
+            .iter()
+            .filter(|(_, v)| {
+                v.first()
+                    .is_some_and(|i| encodings.contains(&i.encoding.as_str()))
+            })
+            .map(|(t, _)| t.as_str())
+            .collect()
+    }
+}
+
+const DEPTH_ENCODINGS: [&str; 2] = ["16UC1", "32FC1"];
+const COLOR_ENCODINGS: [&str; 5] = ["rgb8", "bgr8", "rgba8", "bgra8", "mono8"];
+
+/// Picks the topic of one kind: the given one (checked to be of that kind),
+/// else the only candidate.
+fn choose(
+    dir: &Path,
+    what: &str,
+    flag: &str,
+    given: Option<&str>,
+    candidates: &[&str],
+    topics: &Topics,
+) -> Result<String, ReadError> {
+    if let Some(t) = given {
+        return match topics.kinds.get(t) {
+            None => Err(text::layout(
+                dir,
+                format!(
+                    "{flag} {t}: no such topic; the bag has {}",
+                    topics.kinds.keys().cloned().collect::<Vec<_>>().join(", ")
+                ),
+            )),
+            Some(_) if candidates.contains(&t) => Ok(t.to_string()),
+            Some(kind) => Err(text::layout(
+                dir,
+                format!("{flag} {t}: a {kind} topic is not a {what}"),
+            )),
+        };
+    }
+    match candidates {
+        [one] => Ok(one.to_string()),
+        [] => Err(text::layout(
+            dir,
+            format!(
+                "no {what} in the bag (topics: {})",
+                topics
+                    .kinds
+                    .iter()
+                    .map(|(t, k)| format!("{t} [{k}]"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        )),
+        many => Err(text::layout(
+            dir,
+            format!(
+                "several {what}s: {}; choose one with {flag}",
+                many.join(", ")
+            ),
+        )),
+    }
+}
+
+/// Index of the entry of `sorted` (ascending) nearest to `t` within `tol`.
+fn nearest(sorted: &[Stamped], t: f64, tol: f64) -> Option<usize> {
+    let i = sorted.partition_point(|s| s.stamp < t);
+    [i.checked_sub(1), (i < sorted.len()).then_some(i)]
+        .into_iter()
+        .flatten()
+        .map(|j| (j, (sorted[j].stamp - t).abs()))
+        .filter(|&(_, d)| d <= tol)
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(j, _)| j)
+}
+
+/// Reads a ROS 2 recording.
+pub(crate) fn read(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError> {
+    let ros = &opts.ros2;
+    let tol = ros.pose_tolerance.unwrap_or(POSE_TOLERANCE);
+    if !(tol.is_finite() && tol >= 0.0) {
+        return Err(text::layout(
+            path,
+            format!("pose tolerance must be >= 0 seconds, got {tol}"),
+        ));
+    }
+    let files = bag_files(path)?;
+    let mut topics = Topics::default();
+    for (i, file) in files.iter().enumerate() {
+        let cut = bag::scan(i, file, &mut |m| topics.visit(file, m)).map_err(layout)?;
+        if cut > 0 {
+            warn(format!(
+                "{}: the last {cut} bytes are an incomplete record (recording cut short): ignored",
+                file.display()
+            ));
+        }
+    }
+    // Depth.
+    let compressed = topics.of_kind(&[msgs::COMPRESSED_IMAGE]);
+    if let Some(t) = ros
+        .depth_topic
+        .as_deref()
+        .filter(|t| compressed.contains(t))
+    {
+        return Err(text::layout(
+            path,
+            format!(
+                "--depth-topic {t} is a sensor_msgs/msg/CompressedImage: compressed depth is \
+                 not supported (record the raw Image topic, or republish it raw with \
+                 image_transport)"
+            ),
+        ));
+    }
+    let depth_candidates = topics.images_in(&DEPTH_ENCODINGS);
+    if ros.depth_topic.is_none() && depth_candidates.is_empty() && !compressed.is_empty() {
+        return Err(text::layout(
+            path,
+            format!(
+                "no raw depth Image topic (16UC1 or 32FC1); compressed images ({}) are not \
+                 supported",
+                compressed.join(", ")
+            ),
+        ));
+    }
+    let all_images = topics.of_kind(&[msgs::IMAGE]);
+    let depth_topic = match ros.depth_topic.as_deref() {
+        // A given Image topic in another encoding gets the encoding error below.
+        Some(t) if all_images.contains(&t) => t.to_string(),
+        given => choose(
+            path,
+            "depth topic (sensor_msgs/msg/Image, 16UC1 or 32FC1)",
+            "--depth-topic",
+            given,
+            &depth_candidates,
+            &topics,
+        )?,
+    };
+    let mut depth = topics.images.remove(&depth_topic).unwrap_or_default();
+    depth.sort_by(|a, b| a.stamp.total_cmp(&b.stamp));
+    let first = depth
+        .first()
+        .cloned()
+        .ok_or_else(|| text::layout(path, format!("{depth_topic} has no message")))?;
+    for img in &depth {
+        if !DEPTH_ENCODINGS.contains(&img.encoding.as_str()) {
+            return Err(text::layout(
+                path,
+                format!(
+                    "{depth_topic} at t={:.6}: encoding `{}` is not a depth encoding \
+                     (16UC1 millimetres or 32FC1 metres)",
+                    img.stamp, img.encoding
+                ),
+            ));
+        }
+        if (img.width, img.height) != (first.width, first.height) {
+            return Err(text::layout(
+                path,
+                format!(
+                    "{depth_topic} at t={:.6}: {}x{} image, the first one is {}x{}",
+                    img.stamp, img.width, img.height, first.width, first.height
+                ),
+            ));
+        }
+    }
+    let side = |v: u32| u16::try_from(v).ok().filter(|&s| s > 0);
+    let size = match (side(first.width), side(first.height)) {
+        (Some(w), Some(h)) => (w, h),
+        _ => {
+            return Err(text::layout(
+                path,
+                format!(
+                    "{depth_topic}: images are {}x{}, sides must be 1..=65535",
+                    first.width, first.height
+                ),
+            ))
+        }
+    };
+    // Intrinsics.
+    let camera = match opts.intrinsics {
+        Some(k) => k,
+        None => camera(path, ros, &depth_topic, &topics, size)?,
+    };
+    // Poses.
+    let (pose_topic, mut poses) = poses(path, ros, &mut topics)?;
+    poses.sort_by(|a, b| a.stamp.total_cmp(&b.stamp));
+    // Colour (optional).
+    let color_candidates = topics.images_in(&COLOR_ENCODINGS);
+    let color_topic = match (&ros.color_topic, color_candidates.as_slice()) {
+        (Some(t), _) => Some(choose(
+            path,
+            "colour topic (sensor_msgs/msg/Image, rgb8, bgr8, rgba8, bgra8 or mono8)",
+            "--color-topic",
+            Some(t),
+            &color_candidates,
+            &topics,
+        )?),
+        (None, [one]) => Some(one.to_string()),
+        (None, _) => None,
+    };
+    let mut color = color_topic
+        .as_ref()
+        .and_then(|t| topics.images.remove(t))
+        .unwrap_or_default();
+    color.sort_by(|a, b| a.stamp.total_cmp(&b.stamp));
+    let color_times: Vec<Stamped> = color
+        .iter()
+        .map(|c| Stamped {
+            stamp: c.stamp,
+            pose: msgs::PoseMsg {
+                translation: [0.0; 3],
+                rotation: [0.0, 0.0, 0.0, 1.0],
+            },
+        })
+        .collect();
+
+    let mut frames = Vec::with_capacity(depth.len());
+    let mut refs = Vec::with_capacity(depth.len());
+    let mut colors = Vec::with_capacity(depth.len());
+    let mut skipped: Vec<f64> = Vec::new();
+    for img in &depth {
+        let Some(j) = nearest(&poses, img.stamp, tol) else {
+            skipped.push(img.stamp);
+            continue;
+        };
+        let p = poses[j].pose;
+        let rotation = placedb::Pose::from_quaternion(
+            p.translation.map(|c| c as f32),
+            p.rotation.map(|c| c as f32),
+        )
+        .map(|_| {
+            // A unit quaternion is kept bit for bit (the same poses as the
+            // source the bag was made from); others are normalised.
+            let n = p.rotation.iter().map(|c| c * c).sum::<f64>().sqrt();
+            if (n - 1.0).abs() <= 1e-9 {
+                p.rotation
+            } else {
+                p.rotation.map(|c| c / n)
+            }
+        })
+        .map_err(|reason| {
+            text::layout(
+                path,
+                format!(
+                    "{pose_topic} at t={:.6}: bad pose {:?} {:?}: {reason:?}",
+                    poses[j].stamp, p.translation, p.rotation
+                ),
+            )
+        })?;
+        let index = frames.len();
+        frames.push(FrameInfo {
+            index,
+            timestamp: img.stamp,
+            translation: p.translation,
+            rotation,
+            depth_name: format!("{depth_topic}@{:.6}", img.stamp),
+            color_path: None,
+        });
+        refs.push(img.clone());
+        colors.push(nearest(&color_times, img.stamp, tol).map(|c| color[c].clone()));
+    }
+    if let (Some(first), Some(last)) = (skipped.first(), skipped.last()) {
+        let pose_span = match (poses.first(), poses.last()) {
+            (Some(a), Some(b)) => format!("poses span t={:.6}..{:.6}", a.stamp, b.stamp),
+            _ => "no pose at all".into(),
+        };
+        let msg = format!(
+            "{} of {} depth frames on {depth_topic} have no pose on {pose_topic} within \
+             {tol} s (t={first:.6}..{last:.6}; {pose_span})",
+            skipped.len(),
+            depth.len()
+        );
+        if frames.is_empty() {
+            return Err(text::layout(path, msg));
+        }
+        warn(format!("{msg}: skipped"));
+    }
+    let name = if path.is_file() {
+        path.file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    } else {
+        text::dir_name(path)
+    };
+    Ok(Sequence {
+        name,
+        format: Format::Ros2,
+        camera,
+        depth_scale: opts.depth_scale.unwrap_or(DEPTH_SCALE),
+        size,
+        frames,
+        source: Box::new(BagSource {
+            files,
+            depth: refs,
+            color: colors,
+            depth_scale: opts.depth_scale.unwrap_or(DEPTH_SCALE),
+            topic: depth_topic,
+        }),
+    })
+}
+
+fn layout((path, reason): bag::BagError) -> ReadError {
+    ReadError::Layout { path, reason }
+}
+
+fn warn(msg: String) {
+    eprintln!("placedb: warning: {msg}");
+}
+
+/// The pinhole camera from the CameraInfo topic.
+fn camera(
+    path: &Path,
+    ros: &Ros2Options,
+    depth_topic: &str,
+    topics: &Topics,
+    size: (u16, u16),
+) -> Result<CameraModel, ReadError> {
+    let candidates = topics.of_kind(&[msgs::CAMERA_INFO]);
+    // Several cameras: the one beside the depth topic (same namespace).
+    let ns = depth_topic.rsplit_once('/').map_or("", |(ns, _)| ns);
+    let beside: Vec<&str> = candidates
+        .iter()
+        .copied()
+        .filter(|t| t.rsplit_once('/').is_some_and(|(n, _)| n == ns))
+        .collect();
+    let pool = if ros.camera_info_topic.is_none() && candidates.len() > 1 && beside.len() == 1 {
+        beside
+    } else {
+        candidates
+    };
+    let topic = choose(
+        path,
+        "camera info topic (sensor_msgs/msg/CameraInfo; or give --intrinsics)",
+        "--camera-info-topic",
+        ros.camera_info_topic.as_deref(),
+        &pool,
+        topics,
+    )?;
+    let infos = topics.infos.get(&topic).map(Vec::as_slice).unwrap_or(&[]);
+    let Some(info) = infos.first() else {
+        return Err(text::layout(path, format!("{topic} has no message")));
+    };
+    let at = |reason: String| {
+        text::layout(
+            path,
+            format!("{topic} at t={:.6}: {reason}", info.header.stamp),
+        )
+    };
+    if info.width != 0 && (info.width, info.height) != (u32::from(size.0), u32::from(size.1)) {
+        return Err(at(format!(
+            "camera is {}x{}, the depth images are {}x{}",
+            info.width, info.height, size.0, size.1
+        )));
+    }
+    let k = info.k;
+    if k[1] != 0.0 || k[3] != 0.0 || k[6] != 0.0 || k[7] != 0.0 || k[8] != 1.0 {
+        return Err(at(format!(
+            "k = {k:?} is not [fx 0 cx; 0 fy cy; 0 0 1] (skew is not supported)"
+        )));
+    }
+    let model = CameraModel {
+        fx: k[0],
+        fy: k[4],
+        cx: k[2],
+        cy: k[5],
+    };
+    super::check_camera(&model).map_err(at)?;
+    if info.d.iter().any(|&d| d != 0.0) {
+        warn(format!(
+            "{topic}: distortion {:?} is ignored (pinhole model only)",
+            info.d
+        ));
+    }
+    if infos.len() > 1 {
+        warn(format!(
+            "{topic}: the intrinsics change during the recording; the first are used"
+        ));
+    }
+    Ok(model)
+}
+
+/// The pose topic and its poses.
+fn poses(
+    path: &Path,
+    ros: &Ros2Options,
+    topics: &mut Topics,
+) -> Result<(String, Vec<Stamped>), ReadError> {
+    let tf_topics = topics.of_kind(&[msgs::TF_MESSAGE]);
+    let given_tf = ros.pose_topic.as_deref().filter(|t| tf_topics.contains(t));
+    if ros.pose_frame.is_some() || given_tf.is_some() {
+        let Some(frame) = ros.pose_frame.as_deref() else {
+            return Err(text::layout(
+                path,
+                format!(
+                    "--pose-topic {} is a TF topic: name the camera's frame with --pose-frame \
+                     (child frames: {})",
+                    given_tf.unwrap_or_default(),
+                    child_frames(topics)
+                ),
+            ));
+        };
+        let from: Vec<String> = match given_tf {
+            Some(t) => vec![t.to_string()],
+            None => tf_topics.iter().map(|t| t.to_string()).collect(),
+        };
+        let mut poses = Vec::new();
+        for t in &from {
+            if let Some(p) = topics.tf.get_mut(t).and_then(|f| f.remove(frame)) {
+                poses.extend(p);
+            }
+        }
+        if poses.is_empty() {
+            return Err(text::layout(
+                path,
+                format!(
+                    "no transform to child frame `{frame}` in {} (child frames: {})",
+                    if from.is_empty() {
+                        "the bag (it has no /tf)".to_string()
+                    } else {
+                        from.join(", ")
+                    },
+                    child_frames(topics)
+                ),
+            ));
+        }
+        return Ok((format!("/tf[{frame}]"), poses));
+    }
+    let candidates = topics.of_kind(&[msgs::POSE_STAMPED, msgs::ODOMETRY]);
+    if ros.pose_topic.is_none() && candidates.is_empty() && !tf_topics.is_empty() {
+        return Err(text::layout(
+            path,
+            format!(
+                "no PoseStamped or Odometry topic; for poses from /tf give --pose-frame \
+                 (child frames: {})",
+                child_frames(topics)
+            ),
+        ));
+    }
+    let topic = choose(
+        path,
+        "pose topic (geometry_msgs/msg/PoseStamped or nav_msgs/msg/Odometry)",
+        "--pose-topic",
+        ros.pose_topic.as_deref(),
+        &candidates,
+        topics,
+    )?;
+    let poses = topics.poses.remove(&topic).unwrap_or_default();
+    Ok((topic, poses))
+}
+
+fn child_frames(topics: &Topics) -> String {
+    let names: Vec<&str> = topics
+        .tf
+        .values()
+        .flat_map(|f| f.keys().map(String::as_str))
+        .collect();
+    if names.is_empty() {
+        "none".into()
+    } else {
+        names.join(", ")
+    }
+}
+
+/// Depth (and colour) of a bag's frames, read back from the bag on demand.
+struct BagSource {
+    files: Vec<PathBuf>,
+    depth: Vec<ImageRef>,
+    color: Vec<Option<ImageRef>>,
+    depth_scale: f64,
+    topic: String,
+}
+
+impl BagSource {
+    fn message(&self, r: &ImageRef) -> Result<Vec<u8>, ReadError> {
+        let file = &self.files[r.at.file];
+        bag::fetch(file, r.at).map_err(layout)
+    }
+}
+
+impl DepthSource for BagSource {
+    fn depth(&self, i: usize) -> Result<DepthImage, ReadError> {
+        let r = self.depth.get(i).ok_or_else(|| {
+            text::layout(
+                &self.files[0],
+                format!("frame {i} requested, the bag has {}", self.depth.len()),
+            )
+        })?;
+        let bytes = self.message(r)?;
+        let at = |reason: String| {
+            text::layout(
+                &self.files[r.at.file],
+                format!("{} at t={:.6}: {reason}", self.topic, r.stamp),
+            )
+        };
+        let img = msgs::image(&bytes).map_err(|e| at(e.to_string()))?;
+        decode_depth(&img, self.depth_scale).map_err(at)
+    }
+
+    fn color(&self, i: usize) -> Result<Option<ColorImage>, ReadError> {
+        let Some(Some(r)) = self.color.get(i) else {
+            return Ok(None);
+        };
+        let bytes = self.message(r)?;
+        let at = |reason: String| {
+            text::layout(
+                &self.files[r.at.file],
+                format!("colour image at t={:.6}: {reason}", r.stamp),
+            )
+        };
+        let img = msgs::image(&bytes).map_err(|e| at(e.to_string()))?;
+        decode_color(&img).map(Some).map_err(at)
+    }
+}
+
+/// Rows of `bpp`-byte pixels of `img`, checked against its step and data.
+fn rows<'a>(img: &msgs::Image<'a>, bpp: usize) -> Result<Vec<&'a [u8]>, String> {
+    let (w, h, step) = (img.width as usize, img.height as usize, img.step as usize);
+    let row = w.checked_mul(bpp).ok_or("image too wide")?;
+    if step < row {
+        return Err(format!("step {step} < {w} pixels of {bpp} bytes"));
+    }
+    let need = step
+        .checked_mul(h.saturating_sub(1))
+        .and_then(|n| n.checked_add(row));
+    if h > 0 && need.is_none_or(|n| img.data.len() < n) {
+        return Err(format!(
+            "{} data bytes for {h} rows of step {step}",
+            img.data.len()
+        ));
+    }
+    Ok((0..h)
+        .map(|v| &img.data[v * step..v * step + row])
+        .collect())
+}
+
+fn sides(img: &msgs::Image<'_>) -> Result<(u16, u16), String> {
+    match (u16::try_from(img.width), u16::try_from(img.height)) {
+        (Ok(w), Ok(h)) if w > 0 && h > 0 => Ok((w, h)),
+        _ => Err(format!("image is {}x{}", img.width, img.height)),
+    }
+}
+
+/// A depth Image as `u16` at `depth_scale` units per metre: `16UC1` as
+/// stored, `32FC1` metres scaled (invalid or out-of-range values become 0).
+pub fn decode_depth(img: &msgs::Image<'_>, depth_scale: f64) -> Result<DepthImage, String> {
+    let (width, height) = sides(img)?;
+    let big = img.is_bigendian;
+    let mut data = Vec::with_capacity(usize::from(width) * usize::from(height));
+    match img.encoding.as_str() {
+        "16UC1" => {
+            for row in rows(img, 2)? {
+                data.extend(row.chunks_exact(2).map(|b| {
+                    let b = [b[0], b[1]];
+                    if big {
+                        u16::from_be_bytes(b)
+                    } else {
+                        u16::from_le_bytes(b)
+                    }
+                }));
+            }
+        }
+        "32FC1" => {
+            for row in rows(img, 4)? {
+                data.extend(row.chunks_exact(4).map(|b| {
+                    let b = [b[0], b[1], b[2], b[3]];
+                    let m = if big {
+                        f32::from_be_bytes(b)
+                    } else {
+                        f32::from_le_bytes(b)
+                    };
+                    let v = (f64::from(m) * depth_scale).round();
+                    if v.is_finite() && v > 0.0 && v <= f64::from(u16::MAX) {
+                        v as u16
+                    } else {
+                        0
+                    }
+                }));
+            }
+        }
+        other => {
+            return Err(format!(
+                "encoding `{other}` is not a depth encoding (16UC1 or 32FC1)"
+            ))
+        }
+    }
+    Ok(DepthImage {
+        width,
+        height,
+        data,
+    })
+}
+
+/// A colour Image as RGB bytes.
+pub fn decode_color(img: &msgs::Image<'_>) -> Result<ColorImage, String> {
+    let (width, height) = sides(img)?;
+    let (bpp, order): (usize, [usize; 3]) = match img.encoding.as_str() {
+        "rgb8" => (3, [0, 1, 2]),
+        "bgr8" => (3, [2, 1, 0]),
+        "rgba8" => (4, [0, 1, 2]),
+        "bgra8" => (4, [2, 1, 0]),
+        "mono8" => (1, [0, 0, 0]),
+        other => return Err(format!("colour encoding `{other}` is not supported")),
+    };
+    let mut rgb = Vec::with_capacity(3 * usize::from(width) * usize::from(height));
+    for row in rows(img, bpp)? {
+        for px in row.chunks_exact(bpp) {
+            rgb.extend(order.map(|c| px[c]));
+        }
+    }
+    Ok(ColorImage { width, height, rgb })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn image<'a>(
+        encoding: &str,
+        w: u32,
+        h: u32,
+        step: u32,
+        big: bool,
+        data: &'a [u8],
+    ) -> msgs::Image<'a> {
+        msgs::Image {
+            header: msgs::Header {
+                stamp: 1.0,
+                frame_id: String::new(),
+            },
+            height: h,
+            width: w,
+            encoding: encoding.into(),
+            is_bigendian: big,
+            step,
+            data,
+        }
+    }
+
+    #[test]
+    fn depth_encodings_byte_orders_and_step() {
+        // 2x2 16UC1 little-endian with 2 bytes of row padding.
+        let le = [0xe8, 0x03, 0x01, 0x00, 9, 9, 0x00, 0x00, 0xff, 0xff, 9, 9];
+        let d = decode_depth(&image("16UC1", 2, 2, 6, false, &le), 1000.0).unwrap();
+        assert_eq!(d.data, [1000, 1, 0, 65535]);
+        let be = [0x03, 0xe8, 0x00, 0x01];
+        let d = decode_depth(&image("16UC1", 2, 1, 4, true, &be), 1000.0).unwrap();
+        assert_eq!(d.data, [1000, 1]);
+        // 32FC1 metres: scaled; NaN, inf, negative, too far are no measurement.
+        let m: Vec<u8> = [1.5f32, f32::NAN, f32::INFINITY, -1.0, 70.0, 0.0004]
+            .iter()
+            .flat_map(|v| v.to_be_bytes())
+            .collect();
+        let d = decode_depth(&image("32FC1", 6, 1, 24, true, &m), 1000.0).unwrap();
+        assert_eq!(d.data, [1500, 0, 0, 0, 0, 0]);
+        let d = decode_depth(&image("32FC1", 6, 1, 24, true, &m), 5000.0).unwrap();
+        assert_eq!(d.data, [7500, 0, 0, 0, 0, 2]);
+        // Refusals: encoding, short data, short step, zero size.
+        assert!(decode_depth(&image("mono16", 2, 1, 4, false, &be), 1000.0)
+            .unwrap_err()
+            .contains("mono16"));
+        assert!(decode_depth(&image("16UC1", 2, 2, 4, false, &be), 1000.0).is_err());
+        assert!(decode_depth(&image("16UC1", 2, 1, 3, false, &be), 1000.0).is_err());
+        assert!(decode_depth(&image("16UC1", 0, 1, 0, false, &[]), 1000.0).is_err());
+    }
+
+    #[test]
+    fn colour_encodings() {
+        let bgr = [1, 2, 3, 4, 5, 6];
+        let c = decode_color(&image("bgr8", 2, 1, 6, false, &bgr)).unwrap();
+        assert_eq!(c.rgb, [3, 2, 1, 6, 5, 4]);
+        let c = decode_color(&image("mono8", 2, 1, 2, false, &[7, 8])).unwrap();
+        assert_eq!(c.rgb, [7, 7, 7, 8, 8, 8]);
+        assert!(decode_color(&image("yuv422", 2, 1, 4, false, &[0; 4])).is_err());
+    }
+
+    #[test]
+    fn nearest_pose_within_tolerance() {
+        let p = msgs::PoseMsg {
+            translation: [0.0; 3],
+            rotation: [0.0, 0.0, 0.0, 1.0],
+        };
+        let s: Vec<Stamped> = [1.0, 1.1, 2.0]
+            .iter()
+            .map(|&stamp| Stamped { stamp, pose: p })
+            .collect();
+        assert_eq!(nearest(&s, 1.04, 0.05), Some(0));
+        assert_eq!(nearest(&s, 1.06, 0.05), Some(1));
+        assert_eq!(nearest(&s, 1.5, 0.05), None);
+        assert_eq!(nearest(&s, 2.05, 0.05), Some(2));
+        assert_eq!(nearest(&[], 1.0, 1.0), None);
+    }
+}
