@@ -18,28 +18,28 @@ pub struct Capacities {
     pub frame_voxel_slots: usize,
     /// Key pool words: exact voxel keys of kept frames.
     pub pool_words: usize,
-    /// Database frames.
+    /// Database frames (index entries; the frames live in flash).
     pub database_frames: usize,
     /// Window frames (lookahead + 1).
     pub window: usize,
     /// Hashes per sketch.
     pub sketch: usize,
-    /// Frames whose labels the device stores for export.
-    pub labels: usize,
+    /// Database frames held whole in RAM.
+    pub resident: usize,
     /// `size_of` the selector, bytes.
     pub state_bytes: usize,
-    /// `size_of` the whole device (selector, receive buffer, labels), bytes.
+    /// `size_of` the whole device (selector, receive buffer, buffers), bytes.
     pub device_bytes: usize,
 }
 
 macro_rules! profiles {
     ($( $(#[$doc:meta])* $ty:ident, $dev:ident = $name:literal, $ram:expr,
-        [$fv:expr, $pool:expr, $db:expr, $w:expr, $k:expr, $labels:expr]; )*) => {
+        [$fv:expr, $pool:expr, $db:expr, $w:expr, $k:expr, $resident:expr]; )*) => {
         $(
             $(#[$doc])*
-            pub type $ty = Selector<$fv, $pool, $db, $w, $k>;
-            #[doc = concat!("The device of profile `", $name, "`: its selector, receive buffer and labels.")]
-            pub type $dev = Device<$fv, $pool, $db, $w, $k, $labels>;
+            pub type $ty = Selector<$fv, $pool, $db, $w, $k, $resident>;
+            #[doc = concat!("The device of profile `", $name, "`: its selector and receive buffer.")]
+            pub type $dev = Device<$fv, $pool, $db, $w, $k, $resident>;
         )*
         /// Every profile's capacities.
         pub const PROFILES: &[Capacities] = &[$(
@@ -51,7 +51,7 @@ macro_rules! profiles {
                 database_frames: $db,
                 window: $w,
                 sketch: $k,
-                labels: $labels,
+                resident: $resident,
                 state_bytes: core::mem::size_of::<$ty>(),
                 device_bytes: core::mem::size_of::<$dev>(),
             },
@@ -61,11 +61,11 @@ macro_rules! profiles {
 
 profiles! {
     /// Boards with 256 KiB of RAM (e.g. RP2040).
-    Ram256K, Device256K = "ram256k", 256 * 1024, [4096, 16384, 192, 16, 64, 4096];
+    Ram256K, Device256K = "ram256k", 256 * 1024, [4096, 16384, 2048, 16, 64, 64];
     /// Boards with 512 KiB of RAM (e.g. RP2350, STM32F7).
-    Ram512K, Device512K = "ram512k", 512 * 1024, [4096, 65536, 384, 32, 32, 6144];
+    Ram512K, Device512K = "ram512k", 512 * 1024, [4096, 65536, 4096, 32, 32, 128];
     /// Boards with 1 MiB of RAM (e.g. Teensy 4.1, STM32H7).
-    Ram1M, Device1M = "ram1m", 1024 * 1024, [8192, 163840, 768, 48, 48, 3072];
+    Ram1M, Device1M = "ram1m", 1024 * 1024, [8192, 163840, 8192, 48, 48, 128];
 }
 
 /// The profile named `name`.

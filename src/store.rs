@@ -147,14 +147,14 @@ impl<const N: usize> KeyPool<N> {
     /// The keys of a run as packed absolute keys, ascending.
     pub fn keys<'a>(&'a self, run: &KeyRun) -> impl Iterator<Item = u64> + 'a {
         let base = run.base;
+        self.words(run).iter().map(move |&w| key_of(base, w))
+    }
+
+    /// The stored words of a run: ascending, relative to `run.base`.
+    pub fn words(&self, run: &KeyRun) -> &[u32] {
         let start = (run.offset as usize).min(self.used);
         let end = (start + run.len as usize).min(self.used);
-        self.words[start..end].iter().map(move |&w| {
-            let dx = (w >> (DY_BITS + DZ_BITS)) as i32;
-            let dy = ((w >> DZ_BITS) & ((1 << DY_BITS) - 1)) as i32;
-            let dz = (w & ((1 << DZ_BITS) - 1)) as i32;
-            VoxelKey::new(base[0] + dx, base[1] + dy, base[2] + dz).to_bits()
-        })
+        self.words.get(start..end).unwrap_or(&[])
     }
 
     /// Size of the intersection of a stored run with ascending keys.
@@ -177,8 +177,21 @@ impl KeyRun {
     }
 }
 
+/// The packed absolute key of relative word `w` of a run based at `base`.
+pub fn key_of(base: [i32; 3], w: u32) -> u64 {
+    let dx = (w >> (DY_BITS + DZ_BITS)) as i32;
+    let dy = ((w >> DZ_BITS) & ((1 << DY_BITS) - 1)) as i32;
+    let dz = (w & ((1 << DZ_BITS) - 1)) as i32;
+    VoxelKey::new(
+        base[0].saturating_add(dx),
+        base[1].saturating_add(dy),
+        base[2].saturating_add(dz),
+    )
+    .to_bits()
+}
+
 /// Number of common items of two ascending, duplicate-free sequences.
-fn merge_count(a: impl Iterator<Item = u64>, b: impl Iterator<Item = u64>) -> u32 {
+pub fn merge_count(a: impl Iterator<Item = u64>, b: impl Iterator<Item = u64>) -> u32 {
     let (mut a, mut b) = (a.peekable(), b.peekable());
     let mut n = 0;
     while let (Some(&x), Some(&y)) = (a.peek(), b.peek()) {

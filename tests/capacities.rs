@@ -120,7 +120,10 @@ fn database<const FV: usize, const POOL: usize, const DB: usize, const W: usize,
     sel: &Selector<FV, POOL, DB, W, K>,
 ) -> Vec<DbRecord> {
     (0..sel.database_len())
-        .map(|i| sel.database_record(i).unwrap())
+        .map(|i| {
+            sel.database_record(i, &mut placedb::select::NoStore)
+                .unwrap()
+        })
         .collect()
 }
 

@@ -489,7 +489,10 @@ fn run<const FV: usize, const POOL: usize, const DB: usize, const W: usize, cons
     sel.finish(|d| log.push((n, d))).expect("finish");
     trace.push(sel.status());
     let database = (0..sel.database_len())
-        .map(|i| sel.database_record(i).expect("record"))
+        .map(|i| {
+            sel.database_record(i, &mut placedb::select::NoStore)
+                .expect("record")
+        })
         .collect();
     Run {
         log,

@@ -14,6 +14,7 @@
 use placedb::camera::{DepthRange, Intrinsics, Pose};
 use placedb::device::Device;
 use placedb::frame::FrameMeta;
+use placedb::persist::record::{KeyChunks, DECISION_BATCH};
 use placedb::persist::sim::SimFlash;
 use placedb::persist::{Log, Record};
 use placedb::protocol::{
@@ -285,7 +286,10 @@ fn decode_reply(frame: &[u8]) -> Reply {
 fn check_status(st: &Status) {
     let limits = [
         (CapacitySlot::Database, FuzzDevice::DATABASE_FRAMES),
-        (CapacitySlot::Labels, FuzzDevice::LABELS),
+        // Labels and flash are bounded by the log, not by a constant.
+        (CapacitySlot::Labels, usize::MAX),
+        (CapacitySlot::Resident, FuzzDevice::RESIDENT),
+        (CapacitySlot::Flash, usize::MAX),
         (CapacitySlot::Pool, FuzzDevice::POOL_WORDS),
         (CapacitySlot::Window, FuzzDevice::WINDOW),
         (CapacitySlot::FrameVoxels, FuzzDevice::FRAME_VOXEL_SLOTS),
@@ -305,10 +309,12 @@ fn check_status(st: &Status) {
     }
     assert_eq!(st.database_size, st.capacity(CapacitySlot::Database).used);
     assert!(st.frames_decided <= st.frames_seen, "{st:?}");
-    assert_eq!(
-        st.capacity(CapacitySlot::Labels).used + st.labels_dropped,
-        st.frames_decided,
-        "every decided frame is labelled or counted as dropped: {st:?}"
+    // Every decided frame is labelled, counted as dropped, or waits in the
+    // batch on its way to the log.
+    let kept = st.capacity(CapacitySlot::Labels).used + st.labels_dropped;
+    assert!(
+        kept <= st.frames_decided && st.frames_decided - kept < DECISION_BATCH as u32,
+        "every decided frame is labelled, dropped or in the batch: {st:?}"
     );
     if st.phase == Phase::Unconfigured {
         assert_eq!((st.frames_seen, st.database_size), (0, 0), "{st:?}");
@@ -896,16 +902,31 @@ pub fn device_structured(data: &[u8]) {
 
 // ------------------------------------------------------------ restore
 
-/// One record with fuzzed fields: every kind, consistent or not.
-fn fuzzed_record(r: &mut Reader<'_>, hashes: &mut Vec<u32>) -> Record {
-    hashes.clear();
-    match r.u8() % 6 {
-        0 => Record::Begin(sane_config(r)),
-        1 => Record::Begin(raw_config(r)),
-        2 => Record::Cleared,
+/// One record with fuzzed fields, encoded into `buf`: every kind,
+/// consistent or not.
+fn fuzzed_record<'b>(r: &mut Reader<'_>, buf: &'b mut [u8]) -> Option<&'b [u8]> {
+    let frame = |r: &mut Reader<'_>| {
+        if r.u8() & 1 == 0 {
+            r.u32() % 16
+        } else {
+            r.u32()
+        }
+    };
+    let kind = |r: &mut Reader<'_>| match r.u8() % 5 {
+        0 => DecisionKind::Taken,
+        1 => DecisionKind::DominatedBy(r.u32() % 16),
+        2 => DecisionKind::Pending,
+        3 => DecisionKind::Uncovered(None),
+        _ => DecisionKind::Uncovered(Some(r.u32() % 16)),
+    };
+    match r.u8() % 7 {
+        0 => Record::Begin(sane_config(r)).encode(buf).ok(),
+        1 => Record::Begin(raw_config(r)).encode(buf).ok(),
+        2 => Record::Cleared.encode(buf).ok(),
         3 => {
             let n = usize::from(r.u8() % 12);
             let ascending = r.u8() & 1 == 0;
+            let mut hashes = Vec::new();
             let mut h = r.u32() % 1000;
             for _ in 0..n {
                 hashes.push(h);
@@ -916,40 +937,43 @@ fn fuzzed_record(r: &mut Reader<'_>, hashes: &mut Vec<u32>) -> Record {
                 };
             }
             let small = |r: &mut Reader<'_>| i32::from(r.u8() as i8);
-            Record::Database {
-                meta: FrameMeta {
-                    index: if r.u8() & 1 == 0 {
-                        r.u32() % 16
-                    } else {
-                        r.u32()
-                    },
-                    timestamp: r.f64(),
-                    pose: raw_pose(r),
-                },
-                voxels: r.u32(),
-                aabb: (r.u8() & 1 == 0).then(|| Aabb {
-                    min: [small(r), small(r), small(r)],
-                    max: [small(r), small(r), small(r)],
-                }),
-                hashes: n as u16,
+            let meta = FrameMeta {
+                index: frame(r),
+                timestamp: r.f64(),
+                pose: raw_pose(r),
+            };
+            let voxels = r.u32() % 64;
+            let aabb = (r.u8() & 1 == 0).then(|| Aabb {
+                min: [small(r), small(r), small(r)],
+                max: [small(r), small(r), small(r)],
+            });
+            let mut keys = KeyChunks::NONE;
+            keys.count = r.u8() % 3;
+            for a in keys.at.iter_mut() {
+                *a = r.u32() % (LOG_SECTORS as u32 * SimFlash::SECTOR as u32);
             }
+            Record::encode_database(meta, voxels, aabb, &hashes, keys, buf).ok()
         }
-        4 => Record::Decided {
-            frame: if r.u8() & 1 == 0 {
-                r.u32() % 16
-            } else {
-                r.u32()
-            },
-            timestamp: r.f64(),
-            kind: match r.u8() % 5 {
-                0 => DecisionKind::Taken,
-                1 => DecisionKind::DominatedBy(r.u32() % 16),
-                2 => DecisionKind::Pending,
-                3 => DecisionKind::Uncovered(None),
-                _ => DecisionKind::Uncovered(Some(r.u32() % 16)),
-            },
-        },
-        _ => Record::Finished,
+        4 => {
+            let n = 1 + usize::from(r.u8()) % DECISION_BATCH;
+            let decisions: Vec<_> = (0..n).map(|_| (r.f64(), kind(r))).collect();
+            Record::encode_decisions(frame(r), &decisions, buf).ok()
+        }
+        5 => {
+            let n = usize::from(r.u8() % 8);
+            let mut words: Vec<u32> = (0..n).map(|_| r.u32() % 4096).collect();
+            words.sort_unstable();
+            words.dedup();
+            let count = words.len() as u16;
+            let fill = |tail: &mut [u8]| {
+                placedb::persist::keys::encode_chunk(&words, 0, tail).map(|(len, _)| len)
+            };
+            if words.is_empty() {
+                return None;
+            }
+            Record::encode_keys(frame(r), count, fill, buf).ok()
+        }
+        _ => Record::Finished.encode(buf).ok(),
     }
 }
 
@@ -963,10 +987,8 @@ pub fn restore(data: &[u8]) {
     let mut r = Reader { data };
     let mut log = open_log(SimFlash::new(LOG_SECTORS));
     let mut buf = vec![0u8; 1024];
-    let mut hashes = Vec::new();
     for i in 0..r.u8() % 48 {
-        let record = fuzzed_record(&mut r, &mut hashes);
-        let Ok(payload) = record.encode(&hashes, &mut buf) else {
+        let Some(payload) = fuzzed_record(&mut r, &mut buf) else {
             continue;
         };
         let _ = if i == 0 || r.u8().is_multiple_of(16) {

@@ -186,8 +186,13 @@ impl Link for SerialLink {
     }
 }
 
+/// Sectors of the in-process device's flash log: 1 MiB, the log region of
+/// both boards (the Pico's second MiB of QSPI flash, the QEMU board's PSRAM).
+pub const LOCAL_FLASH_SECTORS: usize = 256;
+
 /// The core's device state machine run in-process on a thread, behind the
-/// same byte interface as a board: what every board runs, without hardware.
+/// same byte interface as a board: what every board runs, without hardware,
+/// with its flash log on a simulated 1 MiB NOR flash.
 pub struct LocalLink {
     to_device: Option<mpsc::Sender<Vec<u8>>>,
     rx: Receiver<io::Result<Vec<u8>>>,
@@ -199,6 +204,7 @@ impl LocalLink {
     /// A fresh device of capacity profile `profile` (`ram256k`, `ram512k`, `ram1m`).
     pub fn start(profile: &str) -> io::Result<LocalLink> {
         use placedb::device::{Device1M, Device256K, Device512K};
+        use placedb::persist::{sim::SimFlash, Log};
         let (to_device, inbox) = mpsc::channel::<Vec<u8>>();
         let (tx, rx) = mpsc::channel();
         /// `Device::receive` of some profile.
@@ -228,18 +234,24 @@ impl LocalLink {
             .name("placedb-local-device".into())
             // A device is built on this stack before it is boxed (debug builds).
             .stack_size(64 << 20)
-            .spawn(move || match profile.as_str() {
-                "ram256k" => {
-                    let mut d = Box::new(Device256K::new());
-                    serve(&mut |b, s| d.receive(b, s), inbox, tx)
-                }
-                "ram512k" => {
-                    let mut d = Box::new(Device512K::new());
-                    serve(&mut |b, s| d.receive(b, s), inbox, tx)
-                }
-                _ => {
-                    let mut d = Box::new(Device1M::new());
-                    serve(&mut |b, s| d.receive(b, s), inbox, tx)
+            .spawn(move || {
+                // The boards' flash log: 1 MiB of 4 KiB sectors, in RAM here.
+                let flash = SimFlash::new(LOCAL_FLASH_SECTORS);
+                let end = (LOCAL_FLASH_SECTORS * SimFlash::SECTOR) as u32;
+                let mut log = Log::open(flash, 0, end).expect("an erased flash opens");
+                match profile.as_str() {
+                    "ram256k" => {
+                        let mut d = Box::new(Device256K::new());
+                        serve(&mut |b, s| d.receive_logged(b, &mut log, s), inbox, tx)
+                    }
+                    "ram512k" => {
+                        let mut d = Box::new(Device512K::new());
+                        serve(&mut |b, s| d.receive_logged(b, &mut log, s), inbox, tx)
+                    }
+                    _ => {
+                        let mut d = Box::new(Device1M::new());
+                        serve(&mut |b, s| d.receive_logged(b, &mut log, s), inbox, tx)
+                    }
                 }
             })?;
         Ok(LocalLink {

@@ -733,7 +733,7 @@ fn synth_cmd(a: SynthArgs) -> Result<(), Error> {
 
 fn budget() -> Result<(), Error> {
     println!(
-        "{:<8} {:>6} {:>10} {:>10} {:>9} {:>12} {:>9} {:>5} {:>6} {:>7}",
+        "{:<8} {:>6} {:>10} {:>10} {:>9} {:>12} {:>9} {:>5} {:>6} {:>8} {:>6}",
         "profile",
         "ram",
         "selector",
@@ -743,11 +743,12 @@ fn budget() -> Result<(), Error> {
         "pool_keys",
         "db",
         "window",
-        "labels"
+        "resident",
+        "sketch"
     );
     for p in placedb::profile::PROFILES {
         println!(
-            "{:<8} {:>5}K {:>9}B {:>9}B {:>8}K {:>12} {:>9} {:>5} {:>6} {:>7}",
+            "{:<8} {:>5}K {:>9}B {:>9}B {:>8}K {:>12} {:>9} {:>5} {:>6} {:>8} {:>6}",
             p.name,
             p.ram / 1024,
             p.state_bytes,
@@ -757,10 +758,12 @@ fn budget() -> Result<(), Error> {
             p.pool_words,
             p.database_frames,
             p.window,
-            p.labels
+            p.resident,
+            p.sketch
         );
     }
-    println!("selector = the online core alone; device = selector + receive buffer + label store (what a board holds)");
+    println!("selector = the online core alone; device = selector + receive and reply buffers (what a board holds)");
+    println!("db = database frames indexed in RAM (24 B each; the frames and every label live in the flash log); resident = database frames held whole in RAM");
     println!("headroom = ram - device, for the stack and the board's own buffers");
     Ok(())
 }

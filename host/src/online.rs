@@ -6,6 +6,8 @@ use crate::sequence::{DepthImage, Sequence};
 use crate::voxelize::VoxelizeError;
 use indicatif::ProgressBar;
 use placedb::profile::{Ram1M, Ram256K, Ram512K};
+use placedb::select::{DbSnapshot, FrameStore};
+use placedb::store::{key_of, merge_count};
 use placedb::{
     DbRecord, Decision, FrameMeta, ScanConfig, SelectError, Selector, SelectorConfig, Status,
 };
@@ -19,7 +21,7 @@ pub struct OnlineRun {
     pub decisions: Vec<Decision>,
     /// Class label (a frame index) of every frame.
     pub labels: Vec<usize>,
-    /// Database entries in the order they were taken.
+    /// Database entries in frame order.
     pub database: Vec<DbRecord>,
     /// The selector's final counters.
     pub status: Status,
@@ -131,8 +133,46 @@ impl<'scope, 'env> SpawnBig<'scope> for std::thread::Scope<'scope, 'env> {
     }
 }
 
-fn run<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const K: usize>(
-    sel: &mut Selector<FV, POOL, DB, W, K>,
+/// The replay's [`FrameStore`]: database frames (and the exact keys the
+/// selector hands over) in a `Vec`, as a board keeps them in its flash log,
+/// so the replay decides exactly as a board with flash does.
+#[derive(Debug, Default)]
+pub struct MemStore<const K: usize> {
+    frames: Vec<(DbSnapshot<K>, Option<Vec<u64>>)>,
+}
+
+impl<const K: usize> FrameStore<K> for MemStore<K> {
+    fn save(&mut self, frame: &DbSnapshot<K>, keys: Option<&[u32]>) -> Option<(u32, bool)> {
+        let base = frame.aabb.map(|a| a.min);
+        let keys = keys
+            .zip(base)
+            .map(|(words, base)| words.iter().map(|&w| key_of(base, w)).collect());
+        let kept = keys.is_some();
+        self.frames.push((*frame, keys));
+        Some((u32::try_from(self.frames.len() - 1).ok()?, kept))
+    }
+
+    fn load(&mut self, at: u32) -> Option<DbSnapshot<K>> {
+        self.frames.get(at as usize).map(|(f, _)| *f)
+    }
+
+    fn intersect(&mut self, at: u32, keys: &[u64]) -> Option<(u32, u32)> {
+        let (frame, stored) = self.frames.get(at as usize)?;
+        let stored = stored.as_ref()?;
+        let common = merge_count(stored.iter().copied(), keys.iter().copied());
+        Some((common, frame.voxels))
+    }
+}
+
+fn run<
+    const FV: usize,
+    const POOL: usize,
+    const DB: usize,
+    const W: usize,
+    const K: usize,
+    const R: usize,
+>(
+    sel: &mut Selector<FV, POOL, DB, W, K, R>,
     seq: &Sequence,
     scan: ScanConfig,
     cfg: SelectorConfig,
@@ -143,6 +183,7 @@ fn run<const FV: usize, const POOL: usize, const DB: usize, const W: usize, cons
     let core_err = |frame: usize| move |reason| ReplayError::Core { frame, reason };
     sel.configure(scan, cfg).map_err(core_err(0))?;
     let mut decisions = vec![Decision::Pending; n];
+    let mut store = MemStore::<K>::default();
     let mut read_time = Duration::ZERO;
     let mut core_time = Duration::ZERO;
     let mut record = |d: placedb::FrameDecision| {
@@ -187,7 +228,8 @@ fn run<const FV: usize, const POOL: usize, const DB: usize, const W: usize, cons
                 let first = (c * rows_per_chunk.max(1)) as u16;
                 sel.push_rows(first, data).map_err(core_err(i))?;
             }
-            sel.end_frame(&mut record).map_err(core_err(i))?;
+            sel.end_frame_with(&mut store, &mut record)
+                .map_err(core_err(i))?;
             core_time += t.elapsed();
             if let Some(p) = progress {
                 p.inc(1);
@@ -195,7 +237,8 @@ fn run<const FV: usize, const POOL: usize, const DB: usize, const W: usize, cons
         }
     }
     let t = Instant::now();
-    sel.finish(&mut record).map_err(core_err(n))?;
+    sel.finish_with(&mut store, &mut record)
+        .map_err(core_err(n))?;
     core_time += t.elapsed();
     let labels = decisions
         .iter()
@@ -206,7 +249,7 @@ fn run<const FV: usize, const POOL: usize, const DB: usize, const W: usize, cons
         })
         .collect();
     let database = (0..sel.database_len())
-        .filter_map(|i| sel.database_record(i))
+        .filter_map(|i| sel.database_record(i, &mut store))
         .collect();
     Ok(OnlineRun {
         decisions,

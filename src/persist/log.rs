@@ -47,7 +47,7 @@ pub const HEADER_LEN: usize = 20;
 /// The largest payload a record can carry.
 pub const MAX_PAYLOAD: usize = 1024;
 /// Layout version in every header; records of another version are not read.
-pub const FORMAT: u16 = 1;
+pub const FORMAT: u16 = 2;
 /// The coarsest write or read granularity the log supports.
 const MAX_ALIGN: usize = 32;
 const MAGIC: [u8; 4] = *b"PDBL";
@@ -66,6 +66,8 @@ pub enum LogError {
     Full,
     /// No live generation to append to ([`Log::start`] one first).
     NotStarted,
+    /// No record of the live generation at that place.
+    NoRecord,
 }
 
 /// [`NorFlashErrorKind`] in a form that can be stored and compared.
@@ -114,6 +116,32 @@ struct Live {
     /// Write offset in the last sector in use; `None` when it is sealed and
     /// the next record opens a fresh sector.
     offset: Option<u32>,
+}
+
+/// A position in the live generation, for reading it record by record
+/// ([`Log::next`]); [`Cursor::START`] is its first record.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Cursor {
+    /// Sectors entered, head included.
+    sectors: u32,
+    /// Offset of the next record in the last of them.
+    offset: u32,
+    /// Records read; the next one's sequence number.
+    records: u32,
+}
+
+impl Cursor {
+    /// The first record of the live generation.
+    pub const START: Cursor = Cursor {
+        sectors: 1,
+        offset: 0,
+        records: 0,
+    };
+
+    /// Records before this position.
+    pub fn records(&self) -> u32 {
+        self.records
+    }
 }
 
 /// The log over `flash`, in sectors `[start, start + n * ERASE_SIZE)`.
@@ -285,7 +313,7 @@ impl<F: NorFlash> Log<F> {
             }
         }
         self.live = match head {
-            Some((generation, head)) => Some(self.walk(generation, head, &mut |_| {})?),
+            Some((generation, head)) => Some(self.walk(generation, head, &mut |_, _| {})?),
             None => None,
         };
         Ok(())
@@ -297,7 +325,7 @@ impl<F: NorFlash> Log<F> {
         &mut self,
         generation: u32,
         head: u32,
-        visit: &mut dyn FnMut(&[u8]),
+        visit: &mut dyn FnMut(u32, &[u8]),
     ) -> Result<Live, LogError> {
         let mut live = Live {
             generation,
@@ -315,7 +343,9 @@ impl<F: NorFlash> Log<F> {
                 .filter(|h| h.generation == generation && h.seq == live.records);
             match found {
                 Some(h) => {
+                    let at = self.position(sector, offset);
                     visit(
+                        at,
                         self.buf
                             .get(HEADER_LEN..HEADER_LEN + h.len)
                             .unwrap_or_default(),
@@ -341,8 +371,15 @@ impl<F: NorFlash> Log<F> {
         }
     }
 
-    /// Hands every payload of the live generation, in order, to `visit`.
-    pub fn replay(&mut self, visit: &mut dyn FnMut(&[u8])) -> Result<u32, LogError> {
+    /// Where record `offset` bytes into `sector` (counted from the range's
+    /// first sector, any number of turns) is: bytes from the range's start.
+    fn position(&self, sector: u32, offset: u32) -> u32 {
+        (sector % self.sectors) * self.sector_len() + offset
+    }
+
+    /// Hands every payload of the live generation, in order, with its
+    /// position (for [`Self::read_at`]), to `visit`.
+    pub fn replay(&mut self, visit: &mut dyn FnMut(u32, &[u8])) -> Result<u32, LogError> {
         let Some(live) = self.live else {
             return Ok(0);
         };
@@ -372,11 +409,68 @@ impl<F: NorFlash> Log<F> {
             self.live = previous;
         }
         self.newest = self.newest.max(next.generation);
-        result
+        result.map(|_| ())
     }
 
-    /// Appends one record to the live generation; `Ok` means it is durable.
-    pub fn append(&mut self, payload: &[u8]) -> Result<(), LogError> {
+    /// The payload of the live generation's record at position `at` (as
+    /// [`Self::append`] and [`Self::replay`] give it).
+    pub fn read_at(&mut self, at: u32) -> Result<&[u8], LogError> {
+        let live = self.live.ok_or(LogError::NotStarted)?;
+        let (sector, offset) = (at / self.sector_len(), at % self.sector_len());
+        if sector >= self.sectors {
+            return Err(LogError::NoRecord);
+        }
+        match self.read_record(sector, offset)? {
+            Some(h) if h.generation == live.generation && h.seq < live.records => self
+                .buf
+                .get(HEADER_LEN..HEADER_LEN + h.len)
+                .ok_or(LogError::NoRecord),
+            _ => Err(LogError::NoRecord),
+        }
+    }
+
+    /// The live generation's record at `cursor` and its position, moving
+    /// the cursor past it; `None` after the last record.
+    pub fn next(&mut self, cursor: &mut Cursor) -> Result<Option<(u32, &[u8])>, LogError> {
+        let Some(live) = self.live else {
+            return Ok(None);
+        };
+        let sector_len = self.sector_len();
+        while cursor.records < live.records && cursor.sectors <= live.sectors {
+            let sector = live.head + cursor.sectors - 1;
+            let found = self
+                .read_record(sector, cursor.offset)?
+                .filter(|h| h.generation == live.generation && h.seq == cursor.records);
+            let Some(h) = found else {
+                // The rest of this sector is not the generation's: on to the next.
+                cursor.sectors += 1;
+                cursor.offset = 0;
+                continue;
+            };
+            let at = self.position(sector, cursor.offset);
+            cursor.records += 1;
+            cursor.offset += align_up(HEADER_LEN + h.len, self.align) as u32;
+            if cursor.offset >= sector_len {
+                cursor.sectors += 1;
+                cursor.offset = 0;
+            }
+            let payload = self.buf.get(HEADER_LEN..HEADER_LEN + h.len);
+            return payload.map(|p| Some((at, p))).ok_or(LogError::NoRecord);
+        }
+        Ok(None)
+    }
+
+    /// Bytes the live generation occupies (whole sectors), and the most one
+    /// generation can occupy (`n - 1` sectors).
+    pub fn usage(&self) -> (u32, u32) {
+        let sector = self.sector_len();
+        let used = self.live.map_or(0, |l| l.sectors.saturating_mul(sector));
+        (used, self.sectors.saturating_sub(1).saturating_mul(sector))
+    }
+
+    /// Appends one record to the live generation; `Ok` (with the record's
+    /// position, for [`Self::read_at`]) means it is durable.
+    pub fn append(&mut self, payload: &[u8]) -> Result<u32, LogError> {
         let mut live = self.live.ok_or(LogError::NotStarted)?;
         let total = align_up(HEADER_LEN + payload.len(), self.align);
         if payload.len() > MAX_PAYLOAD || total > self.sector_len() as usize {
@@ -421,7 +515,7 @@ impl<F: NorFlash> Log<F> {
         live.records += 1;
         live.offset = Some(offset + total as u32);
         self.live = Some(live);
-        Ok(())
+        Ok(self.position(live.head + live.sectors - 1, offset))
     }
 
     /// Whether `count` more records of up to `len` payload bytes each are

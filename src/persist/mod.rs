@@ -21,29 +21,38 @@
     )
 )]
 
+pub mod keys;
 pub mod log;
 pub mod record;
 #[cfg(feature = "sim-flash")]
 pub mod sim;
 
-pub use log::{FlashErrorKind, Log, LogError};
+pub use log::{Cursor, FlashErrorKind, Log, LogError};
 pub use record::{Record, RecordError};
 
 use embedded_storage::nor_flash::NorFlash;
 
-/// Where a device makes its records durable: a [`Log`], or [`NoJournal`].
+/// Where a device makes its records durable, and reads them back: a
+/// [`Log`], or [`NoJournal`].
 pub trait Journal {
     /// Starts a new generation whose first record is `payload`, replacing
     /// the previous one only once durable.
     fn start(&mut self, payload: &[u8]) -> Result<(), LogError>;
-    /// Appends a record; `Ok` means durable.
-    fn append(&mut self, payload: &[u8]) -> Result<(), LogError>;
+    /// Appends a record; `Ok` means durable, with the record's position
+    /// (`None` when records are not kept).
+    fn append(&mut self, payload: &[u8]) -> Result<Option<u32>, LogError>;
     /// Whether `count` records of up to `len` bytes are sure to fit.
     fn has_room(&self, count: usize, len: usize) -> bool;
     /// Whether appended records are kept (false for [`NoJournal`]).
     fn keeps(&self) -> bool {
         true
     }
+    /// The payload of the record at `at`.
+    fn read_at(&mut self, at: u32) -> Result<&[u8], LogError>;
+    /// The record at `cursor` and its position; `None` after the last one.
+    fn next(&mut self, cursor: &mut Cursor) -> Result<Option<(u32, &[u8])>, LogError>;
+    /// Bytes in use and the most one scan may use.
+    fn usage(&self) -> (u32, u32);
 }
 
 impl<F: NorFlash> Journal for Log<F> {
@@ -51,16 +60,28 @@ impl<F: NorFlash> Journal for Log<F> {
         Log::start(self, payload)
     }
 
-    fn append(&mut self, payload: &[u8]) -> Result<(), LogError> {
-        Log::append(self, payload)
+    fn append(&mut self, payload: &[u8]) -> Result<Option<u32>, LogError> {
+        Log::append(self, payload).map(Some)
     }
 
     fn has_room(&self, count: usize, len: usize) -> bool {
         Log::has_room(self, count, len)
     }
+
+    fn read_at(&mut self, at: u32) -> Result<&[u8], LogError> {
+        Log::read_at(self, at)
+    }
+
+    fn next(&mut self, cursor: &mut Cursor) -> Result<Option<(u32, &[u8])>, LogError> {
+        Log::next(self, cursor)
+    }
+
+    fn usage(&self) -> (u32, u32) {
+        Log::usage(self)
+    }
 }
 
-/// No flash: nothing is written, there is always room.
+/// No flash: nothing is written, there is always room, nothing reads back.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct NoJournal;
 
@@ -69,8 +90,8 @@ impl Journal for NoJournal {
         Ok(())
     }
 
-    fn append(&mut self, _: &[u8]) -> Result<(), LogError> {
-        Ok(())
+    fn append(&mut self, _: &[u8]) -> Result<Option<u32>, LogError> {
+        Ok(None)
     }
 
     fn has_room(&self, _: usize, _: usize) -> bool {
@@ -79,5 +100,17 @@ impl Journal for NoJournal {
 
     fn keeps(&self) -> bool {
         false
+    }
+
+    fn read_at(&mut self, _: u32) -> Result<&[u8], LogError> {
+        Err(LogError::NoRecord)
+    }
+
+    fn next(&mut self, _: &mut Cursor) -> Result<Option<(u32, &[u8])>, LogError> {
+        Ok(None)
+    }
+
+    fn usage(&self) -> (u32, u32) {
+        (0, 0)
     }
 }

@@ -1,10 +1,24 @@
 //! What the device writes to its log: one [`Record`] per payload, encoded
-//! with postcard. A database frame's sketch follows its record as raw
-//! little-endian `u32`s, so that the record type needs no sketch capacity.
+//! with postcard, with a tail for the variable part: a database frame's
+//! sketch as raw little-endian `u32`s (so that the record type needs no
+//! sketch capacity), or a batch of decisions.
+//!
+//! Decisions are written in batches of up to [`DECISION_BATCH`] consecutive
+//! frames, one record each: a scan of 20,000 frames writes ~1,250 of them
+//! instead of 20,000, whose 20-byte headers alone would fill a third of a
+//! 1 MiB log.
 
+use super::keys::MAX_KEY_CHUNKS;
 use crate::frame::FrameMeta;
 use crate::protocol::{Config, DecisionKind};
 use crate::store::Aabb;
+
+/// Most decisions one [`Record::Decisions`] holds.
+pub const DECISION_BATCH: usize = 16;
+
+/// Bound on the encoded length of one decision of a batch: the timestamp
+/// (8 bytes) and the kind (tag, option tag, varint class: at most 7).
+pub const DECISION_LEN: usize = 15;
 
 /// One durable fact about the scan.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -23,18 +37,49 @@ pub enum Record {
         aabb: Option<Aabb>,
         /// Hashes in the sketch that follows.
         hashes: u16,
+        /// Where its exact keys are (written before it), if they were kept.
+        keys: KeyChunks,
     },
-    /// A frame's final decision (never `Pending`).
-    Decided {
-        /// Frame index.
+    /// A chunk of a database frame's exact keys (see [`super::keys`]): the
+    /// encoded bytes follow.
+    Keys {
+        /// The frame whose keys these are.
         frame: u32,
-        /// Its timestamp, seconds.
-        timestamp: f64,
-        /// The decision.
-        kind: DecisionKind,
+        /// Keys in the chunk.
+        count: u16,
+    },
+    /// The final decisions of frames `first .. first + count` (never
+    /// `Pending`), each a timestamp and a [`DecisionKind`], follow.
+    Decisions {
+        /// First frame index.
+        first: u32,
+        /// Decisions that follow (1..=[`DECISION_BATCH`]).
+        count: u16,
     },
     /// Finish: every frame seen was decided.
     Finished,
+}
+
+/// Positions in the log of a database frame's key chunks, in key order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+pub struct KeyChunks {
+    /// Chunks (0: the keys were not kept).
+    pub count: u8,
+    /// Their positions; the first `count` are meaningful.
+    pub at: [u32; MAX_KEY_CHUNKS],
+}
+
+impl KeyChunks {
+    /// No keys kept.
+    pub const NONE: KeyChunks = KeyChunks {
+        count: 0,
+        at: [0; MAX_KEY_CHUNKS],
+    };
+
+    /// The positions of the chunks.
+    pub fn positions(&self) -> &[u32] {
+        self.at.get(..usize::from(self.count)).unwrap_or(&[])
+    }
 }
 
 /// Why a payload could not be encoded or decoded.
@@ -47,45 +92,156 @@ pub enum RecordError {
 }
 
 impl Record {
-    /// Encodes the record, followed by `sketch` (for [`Record::Database`],
-    /// whose `hashes` must be `sketch.len()`), into `buf`.
-    pub fn encode<'b>(&self, sketch: &[u32], buf: &'b mut [u8]) -> Result<&'b [u8], RecordError> {
-        let used = postcard::to_slice(self, buf)
+    /// Encodes a record without a tail (not [`Record::Database`] or
+    /// [`Record::Decisions`], whose tail their own encoders write).
+    pub fn encode<'b>(&self, buf: &'b mut [u8]) -> Result<&'b [u8], RecordError> {
+        postcard::to_slice(self, buf)
+            .map(|b| &*b)
+            .map_err(|_| RecordError::TooLarge)
+    }
+
+    /// Encodes a [`Record::Database`] of `meta`, `voxels`, `aabb`, its
+    /// sketch `hashes` and its key chunks into `buf`.
+    pub fn encode_database<'b>(
+        meta: FrameMeta,
+        voxels: u32,
+        aabb: Option<Aabb>,
+        hashes: &[u32],
+        keys: KeyChunks,
+        buf: &'b mut [u8],
+    ) -> Result<&'b [u8], RecordError> {
+        let record = Record::Database {
+            meta,
+            voxels,
+            aabb,
+            hashes: u16::try_from(hashes.len()).map_err(|_| RecordError::TooLarge)?,
+            keys,
+        };
+        let used = postcard::to_slice(&record, buf)
             .map_err(|_| RecordError::TooLarge)?
             .len();
-        let end = used + sketch.len() * 4;
+        let end = used + hashes.len() * 4;
         let tail = buf.get_mut(used..end).ok_or(RecordError::TooLarge)?;
-        for (chunk, h) in tail.chunks_exact_mut(4).zip(sketch) {
+        for (chunk, h) in tail.chunks_exact_mut(4).zip(hashes) {
             chunk.copy_from_slice(&h.to_le_bytes());
         }
         buf.get(..end).ok_or(RecordError::TooLarge)
     }
 
-    /// Decodes a payload: the record and the sketch bytes after it (empty
-    /// unless it is a [`Record::Database`], whose sketch must be complete).
-    pub fn decode(payload: &[u8]) -> Result<(Record, Hashes<'_>), RecordError> {
+    /// Encodes a [`Record::Keys`] chunk of frame `frame`: `count` keys
+    /// whose encoding `fill` writes into the buffer it is given, returning
+    /// the bytes written (`None`: it does not fit).
+    pub fn encode_keys<'b>(
+        frame: u32,
+        count: u16,
+        fill: impl FnOnce(&mut [u8]) -> Option<usize>,
+        buf: &'b mut [u8],
+    ) -> Result<&'b [u8], RecordError> {
+        let record = Record::Keys { frame, count };
+        let used = postcard::to_slice(&record, buf)
+            .map_err(|_| RecordError::TooLarge)?
+            .len();
+        let tail = buf.get_mut(used..).ok_or(RecordError::TooLarge)?;
+        let len = fill(tail).ok_or(RecordError::TooLarge)?;
+        buf.get(..used + len).ok_or(RecordError::TooLarge)
+    }
+
+    /// Encodes a [`Record::Decisions`] of the frames from `first`, one
+    /// `(timestamp, kind)` each, into `buf`.
+    pub fn encode_decisions<'b>(
+        first: u32,
+        decisions: &[(f64, DecisionKind)],
+        buf: &'b mut [u8],
+    ) -> Result<&'b [u8], RecordError> {
+        let count = u16::try_from(decisions.len()).map_err(|_| RecordError::TooLarge)?;
+        let record = Record::Decisions { first, count };
+        let mut end = postcard::to_slice(&record, buf)
+            .map_err(|_| RecordError::TooLarge)?
+            .len();
+        for d in decisions {
+            let rest = buf.get_mut(end..).ok_or(RecordError::TooLarge)?;
+            end += postcard::to_slice(d, rest)
+                .map_err(|_| RecordError::TooLarge)?
+                .len();
+        }
+        buf.get(..end).ok_or(RecordError::TooLarge)
+    }
+
+    /// Decodes a payload: the record and its tail, checked complete (a
+    /// sketch of `hashes` words, or `count` decisions, and nothing more).
+    pub fn decode(payload: &[u8]) -> Result<(Record, Tail<'_>), RecordError> {
         let (record, rest) =
             postcard::take_from_bytes::<Record>(payload).map_err(|_| RecordError::Malformed)?;
-        let hashes = match record {
-            Record::Database { hashes, .. } => usize::from(hashes),
-            _ => 0,
+        let ok = match record {
+            Record::Database { hashes, keys, .. } => {
+                rest.len() == usize::from(hashes) * 4 && usize::from(keys.count) <= MAX_KEY_CHUNKS
+            }
+            Record::Keys { count, .. } => super::keys::decode(rest).count() == usize::from(count),
+            Record::Decisions { count, .. } => {
+                count > 0
+                    && usize::from(count) <= DECISION_BATCH
+                    && Tail(rest).decisions().count() == usize::from(count)
+                    && Tail(rest).decisions_fit()
+            }
+            _ => rest.is_empty(),
         };
-        if rest.len() != hashes * 4 {
+        if !ok {
             return Err(RecordError::Malformed);
         }
-        Ok((record, Hashes(rest)))
+        Ok((record, Tail(rest)))
     }
 }
 
-/// Sketch hashes stored after a database record.
+/// The variable part after a record.
 #[derive(Debug, Clone, Copy)]
-pub struct Hashes<'a>(&'a [u8]);
+pub struct Tail<'a>(&'a [u8]);
 
-impl Hashes<'_> {
-    /// The hashes, in stored order.
-    pub fn iter(&self) -> impl Iterator<Item = u32> + '_ {
+impl<'a> Tail<'a> {
+    /// Bytes in the tail.
+    pub fn len(&self) -> usize {
+        self.0.len()
+    }
+
+    /// Whether the tail is empty.
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+
+    /// A keys record's relative key words, ascending.
+    pub fn key_words(&self) -> impl Iterator<Item = u32> + 'a {
+        super::keys::decode(self.0)
+    }
+
+    /// A database record's sketch hashes, in stored order.
+    pub fn hashes(&self) -> impl Iterator<Item = u32> + 'a {
         self.0
             .chunks_exact(4)
             .map(|c| <[u8; 4]>::try_from(c).map_or(0, u32::from_le_bytes))
+    }
+
+    /// A decisions record's `(timestamp, kind)` pairs, in frame order; stops
+    /// at the first that does not decode.
+    pub fn decisions(&self) -> impl Iterator<Item = (f64, DecisionKind)> + 'a {
+        let mut rest = self.0;
+        core::iter::from_fn(move || {
+            if rest.is_empty() {
+                return None;
+            }
+            let (d, r) = postcard::take_from_bytes::<(f64, DecisionKind)>(rest).ok()?;
+            rest = r;
+            Some(d)
+        })
+    }
+
+    /// Whether the decisions use every byte (nothing undecodable after them).
+    fn decisions_fit(&self) -> bool {
+        let mut rest = self.0;
+        while !rest.is_empty() {
+            match postcard::take_from_bytes::<(f64, DecisionKind)>(rest) {
+                Ok((_, r)) => rest = r,
+                Err(_) => return false,
+            }
+        }
+        true
     }
 }

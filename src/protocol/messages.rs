@@ -372,14 +372,15 @@ pub enum Phase {
 }
 
 /// Number of capacity slots in [`Status::capacities`].
-pub const CAPACITY_SLOTS: usize = 6;
+pub const CAPACITY_SLOTS: usize = 8;
 
 /// Named slots of [`Status::capacities`], one per bounded resource of the device.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum CapacitySlot {
     /// Database frames (taken frames).
     Database = 0,
-    /// Label records (one per decided frame).
+    /// Labels (one per decided frame) stored in flash; the limit is what
+    /// the log has room for beside them (0 without flash).
     Labels = 1,
     /// Key pool words: exact voxel keys of stored frames.
     Pool = 2,
@@ -389,6 +390,11 @@ pub enum CapacitySlot {
     FrameVoxels = 4,
     /// Bytes of one received frame (the receive buffer).
     RxFrame = 5,
+    /// Database frames held whole in RAM (the rest live in flash).
+    Resident = 6,
+    /// Bytes of the flash log this scan occupies (whole sectors), of the
+    /// most one scan may use (0 without flash).
+    Flash = 7,
 }
 
 impl CapacitySlot {
@@ -400,6 +406,8 @@ impl CapacitySlot {
         CapacitySlot::Window,
         CapacitySlot::FrameVoxels,
         CapacitySlot::RxFrame,
+        CapacitySlot::Resident,
+        CapacitySlot::Flash,
     ];
 
     /// Stable snake_case name (for JSON and logs).
@@ -411,6 +419,8 @@ impl CapacitySlot {
             CapacitySlot::Window => "window",
             CapacitySlot::FrameVoxels => "frame_voxels",
             CapacitySlot::RxFrame => "rx_frame",
+            CapacitySlot::Resident => "resident",
+            CapacitySlot::Flash => "flash_bytes",
         }
     }
 }
@@ -439,14 +449,14 @@ pub mod degradation {
     pub const DATABASE_FULL: u32 = flags::DATABASE_FULL;
     /// Points beyond the voxel key range were skipped.
     pub const OUT_OF_RANGE: u32 = flags::OUT_OF_RANGE;
-    /// The label store was full; labels of later frames were not stored
-    /// (selection went on; the export holds the first labels only).
+    /// Labels of some frames were not stored (no flash, a full or failed
+    /// log); selection went on, and the host received every decision live.
     pub const LABELS_FULL: u32 = 1 << 8;
     /// A flash write failed during a selection step: decisions from then on
     /// are not durable (until the next scan starts).
     pub const STORAGE_FAILED: u32 = 1 << 9;
-    /// The database was restored from flash at boot; its frames are compared
-    /// by sketch (their exact keys are not stored).
+    /// The scan was restored from flash at boot; the restored database
+    /// frames are compared by sketch (their exact keys are not stored).
     pub const RESTORED: u32 = 1 << 10;
 }
 

@@ -107,7 +107,9 @@ pub use messages::{
 /// - 3: durable storage: `Status::stored_records`, `ErrorKind::StorageFull`
 ///   and `StorageFailed`, degradations `STORAGE_FAILED` and `RESTORED`;
 ///   `HostMessage::FrameAbort`.
-pub const PROTOCOL_VERSION: u16 = 3;
+/// - 4: the database lives in flash: capacity slots `Resident` and `Flash`;
+///   final decisions are sent once durable (in batches, with a flash log).
+pub const PROTOCOL_VERSION: u16 = 4;
 
 /// Largest encoded frame (delimiter included) of any [`DeviceMessage`] but a
 /// [`DeviceMessage::Log`]: a device's transmit buffer. Longer logs are dropped.

@@ -16,6 +16,15 @@
 //! counts as overlapping only above `mu + sketch_margin`, so that sketch noise
 //! rarely claims coverage the exact sets would deny. Every degradation is
 //! counted in [`Status`].
+//!
+//! The database itself lives in a [`FrameStore`] (the flash log on a
+//! device): RAM keeps `R` *resident* frames whole (the latest taken, with
+//! their sketches and, while the pool allows, exact keys) and a compact
+//! [`database::DbIndex`] entry for each of up to `DB` database frames. A new
+//! frame is compared with the resident frames and with the stored frames
+//! whose box touches its own, loaded from the store one at a time. When the
+//! resident set is full, its oldest frame that the store holds leaves RAM;
+//! with [`NoStore`] none can, so the database is at most `R` frames.
 
 use crate::camera::Pose;
 use crate::frame::{FrameError, FrameIngest, FrameMeta, ScanConfig};
@@ -23,8 +32,12 @@ use crate::sketch::Sketch;
 use crate::store::{Aabb, KeyPool, KeyRun};
 use crate::voxel::iou;
 
+pub mod database;
 mod restore;
+pub use database::{FrameStore, NoStore};
 pub use restore::{DbSnapshot, RestoreError};
+
+use database::{entry_of, DbIndex, KEY_BUDGET, NOWHERE};
 
 /// Tuning of the selection rule.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -129,6 +142,8 @@ pub struct Status {
     pub frames_decided: u32,
     /// Database entries.
     pub database: Usage,
+    /// Database frames held whole in RAM.
+    pub resident: Usage,
     /// Key pool words.
     pub pool: Usage,
     /// Window frames.
@@ -144,6 +159,11 @@ pub struct Status {
     pub uncovered_frames: u32,
     /// Points dropped for an out-of-range voxel key.
     pub out_of_range_points: u32,
+    /// Stored database frames that could not be read back (compared as
+    /// overlapping nothing).
+    pub unreadable_frames: u32,
+    /// Bytes of exact keys given to the store (at most [`database::KEY_BUDGET`]).
+    pub stored_key_bytes: u32,
     /// Sampled pixels with a valid depth, over all frames.
     pub valid_pixels: u64,
     /// [`flags`] of every degradation seen.
@@ -156,6 +176,7 @@ impl Status {
         frames_seen: 0,
         frames_decided: 0,
         database: Usage::ZERO,
+        resident: Usage::ZERO,
         pool: Usage::ZERO,
         window: Usage::ZERO,
         frame_voxels: Usage::ZERO,
@@ -163,6 +184,8 @@ impl Status {
         truncated_frames: 0,
         uncovered_frames: 0,
         out_of_range_points: 0,
+        unreadable_frames: 0,
+        stored_key_bytes: 0,
         valid_pixels: 0,
         flags: 0,
     };
@@ -253,8 +276,8 @@ impl<const W: usize, const K: usize> RingEntry<W, K> {
 }
 
 /// The online selector with its capacities: `FV` slots of the frame voxel set,
-/// `POOL` key words, `DB` database frames, `W` window frames (at most 64),
-/// sketches of `K` hashes.
+/// `POOL` key words, `DB` database frames (index entries), `W` window frames
+/// (at most 64), sketches of `K` hashes, `R` database frames resident in RAM.
 #[derive(Debug)]
 pub struct Selector<
     const FV: usize,
@@ -262,12 +285,16 @@ pub struct Selector<
     const DB: usize,
     const W: usize,
     const K: usize,
+    const R: usize = 64,
 > {
     /// `None` until configured; an all-zero `None` keeps a fresh selector in `.bss`.
     config: Option<(ScanConfig, SelectorConfig)>,
     ingest: FrameIngest<FV>,
     pool: KeyPool<POOL>,
-    db: heapless::Vec<Stored<K>, DB>,
+    /// Every database frame, by frame index.
+    db: DbIndex<DB>,
+    /// Database frames held whole, in the order they were taken.
+    resident: heapless::Vec<Stored<K>, R>,
     ring: [RingEntry<W, K>; W],
     head: usize,
     len: usize,
@@ -301,25 +328,36 @@ struct WindowView {
     slot: usize,
 }
 
+/// The database as the overlap step reads it.
+struct DbView<'a, const DB: usize, const K: usize> {
+    resident: &'a [Stored<K>],
+    index: &'a DbIndex<DB>,
+    store: &'a mut dyn FrameStore<K>,
+}
+
 /// Measures the overlap of a new frame (exact `keys` in hand) with every
-/// database frame and every open window frame, records the window relations
-/// in both directions, and returns the new frame's window slot. Kept out of
-/// line so instruction counts split voxelize / overlap / select.
+/// database frame near it and every open window frame, records the window
+/// relations in both directions, and returns the new frame's window slot and
+/// the number of stored frames that could not be read. Kept out of line so
+/// instruction counts split voxelize / overlap / select.
 #[inline(never)]
-fn overlaps<const POOL: usize, const W: usize, const K: usize>(
+fn overlaps<const POOL: usize, const DB: usize, const W: usize, const K: usize>(
     cfg: &SelectorConfig,
     pool: &KeyPool<POOL>,
-    db: &[Stored<K>],
+    db: DbView<'_, DB, K>,
     ring: &mut [RingEntry<W, K>; W],
     window: WindowView,
     new: Stored<K>,
     keys: &[u64],
-) -> Slot<W, K> {
+) -> (Slot<W, K>, u32) {
     let (mu, margin) = (cfg.mu, cfg.sketch_margin);
+    let touching = |a: &Option<Aabb>, b: &Option<Aabb>| match (a, b) {
+        (Some(a), Some(b)) => a.touches(b),
+        _ => false,
+    };
     let overlap = |other: &Stored<K>| -> (f32, bool) {
-        match (&new.aabb, &other.aabb) {
-            (Some(a), Some(b)) if a.touches(b) => {}
-            _ => return (0.0, false),
+        if !touching(&new.aabb, &other.aabb) {
+            return (0.0, false);
         }
         match &other.keys {
             Some(run) => {
@@ -333,11 +371,70 @@ fn overlaps<const POOL: usize, const W: usize, const K: usize>(
         }
     };
     let (mut cover, mut nearest): (Best, Best) = (None, None);
-    for other in db {
-        let (x, overlaps) = overlap(other);
-        nearest = better(nearest, x, other.meta.index);
+    if let Some(first) = db.index.entries().first() {
+        // The lowest frame index, in case nothing overlaps at all: `better`
+        // keeps the highest IoU, ties to the lowest index.
+        nearest = better(nearest, 0.0, first.index);
+    }
+    let mut note = |x: f32, overlaps: bool, index: u32| {
+        nearest = better(nearest, x, index);
         if overlaps {
-            cover = better(cover, x, other.meta.index);
+            cover = better(cover, x, index);
+        }
+    };
+    // Exact from the store, for a frame whose keys it kept.
+    let from_store = |at: u32, store: &mut dyn FrameStore<K>| {
+        store
+            .intersect(at, keys)
+            .map(|(common, len)| iou(new.len, len, common))
+    };
+    let keyed = |index: u32| {
+        db.index
+            .find(index)
+            .and_then(|i| db.index.entries().get(i))
+            .filter(|e| e.keyed)
+            .map(|e| e.at)
+    };
+    for other in db.resident {
+        let exact = match (&other.keys, keyed(other.meta.index)) {
+            (None, Some(at)) if touching(&new.aabb, &other.aabb) => from_store(at, db.store),
+            _ => None,
+        };
+        match exact {
+            Some(x) => note(x, x > mu, other.meta.index),
+            None => {
+                let (x, overlaps) = overlap(other);
+                note(x, overlaps, other.meta.index);
+            }
+        }
+    }
+    // Stored frames near the new one, loaded one at a time. Frames whose box
+    // does not touch have IoU 0: only their index can matter, as the nearest
+    // frame of a frame that overlaps nothing.
+    let mut unreadable = 0u32;
+    for e in db.index.entries() {
+        let near = !e.empty && new.aabb.as_ref().is_some_and(|a| e.bbox.touches(a));
+        if e.resident || !near {
+            continue;
+        }
+        if e.keyed {
+            if let Some(x) = from_store(e.at, db.store) {
+                note(x, x > mu, e.index);
+                continue;
+            }
+        }
+        match db.store.load(e.at) {
+            Some(f) if f.meta.index == e.index => {
+                let (x, overlaps) = overlap(&Stored {
+                    meta: f.meta,
+                    len: f.voxels,
+                    aabb: f.aabb,
+                    keys: None,
+                    sketch: f.sketch,
+                });
+                note(x, overlaps, e.index);
+            }
+            _ => unreadable = unreadable.saturating_add(1),
         }
     }
     let s = window.slot;
@@ -351,13 +448,17 @@ fn overlaps<const POOL: usize, const W: usize, const K: usize>(
     };
     for k in 0..window.len {
         let t = (window.head + k) % W;
-        if let Some(other) = ring[t].get_mut() {
+        if let Some(other) = ring.get_mut(t).and_then(RingEntry::get_mut) {
             if other.taken {
                 continue;
             }
             let (x, overlaps) = overlap(&other.frame);
-            slot.iou[t] = x;
-            other.iou[s] = x;
+            if let Some(v) = slot.iou.get_mut(t) {
+                *v = x;
+            }
+            if let Some(v) = other.iou.get_mut(s) {
+                *v = x;
+            }
             if overlaps {
                 slot.adjacent |= 1 << t;
                 other.adjacent |= 1 << s;
@@ -366,31 +467,47 @@ fn overlaps<const POOL: usize, const W: usize, const K: usize>(
             }
         }
     }
-    slot
+    (slot, unreadable)
 }
 
-impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const K: usize> Default
-    for Selector<FV, POOL, DB, W, K>
+impl<
+        const FV: usize,
+        const POOL: usize,
+        const DB: usize,
+        const W: usize,
+        const K: usize,
+        const R: usize,
+    > Default for Selector<FV, POOL, DB, W, K, R>
 {
     fn default() -> Self {
         Self::new()
     }
 }
 
-impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const K: usize>
-    Selector<FV, POOL, DB, W, K>
+impl<
+        const FV: usize,
+        const POOL: usize,
+        const DB: usize,
+        const W: usize,
+        const K: usize,
+        const R: usize,
+    > Selector<FV, POOL, DB, W, K, R>
 {
     const WINDOW_FITS_MASK: () = assert!(W >= 1 && W <= 64, "window capacity must be 1..=64");
+    const RESIDENT_HOLDS_A_FRAME: () = assert!(R >= 1, "at least one resident frame");
 
     /// An unconfigured selector.
     pub const fn new() -> Self {
         #[allow(clippy::let_unit_value)]
         let () = Self::WINDOW_FITS_MASK;
+        #[allow(clippy::let_unit_value)]
+        let () = Self::RESIDENT_HOLDS_A_FRAME;
         Selector {
             config: None,
             ingest: FrameIngest::new(),
             pool: KeyPool::new(),
-            db: heapless::Vec::new(),
+            db: DbIndex::new(),
+            resident: heapless::Vec::new(),
             ring: [const { RingEntry::EMPTY }; W],
             head: 0,
             len: 0,
@@ -404,6 +521,7 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
         self.ingest.abort();
         self.pool.clear();
         self.db.clear();
+        self.resident.clear();
         self.ring.iter_mut().for_each(|s| *s = RingEntry::EMPTY);
         self.head = 0;
         self.len = 0;
@@ -447,6 +565,7 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
         // starts all zero (see `new`).
         let mut st = self.status;
         st.database.limit = DB as u32;
+        st.resident.limit = R as u32;
         st.pool.limit = POOL as u32;
         st.window.limit = W as u32;
         st.frame_voxels.limit = FrameIngest::<FV>::VOXEL_LIMIT as u32;
@@ -458,14 +577,28 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
         self.db.len()
     }
 
-    /// Database entry `i` in the order frames were taken.
-    pub fn database_record(&self, i: usize) -> Option<DbRecord> {
-        self.db.get(i).map(|s| DbRecord {
-            index: s.meta.index,
-            timestamp: s.meta.timestamp,
-            pose: s.meta.pose,
-            voxels: s.len,
-        })
+    /// The database index entries, ascending by frame index.
+    pub fn database(&self) -> &[database::DbEntry] {
+        self.db.entries()
+    }
+
+    /// Database entry `i` in frame order, from RAM when it is resident, else
+    /// from `store`; `None` past the end or when the store cannot read it.
+    pub fn database_record(&self, i: usize, store: &mut dyn FrameStore<K>) -> Option<DbRecord> {
+        let e = self.db.entries().get(i)?;
+        let record = |meta: FrameMeta, voxels| DbRecord {
+            index: meta.index,
+            timestamp: meta.timestamp,
+            pose: meta.pose,
+            voxels,
+        };
+        match self.resident.iter().find(|r| r.meta.index == e.index) {
+            Some(r) => Some(record(r.meta, r.len)),
+            None => store
+                .load(e.at)
+                .filter(|f| f.meta.index == e.index)
+                .map(|f| record(f.meta, f.voxels)),
+        }
     }
 
     /// The frame in progress, if any.
@@ -496,11 +629,22 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
         self.ingest.abort();
     }
 
+    /// [`Self::end_frame_with`] for a selector whose database stays in RAM
+    /// ([`NoStore`]: at most `R` database frames).
+    pub fn end_frame(&mut self, emit: impl FnMut(FrameDecision)) -> Result<(), SelectError> {
+        self.end_frame_with(&mut NoStore, emit)
+    }
+
     /// Ends the frame in progress and runs the selection step; `emit` receives
     /// the final decisions of frames leaving the window, in frame order, then
-    /// `Pending` for this frame if it stays in the window.
+    /// `Pending` for this frame if it stays in the window. Frames taken go to
+    /// `store`; stored frames near this one are read back from it.
     #[inline(never)]
-    pub fn end_frame(&mut self, mut emit: impl FnMut(FrameDecision)) -> Result<(), SelectError> {
+    pub fn end_frame_with(
+        &mut self,
+        store: &mut dyn FrameStore<K>,
+        mut emit: impl FnMut(FrameDecision),
+    ) -> Result<(), SelectError> {
         // Checked before the frame is closed, so a refusal changes nothing.
         if self.ingest.current().is_none() {
             return Err(SelectError::Frame(FrameError::NoFrame));
@@ -526,15 +670,13 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
             len: self.len,
             slot: s,
         };
-        let mut slot = overlaps(
-            &cfg,
-            &self.pool,
-            &self.db,
-            &mut self.ring,
-            window,
-            new,
-            keys,
-        );
+        let db = DbView {
+            resident: &self.resident,
+            index: &self.db,
+            store,
+        };
+        let (mut slot, unreadable) =
+            overlaps(&cfg, &self.pool, db, &mut self.ring, window, new, keys);
         if let Some(a) = &aabb {
             slot.frame.keys = self.pool.store(keys, a);
             // Pool full: the oldest database frames give up their exact keys
@@ -543,19 +685,15 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
             let worth_it = a.fits_relative() && keys.len() <= POOL;
             let mut next = 0;
             while slot.frame.keys.is_none() && worth_it {
-                let Some(i) = (next..self.db.len()).find(|&i| self.db[i].keys.is_some()) else {
+                let Some(i) = (next..self.resident.len())
+                    .find(|&i| self.resident.get(i).is_some_and(|r| r.keys.is_some()))
+                else {
                     break;
                 };
                 next = i + 1;
-                if let Some(run) = self.db[i].keys.take() {
-                    // A taken frame still in the window shares the run.
-                    for e in self.ring.iter_mut().filter_map(RingEntry::get_mut) {
-                        if e.frame.keys == Some(run) {
-                            e.frame.keys = None;
-                        }
-                    }
-                    release_run(&mut self.pool, &mut self.db, &mut self.ring, &run);
-                    self.status.sketched_frames += 1;
+                if let Some(run) = self.resident.get_mut(i).and_then(|r| r.keys.take()) {
+                    drop_keys(&mut self.pool, &mut self.resident, &mut self.ring, &run);
+                    self.status.sketched_frames = self.status.sketched_frames.saturating_add(1);
                     self.status.flags |= flags::POOL_FULL;
                 }
                 slot.frame.keys = self.pool.store(keys, a);
@@ -564,38 +702,38 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
         // Bookkeeping of this frame's degradations.
         let st = &mut self.status;
         if n > 0 && slot.frame.keys.is_none() {
-            st.sketched_frames += 1;
+            st.sketched_frames = st.sketched_frames.saturating_add(1);
             st.flags |= flags::POOL_FULL;
         }
         if stats.dropped > 0 {
-            st.truncated_frames += 1;
+            st.truncated_frames = st.truncated_frames.saturating_add(1);
             st.flags |= flags::FRAME_VOXELS_FULL;
         }
         if stats.out_of_range > 0 {
             st.out_of_range_points = st.out_of_range_points.saturating_add(stats.out_of_range);
             st.flags |= flags::OUT_OF_RANGE;
         }
+        st.unreadable_frames = st.unreadable_frames.saturating_add(unreadable);
         st.frame_voxels.set(n as usize);
-        st.valid_pixels += u64::from(stats.valid_pixels);
-        st.frames_seen += 1;
-        self.ring[s] = RingEntry { live: true, slot };
+        st.valid_pixels = st
+            .valid_pixels
+            .saturating_add(u64::from(stats.valid_pixels));
+        st.frames_seen = st.frames_seen.saturating_add(1);
+        if let Some(entry) = self.ring.get_mut(s) {
+            *entry = RingEntry { live: true, slot };
+        }
         self.len += 1;
         // A frame restored into the database before its own decision was
         // stored (see `restore_database`) is streamed again: it takes its
-        // place back, with exact keys now, and counts as taken.
-        if let Some(i) = self.db.iter().rposition(|d| d.meta.index == meta.index) {
-            if let Some(slot) = self.ring[s].get_mut() {
-                slot.taken = true;
-                self.db[i] = slot.frame.clone();
-                self.status.sketched_frames = self.status.sketched_frames.saturating_sub(1);
-                self.cover_from(s);
-            }
+        // place back, whole in RAM again, and counts as taken.
+        if self.db.find(meta.index).is_some() {
+            self.rejoin(s);
         }
         self.note_usage();
         while self.len >= cfg.window as usize {
-            self.decide_oldest(&mut emit);
+            self.decide_oldest(store, &mut emit);
         }
-        if self.len > 0 && self.ring[s].live {
+        if self.len > 0 && self.ring.get(s).is_some_and(|e| e.live) {
             emit(FrameDecision {
                 index: meta.index,
                 decision: Decision::Pending,
@@ -604,21 +742,31 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
         Ok(())
     }
 
+    /// [`Self::finish_with`] for a selector whose database stays in RAM.
+    pub fn finish(&mut self, emit: impl FnMut(FrameDecision)) -> Result<(), SelectError> {
+        self.finish_with(&mut NoStore, emit)
+    }
+
     /// Decides every frame still in the window (end of scan). The selector
     /// stays usable: later frames start with an empty window.
     #[inline(never)]
-    pub fn finish(&mut self, mut emit: impl FnMut(FrameDecision)) -> Result<(), SelectError> {
+    pub fn finish_with(
+        &mut self,
+        store: &mut dyn FrameStore<K>,
+        mut emit: impl FnMut(FrameDecision),
+    ) -> Result<(), SelectError> {
         if self.ingest.current().is_some() {
             return Err(SelectError::FrameInProgress);
         }
         while self.len > 0 {
-            self.decide_oldest(&mut emit);
+            self.decide_oldest(store, &mut emit);
         }
         Ok(())
     }
 
     fn note_usage(&mut self) {
         self.status.database.set(self.db.len());
+        self.status.resident.set(self.resident.len());
         self.status.pool.set(self.pool.used());
         self.status.window.set(self.len);
     }
@@ -628,7 +776,7 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
         let (mut open, mut uncovered) = (0u64, 0u64);
         for k in 0..self.len {
             let t = (self.head + k) % W;
-            if let Some(slot) = self.ring[t].get() {
+            if let Some(slot) = self.ring.get(t).and_then(RingEntry::get) {
                 if !slot.taken {
                     open |= 1 << t;
                     if slot.cover.is_none() {
@@ -640,11 +788,51 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
         (open, uncovered)
     }
 
+    /// Whether a frame can join the database now: the index has room, and
+    /// so does the resident set, or one of its frames can leave RAM.
+    fn can_take(&self) -> bool {
+        !self.db.is_full() && (!self.resident.is_full() || self.evictable().is_some())
+    }
+
+    /// The oldest resident frame that the store holds.
+    fn evictable(&self) -> Option<usize> {
+        let stored = |index: u32| {
+            self.db
+                .find(index)
+                .and_then(|i| self.db.entries().get(i))
+                .is_some_and(|e| e.at != NOWHERE)
+        };
+        self.resident.iter().position(|r| stored(r.meta.index))
+    }
+
+    /// Makes room in the resident set: its oldest stored frame leaves RAM
+    /// (and gives its exact keys back to the pool).
+    fn evict(&mut self) -> bool {
+        if !self.resident.is_full() {
+            return true;
+        }
+        let Some(i) = self.evictable() else {
+            return false;
+        };
+        let gone = self.resident.remove(i);
+        if let Some(e) = self.db.get_mut(gone.meta.index) {
+            e.resident = false;
+        }
+        if let Some(run) = gone.keys {
+            self.drop_keys(&run);
+        }
+        true
+    }
+
     /// Final decision for the oldest window frame, taking a frame if needed.
     #[inline(never)]
-    fn decide_oldest(&mut self, emit: &mut impl FnMut(FrameDecision)) {
+    fn decide_oldest(
+        &mut self,
+        store: &mut dyn FrameStore<K>,
+        emit: &mut impl FnMut(FrameDecision),
+    ) {
         let o = self.head;
-        let Some(oldest) = self.ring[o].get() else {
+        let Some(oldest) = self.ring.get(o).and_then(RingEntry::get) else {
             // Unreachable by construction; keep the window consistent anyway.
             self.head = (self.head + 1) % W;
             self.len = self.len.saturating_sub(1);
@@ -656,6 +844,7 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
         } else if let Some((_, k)) = oldest.cover {
             Decision::DominatedBy(k)
         } else {
+            let nearest = oldest.nearest;
             let (open, uncovered) = self.masks();
             let candidates = (oldest.adjacent | (1 << o)) & open;
             let mut best: Option<(u32, u32, usize)> = None; // (score, frame index, slot)
@@ -663,7 +852,7 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
                 if candidates & (1 << t) == 0 {
                     continue;
                 }
-                if let Some(c) = self.ring[t].get() {
+                if let Some(c) = self.ring.get(t).and_then(RingEntry::get) {
                     let score = ((c.adjacent | (1 << t)) & uncovered).count_ones();
                     let idx = c.frame.meta.index;
                     if best.is_none_or(|(bs, bi, _)| score > bs || (score == bs && idx > bi)) {
@@ -672,8 +861,7 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
                 }
             }
             match best {
-                Some((_, idx, t)) if !self.db.is_full() => {
-                    self.take(t);
+                Some((_, idx, t)) if self.can_take() && self.take(t, store) => {
                     if t == o {
                         Decision::Taken
                     } else {
@@ -681,41 +869,108 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
                     }
                 }
                 _ => {
-                    self.status.uncovered_frames += 1;
+                    self.status.uncovered_frames = self.status.uncovered_frames.saturating_add(1);
                     self.status.flags |= flags::DATABASE_FULL;
-                    Decision::Uncovered(oldest.nearest.map(|(_, k)| k))
+                    Decision::Uncovered(nearest.map(|(_, k)| k))
                 }
             }
         };
         emit(FrameDecision { index, decision });
-        self.status.frames_decided += 1;
-        if let Some(gone) = self.ring[o].take() {
+        self.status.frames_decided = self.status.frames_decided.saturating_add(1);
+        if let Some(gone) = self.ring.get_mut(o).and_then(RingEntry::take) {
             if let (false, Some(run)) = (gone.taken, gone.frame.keys) {
                 self.release(&run);
             }
         }
         self.head = (self.head + 1) % W;
-        self.len -= 1;
+        self.len = self.len.saturating_sub(1);
         self.note_usage();
     }
 
-    /// Moves window slot `t` into the database and updates every window
-    /// frame's cover and nearest database frame.
-    fn take(&mut self, t: usize) {
-        let Some(slot) = self.ring[t].get_mut() else {
+    /// Moves window slot `t` into the database (the store and the resident
+    /// set) and updates every window frame's cover and nearest database
+    /// frame; `false` (nothing changed) when there is no room.
+    fn take(&mut self, t: usize, store: &mut dyn FrameStore<K>) -> bool {
+        let Some(frame) = self.ring.get(t).and_then(RingEntry::get).map(|s| &s.frame) else {
+            return false;
+        };
+        if self.db.is_full() {
+            return false;
+        }
+        let snapshot = DbSnapshot {
+            meta: frame.meta,
+            voxels: frame.len,
+            aabb: frame.aabb,
+            sketch: frame.sketch,
+        };
+        if !self.evict() {
+            return false;
+        }
+        // Evicting may have moved the pool: read the frame's run afterwards.
+        let Some(frame) = self
+            .ring
+            .get(t)
+            .and_then(RingEntry::get)
+            .map(|s| s.frame.clone())
+        else {
+            return false;
+        };
+        // Its exact keys go with it while the budget lasts.
+        let words = frame.keys.as_ref().map(|run| self.pool.words(run));
+        let (chunks, bytes) = words.map_or((0, 0), crate::persist::keys::encoded_size);
+        let budget_left = KEY_BUDGET.saturating_sub(self.status.stored_key_bytes) as usize;
+        let offer = words
+            .filter(|_| chunks <= crate::persist::keys::MAX_KEY_CHUNKS && bytes <= budget_left);
+        let (at, keyed) = store.save(&snapshot, offer).unwrap_or((NOWHERE, false));
+        if keyed {
+            let st = &mut self.status;
+            st.stored_key_bytes = st.stored_key_bytes.saturating_add(bytes as u32);
+        }
+        let entry = database::DbEntry {
+            resident: true,
+            keyed,
+            ..entry_of(&snapshot, at)
+        };
+        if !self.db.add(entry) || self.resident.push(frame).is_err() {
+            return false;
+        }
+        if let Some(slot) = self.ring.get_mut(t).and_then(RingEntry::get_mut) {
+            slot.taken = true;
+        }
+        self.cover_from(t);
+        true
+    }
+
+    /// The window frame in slot `s` is a database frame restored from the
+    /// store before its own decision was: it counts as taken again and, room
+    /// permitting, is resident again (with its exact keys).
+    fn rejoin(&mut self, s: usize) {
+        let Some(slot) = self.ring.get_mut(s).and_then(RingEntry::get_mut) else {
             return;
         };
-        if self.db.push(slot.frame.clone()).is_err() {
-            return;
-        }
         slot.taken = true;
-        self.cover_from(t);
+        let frame = slot.frame.clone();
+        let index = frame.meta.index;
+        let already = self.resident.iter().any(|r| r.meta.index == index);
+        let resident = !already && self.evict() && self.resident.push(frame).is_ok();
+        if let Some(e) = self.db.get_mut(index) {
+            e.resident = resident || already;
+        }
+        if !resident {
+            // Not resident through this copy (no room, or resident already):
+            // its keys go back to the pool, the store (or RAM) has the rest.
+            let keys = self.ring.get_mut(s).and_then(RingEntry::get_mut);
+            if let Some(run) = keys.and_then(|s| s.frame.keys.take()) {
+                self.release(&run);
+            }
+        }
+        self.cover_from(s);
     }
 
     /// Updates every window frame's cover and nearest database frame with
     /// the taken window frame in slot `t`.
     fn cover_from(&mut self, t: usize) {
-        let Some(slot) = self.ring[t].get() else {
+        let Some(slot) = self.ring.get(t).and_then(RingEntry::get) else {
             return;
         };
         let idx = slot.frame.meta.index;
@@ -724,11 +979,11 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
             if j == t {
                 continue;
             }
-            if let Some(other) = self.ring[j].get_mut() {
+            if let Some(other) = self.ring.get_mut(j).and_then(RingEntry::get_mut) {
                 if other.taken {
                     continue;
                 }
-                let x = other.iou[t];
+                let x = other.iou.get(t).copied().unwrap_or(0.0);
                 other.nearest = better(other.nearest, x, idx);
                 if other.adjacent & (1 << t) != 0 {
                     other.cover = better(other.cover, x, idx);
@@ -737,21 +992,43 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
         }
     }
 
-    /// Frees a run of the key pool and shifts every run stored after it.
+    /// A database frame gives up its exact keys (see [`drop_keys`]).
+    fn drop_keys(&mut self, run: &KeyRun) {
+        drop_keys(&mut self.pool, &mut self.resident, &mut self.ring, run);
+    }
+
+    /// Frees a run of the key pool (see [`release`]).
     fn release(&mut self, run: &KeyRun) {
-        release_run(&mut self.pool, &mut self.db, &mut self.ring, run);
+        release(&mut self.pool, &mut self.resident, &mut self.ring, run);
     }
 }
 
-/// Frees a run of the key pool and shifts every run stored after it.
-fn release_run<const POOL: usize, const DB: usize, const W: usize, const K: usize>(
+/// A database frame gives up its exact keys: every copy of the run in the
+/// window (a taken frame still there shares it) forgets it, and the pool
+/// frees it. The caller has taken it out of the resident copy.
+fn drop_keys<const POOL: usize, const R: usize, const W: usize, const K: usize>(
     pool: &mut KeyPool<POOL>,
-    db: &mut heapless::Vec<Stored<K>, DB>,
+    resident: &mut heapless::Vec<Stored<K>, R>,
+    ring: &mut [RingEntry<W, K>; W],
+    run: &KeyRun,
+) {
+    for e in ring.iter_mut().filter_map(RingEntry::get_mut) {
+        if e.frame.keys == Some(*run) {
+            e.frame.keys = None;
+        }
+    }
+    release(pool, resident, ring, run);
+}
+
+/// Frees a run of the key pool and shifts every run stored after it.
+fn release<const POOL: usize, const R: usize, const W: usize, const K: usize>(
+    pool: &mut KeyPool<POOL>,
+    resident: &mut heapless::Vec<Stored<K>, R>,
     ring: &mut [RingEntry<W, K>; W],
     run: &KeyRun,
 ) {
     pool.free(run);
-    let runs = db.iter_mut().map(|s| &mut s.keys).chain(
+    let runs = resident.iter_mut().map(|s| &mut s.keys).chain(
         ring.iter_mut()
             .filter_map(RingEntry::get_mut)
             .map(|s| &mut s.frame.keys),

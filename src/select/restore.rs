@@ -1,15 +1,17 @@
 //! Rebuilding a selector from durable records after a restart: the
-//! database frames (compared by sketch from then on: their exact keys are
-//! not kept in flash) and the final decisions, in order. The scan then goes
-//! on with the first undecided frame.
+//! database frames (back in the index, read from the store when a frame
+//! near them needs them; their exact keys are not kept in flash) and the
+//! final decisions, in order. The scan then goes on with the first
+//! undecided frame.
 
-use super::{flags, Decision, Selector, Stored};
+use super::database::{entry_of, NOWHERE};
+use super::{flags, Decision, Selector};
 use crate::frame::FrameMeta;
 use crate::sketch::Sketch;
 use crate::store::Aabb;
 
-/// A database frame as a durable log keeps it: what comparing new frames
-/// with it by sketch needs.
+/// A database frame as a durable store keeps it: what comparing new frames
+/// with it by sketch, and exporting it, needs.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DbSnapshot<const K: usize> {
     /// Index, timestamp and pose.
@@ -40,21 +42,19 @@ pub enum RestoreError {
     },
     /// The decision names a frame that is not in the database, or is `Pending`.
     BadDecision,
+    /// The frame is not in the store (`at` is [`NOWHERE`]).
+    NotStored,
 }
 
-impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const K: usize>
-    Selector<FV, POOL, DB, W, K>
+impl<
+        const FV: usize,
+        const POOL: usize,
+        const DB: usize,
+        const W: usize,
+        const K: usize,
+        const R: usize,
+    > Selector<FV, POOL, DB, W, K, R>
 {
-    /// Database entry `i` (in the order frames were taken) as a durable log keeps it.
-    pub fn database_snapshot(&self, i: usize) -> Option<DbSnapshot<K>> {
-        self.db.get(i).map(|s| DbSnapshot {
-            meta: s.meta,
-            voxels: s.len,
-            aabb: s.aabb,
-            sketch: s.sketch,
-        })
-    }
-
     fn restorable(&self) -> Result<(), RestoreError> {
         if self.config.is_none() {
             Err(RestoreError::NotConfigured)
@@ -65,29 +65,36 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
         }
     }
 
-    fn in_database(&self, index: u32) -> bool {
-        self.db.iter().any(|d| d.meta.index == index)
-    }
-
-    /// Puts a stored database frame back. It may be a frame not decided yet
-    /// (taken while still in the window): when that frame is streamed again
-    /// it takes its place back with exact keys.
-    pub fn restore_database(&mut self, frame: &DbSnapshot<K>) -> Result<(), RestoreError> {
+    /// Puts back a database frame that the store keeps at `at` (with its
+    /// exact keys when `keyed`, which took `key_bytes` of the key budget). It may be a
+    /// frame not decided yet (taken while still in the window, or before its
+    /// decision was durable): when that frame is streamed again it takes its
+    /// place back, whole in RAM.
+    pub fn restore_database(
+        &mut self,
+        frame: &DbSnapshot<K>,
+        at: u32,
+        keyed: bool,
+        key_bytes: u32,
+    ) -> Result<(), RestoreError> {
         self.restorable()?;
-        if self.in_database(frame.meta.index) {
+        if at == NOWHERE {
+            return Err(RestoreError::NotStored);
+        }
+        if self.db.find(frame.meta.index).is_some() {
             return Err(RestoreError::Duplicate);
         }
-        let stored = Stored {
-            meta: frame.meta,
-            len: frame.voxels,
-            aabb: frame.aabb,
-            keys: None,
-            sketch: frame.sketch,
+        let entry = super::database::DbEntry {
+            keyed,
+            ..entry_of(frame, at)
         };
-        self.db
-            .push(stored)
-            .map_err(|_| RestoreError::DatabaseFull)?;
-        self.status.sketched_frames += 1;
+        if !self.db.add(entry) {
+            return Err(RestoreError::DatabaseFull);
+        }
+        if keyed {
+            let st = &mut self.status;
+            st.stored_key_bytes = st.stored_key_bytes.saturating_add(key_bytes);
+        }
         self.note_usage();
         Ok(())
     }
@@ -100,20 +107,21 @@ impl<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const 
         if index != expected {
             return Err(RestoreError::WrongIndex { expected });
         }
-        let known = match decision {
-            Decision::Taken => self.in_database(index),
-            Decision::DominatedBy(k) | Decision::Uncovered(Some(k)) => self.in_database(k),
+        let known = |k: u32| self.db.find(k).is_some();
+        let ok = match decision {
+            Decision::Taken => known(index),
+            Decision::DominatedBy(k) | Decision::Uncovered(Some(k)) => known(k),
             Decision::Uncovered(None) => true,
             Decision::Pending => false,
         };
-        if !known {
+        if !ok {
             return Err(RestoreError::BadDecision);
         }
         if let Decision::Uncovered(_) = decision {
-            self.status.uncovered_frames += 1;
+            self.status.uncovered_frames = self.status.uncovered_frames.saturating_add(1);
             self.status.flags |= flags::DATABASE_FULL;
         }
-        self.status.frames_decided += 1;
+        self.status.frames_decided = self.status.frames_decided.saturating_add(1);
         self.status.frames_seen = self.status.frames_decided;
         Ok(())
     }

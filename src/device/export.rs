@@ -1,0 +1,128 @@
+//! The export: record `r < database_size` is the `r`-th database frame in
+//! frame order (from RAM if resident, else read from the log); record
+//! `database_size + j` is the label of frame `j`, read back from the log's
+//! decision batches. A cursor remembers where the last request stopped, so
+//! exporting in consecutive requests reads the log once, not once per request.
+
+use crate::persist::{Cursor, Journal, Record};
+use crate::protocol::{DeviceMessage, ErrorKind, ExportCrc, ExportRecord, RecordKind};
+
+use super::durable::LogReader;
+use super::reply::{to_u32, Out};
+use super::Core;
+
+impl<
+        const FV: usize,
+        const POOL: usize,
+        const DB: usize,
+        const W: usize,
+        const K: usize,
+        const R: usize,
+    > Core<FV, POOL, DB, W, K, R>
+{
+    /// Total export records now.
+    pub(super) fn export_len(&self) -> usize {
+        self.selector
+            .database_len()
+            .saturating_add(self.decisions.labels as usize)
+    }
+
+    /// Answers an ExportRequest: up to `max` records from `from_record`, then
+    /// `ExportEnd` with their count and CRC.
+    pub(super) fn export(
+        &mut self,
+        seq: u32,
+        from_record: u32,
+        max: u32,
+        journal: &mut dyn Journal,
+        send: &mut dyn FnMut(&[u8]),
+    ) {
+        let total = self.export_len();
+        let from = from_record as usize;
+        let end = from.saturating_add(max as usize).min(total);
+        if from > total {
+            self.refused = self.refused.saturating_add(1);
+            return self.out(send).reply(&DeviceMessage::Error {
+                seq: Some(seq),
+                kind: ErrorKind::ExportPastEnd,
+            });
+        }
+        let Core {
+            selector,
+            tx,
+            clock,
+            export_cursor,
+            ..
+        } = self;
+        let mut out = Out {
+            tx,
+            send,
+            clock: *clock,
+            ticks: 0,
+        };
+        let mut crc = ExportCrc::new();
+        let mut emit = |record: ExportRecord| {
+            crc.add(&record);
+            out.reply(&DeviceMessage::ExportRecord(record));
+        };
+        let db = selector.database_len();
+        for r in from.min(db)..end.min(db) {
+            if let Some(rec) = selector.database_record(r, &mut LogReader(journal)) {
+                emit(ExportRecord {
+                    record: to_u32(r),
+                    frame: rec.index,
+                    timestamp: rec.timestamp,
+                    kind: RecordKind::Database { pose: rec.pose },
+                });
+            }
+        }
+        // Labels of frames `first_label .. last_label`, in log order.
+        let (first_label, last_label) = (
+            to_u32(from.saturating_sub(db)),
+            to_u32(end.saturating_sub(db)),
+        );
+        if first_label < last_label {
+            let (mut cursor, start) = *export_cursor;
+            if start > first_label {
+                cursor = Cursor::START;
+            }
+            loop {
+                let before = cursor;
+                let Ok(Some((_, payload))) = journal.next(&mut cursor) else {
+                    break;
+                };
+                let Ok((Record::Decisions { first, count }, tail)) = Record::decode(payload) else {
+                    continue;
+                };
+                if first.saturating_add(u32::from(count)) <= first_label {
+                    continue;
+                }
+                for (i, (timestamp, kind)) in tail.decisions().enumerate() {
+                    let frame = first.saturating_add(i as u32);
+                    if (first_label..last_label).contains(&frame) {
+                        emit(ExportRecord {
+                            record: to_u32(db.saturating_add(frame as usize)),
+                            frame,
+                            timestamp,
+                            kind: RecordKind::Label {
+                                class: kind.class(frame).unwrap_or(frame),
+                            },
+                        });
+                    }
+                }
+                if first.saturating_add(u32::from(count)) >= last_label {
+                    // The next request most likely starts in this batch.
+                    *export_cursor = (before, first);
+                    break;
+                }
+            }
+        }
+        let (count, crc32) = (crc.count(), crc.value());
+        out.reply(&DeviceMessage::ExportEnd {
+            seq,
+            from_record,
+            count,
+            crc32,
+        });
+    }
+}

@@ -1,0 +1,81 @@
+//! The retransmission cache: the last state-changing message the device
+//! handled and its terminal reply, so that a host resending it (its reply
+//! was lost or late) gets the same reply and the message is not applied twice.
+
+use crate::protocol::{DeviceMessage, ErrorKind, HostMessage};
+
+/// A state-changing message the device handled and its terminal reply.
+/// Plain integers only (no `Option`, whose `None` may be a non-zero niche):
+/// a new device stays all zero bytes, in `.bss`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct Applied {
+    /// The message; [`MessageKey::NONE`] before any.
+    pub key: MessageKey,
+    pub seq: u32,
+    /// Accepted (Ack), else refused with `kind`.
+    pub accepted: bool,
+    pub kind: ErrorKind,
+}
+
+impl Applied {
+    pub const NONE: Applied = Applied {
+        key: MessageKey::NONE,
+        seq: 0,
+        accepted: false,
+        kind: ErrorKind::BadCrc,
+    };
+
+    /// The terminal reply it got.
+    pub fn reply(&self) -> DeviceMessage<'static> {
+        if self.accepted {
+            DeviceMessage::Ack { seq: self.seq }
+        } else {
+            DeviceMessage::Error {
+                seq: Some(self.seq),
+                kind: self.kind,
+            }
+        }
+    }
+}
+
+/// What identifies a state-changing message besides its sequence number (so
+/// that a restarted host reusing sequence numbers is not taken for a retry).
+/// A Hello is identified by its configuration: the one in force.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct MessageKey {
+    /// 0: none; 1 Hello, 2 FrameBegin, 3 DepthRows, 4 FrameEnd, 5 Finish,
+    /// 6 Reset, 7 FrameAbort.
+    tag: u8,
+    frame: u32,
+    first_row: u16,
+    row_count: u16,
+}
+
+impl MessageKey {
+    pub const NONE: MessageKey = MessageKey {
+        tag: 0,
+        frame: 0,
+        first_row: 0,
+        row_count: 0,
+    };
+
+    /// The key of a state-changing message; `None` for requests that change nothing.
+    pub fn of(msg: &HostMessage<'_>) -> Option<MessageKey> {
+        let key = |tag, frame, first_row, row_count| MessageKey {
+            tag,
+            frame,
+            first_row,
+            row_count,
+        };
+        Some(match *msg {
+            HostMessage::Hello(_) => key(1, 0, 0, 0),
+            HostMessage::FrameBegin { frame, .. } => key(2, frame, 0, 0),
+            HostMessage::DepthRows(r) => key(3, r.frame, r.first_row, r.row_count),
+            HostMessage::FrameEnd { frame } => key(4, frame, 0, 0),
+            HostMessage::Finish => key(5, 0, 0, 0),
+            HostMessage::Reset => key(6, 0, 0, 0),
+            HostMessage::FrameAbort { frame } => key(7, frame, 0, 0),
+            HostMessage::StatusRequest | HostMessage::ExportRequest { .. } => return None,
+        })
+    }
+}

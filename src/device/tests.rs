@@ -1,0 +1,850 @@
+extern crate std;
+
+use super::*;
+use crate::camera::{DepthRange, Intrinsics, Pose};
+use crate::frame::FrameMeta;
+use crate::persist::sim::SimFlash;
+use crate::protocol::{encode, DepthRows, Feed, PROTOCOL_VERSION};
+use crate::protocol::{
+    DecisionKind, DeviceMessage, ErrorKind, ExportRecord, HostMessage, RecordKind,
+};
+use crate::select::NoStore;
+use crate::select::SelectorConfig;
+use crate::{ScanConfig, VoxelGrid};
+use proptest::prelude::*;
+use std::vec;
+use std::vec::Vec;
+
+type Small = Device<1024, 8192, 16, 8, 16, 64>;
+/// Runs out of database quickly.
+type Tiny = Device<1024, 2048, 2, 4, 16, 5>;
+
+const W: u16 = 64;
+const H: u16 = 48;
+const STRIDE: u16 = 2;
+
+fn config(window: u16) -> Config {
+    let scan = ScanConfig {
+        intrinsics: Intrinsics {
+            width: W,
+            height: H,
+            fx: 50.0,
+            fy: 50.0,
+            cx: 31.5,
+            cy: 23.5,
+        },
+        depth_scale: 1000.0,
+        range: DepthRange::default(),
+        stride: STRIDE,
+        grid: VoxelGrid {
+            voxel_size: 0.1,
+            origin: [0.0; 3],
+        },
+    };
+    Config::new(
+        &scan,
+        &SelectorConfig {
+            mu: 0.3,
+            window,
+            sketch_margin: 0.05,
+        },
+    )
+}
+
+/// Sampled rows of frame `i`: a wavy wall about 3 m ahead of a camera
+/// moving sideways, every 7th frame blank.
+fn frame_rows(i: u32) -> Vec<u16> {
+    let (ws, hs) = (W.div_ceil(STRIDE), H.div_ceil(STRIDE));
+    let mut out = Vec::new();
+    for v in 0..hs {
+        for u in 0..ws {
+            let x = 0.15 * i as f32 + (f32::from(u * STRIDE) - 31.5) / 50.0 * 3.0;
+            let d = if i % 7 == 6 {
+                0
+            } else {
+                (3000.0 + 400.0 * libm::sinf(2.0 * x) + 5.0 * f32::from(v)) as u16
+            };
+            out.push(d);
+        }
+    }
+    out
+}
+
+fn pose(i: u32) -> Pose {
+    Pose {
+        translation: [0.15 * i as f32, 0.0, 0.0],
+        rotation: [0.0, 0.0, 0.0, 1.0],
+    }
+}
+
+fn timestamp(i: u32) -> f64 {
+    1_305_031_102.175_304 + f64::from(i) / 30.0
+}
+
+/// Owned copies of the messages a device can send (it never logs).
+fn owned(msg: DeviceMessage<'_>) -> DeviceMessage<'static> {
+    msg.into_static().expect("the device does not log")
+}
+
+fn terminal(msg: &DeviceMessage<'_>) -> Option<Option<u32>> {
+    match msg {
+        DeviceMessage::Ack { seq } | DeviceMessage::ExportEnd { seq, .. } => Some(Some(*seq)),
+        DeviceMessage::Status(s) => Some(Some(s.seq)),
+        DeviceMessage::Error { seq, .. } => Some(*seq),
+        _ => None,
+    }
+}
+
+/// A device on a simulated flash log, and a host-side decoder of its replies.
+struct Bench<D> {
+    device: std::boxed::Box<D>,
+    log: Log<SimFlash>,
+    seq: u32,
+}
+
+/// Sectors of the benches' flash log.
+const BENCH_SECTORS: usize = 64;
+
+macro_rules! bench_impl {
+    ($t:ty) => {
+        #[allow(dead_code)]
+        impl Bench<$t> {
+            fn new() -> Self {
+                let flash = SimFlash::new(BENCH_SECTORS);
+                let end = (BENCH_SECTORS * SimFlash::SECTOR) as u32;
+                Bench {
+                    device: std::boxed::Box::new(<$t>::new()),
+                    log: Log::open(flash, 0, end).unwrap(),
+                    seq: 0,
+                }
+            }
+
+            /// Feeds `bytes` in chunks of `chunk` and decodes every reply.
+            fn feed(&mut self, bytes: &[u8], chunk: usize) -> Vec<DeviceMessage<'static>> {
+                let mut raw = Vec::new();
+                for c in bytes.chunks(chunk.max(1)) {
+                    self.device
+                        .receive_logged(c, &mut self.log, &mut |f: &[u8]| raw.push(f.to_vec()));
+                }
+                raw.iter()
+                    .map(|f| {
+                        assert!(f.len() <= MAX_REPLY_LEN);
+                        assert_eq!(f.last(), Some(&0));
+                        assert!(!f[..f.len() - 1].contains(&0));
+                        let mut dec = FrameDecoder::<MAX_REPLY_LEN>::new();
+                        match dec.feed::<DeviceMessage>(f) {
+                            Feed::Frame {
+                                result: Ok(m),
+                                remaining: [],
+                            } => owned(m),
+                            other => panic!("bad reply frame: {other:?}"),
+                        }
+                    })
+                    .collect()
+            }
+
+            /// Sends one message; checks it gets exactly one terminal reply,
+            /// last, with its sequence number; returns every reply.
+            fn send(&mut self, msg: HostMessage<'_>) -> Vec<DeviceMessage<'static>> {
+                self.seq += 1;
+                let mut buf = vec![0u8; MAX_FRAME_LEN];
+                let frame = encode(&HostFrame { seq: self.seq, msg }, &mut buf).unwrap();
+                let frame = frame.to_vec();
+                let replies = self.feed(&frame, frame.len());
+                let terminals: Vec<_> = replies.iter().filter_map(terminal).collect();
+                assert_eq!(terminals, vec![Some(self.seq)], "{msg:?} -> {replies:?}");
+                assert!(terminal(replies.last().unwrap()).is_some());
+                replies
+            }
+
+            fn ok(&mut self, msg: HostMessage<'_>) -> Vec<DeviceMessage<'static>> {
+                let replies = self.send(msg);
+                assert!(
+                    matches!(replies.last(), Some(DeviceMessage::Ack { .. })),
+                    "{msg:?} -> {replies:?}"
+                );
+                replies
+            }
+
+            fn refused(&mut self, msg: HostMessage<'_>) -> ErrorKind {
+                match self.send(msg).as_slice() {
+                    [DeviceMessage::Error { kind, .. }] => *kind,
+                    other => panic!("{msg:?} accepted: {other:?}"),
+                }
+            }
+
+            fn status(&mut self) -> Status {
+                match self.send(HostMessage::StatusRequest).as_slice() {
+                    [DeviceMessage::Status(s)] => *s,
+                    other => panic!("no status: {other:?}"),
+                }
+            }
+
+            /// Streams frame `i` with `rows_per_msg` rows per message;
+            /// returns the decisions.
+            fn frame(&mut self, i: u32, rows_per_msg: u16) -> Vec<(u32, DecisionKind)> {
+                self.ok(HostMessage::FrameBegin {
+                    frame: i,
+                    timestamp: timestamp(i),
+                    pose: pose(i),
+                });
+                let rows = frame_rows(i);
+                let ws = usize::from(W.div_ceil(STRIDE));
+                let mut first = 0u16;
+                for chunk in rows.chunks(ws * usize::from(rows_per_msg)) {
+                    let data: Vec<u8> = chunk.iter().flat_map(|d| d.to_le_bytes()).collect();
+                    let n = (chunk.len() / ws) as u16;
+                    self.ok(HostMessage::DepthRows(DepthRows {
+                        frame: i,
+                        first_row: first,
+                        row_count: n,
+                        data: &data,
+                    }));
+                    first += n;
+                }
+                decisions(&self.ok(HostMessage::FrameEnd { frame: i }))
+            }
+
+            fn export(&mut self, from: u32) -> Vec<ExportRecord> {
+                self.export_some(from, u32::MAX)
+            }
+
+            fn export_some(&mut self, from: u32, max: u32) -> Vec<ExportRecord> {
+                let replies = self.send(HostMessage::ExportRequest {
+                    from_record: from,
+                    max_records: max,
+                });
+                let (last, records) = replies.split_last().unwrap();
+                let records: Vec<ExportRecord> = records
+                    .iter()
+                    .map(|m| match m {
+                        DeviceMessage::ExportRecord(r) => *r,
+                        other => panic!("unexpected {other:?}"),
+                    })
+                    .collect();
+                match last {
+                    DeviceMessage::ExportEnd {
+                        from_record,
+                        count,
+                        crc32,
+                        ..
+                    } => {
+                        assert_eq!(*from_record, from);
+                        assert_eq!(*count as usize, records.len());
+                        assert_eq!(*crc32, crate::protocol::export_crc(&records));
+                    }
+                    other => panic!("no export end: {other:?}"),
+                }
+                for (k, r) in records.iter().enumerate() {
+                    assert_eq!(r.record, from + k as u32);
+                }
+                records
+            }
+        }
+    };
+}
+bench_impl!(Small);
+bench_impl!(Tiny);
+
+/// Final decisions, in the order they came (frame order).
+fn finals(decided: &[(u32, DecisionKind)]) -> Vec<(u32, DecisionKind)> {
+    let f: Vec<_> = decided
+        .iter()
+        .copied()
+        .filter(|(_, k)| *k != DecisionKind::Pending)
+        .collect();
+    assert!(
+        f.windows(2).all(|w| w[0].0 + 1 == w[1].0),
+        "frame order: {f:?}"
+    );
+    f
+}
+
+/// The frames reported `Pending`, in order.
+fn pending(decided: &[(u32, DecisionKind)]) -> Vec<u32> {
+    decided
+        .iter()
+        .filter(|(_, k)| *k == DecisionKind::Pending)
+        .map(|(i, _)| *i)
+        .collect()
+}
+
+fn decisions(replies: &[DeviceMessage<'_>]) -> Vec<(u32, DecisionKind)> {
+    replies
+        .iter()
+        .filter_map(|m| match m {
+            DeviceMessage::Decision { frame, kind } => Some((*frame, *kind)),
+            _ => None,
+        })
+        .collect()
+}
+
+/// What the selector alone decides on the same frames.
+fn reference<const FV: usize, const P: usize, const DB: usize, const WN: usize, const K: usize>(
+    cfg: &Config,
+    frames: u32,
+) -> (Vec<(u32, DecisionKind)>, Vec<ExportRecord>) {
+    let mut sel = std::boxed::Box::new(Selector::<FV, P, DB, WN, K>::new());
+    sel.configure(cfg.scan_config(), cfg.selector_config())
+        .unwrap();
+    let mut got = Vec::new();
+    let mut emit = |d: FrameDecision| got.push((d.index, DecisionKind::from(d.decision)));
+    for i in 0..frames {
+        sel.begin_frame(FrameMeta {
+            index: i,
+            timestamp: timestamp(i),
+            pose: pose(i),
+        })
+        .unwrap();
+        sel.push_rows(0, &frame_rows(i)).unwrap();
+        sel.end_frame(&mut emit).unwrap();
+    }
+    sel.finish(&mut emit).unwrap();
+    let mut db: Vec<_> = (0..sel.database_len())
+        .map(|i| sel.database_record(i, &mut NoStore).unwrap())
+        .collect();
+    db.sort_by_key(|r| r.index);
+    let mut records: Vec<ExportRecord> = db
+        .iter()
+        .map(|r| ExportRecord {
+            record: 0,
+            frame: r.index,
+            timestamp: r.timestamp,
+            kind: RecordKind::Database { pose: r.pose },
+        })
+        .collect();
+    let finals: Vec<_> = got
+        .iter()
+        .filter(|(_, k)| *k != DecisionKind::Pending)
+        .collect();
+    for (i, k) in finals {
+        records.push(ExportRecord {
+            record: 0,
+            frame: *i,
+            timestamp: timestamp(*i),
+            kind: RecordKind::Label {
+                class: k.class(*i).unwrap(),
+            },
+        });
+    }
+    for (r, rec) in records.iter_mut().enumerate() {
+        rec.record = r as u32;
+    }
+    (got, records)
+}
+
+fn on_big_stack(f: impl FnOnce() + Send + 'static) {
+    std::thread::Builder::new()
+        .stack_size(32 << 20)
+        .spawn(f)
+        .unwrap()
+        .join()
+        .unwrap();
+}
+
+#[test]
+fn a_scan_matches_the_selector_and_exports_in_frame_order() {
+    on_big_stack(|| {
+        let mut b = Bench::<Small>::new();
+        assert_eq!(b.status().phase, Phase::Unconfigured);
+        let cfg = config(4);
+        b.ok(HostMessage::Hello(cfg));
+        let n = 30;
+        let mut got = Vec::new();
+        for i in 0..n {
+            got.extend(b.frame(i, 5));
+        }
+        assert_eq!(b.status().phase, Phase::Ready);
+        got.extend(decisions(&b.ok(HostMessage::Finish)));
+        let (want, records) = reference::<1024, 8192, 16, 8, 16>(&cfg, n);
+        assert_eq!(finals(&got), finals(&want));
+        assert_eq!(pending(&got), pending(&want));
+        let st = b.status();
+        assert_eq!(st.phase, Phase::Finished);
+        assert_eq!((st.frames_seen, st.frames_decided), (n, n));
+        assert_eq!(st.capacity(CapacitySlot::Labels).used, n);
+        assert_eq!(st.export_records() as usize, records.len());
+        assert!(st.database_size > 1 && st.database_size < n);
+        assert_eq!(st.degradation, 0);
+        let all = b.export(0);
+        assert_eq!(all, records);
+        // Resume from any record: the tail of the full export.
+        for k in [
+            1,
+            st.database_size,
+            st.export_records() - 1,
+            st.export_records(),
+        ] {
+            assert_eq!(b.export(k), records[k as usize..]);
+        }
+        // In batches of any size.
+        for batch in [1, 2, 7, st.database_size, 1000] {
+            let mut got = Vec::new();
+            loop {
+                let part = b.export_some(got.len() as u32, batch);
+                assert!(part.len() <= batch as usize);
+                if part.is_empty() {
+                    break;
+                }
+                got.extend(part);
+            }
+            assert_eq!(got, records);
+        }
+        assert_eq!(b.export_some(3, 0), vec![]);
+        assert_eq!(
+            b.refused(HostMessage::ExportRequest {
+                from_record: st.export_records() + 1,
+                max_records: 1,
+            }),
+            ErrorKind::ExportPastEnd
+        );
+        // A repeated Finish is a no-op; frames after Finish are refused.
+        assert_eq!(decisions(&b.ok(HostMessage::Finish)), vec![]);
+        let begin = HostMessage::FrameBegin {
+            frame: n,
+            timestamp: 0.0,
+            pose: pose(0),
+        };
+        assert_eq!(b.refused(begin), ErrorKind::Finished);
+        assert_eq!(b.export(0), records);
+        // Reset forgets everything.
+        b.ok(HostMessage::Reset);
+        let st = b.status();
+        assert_eq!(st.phase, Phase::Unconfigured);
+        assert_eq!(st.export_records(), 0);
+        assert_eq!(b.refused(begin), ErrorKind::NotConfigured);
+    });
+}
+
+#[test]
+fn byte_by_byte_delivery_gives_the_same_replies() {
+    on_big_stack(|| {
+        let mut stream = Vec::new();
+        let mut buf = vec![0u8; MAX_FRAME_LEN];
+        let mut push = |seq: u32, msg: HostMessage<'_>| {
+            stream.extend_from_slice(encode(&HostFrame { seq, msg }, &mut buf).unwrap());
+        };
+        push(1, HostMessage::Hello(config(3)));
+        let mut seq = 2;
+        for i in 0..8 {
+            push(
+                seq,
+                HostMessage::FrameBegin {
+                    frame: i,
+                    timestamp: timestamp(i),
+                    pose: pose(i),
+                },
+            );
+            let data: Vec<u8> = frame_rows(i).iter().flat_map(|d| d.to_le_bytes()).collect();
+            push(
+                seq + 1,
+                HostMessage::DepthRows(DepthRows {
+                    frame: i,
+                    first_row: 0,
+                    row_count: H.div_ceil(STRIDE),
+                    data: &data,
+                }),
+            );
+            push(seq + 2, HostMessage::FrameEnd { frame: i });
+            seq += 3;
+        }
+        push(seq, HostMessage::Finish);
+        push(
+            seq + 1,
+            HostMessage::ExportRequest {
+                from_record: 0,
+                max_records: u32::MAX,
+            },
+        );
+        let whole = Bench::<Small>::new().feed(&stream, stream.len());
+        assert_eq!(Bench::<Small>::new().feed(&stream, 1), whole);
+        assert_eq!(Bench::<Small>::new().feed(&stream, 61), whole);
+        assert!(matches!(
+            whole.last(),
+            Some(DeviceMessage::ExportEnd { .. })
+        ));
+    });
+}
+
+#[test]
+fn a_retransmitted_message_is_answered_again_not_applied_twice() {
+    on_big_stack(|| {
+        let mut buf = vec![0u8; MAX_FRAME_LEN];
+        let mut frames: Vec<Vec<u8>> = Vec::new();
+        let mut push = |seq: u32, msg: HostMessage<'_>| {
+            frames.push(encode(&HostFrame { seq, msg }, &mut buf).unwrap().to_vec());
+        };
+        push(1, HostMessage::Hello(config(2)));
+        let mut seq = 2;
+        for i in 0..8 {
+            push(
+                seq,
+                HostMessage::FrameBegin {
+                    frame: i,
+                    timestamp: timestamp(i),
+                    pose: pose(i),
+                },
+            );
+            let data: Vec<u8> = frame_rows(i).iter().flat_map(|d| d.to_le_bytes()).collect();
+            for (k, half) in data.chunks(data.len() / 2).enumerate() {
+                push(
+                    seq + 1 + k as u32,
+                    HostMessage::DepthRows(DepthRows {
+                        frame: i,
+                        first_row: 12 * k as u16,
+                        row_count: 12,
+                        data: half,
+                    }),
+                );
+            }
+            // A refused message (rows again) is answered the same way too.
+            push(seq + 3, HostMessage::FrameEnd { frame: i + 1 });
+            push(seq + 4, HostMessage::FrameEnd { frame: i });
+            seq += 5;
+        }
+        push(seq, HostMessage::Finish);
+        let mut clean = Bench::<Small>::new();
+        let mut twice = Bench::<Small>::new();
+        for f in &frames {
+            let once = clean.feed(f, f.len());
+            let first = twice.feed(f, f.len());
+            assert_eq!(first, once);
+            // The retransmission: only the terminal reply, again.
+            let again = twice.feed(f, 7);
+            assert_eq!(again.len(), 1);
+            assert_eq!(again.last(), once.last());
+        }
+        let (a, b) = (clean.status(), twice.status());
+        assert_eq!(a.frames_seen, 8);
+        assert_eq!(b.frames_seen, 8);
+        assert_eq!(b.refused, a.refused);
+        assert_eq!(twice.export(0), clean.export(0));
+        // The same sequence number with another message is not a retry.
+        let mut buf = vec![0u8; MAX_FRAME_LEN];
+        let reset = encode(
+            &HostFrame {
+                seq,
+                msg: HostMessage::Reset,
+            },
+            &mut buf,
+        )
+        .unwrap()
+        .to_vec();
+        assert_eq!(
+            twice.feed(&reset, reset.len()),
+            vec![DeviceMessage::Ack { seq }]
+        );
+        assert_eq!(twice.status().phase, Phase::Unconfigured);
+    });
+}
+
+#[test]
+fn hello_rules() {
+    on_big_stack(|| {
+        let mut b = Bench::<Small>::new();
+        let mut bad = config(4);
+        bad.version = PROTOCOL_VERSION + 1;
+        assert_eq!(b.refused(HostMessage::Hello(bad)), ErrorKind::WrongVersion);
+        bad = config(4);
+        bad.mu = 1.5;
+        assert_eq!(b.refused(HostMessage::Hello(bad)), ErrorKind::BadConfig);
+        assert_eq!(b.status().phase, Phase::Unconfigured);
+        // Before any frame a Hello replaces the previous one.
+        b.ok(HostMessage::Hello(config(2)));
+        b.ok(HostMessage::Hello(config(4)));
+        b.frame(0, 24);
+        b.ok(HostMessage::FrameBegin {
+            frame: 1,
+            timestamp: 1.0,
+            pose: pose(1),
+        });
+        assert_eq!(
+            b.refused(HostMessage::Hello(config(4))),
+            ErrorKind::MidFrameReconfig
+        );
+        let rows = frame_rows(1);
+        let data: Vec<u8> = rows.iter().flat_map(|d| d.to_le_bytes()).collect();
+        b.ok(HostMessage::DepthRows(DepthRows {
+            frame: 1,
+            first_row: 0,
+            row_count: H.div_ceil(STRIDE),
+            data: &data,
+        }));
+        b.ok(HostMessage::FrameEnd { frame: 1 });
+        // After frames: the same Hello is a harmless retry, another one is refused.
+        b.ok(HostMessage::Hello(config(4)));
+        assert_eq!(
+            b.refused(HostMessage::Hello(config(2))),
+            ErrorKind::NeedsReset
+        );
+        assert_eq!(b.status().frames_seen, 2);
+        b.ok(HostMessage::Reset);
+        b.ok(HostMessage::Hello(config(2)));
+    });
+}
+
+#[test]
+fn refused_messages_change_nothing() {
+    on_big_stack(|| {
+        let mut b = Bench::<Small>::new();
+        let begin = |i: u32| HostMessage::FrameBegin {
+            frame: i,
+            timestamp: timestamp(i),
+            pose: pose(i),
+        };
+        assert_eq!(b.refused(begin(0)), ErrorKind::NotConfigured);
+        assert_eq!(b.refused(HostMessage::Finish), ErrorKind::NotConfigured);
+        b.ok(HostMessage::Hello(config(3)));
+        for i in 0..5 {
+            b.frame(i, 7);
+        }
+        let before = b.export(0);
+        let status = b.status();
+        let ws = W.div_ceil(STRIDE);
+        let row = vec![0x10u8; usize::from(ws) * 2];
+        let rows = |frame: u32, first_row: u16, row_count: u16, data: &'static [u8]| {
+            HostMessage::DepthRows(DepthRows {
+                frame,
+                first_row,
+                row_count,
+                data,
+            })
+        };
+        let row: &'static [u8] = std::boxed::Box::leak(row.into_boxed_slice());
+        assert_eq!(b.refused(begin(7)), ErrorKind::OutOfOrder);
+        assert_eq!(b.refused(begin(4)), ErrorKind::OutOfOrder);
+        assert_eq!(b.refused(rows(5, 0, 1, row)), ErrorKind::OutOfOrder);
+        assert_eq!(
+            b.refused(HostMessage::FrameEnd { frame: 5 }),
+            ErrorKind::FrameEndWithoutBegin
+        );
+        let mut nan = pose(5);
+        nan.translation[0] = f32::NAN;
+        let bad_pose = HostMessage::FrameBegin {
+            frame: 5,
+            timestamp: 5.0,
+            pose: nan,
+        };
+        assert_eq!(b.refused(bad_pose), ErrorKind::BadPose);
+        let bad_time = HostMessage::FrameBegin {
+            frame: 5,
+            timestamp: f64::INFINITY,
+            pose: pose(5),
+        };
+        assert_eq!(b.refused(bad_time), ErrorKind::BadPose);
+        // Inside frame 5.
+        b.ok(begin(5));
+        assert_eq!(b.refused(begin(6)), ErrorKind::OutOfOrder);
+        assert_eq!(b.refused(rows(4, 0, 1, row)), ErrorKind::OutOfOrder);
+        assert_eq!(b.refused(rows(5, 1, 1, row)), ErrorKind::OutOfOrder);
+        assert_eq!(b.refused(rows(5, 24, 1, row)), ErrorKind::RowOutOfRange);
+        assert_eq!(b.refused(rows(5, 0, 2, row)), ErrorKind::RowTooShort);
+        assert_eq!(
+            b.refused(rows(5, 0, 1, &row[..row.len() - 2])),
+            ErrorKind::RowTooShort
+        );
+        assert_eq!(b.refused(rows(5, 0, 0, row)), ErrorKind::RowTooLong);
+        assert_eq!(
+            b.refused(HostMessage::FrameEnd { frame: 5 }),
+            ErrorKind::MissingRows
+        );
+        assert_eq!(
+            b.refused(HostMessage::FrameEnd { frame: 4 }),
+            ErrorKind::FrameEndWithoutBegin
+        );
+        assert_eq!(b.refused(HostMessage::Finish), ErrorKind::OutOfOrder);
+        // Damaged frames: typed errors, nothing stored changes.
+        let replies = b.feed(&[0x05, 0x01, 0x02, 0x03, 0x04, 0x00], 6);
+        assert!(matches!(
+            replies.as_slice(),
+            [DeviceMessage::Error {
+                kind: ErrorKind::BadCrc,
+                ..
+            }]
+        ));
+        let mut long = vec![0x11u8; MAX_FRAME_LEN + 10];
+        long.push(0);
+        let replies = b.feed(&long, 100);
+        assert!(matches!(
+            replies.as_slice(),
+            [DeviceMessage::Error {
+                seq: None,
+                kind: ErrorKind::Oversized,
+            }]
+        ));
+        assert_eq!(b.export(0), before);
+        let after = b.status();
+        assert_eq!(after.phase, Phase::InFrame);
+        assert_eq!(after.frames_seen, status.frames_seen);
+        assert_eq!(after.database_size, status.database_size);
+        assert_eq!(after.refused, status.refused + 18);
+        assert_eq!(
+            after.capacity(CapacitySlot::RxFrame).peak,
+            MAX_FRAME_LEN as u32
+        );
+        // The frame in progress goes on.
+        let data: Vec<u8> = frame_rows(5).iter().flat_map(|d| d.to_le_bytes()).collect();
+        b.ok(HostMessage::DepthRows(DepthRows {
+            frame: 5,
+            first_row: 0,
+            row_count: 24,
+            data: &data,
+        }));
+        b.ok(HostMessage::FrameEnd { frame: 5 });
+    });
+}
+
+#[test]
+fn full_database_and_labels_degrade_as_documented() {
+    on_big_stack(|| {
+        let mut b = Bench::<Tiny>::new();
+        b.ok(HostMessage::Hello(config(2)));
+        let n = 12;
+        let mut got = Vec::new();
+        for i in 0..n {
+            got.extend(b.frame(i, 24));
+        }
+        got.extend(decisions(&b.ok(HostMessage::Finish)));
+        let (want, records) = reference::<1024, 2048, 2, 4, 16>(&config(2), n);
+        assert_eq!(finals(&got), finals(&want));
+        assert!(got
+            .iter()
+            .any(|(_, k)| matches!(k, DecisionKind::Uncovered(_))));
+        let st = b.status();
+        assert_eq!(st.database_size, 2);
+        // Labels live in flash: every frame has one, whatever the database.
+        assert_eq!(st.capacity(CapacitySlot::Labels).used, n);
+        assert_eq!(st.labels_dropped, 0);
+        assert!(st.uncovered_frames > 0);
+        assert_eq!(
+            st.degradation & degradation::DATABASE_FULL,
+            degradation::DATABASE_FULL
+        );
+        assert_eq!(st.degradation & degradation::LABELS_FULL, 0);
+        assert_eq!(b.export(0), records);
+    });
+}
+
+#[test]
+fn the_clock_measures_frames() {
+    use core::sync::atomic::{AtomicU64, Ordering};
+    static TICKS: AtomicU64 = AtomicU64::new(0);
+    fn tick() -> u64 {
+        TICKS.fetch_add(10, Ordering::Relaxed)
+    }
+    on_big_stack(|| {
+        let mut b = Bench::<Small>::new();
+        b.device.set_clock(tick, 1000);
+        b.ok(HostMessage::Hello(config(3)));
+        b.frame(0, 24);
+        b.frame(1, 24);
+        let st = b.status();
+        assert_eq!(st.cost.clock_hz, 1000);
+        assert_eq!(st.cost.frames, 2);
+        assert!(st.cost.last_rows > 0 && st.cost.last_end > 0);
+        assert!(st.cost.total >= u64::from(st.cost.max));
+        b.ok(HostMessage::Reset);
+        let st = b.status();
+        assert_eq!((st.cost.clock_hz, st.cost.frames), (1000, 0));
+    });
+}
+
+#[test]
+fn profiles_match_the_selector_profiles() {
+    use crate::profile::by_name;
+    fn check<
+        const FV: usize,
+        const P: usize,
+        const DB: usize,
+        const WN: usize,
+        const K: usize,
+        const L: usize,
+    >(
+        name: &str,
+        _: fn() -> Device<FV, P, DB, WN, K, L>,
+    ) {
+        let p = by_name(name).unwrap();
+        assert_eq!(
+            (
+                p.frame_voxel_slots,
+                p.pool_words,
+                p.database_frames,
+                p.window,
+                p.sketch
+            ),
+            (FV, P, DB, WN, K),
+            "{name}"
+        );
+        let size = core::mem::size_of::<Device<FV, P, DB, WN, K, L>>();
+        // State, plus room for the stack and the board's own buffers.
+        assert!(size + 16 * 1024 <= p.ram, "{name}: {size} B");
+    }
+    check("ram256k", Device256K::new);
+    check("ram512k", Device512K::new);
+    check("ram1m", Device1M::new);
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(48))]
+
+    /// Junk frames anywhere in a valid stream get errors and change
+    /// nothing: the decisions and the export are those of the clean stream.
+    #[test]
+    fn junk_between_frames_changes_nothing(
+        junk in proptest::collection::vec(
+            (0usize..40, proptest::collection::vec(any::<u8>(), 0..300)),
+            0..6,
+        ),
+    ) {
+        let (tx, rx) = std::sync::mpsc::channel();
+        on_big_stack(move || {
+            let mut msgs: Vec<Vec<u8>> = Vec::new();
+            let mut buf = vec![0u8; MAX_FRAME_LEN];
+            let mut seq = 0;
+            let mut push = |msg: HostMessage<'_>| {
+                seq += 1;
+                msgs.push(encode(&HostFrame { seq, msg }, &mut buf).unwrap().to_vec());
+            };
+            push(HostMessage::Hello(config(3)));
+            for i in 0..10 {
+                push(HostMessage::FrameBegin { frame: i, timestamp: timestamp(i), pose: pose(i) });
+                let data: Vec<u8> = frame_rows(i).iter().flat_map(|d| d.to_le_bytes()).collect();
+                for (k, half) in data.chunks(data.len() / 2).enumerate() {
+                    push(HostMessage::DepthRows(DepthRows {
+                        frame: i,
+                        first_row: 12 * k as u16,
+                        row_count: 12,
+                        data: half,
+                    }));
+                }
+                push(HostMessage::FrameEnd { frame: i });
+            }
+            push(HostMessage::Finish);
+            push(HostMessage::ExportRequest { from_record: 0, max_records: u32::MAX });
+            let clean: Vec<u8> = msgs.concat();
+            let mut dirty = Vec::new();
+            let mut junk_frames = 0;
+            for (k, m) in msgs.iter().enumerate() {
+                for (at, bytes) in &junk {
+                    if *at == k {
+                        dirty.extend_from_slice(bytes);
+                        dirty.push(0);
+                        junk_frames += bytes.split(|&b| b == 0).filter(|s| !s.is_empty()).count();
+                    }
+                }
+                dirty.extend_from_slice(m);
+            }
+            let want = Bench::<Small>::new().feed(&clean, 4096);
+            let got = Bench::<Small>::new().feed(&dirty, 97);
+            let errors = got.iter().filter(|m| matches!(m, DeviceMessage::Error { .. })).count();
+            let kept: Vec<_> = got
+                .into_iter()
+                .filter(|m| !matches!(m, DeviceMessage::Error { .. }))
+                .collect();
+            tx.send((kept == want, errors, junk_frames)).unwrap();
+        });
+        let (same, errors, junk_frames) = rx.recv().unwrap();
+        prop_assert!(same);
+        prop_assert_eq!(errors, junk_frames);
+    }
+}
