@@ -14,6 +14,7 @@ pub mod output;
 pub mod pipeline;
 pub mod plot;
 pub mod read;
+pub mod rp2040;
 pub mod sequence;
 pub mod session;
 pub mod solve;

@@ -513,32 +513,45 @@ pub fn built_firmware() -> Result<PathBuf, String> {
     static BUILT: std::sync::OnceLock<Result<PathBuf, String>> = std::sync::OnceLock::new();
     BUILT
         .get_or_init(|| {
-            let path = default_firmware();
-            if std::env::var_os("PLACEDB_QEMU_FIRMWARE").is_none() {
-                let board = Path::new(env!("CARGO_MANIFEST_DIR")).join("../boards/qemu-mps2-an386");
-                let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
-                let out = Command::new(cargo)
-                    .args(["build", "--release"])
-                    .current_dir(&board)
-                    .output()
-                    .map_err(|e| format!("cannot run cargo to build the firmware: {e}"))?;
-                if !out.status.success() {
-                    return Err(format!(
-                        "building the firmware (`{FIRMWARE_BUILD}`) failed:\n{}",
-                        String::from_utf8_lossy(&out.stderr)
-                    ));
-                }
-            }
-            if path.is_file() {
-                Ok(path)
-            } else {
-                Err(format!(
-                    "firmware {} is missing: build it with `{FIRMWARE_BUILD}`",
-                    path.display()
-                ))
-            }
+            build_board(
+                "qemu-mps2-an386",
+                default_firmware(),
+                std::env::var_os("PLACEDB_QEMU_FIRMWARE").is_none(),
+                FIRMWARE_BUILD,
+            )
         })
         .clone()
+}
+
+/// Builds the firmware of `boards/BOARD` (`cargo build --release` there, if
+/// `build`) and returns `elf` if it exists; `how` says how to build it by
+/// hand in the error.
+pub fn build_board(board: &str, elf: PathBuf, build: bool, how: &str) -> Result<PathBuf, String> {
+    if build {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../boards")
+            .join(board);
+        let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+        let out = Command::new(cargo)
+            .args(["build", "--release"])
+            .current_dir(&dir)
+            .output()
+            .map_err(|e| format!("cannot run cargo to build the firmware: {e}"))?;
+        if !out.status.success() {
+            return Err(format!(
+                "building the firmware (`{how}`) failed:\n{}",
+                String::from_utf8_lossy(&out.stderr)
+            ));
+        }
+    }
+    if elf.is_file() {
+        Ok(elf)
+    } else {
+        Err(format!(
+            "firmware {} is missing: build it with `{how}`",
+            elf.display()
+        ))
+    }
 }
 
 /// Shared between the owner and the watchdog thread.

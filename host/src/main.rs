@@ -140,16 +140,22 @@ struct ExportArgs {
 /// `placedb device`.
 #[derive(Args)]
 struct DeviceArgs {
-    /// Run the emulated board under qemu-system-arm (the only kind for now).
-    #[arg(long, required = true)]
+    /// Run the QEMU board (mps2-an386, Cortex-M4F, UART) under qemu-system-arm.
+    #[arg(long, required_unless_present = "rp2040", conflicts_with = "rp2040")]
     qemu: bool,
-    /// Firmware ELF (default: the one built in boards/qemu-mps2-an386).
+    /// Run the Raspberry Pi Pico firmware (boards/rp-pico) under the RP2040
+    /// emulator (rp2040js, Node): boot ROM, boot2, QSPI flash, and its USB
+    /// CDC-ACM port bridged to TCP (`cd boards/rp-pico/emulator && npm ci`).
+    #[arg(long)]
+    rp2040: bool,
+    /// Firmware ELF (default: the one built in boards/qemu-mps2-an386, or
+    /// boards/rp-pico with --rp2040).
     #[arg(long)]
     firmware: Option<PathBuf>,
-    /// Loopback TCP port for the board's UART (0: any free port).
+    /// Loopback TCP port for the board's UART or USB port (0: any free port).
     #[arg(long, default_value_t = 0)]
     port: u16,
-    /// Run without -icount shift=0 (faster, but no exact instruction counts).
+    /// Run without -icount shift=0 (faster, but no exact instruction counts; QEMU only).
     #[arg(long)]
     no_icount: bool,
     /// File holding the board's flash (its database log); created erased if
@@ -1003,6 +1009,9 @@ fn main() -> ExitCode {
             Ok(())
         }),
         Command::Export(a) => export(a),
+        Command::Device(a) if a.rp2040 => {
+            placedb_host::rp2040::device_cmd(a.firmware, a.port, a.flash).map_err(Into::into)
+        }
         Command::Device(a) => {
             device_cli::qemu_device_cmd(a.firmware, a.port, !a.no_icount, a.flash)
                 .map_err(Into::into)

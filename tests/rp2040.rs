@@ -1,0 +1,354 @@
+//! End to end on the real board's firmware: `boards/rp-pico` (RP2040,
+//! Cortex-M0+, profile ram256k, USB CDC-ACM) run instruction by instruction
+//! under rp2040js (`placedb_host::rp2040`, the Node harness in
+//! `boards/rp-pico/emulator`): boot ROM, boot2, the 2 MiB QSPI flash behind the
+//! ROM's flash functions, and a USB host bridging the CDC-ACM data endpoints
+//! to TCP. What the emulated Pico exports is byte-identical to the host replay
+//! of the core (`placedb select --solver online --profile ram256k`); killed
+//! mid-scan and restarted on the same flash file it restores every
+//! acknowledged decision and `stream --resume` completes the scan; 5 % drops
+//! and 5 % corruption over its USB link still give the clean export.
+//!
+//! Needs Node 20 and `cd boards/rp-pico/emulator && npm ci`; the firmware is
+//! built first (`cd boards/rp-pico && cargo build --release`, or set
+//! `PLACEDB_RP2040_FIRMWARE`). Prints the Cortex-M0+ cycles per frame and per
+//! valid pixel (rp2040js counts cycles; the firmware's timer is read at
+//! 125 cycles per microsecond); run with `--nocapture` to see them.
+
+use placedb::protocol::{DecisionKind, DeviceMessage, HostMessage, Phase, Status};
+use placedb::SelectorConfig;
+use placedb_host::device_cli::{self, ExportOptions, StreamOptions, StreamReport};
+use placedb_host::fault::{FaultConfig, FaultInjector};
+use placedb_host::link::{Client, Link, Received};
+use placedb_host::read::{self, ReadOptions};
+use placedb_host::rp2040::{self, Rp2040, Rp2040Options};
+use placedb_host::synth::{self, SynthConfig};
+use placedb_host::{online, output, Sequence, VoxelConfig};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+const PROFILE: &str = "ram256k";
+/// rp2040js runs clk_sys at 125 MHz (8 ns a cycle) and the firmware's clock
+/// is the RP2040 timer (1 MHz): cycles per timer tick.
+const CYCLES_PER_TICK: f64 = 125.0;
+const REPLY: Duration = Duration::from_secs(60);
+
+fn firmware() -> PathBuf {
+    rp2040::built_firmware().unwrap_or_else(|e| panic!("{e}"))
+}
+
+fn boot(flash: Option<&Path>, deadline: Duration) -> Rp2040 {
+    let options = Rp2040Options {
+        flash: flash.map(Path::to_path_buf),
+        deadline,
+        ..Rp2040Options::default()
+    };
+    Rp2040::start_with(&firmware(), &options).unwrap_or_else(|e| panic!("{e}"))
+}
+
+fn seven_scenes(frames: usize) -> Sequence {
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/7scenes-1000");
+    let mut seq = read::open(&data, &ReadOptions::default()).unwrap();
+    seq.frames.truncate(frames);
+    seq
+}
+
+fn demo(frames: usize) -> Sequence {
+    let mut seq = synth::sequence(&SynthConfig::demo());
+    seq.frames.truncate(frames);
+    seq
+}
+
+fn stride(stride: u16) -> VoxelConfig {
+    VoxelConfig {
+        stride,
+        ..VoxelConfig::default()
+    }
+}
+
+fn sel(window: u16) -> SelectorConfig {
+    SelectorConfig {
+        mu: 0.3,
+        window,
+        sketch_margin: 0.05,
+    }
+}
+
+/// database.csv and labels.csv of `placedb select --solver online --profile ram256k`.
+fn host_replay(seq: &Sequence, vcfg: &VoxelConfig, sel: SelectorConfig) -> (String, String) {
+    let scan = device_cli::scan_config(seq, vcfg).unwrap();
+    let run = online::replay(seq, PROFILE, scan, sel, 8, None).unwrap();
+    let timestamps: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
+    (
+        output::database_csv(&output::rows_from_records(&run.database)),
+        output::labels_csv(&timestamps, &run.labels),
+    )
+}
+
+fn export_csv<L: Link>(client: &mut Client<L>, opts: &ExportOptions) -> (String, String) {
+    device_cli::export(client, Vec::new(), opts, None, &mut |_| Ok(()))
+        .unwrap()
+        .csv()
+}
+
+fn stream<L: Link>(
+    client: &mut Client<L>,
+    seq: &Sequence,
+    vcfg: &VoxelConfig,
+    sel: SelectorConfig,
+    opts: &StreamOptions,
+) -> StreamReport {
+    let scan = device_cli::scan_config(seq, vcfg).unwrap();
+    let cfg = device_cli::device_config(&scan, &sel).unwrap();
+    device_cli::stream(client, seq, &cfg, PROFILE, opts, None)
+        .unwrap_or_else(|e| panic!("stream of {} failed: {e}", seq.name))
+}
+
+/// Cortex-M0+ cycles per frame and per valid pixel from a status.
+fn cycles(st: &Status) -> (f64, f64) {
+    let c = &st.cost;
+    assert_eq!(c.clock_hz, 1_000_000, "the Pico's clock is its 1 MHz timer");
+    let total = c.total as f64 * CYCLES_PER_TICK;
+    (
+        total / f64::from(c.frames.max(1)),
+        total / (st.valid_pixels.max(1) as f64),
+    )
+}
+
+/// Streams `seq`, exports, checks both files against the host replay.
+fn stream_and_compare(
+    client: &mut Client<Rp2040>,
+    seq: &Sequence,
+    vcfg: &VoxelConfig,
+    sel: SelectorConfig,
+) -> StreamReport {
+    let report = stream(client, seq, vcfg, sel, &StreamOptions::default());
+    assert_eq!(report.status.phase, Phase::Finished);
+    assert_eq!(report.status.frames_seen as usize, seq.frames.len());
+    assert!(report.decisions.iter().all(Option::is_some));
+    let (db, labels) = export_csv(client, &ExportOptions::default());
+    let (want_db, want_labels) = host_replay(seq, vcfg, sel);
+    assert_eq!(db, want_db, "database.csv differs on {}", seq.name);
+    assert_eq!(labels, want_labels, "labels.csv differs on {}", seq.name);
+    let (per_frame, per_pixel) = cycles(&report.status);
+    println!(
+        "{} at stride {}: {} frames -> {} database frames, identical to the host replay; \
+         {:.0} Cortex-M0+ cycles per frame, {:.0} per valid pixel ({} valid pixels); \
+         {:.1} frames/s of wall time through the emulator",
+        seq.name,
+        vcfg.stride,
+        report.frames,
+        report.status.database_size,
+        per_frame,
+        per_pixel,
+        report.status.valid_pixels,
+        report.fps(),
+    );
+    report
+}
+
+#[test]
+fn the_emulated_pico_matches_the_host_replay() {
+    let started = Instant::now();
+    let mut client = Client::new(boot(None, Duration::from_secs(600)));
+    let real = seven_scenes(1000);
+    stream_and_compare(&mut client, &real, &stride(8), sel(16));
+    let synthetic = demo(60);
+    stream_and_compare(&mut client, &synthetic, &stride(8), sel(16));
+    let board = client.into_link();
+    let console = board.stop();
+    assert!(
+        !console.contains("error:"),
+        "the harness reported an error: {console}"
+    );
+    if let Some(line) = console.lines().find(|l| l.starts_with("stats")) {
+        println!("emulator {line}");
+    }
+    println!("pico end to end: {:.1} s", started.elapsed().as_secs_f64());
+}
+
+/// The marginal cost of a valid pixel on the Cortex-M0+: the same frames at
+/// two strides; the difference in cycles over the difference in valid pixels
+/// (what a frame costs besides its pixels cancels out).
+fn marginal(
+    client: &mut Client<Rp2040>,
+    seq: &Sequence,
+    strides: [u16; 2],
+) -> [(f64, f64, f64); 2] {
+    let mut out = [(0.0, 0.0, 0.0); 2];
+    for (slot, s) in out.iter_mut().zip(strides) {
+        let report = stream(client, seq, &stride(s), sel(16), &StreamOptions::default());
+        let st = report.status;
+        let frames = f64::from(st.cost.frames.max(1));
+        *slot = (
+            st.cost.total as f64 * CYCLES_PER_TICK / frames,
+            st.valid_pixels as f64 / frames,
+            report.bytes_sent as f64 / frames,
+        );
+    }
+    out
+}
+
+#[test]
+fn cortex_m0_cycles_per_valid_pixel() {
+    let mut client = Client::new(boot(None, Duration::from_secs(600)));
+    for (name, seq) in [("7scenes-1000", seven_scenes(3)), ("synthetic", demo(6))] {
+        let [(c2, p2, b2), (c4, p4, b4)] = marginal(&mut client, &seq, [2, 4]);
+        let per_pixel = (c2 - c4) / (p2 - p4);
+        let fixed = c4 - per_pixel * p4;
+        println!(
+            "{name}: stride 2: {c2:.0} cycles/frame, {p2:.0} valid pixels, {b2:.0} bytes sent; \
+             stride 4: {c4:.0} cycles/frame, {p4:.0} valid pixels, {b4:.0} bytes sent; \
+             marginal {per_pixel:.1} cycles per valid pixel, {fixed:.0} cycles per frame besides"
+        );
+        assert!(per_pixel > 0.0 && c2 > c4);
+        // At 133 MHz, every pixel valid (the worst case), and what USB full
+        // speed carries: ~1.1 MB/s of bulk payload at best; the host sends
+        // 2 bytes per sampled pixel plus ~1 % framing.
+        for (w, h) in [(160, 120), (320, 240)] {
+            for s in [1, 2, 4] {
+                let px = (w / s * h / s) as f64;
+                let fps = 133e6 / (fixed + per_pixel * px);
+                let usb = 1.1e6 / (px * 2.0 * 1.01);
+                println!(
+                    "  {name} model: {w}x{h} stride {s}: {fps:.1} frames/s on the Pico at 133 MHz; \
+                     USB full speed carries {usb:.0} frames/s"
+                );
+            }
+        }
+    }
+}
+
+/// Power cut on the emulated Pico: the emulator is killed (SIGKILL) in the
+/// middle of a frame, with frames pending in the window, and started again
+/// on the same flash file. The firmware restores its scan from the flash log
+/// (written through the boot ROM's flash functions), every decision it had
+/// sent is still there, and the host resumes at the first undecided frame:
+/// the final export equals an uninterrupted run's.
+#[test]
+fn a_pico_killed_mid_scan_restores_from_flash_and_resumes() {
+    let dir = std::env::temp_dir().join(format!("placedb-rp2040-flash-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let flash = dir.join("pico.flash");
+    let _ = std::fs::remove_file(&flash);
+    let all = demo(40);
+    let (vcfg, sel) = (stride(8), sel(8));
+
+    // First power-on: 20 frames without Finish, then half of frame 20, then the cut.
+    let mut client = Client::new(boot(Some(&flash), Duration::from_secs(300)));
+    let first = demo(20);
+    let opts = StreamOptions {
+        finish: false,
+        ..StreamOptions::default()
+    };
+    let report = stream(&mut client, &first, &vcfg, sel, &opts);
+    let acknowledged: Vec<(u32, DecisionKind)> = report
+        .decisions
+        .iter()
+        .enumerate()
+        .filter_map(|(i, d)| d.map(|d| (i as u32, d)))
+        .collect();
+    assert!(report.status.frames_decided > 0 && report.status.frames_decided < 20);
+    assert!(report.status.stored_records > report.status.frames_decided);
+    let (seq, replies) = client
+        .request(
+            HostMessage::FrameBegin {
+                frame: 20,
+                timestamp: all.frames[20].timestamp,
+                pose: all.frames[20].pose().unwrap(),
+            },
+            REPLY,
+        )
+        .unwrap();
+    assert_eq!(replies, vec![Received::Message(DeviceMessage::Ack { seq })]);
+    client.into_link().power_cut();
+    let image = std::fs::read(&flash).unwrap();
+    assert_eq!(image.len(), 2 << 20, "the flash file is the Pico's 2 MiB");
+    assert!(
+        image[1 << 20..].iter().any(|&b| b != 0xFF),
+        "nothing was written to the log region (the second MiB)"
+    );
+
+    // Second power-on on the same flash.
+    let mut client = Client::new(boot(Some(&flash), Duration::from_secs(300)));
+    let st = device_cli::status(&mut client, REPLY).unwrap();
+    assert_eq!(st.phase, Phase::Ready);
+    assert_eq!(st.frames_seen, report.status.frames_decided);
+    assert_ne!(st.degradation & placedb::protocol::degradation::RESTORED, 0);
+    let (_, labels_before) = export_csv(&mut client, &ExportOptions::default());
+    for &(frame, kind) in &acknowledged {
+        let class = kind.class(frame).unwrap();
+        let label = labels_before.lines().nth(frame as usize + 1).unwrap();
+        assert!(
+            label.ends_with(&format!(",{class}")),
+            "frame {frame} ({kind:?}) came back as {label}"
+        );
+    }
+    let resume = StreamOptions {
+        resume: true,
+        ..StreamOptions::default()
+    };
+    let report2 = stream(&mut client, &all, &vcfg, sel, &resume);
+    assert_eq!(report2.frames, 40 - st.frames_seen as usize);
+    assert_eq!(report2.status.phase, Phase::Finished);
+    let (db, labels) = export_csv(&mut client, &ExportOptions::default());
+    let (want_db, want_labels) = host_replay(&all, &vcfg, sel);
+    assert_eq!(db, want_db);
+    assert_eq!(labels, want_labels);
+    let console = client.into_link().stop();
+    println!(
+        "pico power cut in frame 20 of 40: {} decisions acknowledged before the cut, all restored \
+         ({} log records); resumed at frame {}; final export identical to an uninterrupted run",
+        acknowledged.len(),
+        st.stored_records,
+        st.frames_seen,
+    );
+    if let Some(line) = console.lines().find(|l| l.starts_with("stats")) {
+        println!("emulator after the restart: {line}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn the_emulated_pico_recovers_from_5_percent_faults_over_usb() {
+    let started = Instant::now();
+    let seq = demo(30);
+    let (vcfg, sel) = (stride(8), sel(8));
+    let want = host_replay(&seq, &vcfg, sel);
+    let board = boot(None, Duration::from_secs(300));
+    let mut client = Client::new(FaultInjector::new(board, FaultConfig::new(0.05, 0.05, 5)));
+    let resend_after = Duration::from_millis(250);
+    let opts = StreamOptions {
+        retries: 40,
+        resend_after,
+        ..StreamOptions::default()
+    };
+    let report = stream(&mut client, &seq, &vcfg, sel, &opts);
+    assert_eq!(report.status.frames_seen as usize, seq.frames.len());
+    let export = ExportOptions {
+        batch: 8,
+        retries: 40,
+        reply_timeout: resend_after,
+    };
+    let csv = export_csv(&mut client, &export);
+    let stats = client.link().stats();
+    assert!(stats.sent_dropped > 0 && stats.sent_corrupted > 0);
+    assert!(stats.received_dropped > 0 && stats.received_corrupted > 0);
+    assert!(report.retransmissions > 0);
+    assert_eq!(csv.0, want.0, "database.csv differs");
+    assert_eq!(csv.1, want.1, "labels.csv differs");
+    println!(
+        "pico, 5 % drops + 5 % corruption each way over USB, {} frames: identical to the clean \
+         replay; host->device {}/{} dropped, {} corrupted; device->host {}/{} dropped, {} corrupted; \
+         {} retransmissions; {:.1} s",
+        seq.frames.len(),
+        stats.sent_dropped,
+        stats.sent,
+        stats.sent_corrupted,
+        stats.received_dropped,
+        stats.received,
+        stats.received_corrupted,
+        report.retransmissions,
+        started.elapsed().as_secs_f64()
+    );
+}
