@@ -58,10 +58,11 @@ const FLASH_SECTORS: usize = 32;
 const STRIDE: u16 = 4;
 /// Frames of the demo sequence between two frames of this scan.
 const SPACING: usize = 12;
-/// Frames streamed before the "between frames" cases.
-const BEFORE: u32 = 5;
+/// Frames streamed before the "between frames" cases: enough that a batch
+/// of decisions (16) is in the log, so there are labels to protect.
+const BEFORE: u32 = 20;
 /// Frames of the scan in all.
-const FRAMES: u32 = 8;
+const FRAMES: u32 = 23;
 
 // ---------------------------------------------------------------------------
 // The scan.

@@ -339,11 +339,13 @@ pub fn status_line(st: &Status) -> String {
         format!("{}/{}", c.used, c.limit)
     };
     let mut s = format!(
-        "db {} pool {} win {} labels {}",
+        "db {} pool {} win {} labels {} flash {}/{} KiB",
         c(CapacitySlot::Database),
         c(CapacitySlot::Pool),
         c(CapacitySlot::Window),
-        c(CapacitySlot::Labels)
+        c(CapacitySlot::Labels),
+        st.capacity(CapacitySlot::Flash).used / 1024,
+        st.capacity(CapacitySlot::Flash).limit / 1024,
     );
     if st.cost.clock_hz > 0 && st.cost.frames > 0 {
         s += &format!(
@@ -715,6 +717,9 @@ impl Export {
             "pool_peak_words": st.capacity(CapacitySlot::Pool).peak,
             "frame_voxels_peak": st.capacity(CapacitySlot::FrameVoxels).peak,
             "export_records": self.records.len(),
+            "resident_peak": st.capacity(CapacitySlot::Resident).peak,
+            "flash_bytes_used": st.capacity(CapacitySlot::Flash).used,
+            "flash_bytes_limit": st.capacity(CapacitySlot::Flash).limit,
         });
         if st.cost.clock_hz > 0 && st.cost.frames > 0 {
             m["device_ticks_per_frame"] = (st.cost.total as f64 / f64::from(st.cost.frames)).into();

@@ -3,6 +3,7 @@
 //! the `placedb` command line built on them.
 
 pub mod dataset;
+pub mod dbscale;
 pub mod device_cli;
 pub mod error;
 pub mod fault;

@@ -3,10 +3,10 @@
 //! write synthetic sequences, print the device budgets.
 
 use clap::{Args, Parser, Subcommand};
-use placedb_host::{dataset, device_cli};
 use placedb_host::pipeline::{self, Outcome, Prepared, Solver, SolverParams};
 use placedb_host::read::{self, ReadOptions};
 use placedb_host::synth::{self, SynthConfig};
+use placedb_host::{dataset, device_cli};
 use placedb_host::{output, plot, CameraModel, Format, GridOrigin, Sequence, VoxelConfig};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -800,6 +800,17 @@ struct BenchArgs {
     /// With --core: frames of 7scenes-1000 to replay.
     #[arg(long, default_value_t = 20)]
     core_frames: usize,
+    /// Instead: count with callgrind the instructions of one frame decided
+    /// against a database of 10 frames and of ~900 (a synthetic building at
+    /// mu 0.5 on the ram256k device, its database restored from flash).
+    #[arg(long)]
+    db_scaling: bool,
+    /// With --db-scaling: frames of the building (40 rooms).
+    #[arg(long, default_value_t = 20_000)]
+    building_frames: usize,
+    /// Internal (the callgrind child of --db-scaling): flash image and probe.
+    #[arg(long, num_args = 2, hide = true)]
+    db_probe: Option<Vec<PathBuf>>,
 }
 
 /// The paper's reference code on this machine, 7scenes-1000 at stride 1
@@ -809,6 +820,12 @@ const PAPER_7SCENES: (f64, f64) = (51.0, 400.0);
 fn bench(a: BenchArgs) -> Result<(), Error> {
     if a.core {
         return core_cost(&a);
+    }
+    if let Some([flash, probe]) = a.db_probe.as_deref() {
+        return Ok(placedb_host::dbscale::run_probe(flash, probe)?);
+    }
+    if a.db_scaling {
+        return db_scaling(&a);
     }
     let exe = std::env::current_exe()?;
     let out = std::env::temp_dir().join(format!("placedb-bench-{}", std::process::id()));
@@ -974,6 +991,58 @@ fn core_cost(a: &BenchArgs) -> Result<(), Error> {
     println!(
         "end frame = sort the frame's voxels, sketch, overlaps with database and window, select"
     );
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(())
+}
+
+/// `bench --db-scaling`: the same frame against a small and a large
+/// database, instructions counted by callgrind (see `placedb_host::dbscale`).
+fn db_scaling(a: &BenchArgs) -> Result<(), Error> {
+    let exe = std::env::current_exe()?;
+    let dir = std::env::temp_dir().join(format!("placedb-dbscale-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let rooms = (a.building_frames / 500).max(2);
+    let (small, big) = placedb_host::dbscale::prepare(&dir, a.building_frames, rooms, 0.5)?;
+    let mut counts = Vec::new();
+    for image in ["small.flash", "big.flash"] {
+        let child = std::process::Command::new("valgrind")
+            .args(["--tool=callgrind", "--collect-atstart=no"])
+            .arg("--toggle-collect=*probe_step*")
+            .arg(format!(
+                "--callgrind-out-file={}",
+                dir.join("callgrind.out").display()
+            ))
+            .arg(&exe)
+            .args(["bench", "--db-probe"])
+            .arg(dir.join(image))
+            .arg(dir.join("probe.bin"))
+            .output()
+            .map_err(|e| format!("cannot run valgrind ({e}); install it to count instructions"))?;
+        if !child.status.success() {
+            return Err(format!(
+                "callgrind run failed: {}",
+                String::from_utf8_lossy(&child.stderr)
+            )
+            .into());
+        }
+        let stderr = String::from_utf8_lossy(&child.stderr);
+        let n = stderr
+            .lines()
+            .find_map(|l| l.split_once("Collected :"))
+            .and_then(|(_, n)| n.trim().replace(',', "").parse::<f64>().ok())
+            .ok_or("no instruction count in callgrind's output")?;
+        counts.push((n, String::from_utf8_lossy(&child.stdout).trim().to_string()));
+    }
+    println!(
+        "one frame (160x120, stride 1) of a {}-frame building, through the ram256k device \
+         (protocol, voxelize, overlaps read back from flash, selection, log writes); \
+         callgrind, x86-64:",
+        a.building_frames
+    );
+    for ((n, what), db) in counts.iter().zip([small, big]) {
+        println!("  against {db:>4} database frames: {n:>12.0} instructions  ({what})");
+    }
+    println!("  ratio: {:.2}", counts[1].0 / counts[0].0);
     let _ = std::fs::remove_dir_all(&dir);
     Ok(())
 }

@@ -274,6 +274,7 @@ impl<
                     // The delimiter counts: the buffer holds frame_len + 1 bytes.
                     core.note_rx(self.decoder.frame_len().saturating_add(1));
                     let t0 = now(core.clock);
+                    core.flash = journal.usage();
                     let frame = self.decoder.decode::<HostFrame>();
                     core.handle(frame, t0, journal, send);
                     core.flash = journal.usage();

@@ -1,0 +1,155 @@
+//! Paper-scale buildings on the smallest board: synthetic buildings streamed
+//! through the device state machine with its flash log (`local:PROFILE`: the
+//! core's device on a simulated 1 MiB NOR flash, the boards' log region), at
+//! stride 1, then exported, against the offline yardstick on the same frames.
+//!
+//! What must hold on every profile, at every mu: no frame left to capacity
+//! (`uncovered_by_capacity` 0, no `DATABASE_FULL`), every label exported,
+//! no frame uncovered by the exact overlap graph, and a database no larger
+//! than the paper's `in-order` and at most 1.15 × `greedy`.
+
+use placedb::protocol::{degradation, CapacitySlot, RecordKind, Status};
+use placedb::SelectorConfig;
+use placedb_host::device_cli::{self, ExportOptions, StreamOptions};
+use placedb_host::link::{Client, LocalLink};
+use placedb_host::metrics;
+use placedb_host::pipeline::{self, Prepared, Solver, SolverParams};
+use placedb_host::synth::{self, SynthConfig};
+use placedb_host::{Sequence, VoxelConfig};
+
+fn building(frames: usize, rooms: usize, seed: u64) -> Sequence {
+    synth::sequence(&SynthConfig {
+        frames,
+        width: 160,
+        height: 120,
+        seed,
+        rooms,
+    })
+}
+
+/// What the device ended with.
+struct DeviceRun {
+    status: Status,
+    database: Vec<usize>,
+    labels: usize,
+}
+
+/// Streams `seq` to an in-process device of `profile` (window: the profile's)
+/// and exports it.
+fn device_run(seq: &Sequence, profile: &str, mu: f32) -> DeviceRun {
+    let scan = device_cli::scan_config(seq, &VoxelConfig::default()).expect("scan config");
+    let window = placedb::profile::by_name(profile).expect("profile").window as u16;
+    let sel = SelectorConfig {
+        mu,
+        window,
+        sketch_margin: SolverParams::default().sketch_margin,
+    };
+    let cfg = device_cli::device_config(&scan, &sel).expect("device config");
+    let mut client = Client::new(LocalLink::start(profile).expect("local device"));
+    let report = device_cli::stream(
+        &mut client,
+        seq,
+        &cfg,
+        profile,
+        &StreamOptions::default(),
+        None,
+    )
+    .expect("streams");
+    let export = device_cli::export(
+        &mut client,
+        Vec::new(),
+        &ExportOptions::default(),
+        None,
+        &mut |_| Ok(()),
+    )
+    .expect("exports");
+    let database = export
+        .records
+        .iter()
+        .filter(|r| matches!(r.kind, RecordKind::Database { .. }))
+        .map(|r| r.frame as usize)
+        .collect();
+    let labels = export
+        .records
+        .iter()
+        .filter(|r| matches!(r.kind, RecordKind::Label { .. }))
+        .count();
+    DeviceRun {
+        status: report.status,
+        database,
+        labels,
+    }
+}
+
+fn size(seq: &Sequence, prep: &Prepared, solver: Solver, mu: f32) -> usize {
+    let params = SolverParams::default();
+    let o = pipeline::solve(seq, prep, solver, mu, &params, true).expect("solves");
+    assert_eq!(o.metrics.uncovered, 0, "{solver:?} covers every frame");
+    o.database.len()
+}
+
+/// Streams `seq` on each profile at each mu and checks the targets; prints
+/// the device's row of the paper's Table 1.
+fn check_building(name: &str, seq: &Sequence, profiles: &[&str], mus: &[f32]) {
+    let prep = pipeline::prepare(seq, VoxelConfig::default(), true).expect("voxelizes");
+    let (sets, co) = prep.eval();
+    let n = seq.frames.len();
+    for &mu in mus {
+        let in_order = size(seq, &prep, Solver::InOrder, mu);
+        let greedy = size(seq, &prep, Solver::Greedy, mu);
+        for &profile in profiles {
+            let run = device_run(seq, profile, mu);
+            let st = &run.status;
+            let uncovered = metrics::evaluate(sets, co, &run.database, mu).uncovered;
+            let flash = st.capacity(CapacitySlot::Flash);
+            println!(
+                "{name} ({n} frames) mu {mu}: in-order {in_order}, greedy {greedy}, \
+                 {profile} {} (uncovered {uncovered}, by capacity {}, labels {}, \
+                 flash {} of {} KiB)",
+                run.database.len(),
+                st.uncovered_frames,
+                run.labels,
+                flash.used / 1024,
+                flash.limit / 1024
+            );
+            let what = format!("{name} mu {mu} on {profile}");
+            assert_eq!(st.frames_decided as usize, n, "{what}: every frame decided");
+            assert_eq!(st.uncovered_frames, 0, "{what}: frames left to capacity");
+            assert_eq!(st.degradation & degradation::DATABASE_FULL, 0, "{what}");
+            assert_eq!(st.labels_dropped, 0, "{what}: labels dropped");
+            assert_eq!(run.labels, n, "{what}: every label exported");
+            assert_eq!(uncovered, 0, "{what}: frames uncovered by the exact graph");
+            assert!(
+                run.database.len() <= in_order,
+                "{what}: larger than in-order"
+            );
+            assert!(
+                run.database.len() as f64 <= 1.15 * greedy as f64,
+                "{what}: {} > 1.15 x greedy {greedy}",
+                run.database.len()
+            );
+        }
+    }
+}
+
+#[test]
+fn the_paper_scale_building_fits_every_profile() {
+    // The 20,000-frame, 40-room building of the issue (`placedb synth big
+    // --frames 20000 --rooms 40 --width 160 --height 120`).
+    let seq = building(20_000, 40, 1);
+    check_building(
+        "building",
+        &seq,
+        &["ram256k", "ram512k", "ram1m"],
+        &[0.1, 0.3, 0.5],
+    );
+}
+
+#[test]
+fn other_buildings_fit_the_pico_profile() {
+    for (frames, rooms, seed) in [(6_000, 12, 2), (12_000, 28, 3)] {
+        let seq = building(frames, rooms, seed);
+        let name = format!("building seed {seed}, {rooms} rooms");
+        check_building(&name, &seq, &["ram256k"], &[0.1, 0.5]);
+    }
+}
