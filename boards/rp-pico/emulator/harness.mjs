@@ -638,14 +638,16 @@ function feedOut() {
 
 let client = null;
 const server = net.createServer({ noDelay: true }, (socket) => {
-  if (client && !client.destroyed) {
-    socket.destroy(); // one host at a time
-    return;
-  }
+  // One host at a time; a new connection takes over, like a serial port
+  // opened again (what the previous one left unread is dropped).
+  if (client && !client.destroyed) client.destroy();
+  host.rx = [];
+  host.rxBytes = 0;
   client = socket;
   socket.setNoDelay(true);
   log('client connected');
   socket.on('data', (data) => {
+    if (client !== socket) return;
     host.rx.push(data);
     host.rxBytes += data.length;
     if (host.rxBytes >= 256 * 1024) socket.pause();
@@ -656,7 +658,8 @@ const server = net.createServer({ noDelay: true }, (socket) => {
   socket.on('error', () => {});
   socket.on('close', () => {
     log('client closed');
-    if (client === socket) client = null;
+    if (client !== socket) return;
+    client = null;
     // Bytes not yet taken by the firmware are lost with the connection, as
     // unread data of a closed serial port is.
     host.rx = [];
@@ -751,6 +754,12 @@ function finish(code = 0) {
   process.exit(code);
 }
 
+// Whoever started the harness (a test, `placedb device --rp2040`) owns it:
+// when that process dies, so does the emulator (no orphan keeps the port).
+const parent = process.ppid;
+setInterval(() => {
+  if (process.ppid !== parent) finish(0);
+}, 500).unref();
 process.on('SIGTERM', () => finish(0));
 process.on('SIGINT', () => finish(0));
 setImmediate(run);
