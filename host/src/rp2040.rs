@@ -198,13 +198,7 @@ impl Rp2040 {
             thread::sleep(Duration::from_millis(10));
         }
         let link = TcpLink::connect(("127.0.0.1", port), Duration::from_secs(5))?;
-        let (child, console, threads) = board.into_parts()?;
-        Ok(Rp2040 {
-            link,
-            child,
-            console,
-            threads,
-        })
+        board.into_board(link)
     }
 
     /// Everything the harness printed so far.
@@ -306,14 +300,15 @@ impl Booting {
         Ok(())
     }
 
-    /// The running harness, handed over.
-    fn into_parts(mut self) -> io::Result<(Child, Arc<Mutex<String>>, Vec<JoinHandle<()>>)> {
+    /// The running harness, with its link: the board.
+    fn into_board(mut self, link: TcpLink) -> io::Result<Rp2040> {
         let child = self.child.take().ok_or(io::ErrorKind::BrokenPipe)?;
-        Ok((
+        Ok(Rp2040 {
+            link,
             child,
-            Arc::clone(&self.console),
-            std::mem::take(&mut self.threads),
-        ))
+            console: Arc::clone(&self.console),
+            threads: std::mem::take(&mut self.threads),
+        })
     }
 }
 
