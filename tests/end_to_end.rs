@@ -378,7 +378,7 @@ fn a_board_killed_mid_scan_restores_from_flash_and_resumes() {
         (Client::new(qemu), console)
     };
     let mut demo = synth::sequence(&SynthConfig::demo());
-    demo.frames.truncate(24);
+    demo.frames.truncate(48);
     let vcfg = VoxelConfig {
         stride: 8,
         ..VoxelConfig::default()
@@ -391,11 +391,13 @@ fn a_board_killed_mid_scan_restores_from_flash_and_resumes() {
     let scan = device_cli::scan_config(&demo, &vcfg).unwrap();
     let cfg = device_cli::device_config(&scan, &sel).unwrap();
 
-    // First power-on: 12 frames, no Finish, then half of frame 12, then the cut.
+    // First power-on: 30 frames, no Finish, then half of frame 30, then the
+    // cut. (Decisions are durable, and sent, in batches of 16: 30 frames
+    // with a window of 8 make one.)
     let (mut client, console) = boot_on_flash();
     assert!(console.contains("restored 0 records"), "{console}");
     let mut first = synth::sequence(&SynthConfig::demo());
-    first.frames.truncate(12);
+    first.frames.truncate(30);
     let opts = StreamOptions {
         finish: false,
         ..StreamOptions::default()
@@ -407,14 +409,23 @@ fn a_board_killed_mid_scan_restores_from_flash_and_resumes() {
         .enumerate()
         .filter_map(|(i, d)| d.map(|d| (i as u32, d)))
         .collect();
-    assert!(report.status.frames_decided > 0 && report.status.frames_decided < 12);
-    assert!(report.status.stored_records > report.status.frames_decided);
+    let durable = report
+        .status
+        .capacity(placedb::protocol::CapacitySlot::Labels)
+        .used;
+    assert!(report.status.frames_decided > 0 && report.status.frames_decided < 30);
+    assert!(durable >= 16 && durable <= report.status.frames_decided);
+    assert_eq!(
+        acknowledged.len() as u32,
+        durable,
+        "decisions go out once durable"
+    );
     let (seq, replies) = client
         .request(
             HostMessage::FrameBegin {
-                frame: 12,
-                timestamp: demo.frames[12].timestamp,
-                pose: demo.frames[12].pose().unwrap(),
+                frame: 30,
+                timestamp: demo.frames[30].timestamp,
+                pose: demo.frames[30].pose().unwrap(),
             },
             REPLY,
         )
@@ -426,8 +437,8 @@ fn a_board_killed_mid_scan_restores_from_flash_and_resumes() {
     let (mut client, console) = boot_on_flash();
     let st = device_cli::status(&mut client, REPLY).unwrap();
     assert_eq!(st.phase, Phase::Ready, "{console}");
-    assert_eq!(st.frames_seen, report.status.frames_decided);
-    assert_eq!(st.frames_decided, report.status.frames_decided);
+    assert_eq!(st.frames_seen, durable);
+    assert_eq!(st.frames_decided, durable);
     assert_ne!(st.degradation & placedb::protocol::degradation::RESTORED, 0);
     let restored = export_all(&mut client);
     let (_, labels_before) = restored.csv();
@@ -444,7 +455,7 @@ fn a_board_killed_mid_scan_restores_from_flash_and_resumes() {
         ..StreamOptions::default()
     };
     let report2 = device_cli::stream(&mut client, &demo, &cfg, PROFILE, &resume, None).unwrap();
-    assert_eq!(report2.frames, 24 - st.frames_seen as usize);
+    assert_eq!(report2.frames, 48 - st.frames_seen as usize);
     assert_eq!(report2.status.phase, Phase::Finished);
     let export = export_all(&mut client);
     let (db_csv, labels_csv) = export.csv();
@@ -452,7 +463,7 @@ fn a_board_killed_mid_scan_restores_from_flash_and_resumes() {
     assert_eq!(db_csv, want_db);
     assert_eq!(labels_csv, want_labels);
     println!(
-        "power cut in frame 12 of 24: {} decisions acknowledged before the cut, all restored \
+        "power cut in frame 30 of 48: {} decisions acknowledged before the cut, all restored \
          ({} log records); resumed at frame {}; final export identical to an uninterrupted run \
          ({} database frames)",
         acknowledged.len(),

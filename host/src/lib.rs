@@ -23,7 +23,5 @@ pub mod synth;
 pub mod voxelize;
 
 pub use error::ReadError;
-pub use sequence::{
-    CameraModel, ColorImage, DepthImage, DepthSource, Format, FrameInfo, Sequence,
-};
+pub use sequence::{CameraModel, ColorImage, DepthImage, DepthSource, Format, FrameInfo, Sequence};
 pub use voxelize::{voxelize, voxelize_on, GridOrigin, VoxelConfig, VoxelSets};

@@ -23,6 +23,10 @@ use super::reply::Out;
 /// checked at compile time by the device), or a batch of decisions.
 pub(super) const MAX_RECORD_LEN: usize = 768;
 
+/// A key chunk and its record fields (tag, frame, count: at most 9 bytes)
+/// fit the record buffer.
+const _: () = assert!(keys::KEY_CHUNK_BYTES + 9 <= MAX_RECORD_LEN);
+
 /// Bound on the encoded length of a decisions record.
 pub(super) const DECISIONS_RECORD_LEN: usize = 12 + DECISION_BATCH * DECISION_LEN;
 

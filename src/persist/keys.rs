@@ -13,8 +13,9 @@
 /// without its keys (compared by sketch).
 pub const MAX_KEY_CHUNKS: usize = 8;
 
-/// Bytes of encoded keys in one chunk (one log record).
-pub const KEY_CHUNK_BYTES: usize = 960;
+/// Bytes of encoded keys in one chunk (one log record: with its record
+/// header it must fit the device's 768-byte record buffer, checked there).
+pub const KEY_CHUNK_BYTES: usize = 736;
 
 /// Bytes of the LEB128 encoding of `v`.
 fn varint_len(v: u32) -> usize {

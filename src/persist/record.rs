@@ -131,12 +131,12 @@ impl Record {
     /// Encodes a [`Record::Keys`] chunk of frame `frame`: `count` keys
     /// whose encoding `fill` writes into the buffer it is given, returning
     /// the bytes written (`None`: it does not fit).
-    pub fn encode_keys<'b>(
+    pub fn encode_keys(
         frame: u32,
         count: u16,
         fill: impl FnOnce(&mut [u8]) -> Option<usize>,
-        buf: &'b mut [u8],
-    ) -> Result<&'b [u8], RecordError> {
+        buf: &mut [u8],
+    ) -> Result<&[u8], RecordError> {
         let record = Record::Keys { frame, count };
         let used = postcard::to_slice(&record, buf)
             .map_err(|_| RecordError::TooLarge)?

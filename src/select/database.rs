@@ -14,6 +14,7 @@
 //! order without sorting, and a frame is found by binary search.
 
 use crate::store::Aabb;
+use crate::voxel::VoxelKey;
 
 use super::DbSnapshot;
 
@@ -86,6 +87,28 @@ impl CoarseBox {
         }
     }
 
+    /// How many of `keys` (ascending packed voxel keys) lie in the box: at
+    /// least as many as a set with this box shares with them, so with the
+    /// set sizes a bound on the IoU (clamping only loosens it).
+    pub fn count_in(&self, keys: &[u64]) -> u32 {
+        let [x0, y0, z0] = self.min.map(i32::from);
+        let [x1, y1, z1] = self.max.map(i32::from);
+        // Packed keys order by x first: the keys with x in range are one run.
+        let lo = VoxelKey::new(x0, VoxelKey::MIN, VoxelKey::MIN).to_bits();
+        let hi = VoxelKey::new(x1, VoxelKey::MAX, VoxelKey::MAX).to_bits();
+        let start = keys.partition_point(|&k| k < lo);
+        let end = keys.partition_point(|&k| k <= hi);
+        let run = keys.get(start..end.max(start)).unwrap_or(&[]);
+        let inside = |k: &&u64| {
+            VoxelKey::from_bits(**k).is_some_and(|key| {
+                let (_, y, z) = key.coords();
+                let (y, z) = (i32::from(Self::clamp(y)), i32::from(Self::clamp(z)));
+                (y0..=y1).contains(&y) && (z0..=z1).contains(&z)
+            })
+        };
+        run.iter().filter(inside).count() as u32
+    }
+
     /// Whether the box may share a voxel with `aabb`.
     pub fn touches(&self, aabb: &Aabb) -> bool {
         let other = CoarseBox::of(aabb);
@@ -106,10 +129,11 @@ pub struct DbEntry {
     pub index: u32,
     /// Where the store keeps it; [`NOWHERE`] while only RAM has it.
     pub at: u32,
-    /// Its box (meaningless when `empty`).
+    /// Its box (meaningless when `len` is 0).
     pub bbox: CoarseBox,
-    /// Its voxel set is empty: it overlaps nothing.
-    pub empty: bool,
+    /// Voxels in its set, saturated at `u16::MAX` (0: empty, overlaps
+    /// nothing); with the box, a bound on its IoU with a new frame.
+    pub len: u16,
     /// It is held whole in RAM (the selector's resident set).
     pub resident: bool,
     /// The store kept its exact keys: it is compared exactly from there.
@@ -192,7 +216,11 @@ pub fn entry_of<const K: usize>(frame: &DbSnapshot<K>, at: u32) -> DbEntry {
         index: frame.meta.index,
         at,
         bbox: frame.aabb.as_ref().map_or(empty, CoarseBox::of),
-        empty: frame.aabb.is_none(),
+        len: if frame.aabb.is_some() {
+            u16::try_from(frame.voxels).unwrap_or(u16::MAX).max(1)
+        } else {
+            0
+        },
         resident: false,
         keyed: false,
     }

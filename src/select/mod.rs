@@ -413,8 +413,15 @@ fn overlaps<const POOL: usize, const DB: usize, const W: usize, const K: usize>(
     // frame of a frame that overlaps nothing.
     let mut unreadable = 0u32;
     for e in db.index.entries() {
-        let near = !e.empty && new.aabb.as_ref().is_some_and(|a| e.bbox.touches(a));
+        let near = e.len > 0 && new.aabb.as_ref().is_some_and(|a| e.bbox.touches(a));
         if e.resident || !near {
+            continue;
+        }
+        // Reading a stored frame back costs more than bounding its IoU from
+        // what RAM knows: it shares at most the new frame's voxels inside its
+        // box. A frame that provably cannot overlap is left where it is.
+        let bound = iou(new.len, u32::from(e.len), e.bbox.count_in(keys));
+        if bound <= mu {
             continue;
         }
         if e.keyed {
