@@ -8,7 +8,6 @@ use crate::protocol::{encode, DepthRows, Feed, PROTOCOL_VERSION};
 use crate::protocol::{
     DecisionKind, DeviceMessage, ErrorKind, ExportRecord, HostMessage, RecordKind,
 };
-use crate::select::NoStore;
 use crate::select::SelectorConfig;
 use crate::{ScanConfig, VoxelGrid};
 use proptest::prelude::*;
@@ -287,6 +286,18 @@ fn reference<const FV: usize, const P: usize, const DB: usize, const WN: usize, 
     let mut sel = std::boxed::Box::new(Selector::<FV, P, DB, WN, K>::new());
     sel.configure(cfg.scan_config(), cfg.selector_config())
         .unwrap();
+    // The database in a log, exact keys included, as the device keeps it.
+    let flash = SimFlash::new(BENCH_SECTORS);
+    let mut log = Log::open(flash, 0, (BENCH_SECTORS * SimFlash::SECTOR) as u32).unwrap();
+    log.start(&[0]).unwrap();
+    let (mut record, mut failed, mut stored) = ([0u8; durable::MAX_RECORD_LEN], false, 0);
+    let mut store = durable::LogStore {
+        journal: &mut log,
+        record: &mut record,
+        failed: &mut failed,
+        stored: &mut stored,
+        reserve: 0,
+    };
     let mut got = Vec::new();
     let mut emit = |d: FrameDecision| got.push((d.index, DecisionKind::from(d.decision)));
     for i in 0..frames {
@@ -297,11 +308,11 @@ fn reference<const FV: usize, const P: usize, const DB: usize, const WN: usize, 
         })
         .unwrap();
         sel.push_rows(0, &frame_rows(i)).unwrap();
-        sel.end_frame(&mut emit).unwrap();
+        sel.end_frame_with(&mut store, &mut emit).unwrap();
     }
-    sel.finish(&mut emit).unwrap();
+    sel.finish_with(&mut store, &mut emit).unwrap();
     let mut db: Vec<_> = (0..sel.database_len())
-        .map(|i| sel.database_record(i, &mut NoStore).unwrap())
+        .map(|i| sel.database_record(i, &mut store).unwrap())
         .collect();
     db.sort_by_key(|r| r.index);
     let mut records: Vec<ExportRecord> = db
