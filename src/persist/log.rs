@@ -122,8 +122,9 @@ struct Live {
 /// ([`Log::next`]); [`Cursor::START`] is its first record.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Cursor {
-    /// Sectors entered, head included.
-    sectors: u32,
+    /// Sector, counted from the generation's head. (All fields start at 0:
+    /// a device holding a cursor stays all zero bytes when new, in `.bss`.)
+    sector: u32,
     /// Offset of the next record in the last of them.
     offset: u32,
     /// Records read; the next one's sequence number.
@@ -133,7 +134,7 @@ pub struct Cursor {
 impl Cursor {
     /// The first record of the live generation.
     pub const START: Cursor = Cursor {
-        sectors: 1,
+        sector: 0,
         offset: 0,
         records: 0,
     };
@@ -436,14 +437,14 @@ impl<F: NorFlash> Log<F> {
             return Ok(None);
         };
         let sector_len = self.sector_len();
-        while cursor.records < live.records && cursor.sectors <= live.sectors {
-            let sector = live.head + cursor.sectors - 1;
+        while cursor.records < live.records && cursor.sector < live.sectors {
+            let sector = live.head + cursor.sector;
             let found = self
                 .read_record(sector, cursor.offset)?
                 .filter(|h| h.generation == live.generation && h.seq == cursor.records);
             let Some(h) = found else {
                 // The rest of this sector is not the generation's: on to the next.
-                cursor.sectors += 1;
+                cursor.sector += 1;
                 cursor.offset = 0;
                 continue;
             };
@@ -451,7 +452,7 @@ impl<F: NorFlash> Log<F> {
             cursor.records += 1;
             cursor.offset += align_up(HEADER_LEN + h.len, self.align) as u32;
             if cursor.offset >= sector_len {
-                cursor.sectors += 1;
+                cursor.sector += 1;
                 cursor.offset = 0;
             }
             let payload = self.buf.get(HEADER_LEN..HEADER_LEN + h.len);
