@@ -61,7 +61,7 @@ macro_rules! profiles {
 
 profiles! {
     /// Boards with 256 KiB of RAM (e.g. RP2040).
-    Ram256K, Device256K = "ram256k", 256 * 1024, [4096, 16384, 2048, 16, 64, 64];
+    Ram256K, Device256K = "ram256k", 256 * 1024, [4096, 24576, 2048, 32, 64, 64];
     /// Boards with 512 KiB of RAM (e.g. RP2350, STM32F7).
     Ram512K, Device512K = "ram512k", 512 * 1024, [4096, 65536, 4096, 32, 32, 128];
     /// Boards with 1 MiB of RAM (e.g. Teensy 4.1, STM32H7).
