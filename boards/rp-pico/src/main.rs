@@ -24,8 +24,6 @@ use placedb::device::Device256K;
 use placedb::persist::Log;
 use rp2040_hal::{self as hal, pac, usb::UsbBus};
 use usb_device::class_prelude::UsbBusAllocator;
-use usb_device::device::{StringDescriptors, UsbDeviceBuilder, UsbVidPid};
-use usbd_serial::{SerialPort, USB_CLASS_CDC};
 
 /// Second-stage bootloader for the Pico's W25Q16 flash (W25Q080 image): the
 /// first 256 bytes of flash (memory.x), loaded and checked by the boot ROM.
@@ -40,8 +38,6 @@ pub static BOOT2: [u8; 256] = rp2040_boot2::BOOT_LOADER_W25Q080;
 const XTAL_FREQ_HZ: u32 = 12_000_000;
 /// The RP2040 timer counts microseconds.
 const TIMER_HZ: u32 = 1_000_000;
-/// Shared VID/PID for CDC-ACM test devices (not for products).
-const USB_VID_PID: UsbVidPid = UsbVidPid(0x16c0, 0x27dd);
 /// Bytes read from USB per turn: one full-speed bulk packet.
 const RX_CHUNK: usize = 64;
 
@@ -108,27 +104,15 @@ fn main() -> ! {
         true,
         &mut pac.RESETS,
     ));
-    let serial = SerialPort::new(&bus);
-    let strings = StringDescriptors::default()
-        .manufacturer("placedb")
-        .product("placedb device")
-        .serial_number("0001");
-    // EP0 packets of 64 bytes (usb-device's default is 8): the whole 9-byte
-    // configuration descriptor header fits one packet, which full-speed
-    // hosts (and the rp2040js USB host the CI harness uses) expect.
-    let Ok(builder) = UsbDeviceBuilder::new(&bus, USB_VID_PID)
-        .strings(&[strings])
-        .and_then(|b| b.max_packet_size_0(64))
-    else {
+    let mut link = link::Link::new(&bus);
+    let Ok(mut usb) = link::device(&bus) else {
         halt()
     };
-    let usb = builder.device_class(USB_CLASS_CDC).build();
-    let mut link = link::Link::new(usb, serial);
 
     let mut rx = [0u8; RX_CHUNK];
     loop {
-        link.poll();
-        let n = link.read(&mut rx);
+        link.poll(&mut usb);
+        let n = link.read(&usb, &mut rx);
         let bytes = rx.get(..n).unwrap_or_default();
         if bytes.is_empty() {
             continue;
@@ -138,7 +122,7 @@ fn main() -> ! {
                 .borrow_ref_mut(cs)
                 .receive_logged(bytes, &mut log, &mut |frame| {
                     let Ok(()) = led.toggle();
-                    link.send(frame);
+                    link.send(&mut usb, frame);
                 });
         });
     }

@@ -1,0 +1,531 @@
+//! The Pico firmware's USB link (`boards/rp-pico/src/link.rs`, compiled here
+//! for the host) driven as a USB host would drive it.
+//!
+//! usbd-class-tester (its `EmulatedUsbBus` and host-side `Device`) checks
+//! enumeration, the descriptors, CDC line coding and bulk bytes both ways.
+//! Its bus cannot show backpressure: an IN endpoint there takes packet after
+//! packet (up to 1 KiB, then silently drops them), so a host that stops
+//! reading never makes the device wait. For that, [`Wire`] is a bus with a
+//! scripted host where, as on the RP2040, an endpoint holds one packet at a
+//! time: a write while the host has not taken the last packet is
+//! `WouldBlock`, and packets the host sends wait on the host side (NAKed)
+//! until the device reads them.
+
+#[path = "../../boards/rp-pico/src/link.rs"]
+mod link;
+
+use link::{Link, RX_HEADROOM, TX_QUEUE_LEN};
+use placedb::protocol::MAX_REPLY_LEN;
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex, MutexGuard};
+use usb_device::bus::{PollResult, UsbBus, UsbBusAllocator};
+use usb_device::device::{UsbDevice, UsbDeviceState};
+use usb_device::endpoint::{EndpointAddress, EndpointType};
+use usb_device::{UsbDirection, UsbError};
+use usbd_class_tester::prelude::*;
+
+/// The firmware's class and device (VID/PID, strings, EP0 size) on the
+/// emulated bus.
+struct Pico;
+
+impl UsbDeviceCtx for Pico {
+    type C<'c> = Link<'c, EmulatedUsbBus>;
+
+    fn create_class<'a>(
+        &mut self,
+        alloc: &'a UsbBusAllocator<EmulatedUsbBus>,
+    ) -> AnyResult<Link<'a, EmulatedUsbBus>> {
+        Ok(Link::new(alloc))
+    }
+
+    fn build_usb_device<'a>(
+        &mut self,
+        alloc: &'a UsbBusAllocator<EmulatedUsbBus>,
+    ) -> AnyResult<UsbDevice<'a, EmulatedUsbBus>> {
+        link::device(alloc).map_err(AnyUsbError::UsbDeviceBuilder)
+    }
+}
+
+type Host<'a> = Device<'a, Link<'a, EmulatedUsbBus>, Pico>;
+
+/// The descriptors in a configuration descriptor, each with its type first.
+fn split(config: &[u8]) -> Vec<&[u8]> {
+    let mut out = Vec::new();
+    let mut rest = config;
+    while !rest.is_empty() {
+        let len = usize::from(rest[0]);
+        assert!(len >= 2 && len <= rest.len(), "bad descriptor length {len}");
+        out.push(&rest[1..len]);
+        rest = &rest[len..];
+    }
+    out
+}
+
+fn config_descriptor<'a>(link: &mut Link<'a, EmulatedUsbBus>, host: &mut Host<'a>) -> Vec<u8> {
+    let head = host.device_get_descriptor(link, 2, 0, 0, 9).unwrap();
+    let total = u16::from_le_bytes([head[2], head[3]]);
+    let config = host.device_get_descriptor(link, 2, 0, 0, total).unwrap();
+    assert_eq!(config.len(), usize::from(total));
+    config
+}
+
+/// (endpoint address, transfer type bits, max packet size) of every endpoint.
+fn endpoints(config: &[u8]) -> Vec<(u8, u8, u16)> {
+    split(config)
+        .into_iter()
+        .filter(|d| d[0] == 5)
+        .map(|d| (d[1], d[2] & 3, u16::from_le_bytes([d[3], d[4]])))
+        .collect()
+}
+
+/// Endpoint indices of the bulk OUT (host to device) and bulk IN endpoints.
+fn bulk_endpoints(config: &[u8]) -> (usize, usize) {
+    let eps = endpoints(config);
+    let find = |dir: u8| {
+        let ep = eps.iter().find(|e| e.1 == 2 && e.0 & 0x80 == dir).unwrap();
+        usize::from(ep.0 & 0x0f)
+    };
+    (find(0x00), find(0x80))
+}
+
+fn check_descriptors<'a>(mut link: Link<'a, EmulatedUsbBus>, mut host: Host<'a>) {
+    // The tester enumerated the device (address, configuration 1).
+    assert_eq!(host.usb_dev().state(), UsbDeviceState::Configured);
+    assert_eq!(host.device_get_configuration(&mut link).unwrap(), 1);
+
+    let dev = host.device_get_descriptor(&mut link, 1, 0, 0, 18).unwrap();
+    assert_eq!(dev.len(), 18);
+    assert_eq!(&dev[..2], &[18, 1]);
+    assert_eq!(dev[4], 0x02, "device class CDC");
+    assert_eq!(dev[7], 64, "EP0 max packet size");
+    assert_eq!(u16::from_le_bytes([dev[8], dev[9]]), 0x16c0);
+    assert_eq!(u16::from_le_bytes([dev[10], dev[11]]), 0x27dd);
+    assert_eq!(dev[17], 1, "one configuration");
+    let lang = 0x0409;
+    let strings: Vec<String> = dev[14..17]
+        .iter()
+        .map(|&i| host.device_get_string(&mut link, i, lang).unwrap())
+        .collect();
+    assert_eq!(strings, ["placedb", "placedb device", "0001"]);
+
+    let config = config_descriptor(&mut link, &mut host);
+    assert_eq!(config[1], 2);
+    assert_eq!(config[4], 2, "two interfaces");
+    let descs = split(&config);
+    // Interfaces: (number, class, subclass, protocol, endpoints).
+    let interfaces: Vec<[u8; 5]> = descs
+        .iter()
+        .filter(|d| d[0] == 4)
+        .map(|d| [d[1], d[4], d[5], d[6], d[3]])
+        .collect();
+    assert_eq!(
+        interfaces,
+        [[0, 0x02, 0x02, 0x00, 1], [1, 0x0a, 0x00, 0x00, 2]],
+        "CDC ACM communication interface (1 endpoint) and CDC data interface (2)"
+    );
+    // CDC functional descriptors: header 1.10, ACM, union 0 -> 1, call
+    // management with data interface 1.
+    let functional: Vec<&[u8]> = descs.iter().copied().filter(|d| d[0] == 0x24).collect();
+    assert_eq!(
+        functional,
+        [
+            &[0x24, 0x00, 0x10, 0x01][..],
+            &[0x24, 0x02, 0x00],
+            &[0x24, 0x06, 0, 1],
+            &[0x24, 0x01, 0x00, 1]
+        ]
+    );
+    let mut eps = endpoints(&config);
+    eps.sort();
+    let (out_ep, in_ep) = bulk_endpoints(&config);
+    let (out_ep, in_ep) = (out_ep as u8, in_ep as u8 | 0x80);
+    let notify = eps.iter().find(|e| e.1 == 3).unwrap().0;
+    assert!(notify & 0x80 != 0, "notification endpoint is IN");
+    let mut want = vec![(notify, 3, 8), (out_ep, 2, 64), (in_ep, 2, 64)];
+    want.sort();
+    assert_eq!(eps, want, "interrupt IN (8 bytes), bulk OUT and IN (64)");
+}
+
+#[test]
+fn descriptors() {
+    Pico.with_usb(check_descriptors).unwrap();
+}
+
+/// CDC class requests to the communication interface (0).
+const SET_LINE_CODING: u8 = 0x20;
+const GET_LINE_CODING: u8 = 0x21;
+const SET_CONTROL_LINE_STATE: u8 = 0x22;
+
+fn check_line_coding<'a>(mut link: Link<'a, EmulatedUsbBus>, mut host: Host<'a>) {
+    let to_device = CtrRequestType::to_device().class().interface();
+    let to_host = CtrRequestType::to_host().class().interface();
+    // usbd-serial's default: 9600 baud, 1 stop bit, no parity, 8 data bits.
+    let coding = host
+        .control_read(&mut link, to_host, GET_LINE_CODING, 0, 0, 7)
+        .unwrap();
+    assert_eq!(coding, [0x80, 0x25, 0, 0, 0, 0, 8]);
+
+    // 115200 baud, 2 stop bits, even parity, 7 data bits.
+    let set = [0x00, 0xc2, 0x01, 0x00, 2, 2, 7];
+    let reply = host
+        .control_write(&mut link, to_device, SET_LINE_CODING, 0, 0, 7, &set)
+        .unwrap();
+    assert!(reply.is_empty());
+    let coding = host
+        .control_read(&mut link, to_host, GET_LINE_CODING, 0, 0, 7)
+        .unwrap();
+    assert_eq!(coding, set);
+
+    // DTR and RTS up (what a host's open() sends) is accepted.
+    host.control_write(&mut link, to_device, SET_CONTROL_LINE_STATE, 3, 0, 0, &[])
+        .unwrap();
+    // Requests for another interface or unknown CDC requests are stalled.
+    assert_eq!(
+        host.control_read(&mut link, to_host, GET_LINE_CODING, 0, 1, 7),
+        Err(AnyUsbError::EP0Stalled)
+    );
+    assert_eq!(
+        host.control_read(&mut link, to_host, 0x01, 0, 0, 8),
+        Err(AnyUsbError::EP0Stalled)
+    );
+
+    // The line coding has no effect on the data: bytes pass unchanged.
+    let config = config_descriptor(&mut link, &mut host);
+    let (out_ep, in_ep) = bulk_endpoints(&config);
+    let data: Vec<u8> = (0..=255).collect();
+    assert_eq!(host.ep_write(&mut link, out_ep, &data).unwrap(), 256);
+    let got = device_read(&mut link, &mut host, data.len());
+    assert_eq!(got, data);
+    link.send(host.usb_dev(), &data);
+    assert_eq!(host.ep_read(&mut link, in_ep, 1024).unwrap(), data);
+}
+
+#[test]
+fn line_coding() {
+    Pico.with_usb(check_line_coding).unwrap();
+}
+
+/// What the firmware's main loop reads (64 bytes a turn) until `len` bytes
+/// arrived or a turn finds nothing.
+fn device_read<'a>(
+    link: &mut Link<'a, EmulatedUsbBus>,
+    host: &mut Host<'a>,
+    len: usize,
+) -> Vec<u8> {
+    let mut got = Vec::new();
+    let mut rx = [0u8; 64];
+    while got.len() < len {
+        link.poll(host.usb_dev());
+        let n = link.read(host.usb_dev(), &mut rx);
+        if n == 0 {
+            break;
+        }
+        got.extend_from_slice(&rx[..n]);
+    }
+    got
+}
+
+fn check_bulk<'a>(mut link: Link<'a, EmulatedUsbBus>, mut host: Host<'a>) {
+    let config = config_descriptor(&mut link, &mut host);
+    let (out_ep, in_ep) = bulk_endpoints(&config);
+
+    // Host to device: 5 packets and a short one, read 64 bytes a turn.
+    let request: Vec<u8> = (0..300u32).map(|i| (i * 7 + 3) as u8).collect();
+    assert_eq!(host.ep_write(&mut link, out_ep, &request).unwrap(), 300);
+    assert_eq!(device_read(&mut link, &mut host, 1000), request);
+    // Nothing more is read.
+    assert!(device_read(&mut link, &mut host, 1).is_empty());
+
+    // Device to host: two reply frames, the bytes in order, nothing more.
+    let frame_a: Vec<u8> = (0..MAX_REPLY_LEN).map(|i| (i % 255 + 1) as u8).collect();
+    let frame_b = [1u8, 2, 3, 0];
+    link.send(host.usb_dev(), &frame_a);
+    link.send(host.usb_dev(), &frame_b);
+    let got = host.ep_read(&mut link, in_ep, 1024).unwrap();
+    assert_eq!(got, [&frame_a[..], &frame_b[..]].concat());
+    link.poll(host.usb_dev());
+    assert!(host.ep_read(&mut link, in_ep, 1024).unwrap().is_empty());
+
+    // Both ways at once: a request in flight while a reply goes out.
+    host.ep_write(&mut link, out_ep, &frame_b).unwrap();
+    link.send(host.usb_dev(), &request[..100]);
+    assert_eq!(device_read(&mut link, &mut host, 4), frame_b);
+    assert_eq!(
+        host.ep_read(&mut link, in_ep, 1024).unwrap(),
+        &request[..100]
+    );
+}
+
+#[test]
+fn bulk_both_ways() {
+    Pico.with_usb(check_bulk).unwrap();
+}
+
+/// A full-speed USB bus and a scripted host: every endpoint holds one packet,
+/// the host takes a waiting IN packet (one per endpoint) at each poll while
+/// it reads, and its OUT packets wait until the device reads them.
+#[derive(Default)]
+struct Wire {
+    /// (address, type, max packet size) of the allocated endpoints.
+    alloc: Vec<(EndpointAddress, EndpointType, u16)>,
+    setup: Option<[u8; 8]>,
+    /// The packet the device wrote on IN endpoint i, until the host takes it.
+    in_packet: [Option<Vec<u8>>; 16],
+    /// Packets the host sends to OUT endpoint i, NAKed until read.
+    out_packets: [VecDeque<Vec<u8>>; 16],
+    /// IN endpoints whose packet the host took since the last poll.
+    in_complete: u16,
+    stalled: Vec<EndpointAddress>,
+    /// Whether the host takes IN packets of endpoints other than 0.
+    reading: bool,
+    /// Polls to wait before `reading` becomes true.
+    start_reading_after: Option<u64>,
+    /// Bytes the host took from the bulk IN endpoint.
+    received: Vec<u8>,
+    polls: u64,
+}
+
+struct WireBus(Arc<Mutex<Wire>>);
+
+impl WireBus {
+    fn wire(&self) -> MutexGuard<'_, Wire> {
+        self.0.lock().unwrap()
+    }
+}
+
+impl UsbBus for WireBus {
+    fn alloc_ep(
+        &mut self,
+        dir: UsbDirection,
+        addr: Option<EndpointAddress>,
+        ep_type: EndpointType,
+        max_packet_size: u16,
+        _interval: u8,
+    ) -> usb_device::Result<EndpointAddress> {
+        let mut w = self.wire();
+        let taken = |w: &Wire, a: EndpointAddress| w.alloc.iter().any(|e| e.0 == a);
+        let addr = match addr {
+            Some(a) if taken(&w, a) => return Err(UsbError::InvalidEndpoint),
+            Some(a) => a,
+            None => (1..16)
+                .map(|i| EndpointAddress::from_parts(i, dir))
+                .find(|&a| !taken(&w, a))
+                .ok_or(UsbError::EndpointOverflow)?,
+        };
+        w.alloc.push((addr, ep_type, max_packet_size));
+        Ok(addr)
+    }
+
+    fn enable(&mut self) {}
+
+    fn reset(&self) {}
+
+    fn set_device_address(&self, _addr: u8) {}
+
+    fn write(&self, ep: EndpointAddress, buf: &[u8]) -> usb_device::Result<usize> {
+        let mut w = self.wire();
+        let max = w.alloc.iter().find(|e| e.0 == ep).unwrap().2;
+        if buf.len() > usize::from(max) {
+            return Err(UsbError::BufferOverflow);
+        }
+        let slot = &mut w.in_packet[ep.index()];
+        if slot.is_some() {
+            return Err(UsbError::WouldBlock);
+        }
+        *slot = Some(buf.to_vec());
+        Ok(buf.len())
+    }
+
+    fn read(&self, ep: EndpointAddress, buf: &mut [u8]) -> usb_device::Result<usize> {
+        let mut w = self.wire();
+        let packet = match (ep.index(), w.setup.take()) {
+            (0, Some(setup)) => setup.to_vec(),
+            (_, setup) => {
+                w.setup = setup;
+                w.out_packets[ep.index()]
+                    .pop_front()
+                    .ok_or(UsbError::WouldBlock)?
+            }
+        };
+        let n = packet.len();
+        buf.get_mut(..n)
+            .ok_or(UsbError::BufferOverflow)?
+            .copy_from_slice(&packet);
+        Ok(n)
+    }
+
+    fn set_stalled(&self, ep: EndpointAddress, stalled: bool) {
+        let mut w = self.wire();
+        w.stalled.retain(|&a| a != ep);
+        if stalled {
+            w.stalled.push(ep);
+        }
+    }
+
+    fn is_stalled(&self, ep: EndpointAddress) -> bool {
+        self.wire().stalled.contains(&ep)
+    }
+
+    fn suspend(&self) {}
+
+    fn resume(&self) {}
+
+    fn poll(&self) -> PollResult {
+        let mut w = self.wire();
+        w.polls += 1;
+        if w.start_reading_after.is_some_and(|n| w.polls > n) {
+            w.reading = true;
+            w.start_reading_after = None;
+        }
+        for i in 0..16 {
+            if i != 0 && !w.reading {
+                continue;
+            }
+            if let Some(packet) = w.in_packet[i].take() {
+                if i != 0 {
+                    w.received.extend_from_slice(&packet);
+                }
+                w.in_complete |= 1 << i;
+            }
+        }
+        let ep_in_complete = std::mem::take(&mut w.in_complete);
+        let ep_setup = u16::from(w.setup.is_some());
+        let ep_out = (0..16)
+            .filter(|&i| !w.out_packets[i].is_empty())
+            .fold(ep_setup, |m, i| m | 1 << i);
+        if ep_in_complete | ep_out | ep_setup == 0 {
+            PollResult::None
+        } else {
+            PollResult::Data {
+                ep_out,
+                ep_in_complete,
+                ep_setup,
+            }
+        }
+    }
+}
+
+/// Index of the bulk endpoint allocated in direction `dir`.
+fn bulk_index(wire: &Mutex<Wire>, dir: UsbDirection) -> usize {
+    let w = wire.lock().unwrap();
+    let ep = w
+        .alloc
+        .iter()
+        .find(|e| e.1 == EndpointType::Bulk && e.0.direction() == dir);
+    ep.unwrap().0.index()
+}
+
+/// Reply frame `i`: the longest kind, its bytes depending on `i`.
+fn frame(i: usize) -> Vec<u8> {
+    (0..MAX_REPLY_LEN)
+        .map(|j| (i * 37 + j * 11) as u8)
+        .collect()
+}
+
+#[test]
+fn reply_queue_backpressure() {
+    let wire = Arc::new(Mutex::new(Wire::default()));
+    let bus = UsbBusAllocator::new(WireBus(wire.clone()));
+    let mut link = Link::new(&bus);
+    let mut usb = link::device(&bus).unwrap();
+
+    // SET_CONFIGURATION 1.
+    wire.lock().unwrap().setup = Some([0x00, 0x09, 1, 0, 0, 0, 0, 0]);
+    for _ in 0..4 {
+        link.poll(&mut usb);
+    }
+    assert_eq!(usb.state(), UsbDeviceState::Configured);
+    let out_ep = bulk_index(&wire, UsbDirection::Out);
+    let in_ep = bulk_index(&wire, UsbDirection::In);
+
+    // The host sends 40 packets of input and stops reading.
+    let input: Vec<u8> = (0..40 * 64u32).map(|i| (i * 13 + i / 7) as u8).collect();
+    {
+        let mut w = wire.lock().unwrap();
+        w.reading = false;
+        for packet in input.chunks(64) {
+            w.out_packets[out_ep].push_back(packet.to_vec());
+        }
+    }
+
+    // The device replies with 16 longest frames (the queue's size) and reads
+    // 64 bytes of input after each. Nothing waits: usbd-serial holds 192
+    // bytes (a packet in the endpoint, 128 in its buffer), the queue the rest.
+    // Input is read while 2 KiB of the queue are free: after frames 1..=8
+    // (at most 8 * 256 - 192 bytes queued), not after 9..=16.
+    assert_eq!(TX_QUEUE_LEN, 16 * MAX_REPLY_LEN);
+    assert_eq!(RX_HEADROOM, TX_QUEUE_LEN / 2);
+    let mut input_got = Vec::new();
+    let mut reads = Vec::new();
+    let mut rx = [0u8; 64];
+    let mut pending_when_stopped = None;
+    for i in 0..16 {
+        link.send(&mut usb, &frame(i));
+        link.poll(&mut usb);
+        let n = link.read(&usb, &mut rx);
+        input_got.extend_from_slice(&rx[..n]);
+        reads.push(n);
+        if i == 8 {
+            pending_when_stopped = Some(wire.lock().unwrap().out_packets[out_ep].len());
+        }
+    }
+    assert_eq!(reads, [[64; 8], [0; 8]].concat());
+    {
+        let w = wire.lock().unwrap();
+        assert!(w.received.is_empty(), "the host read nothing");
+        assert_eq!(w.in_packet[in_ep].as_deref(), Some(&frame(0)[..64]));
+        // The host's input stays where it is (NAKed): the device took the 8
+        // packets it read and at most usbd-serial's 128-byte buffer more.
+        let pending = w.out_packets[out_ep].len();
+        assert_eq!(Some(pending), pending_when_stopped);
+        assert!((40 - 8 - 2..=40 - 8).contains(&pending), "{pending}");
+    }
+    assert_eq!(input_got, input[..8 * 64]);
+
+    // A 17th frame does not fit: `send` waits, polling USB, until the host
+    // reads again (after 100 more polls), and drops nothing.
+    let polls_before = {
+        let mut w = wire.lock().unwrap();
+        w.start_reading_after = Some(w.polls + 100);
+        w.polls
+    };
+    link.send(&mut usb, &frame(16));
+    {
+        let w = wire.lock().unwrap();
+        assert!(w.reading);
+        assert!(
+            w.polls > polls_before + 100,
+            "send returned before the host read"
+        );
+        // It returned as soon as the frame fitted: the host has taken only a
+        // few packets (192 bytes had to leave the queue).
+        assert!(!w.received.is_empty() && w.received.len() <= 4 * 64);
+    }
+
+    // The host reads everything: every reply byte arrives once, in order;
+    // input is read again once 2 KiB of the queue are free, all of it.
+    let replies: Vec<u8> = (0..17).flat_map(frame).collect();
+    let mut turns = 0;
+    loop {
+        link.poll(&mut usb);
+        let n = link.read(&usb, &mut rx);
+        input_got.extend_from_slice(&rx[..n]);
+        let received = wire.lock().unwrap().received.len();
+        if received >= replies.len() && input_got.len() >= input.len() {
+            break;
+        }
+        turns += 1;
+        assert!(
+            turns < 10_000,
+            "stuck: {received} reply bytes, {} input",
+            input_got.len()
+        );
+    }
+    assert_eq!(wire.lock().unwrap().received, replies);
+    assert_eq!(input_got, input);
+    for _ in 0..4 {
+        link.poll(&mut usb);
+    }
+    assert_eq!(wire.lock().unwrap().received.len(), replies.len());
+    assert_eq!(link.read(&usb, &mut rx), 0);
+}
