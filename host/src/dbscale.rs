@@ -76,9 +76,10 @@ pub fn prepare(dir: &Path, frames: usize, rooms: usize, mu: f32) -> Result<(u32,
         rooms,
     });
     let scan = device_cli::scan_config(&seq, &VoxelConfig::default()).map_err(|e| e.to_string())?;
+    let window = placedb::profile::by_name("ram256k").map_or(16, |p| p.window as u16);
     let sel = SelectorConfig {
         mu,
-        window: 16,
+        window,
         sketch_margin: 0.05,
     };
     let cfg = device_cli::device_config(&scan, &sel).map_err(|e| e.to_string())?;
