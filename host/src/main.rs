@@ -918,51 +918,68 @@ const CORE_PARTS: [(&str, &str); 4] = [
     ("finish", "*Selector*finish*"),
 ];
 
+/// Runs this program with `args` under callgrind, counting only inside
+/// functions matching `pattern`; returns the instructions and its stdout.
+fn callgrind_count(
+    dir: &std::path::Path,
+    pattern: &str,
+    args: &[std::ffi::OsString],
+) -> Result<(f64, Vec<u8>), Error> {
+    let child = std::process::Command::new("valgrind")
+        .args(["--tool=callgrind", "--collect-atstart=no"])
+        .arg(format!("--toggle-collect={pattern}"))
+        .arg(format!(
+            "--callgrind-out-file={}",
+            dir.join("callgrind.out").display()
+        ))
+        .arg(std::env::current_exe()?)
+        .args(args)
+        .output()
+        .map_err(|e| format!("cannot run valgrind ({e}); install it to count instructions"))?;
+    if !child.status.success() {
+        return Err(format!(
+            "callgrind run failed: {}",
+            String::from_utf8_lossy(&child.stderr)
+        )
+        .into());
+    }
+    // valgrind's summary line: "==PID== Collected : N" (callgrind) or "I   refs: N".
+    let stderr = String::from_utf8_lossy(&child.stderr);
+    let n = stderr
+        .lines()
+        .find_map(|l| {
+            l.split_once("Collected :")
+                .or_else(|| l.split_once("I   refs:"))
+        })
+        .and_then(|(_, n)| n.trim().replace(',', "").parse::<f64>().ok())
+        .ok_or("no instruction count in callgrind's output")?;
+    Ok((n, child.stdout))
+}
+
 /// Counts the core's instructions with callgrind on a replay of the first
 /// frames of 7scenes-1000 and prints them per frame and per valid pixel.
 fn core_cost(a: &BenchArgs) -> Result<(), Error> {
-    let exe = std::env::current_exe()?;
     let dir = std::env::temp_dir().join(format!("placedb-cost-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     let seq = a.data.join("7scenes-1000");
     let mut counts = Vec::new();
     let mut meta = serde_json::Value::Null;
     for (_, pattern) in CORE_PARTS {
-        let child = std::process::Command::new("valgrind")
-            .args(["--tool=callgrind", "--collect-atstart=no"])
-            .arg(format!("--toggle-collect={pattern}"))
-            .arg(format!(
-                "--callgrind-out-file={}",
-                dir.join("callgrind.out").display()
-            ))
-            .arg(&exe)
-            .args(["select", "--solver", "online", "--json", "-q", "--stride"])
-            .arg(a.stride.to_string())
-            .arg("--max-frames")
-            .arg(a.core_frames.to_string())
-            .arg(&seq)
-            .arg("-o")
-            .arg(dir.join("out"))
-            .output()
-            .map_err(|e| format!("cannot run valgrind ({e}); install it to count instructions"))?;
-        if !child.status.success() {
-            return Err(format!(
-                "callgrind run failed: {}",
-                String::from_utf8_lossy(&child.stderr)
-            )
-            .into());
-        }
-        meta = serde_json::from_slice(&child.stdout)?;
-        // valgrind's summary line: "==PID== Collected : N" (callgrind) or "I   refs: N".
-        let stderr = String::from_utf8_lossy(&child.stderr);
-        let n = stderr
-            .lines()
-            .find_map(|l| {
-                l.split_once("Collected :")
-                    .or_else(|| l.split_once("I   refs:"))
-            })
-            .and_then(|(_, n)| n.trim().replace(',', "").parse::<f64>().ok())
-            .ok_or("no instruction count in callgrind's output")?;
+        let args: Vec<std::ffi::OsString> =
+            ["select", "--solver", "online", "--json", "-q", "--stride"]
+                .iter()
+                .map(Into::into)
+                .chain([
+                    a.stride.to_string().into(),
+                    "--max-frames".into(),
+                    a.core_frames.to_string().into(),
+                    seq.clone().into_os_string(),
+                    "-o".into(),
+                    dir.join("out").into_os_string(),
+                ])
+                .collect();
+        let (n, stdout) = callgrind_count(&dir, pattern, &args)?;
+        meta = serde_json::from_slice(&stdout)?;
         counts.push(n);
     }
     let frames = meta["frames"].as_f64().unwrap_or(f64::NAN);
@@ -998,40 +1015,20 @@ fn core_cost(a: &BenchArgs) -> Result<(), Error> {
 /// `bench --db-scaling`: the same frame against a small and a large
 /// database, instructions counted by callgrind (see `placedb_host::dbscale`).
 fn db_scaling(a: &BenchArgs) -> Result<(), Error> {
-    let exe = std::env::current_exe()?;
     let dir = std::env::temp_dir().join(format!("placedb-dbscale-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     let rooms = (a.building_frames / 500).max(2);
     let (small, big) = placedb_host::dbscale::prepare(&dir, a.building_frames, rooms, 0.5)?;
     let mut counts = Vec::new();
     for image in ["small.flash", "big.flash"] {
-        let child = std::process::Command::new("valgrind")
-            .args(["--tool=callgrind", "--collect-atstart=no"])
-            .arg("--toggle-collect=*probe_step*")
-            .arg(format!(
-                "--callgrind-out-file={}",
-                dir.join("callgrind.out").display()
-            ))
-            .arg(&exe)
-            .args(["bench", "--db-probe"])
-            .arg(dir.join(image))
-            .arg(dir.join("probe.bin"))
-            .output()
-            .map_err(|e| format!("cannot run valgrind ({e}); install it to count instructions"))?;
-        if !child.status.success() {
-            return Err(format!(
-                "callgrind run failed: {}",
-                String::from_utf8_lossy(&child.stderr)
-            )
-            .into());
-        }
-        let stderr = String::from_utf8_lossy(&child.stderr);
-        let n = stderr
-            .lines()
-            .find_map(|l| l.split_once("Collected :"))
-            .and_then(|(_, n)| n.trim().replace(',', "").parse::<f64>().ok())
-            .ok_or("no instruction count in callgrind's output")?;
-        counts.push((n, String::from_utf8_lossy(&child.stdout).trim().to_string()));
+        let args = [
+            "bench".into(),
+            "--db-probe".into(),
+            dir.join(image).into_os_string(),
+            dir.join("probe.bin").into_os_string(),
+        ];
+        let (n, stdout) = callgrind_count(&dir, "*probe_step*", &args)?;
+        counts.push((n, String::from_utf8_lossy(&stdout).trim().to_string()));
     }
     println!(
         "one frame (160x120, stride 1) of a {}-frame building, through the ram256k device \
