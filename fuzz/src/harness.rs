@@ -979,18 +979,35 @@ fn fuzzed_record<'b>(r: &mut Reader<'_>, buf: &'b mut [u8]) -> Option<&'b [u8]> 
     }
 }
 
-/// Target `restore`: a flash log written from the input (records of every
-/// kind with fuzzed fields, CRC-valid so that they reach the device, new
-/// generations here and there, then a few damaged bytes) is restored into a
-/// fresh device. No panic; a refused log leaves the device empty; the
-/// status and the export are consistent either way; the device then starts
-/// a new scan, which a second restore brings back.
+/// Target `restore`: the input is read three ways, each a flash image
+/// restored into a fresh device:
+///
+/// 1. a log written through [`Log`] (records of every kind with fuzzed
+///    fields, CRC-valid so that they reach the device, new generations here
+///    and there), then a few damaged bytes;
+/// 2. the raw input bytes as the flash contents;
+/// 3. CRC-valid records placed by the input: any generation (`u32::MAX` and
+///    its neighbours included), any sequence number, any place.
+///
+/// For each: no panic; a refused log leaves the device empty; the status
+/// and the export are consistent; the device then starts a new scan (Reset,
+/// Hello), which a second restore brings back, configuration and all.
 pub fn restore(data: &[u8]) {
     let mut r = Reader { data };
+    let flash = written_image(&mut r);
+    restore_image(flash, &mut r);
+    restore_image(raw_image(data), &mut Reader { data });
+    let mut r = Reader { data };
+    let flash = placed_image(&mut r);
+    restore_image(flash, &mut r);
+}
+
+/// Image 1: a log written through [`Log`], then damaged.
+fn written_image(r: &mut Reader<'_>) -> SimFlash {
     let mut log = open_log(SimFlash::new(LOG_SECTORS));
     let mut buf = vec![0u8; 1024];
     for i in 0..r.u8() % 48 {
-        let Some(payload) = fuzzed_record(&mut r, &mut buf) else {
+        let Some(payload) = fuzzed_record(r, &mut buf) else {
             continue;
         };
         let _ = if i == 0 || r.u8().is_multiple_of(16) {
@@ -1005,7 +1022,65 @@ pub fn restore(data: &[u8]) {
         let at = r.u32() as usize % len;
         flash.bytes_mut()[at] ^= r.u8() | 1;
     }
+    flash
+}
 
+/// Image 2: the input itself (the rest erased).
+fn raw_image(data: &[u8]) -> SimFlash {
+    let mut flash = SimFlash::new(LOG_SECTORS);
+    let bytes = flash.bytes_mut();
+    let n = data.len().min(bytes.len());
+    bytes[..n].copy_from_slice(&data[..n]);
+    flash
+}
+
+/// Image 3: CRC-valid records of fuzzed generations and sequence numbers.
+/// Each op opens a generation at a sector's start, goes on with the next
+/// record of the current one (where it would be written, or at the start
+/// of another sector), or puts a record of any numbers anywhere.
+fn placed_image(r: &mut Reader<'_>) -> SimFlash {
+    const SECTOR: usize = SimFlash::SECTOR;
+    let mut flash = SimFlash::new(LOG_SECTORS);
+    let mut buf = vec![0u8; 1024];
+    let (mut at, mut generation, mut seq) = (0usize, 0u32, 0u32);
+    for _ in 0..r.u8() % 32 {
+        match r.u8() % 4 {
+            0 => {
+                at = usize::from(r.u8()) % LOG_SECTORS * SECTOR;
+                generation = match r.u8() % 4 {
+                    0 => u32::MAX - u32::from(r.u8() % 3),
+                    1 => u32::from(r.u8() % 4),
+                    2 => generation.wrapping_add(1),
+                    _ => r.u32(),
+                };
+                seq = 0;
+            }
+            1 => {}
+            2 => at = usize::from(r.u8()) % LOG_SECTORS * SECTOR,
+            _ => {
+                at = usize::from(r.u16()) * 4 % (LOG_SECTORS * SECTOR);
+                generation = r.u32();
+                seq = r.u32();
+            }
+        }
+        let Some(payload) = fuzzed_record(r, &mut buf) else {
+            continue;
+        };
+        let len = (20 + payload.len()).next_multiple_of(4);
+        if at % SECTOR + len > SECTOR {
+            at = (at / SECTOR + 1) % LOG_SECTORS * SECTOR;
+        }
+        if let Some(used) = flash.put_record(at, generation, seq, payload) {
+            at += used;
+            seq = seq.wrapping_add(1);
+        }
+    }
+    flash
+}
+
+/// Restores `flash` into a fresh device and checks it (see [`restore`]);
+/// the new scan's configuration comes from `r`.
+fn restore_image(flash: SimFlash, r: &mut Reader<'_>) {
     let mut log = open_log(flash);
     let mut device = Box::new(FuzzDevice::new());
     let restored = device.restore(&mut log);
@@ -1025,9 +1100,10 @@ pub fn restore(data: &[u8]) {
         }
     }
 
-    // The device goes on: Reset, a new scan, and that is what comes back.
+    // The device goes on: Reset, a new scan, and that is what comes back
+    // (not an older generation that outranks it).
     let mut tx = vec![0u8; MAX_FRAME_LEN];
-    let cfg = sane_config(&mut r);
+    let cfg = sane_config(r);
     let mut replies = Vec::new();
     for (seq, msg) in [(1, HostMessage::Reset), (2, HostMessage::Hello(cfg))] {
         let frame = encode(&HostFrame { seq, msg }, &mut tx).expect("encode");
@@ -1041,7 +1117,11 @@ pub fn restore(data: &[u8]) {
     );
     let mut again = Box::new(FuzzDevice::new());
     let mut log = open_log(log.into_flash());
-    assert!(again.restore(&mut log).is_ok());
+    assert_eq!(again.restore(&mut log), Ok(1), "the new scan's Begin alone");
     assert_eq!(again.status().phase, Phase::Ready);
+    assert_eq!(again.selector().scan_config(), Some(&cfg.scan_config()));
+    let mut sel = cfg.selector_config();
+    sel.window = sel.window.min(FuzzDevice::WINDOW as u16);
+    assert_eq!(again.selector().config(), Some(&sel));
     assert!(export_of(&mut again, &mut log).is_empty());
 }

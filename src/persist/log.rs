@@ -33,6 +33,22 @@
 //!   again before an erase, and no intact record ever follows a damaged one
 //!   within a sector.
 //!
+//! # Generation numbers never wrap into the past
+//!
+//! A new generation is numbered one more than the highest number at the
+//! head of any sector. Only a damaged or adversarial image gets there, but a
+//! CRC-valid record of generation `u32::MAX` would make the next number 0,
+//! which every later scan would rank below it: the old scan would come back
+//! after a reboot. So when the highest number is `u32::MAX`, [`Log::start`]
+//! first erases every sector outside the live generation that opens with a
+//! valid record (the live generation is untouched, so a cut here loses
+//! nothing); the highest number is then the live generation's. If that is
+//! `u32::MAX` itself, the new generation is numbered 0 and, once its first
+//! record is durable, the live generation's head sector is erased: a cut
+//! before that erase brings back the old generation (the start did not
+//! complete), a cut after it the new one; its other sectors are erased by
+//! the next start. Either way the numbers start again from the bottom.
+//!
 //! What it does not do: wear levelling beyond the rotation of generations
 //! through the range, error correction (a bit that flips by itself in an old
 //! record ends the log there), or more than `n - 1` sectors per generation.
@@ -161,7 +177,7 @@ pub struct Log<F> {
 
 /// The header of record `seq` of generation `generation` carrying `payload`
 /// (at most [`MAX_PAYLOAD`] bytes).
-fn header(generation: u32, seq: u32, payload: &[u8]) -> [u8; HEADER_LEN] {
+pub(crate) fn header(generation: u32, seq: u32, payload: &[u8]) -> [u8; HEADER_LEN] {
     let len = (payload.len() as u16).to_le_bytes();
     let (g, s) = (generation.to_le_bytes(), seq.to_le_bytes());
     let [f0, f1] = FORMAT.to_le_bytes();
@@ -390,27 +406,68 @@ impl<F: NorFlash> Log<F> {
 
     /// Starts a new generation whose first record is `payload`; once this
     /// returns `Ok`, it is the live generation and the previous one is gone.
-    /// On error the previous generation is still the live one.
+    /// On error the previous generation is still the live one. When the
+    /// generation numbers have reached `u32::MAX` (a damaged or adversarial
+    /// image), sectors outside the live generation are erased first and the
+    /// numbers start again from 0 (see the module docs).
     pub fn start(&mut self, payload: &[u8]) -> Result<(), LogError> {
-        let head = match self.live {
+        if self.newest == u32::MAX {
+            self.renumber()?;
+        }
+        let previous = self.live;
+        // Still u32::MAX after renumbering: the live generation has it.
+        let wraps = self.newest == u32::MAX;
+        let head = match previous {
             Some(l) => (l.head + l.sectors) % self.sectors,
             None => 0,
         };
         let next = Live {
-            generation: self.newest.wrapping_add(1),
+            generation: if wraps { 0 } else { self.newest + 1 },
             head,
             sectors: 0,
             records: 0,
             offset: None,
         };
-        let previous = self.live;
         self.live = Some(next);
-        let result = self.append(payload);
-        if result.is_err() {
+        if let Err(e) = self.append(payload) {
             self.live = previous;
+            return Err(e);
+        }
+        if let (true, Some(old)) = (wraps, previous) {
+            // Generation 0 ranks below the old one at scan until its head
+            // record is gone. Its other sectors open with records of
+            // sequence numbers > 0, which never make a head: the next start
+            // erases them (`newest` stays u32::MAX until then).
+            let at = self.sector_offset(old.head);
+            if let Err(e) = self.flash.erase(at, at + self.sector_len()) {
+                // The new head is in a sector outside the old generation,
+                // which erases it before use; the next start renumbers.
+                self.live = previous;
+                return Err(flash_err(e));
+            }
         }
         self.newest = self.newest.max(next.generation);
-        result.map(|_| ())
+        Ok(())
+    }
+
+    /// Erases every sector outside the live generation that opens with a
+    /// valid record, so that the highest generation number at the head of a
+    /// sector is the live generation's (0 without one). A cut at any step
+    /// leaves the live generation as it was.
+    fn renumber(&mut self) -> Result<(), LogError> {
+        for s in 0..self.sectors {
+            let in_live = self.live.is_some_and(|l| {
+                (s + self.sectors - l.head % self.sectors) % self.sectors < l.sectors
+            });
+            if !in_live && self.read_record(s, 0)?.is_some() {
+                let at = self.sector_offset(s);
+                self.flash
+                    .erase(at, at + self.sector_len())
+                    .map_err(flash_err)?;
+            }
+        }
+        self.newest = self.live.map_or(0, |l| l.generation);
+        Ok(())
     }
 
     /// The payload of the live generation's record at position `at` (as
@@ -536,5 +593,167 @@ impl<F: NorFlash> Log<F> {
             None => (self.sectors.saturating_sub(1), 0),
         };
         in_current + free_sectors as usize * per_sector >= count
+    }
+}
+
+#[cfg(all(test, feature = "sim-flash"))]
+mod tests {
+    extern crate std;
+    use super::*;
+    use crate::persist::sim::{SimFlash, Tear};
+    use std::format;
+    use std::vec::Vec;
+
+    const SECTORS: usize = 4;
+    const END: u32 = (SECTORS * SimFlash::SECTOR) as u32;
+
+    fn open(flash: SimFlash) -> Log<SimFlash> {
+        Log::open(flash, 0, END).unwrap()
+    }
+
+    /// Every payload of the live generation.
+    fn payloads(log: &mut Log<SimFlash>) -> Vec<Vec<u8>> {
+        let mut out = Vec::new();
+        log.replay(&mut |_, p| out.push(p.to_vec())).unwrap();
+        out
+    }
+
+    /// What a reboot finds: the live generation of the flash opened afresh.
+    fn reboot(log: Log<SimFlash>) -> (Log<SimFlash>, Vec<Vec<u8>>) {
+        let mut log = open(log.into_flash());
+        let found = payloads(&mut log);
+        (log, found)
+    }
+
+    /// A flash whose live generation, numbered `generation`, holds
+    /// `records` records in sector `sector`, as an image may hold it.
+    fn image(generation: u32, sector: usize, records: &[&[u8]]) -> SimFlash {
+        let mut flash = SimFlash::new(SECTORS);
+        let mut at = sector * SimFlash::SECTOR;
+        for (seq, p) in records.iter().enumerate() {
+            at += flash.put_record(at, generation, seq as u32, p).unwrap();
+        }
+        flash
+    }
+
+    fn owned(records: &[&[u8]]) -> Vec<Vec<u8>> {
+        records.iter().map(|r| r.to_vec()).collect()
+    }
+
+    #[test]
+    fn generations_go_on_past_the_wrap_point() {
+        // Live generation u32::MAX - 1: the next is u32::MAX, then 0, 1, ...
+        let mut log = open(image(u32::MAX - 1, 1, &[b"old", b"old 2"]));
+        assert_eq!(payloads(&mut log), owned(&[b"old", b"old 2"]));
+        for (i, payload) in [&b"max"[..], b"zero", b"one", b"two"].iter().enumerate() {
+            log.start(payload).unwrap();
+            log.append(b"more").unwrap();
+            let (again, found) = reboot(log);
+            assert_eq!(found, owned(&[payload, b"more"]), "start {i}");
+            log = again;
+        }
+        // Numbering started again from the bottom: nothing of u32::MAX left.
+        assert_eq!(log.newest, 2);
+        assert_eq!(log.live.map(|l| l.generation), Some(2));
+    }
+
+    #[test]
+    fn a_stale_sector_at_the_wrap_point_is_erased_not_outranking() {
+        // Live generation 7 in sector 0; sector 2 opens with a stray record
+        // of generation u32::MAX (not a head: seq 3), sector 3 with a head.
+        let mut flash = image(7, 0, &[b"live"]);
+        let at = 2 * SimFlash::SECTOR;
+        flash.put_record(at, u32::MAX, 3, b"stray").unwrap();
+        let at = 3 * SimFlash::SECTOR;
+        flash.put_record(at, u32::MAX - 5, 0, b"old head").unwrap();
+        let mut log = open(flash);
+        assert_eq!(payloads(&mut log), owned(&[b"old head"]));
+        log.start(b"new").unwrap();
+        let (mut log, found) = reboot(log);
+        assert_eq!(found, owned(&[b"new"]));
+        // The stray sector and the one it outranked are erased; the new
+        // generation follows the one it replaces.
+        let flash = log.flash();
+        let opens = |s: usize| flash.bytes()[s * SimFlash::SECTOR..][..4] == MAGIC;
+        assert_eq!(
+            (0..SECTORS).map(opens).collect::<Vec<_>>(),
+            [true, false, false, true]
+        );
+        assert_eq!(
+            log.live.map(|l| (l.generation, l.head)),
+            Some((u32::MAX - 4, 0))
+        );
+    }
+
+    #[test]
+    fn a_power_cut_at_every_step_of_a_wrapping_start_keeps_one_generation() {
+        // The live generation is u32::MAX, across two sectors, with a stale
+        // generation elsewhere: the start renumbers, writes generation 0
+        // and erases the old head. Cut at every step, torn every way.
+        let old: [&[u8]; 2] = [&[1u8; 900], &[2u8; 900]];
+        let mut flash = SimFlash::new(SECTORS);
+        let mut at = SimFlash::SECTOR;
+        for (seq, p) in old.iter().enumerate() {
+            if seq == 1 {
+                at = 2 * SimFlash::SECTOR;
+            }
+            at += flash.put_record(at, u32::MAX, seq as u32, p).unwrap();
+        }
+        flash.put_record(0, 12, 0, b"stale").unwrap();
+        let mut log = open(flash.clone());
+        assert_eq!(payloads(&mut log), owned(&old));
+
+        let mut completed = false;
+        let mut cuts = 0;
+        for step in 0.. {
+            for tear in [Tear::Before, Tear::Half, Tear::After] {
+                let mut cut = flash.clone();
+                cut.cut_at(step, tear);
+                let mut log = open(cut);
+                let started = log.start(b"new").is_ok();
+                let off = log.flash().is_off();
+                log.flash().power_on();
+                let (mut log, found) = reboot(log);
+                let ctx = format!("cut at step {step} ({tear:?}), started {started}");
+                if started {
+                    assert_eq!(found, owned(&[b"new"]), "{ctx}");
+                } else {
+                    assert!(found == owned(&old) || found == owned(&[b"new"]), "{ctx}");
+                }
+                // The way out always works: the next start is the live one.
+                log.start(b"after").unwrap();
+                let (mut log, found) = reboot(log);
+                assert_eq!(found, owned(&[b"after"]), "{ctx}");
+                log.start(b"and on").unwrap();
+                let (_, found) = reboot(log);
+                assert_eq!(found, owned(&[b"and on"]), "{ctx}");
+                cuts += u32::from(off);
+                completed |= !off;
+            }
+            if completed {
+                break;
+            }
+        }
+        // Erase the stale sector, erase and write the new head, erase the
+        // old head: four steps, each cut three ways.
+        assert_eq!(cuts, 12);
+    }
+
+    #[test]
+    fn a_failed_erase_of_the_old_head_keeps_the_old_generation_live() {
+        let mut flash = image(u32::MAX, 0, &[b"old"]);
+        // Steps: erase and write the new head (0, 1), erase the old head (2).
+        flash.cut_at(2, Tear::Before);
+        let mut log = open(flash);
+        assert!(matches!(log.start(b"new"), Err(LogError::Flash(_))));
+        assert_eq!(log.live.map(|l| l.generation), Some(u32::MAX));
+        log.flash().power_on();
+        assert_eq!(payloads(&mut log), owned(&[b"old"]));
+        log.append(b"old 2").unwrap();
+        let (mut log, found) = reboot(log);
+        assert_eq!(found, owned(&[b"old", b"old 2"]));
+        log.start(b"new").unwrap();
+        let (_, found) = reboot(log);
+        assert_eq!(found, owned(&[b"new"]));
     }
 }

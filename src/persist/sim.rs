@@ -117,6 +117,33 @@ impl SimFlash {
         &mut self.bytes
     }
 
+    /// Places a CRC-valid log record (layout of [`super::log`]) of any
+    /// generation and sequence number at byte `at`, over whatever is there,
+    /// as a damaged or adversarial image may hold it (not a flash step).
+    /// Returns the bytes it occupies (padded with 0xFF to the write size),
+    /// or `None` when it does not fit the flash or the payload is too long.
+    pub fn put_record(
+        &mut self,
+        at: usize,
+        generation: u32,
+        seq: u32,
+        payload: &[u8],
+    ) -> Option<usize> {
+        use super::log::{header, HEADER_LEN, MAX_PAYLOAD};
+        if payload.len() > MAX_PAYLOAD {
+            return None;
+        }
+        let len = (HEADER_LEN + payload.len()).next_multiple_of(Self::WRITE_SIZE);
+        let end = at.checked_add(len).filter(|&e| e <= self.bytes.len())?;
+        let record = &mut self.bytes[at..end];
+        record.fill(0xFF);
+        let head = header(generation, seq, payload);
+        for (b, v) in record.iter_mut().zip(head.iter().chain(payload)) {
+            *b = *v;
+        }
+        Some(len)
+    }
+
     /// Counts a step; `Some(tear)` when it is the one that loses power.
     fn step(&mut self) -> Result<Option<Tear>, SimFlashError> {
         if self.is_off() {
