@@ -176,9 +176,11 @@ impl<
         if rows.frame != index {
             return Err(ErrorKind::OutOfOrder);
         }
+        // The one bound on values per message (`MAX_ROW_VALUES`, the length
+        // of `self.rows`) is enforced by the check: refused, not damage.
         rows.check(cfg.width_sent(), cfg.height_sent())?;
         let n = rows.data.len() / 2;
-        let values = self.rows.get_mut(..n).ok_or(ErrorKind::Oversized)?;
+        let values = self.rows.get_mut(..n).ok_or(ErrorKind::Internal)?;
         for (v, b) in values.iter_mut().zip(rows.data.chunks_exact(2)) {
             *v = match b {
                 [lo, hi] => u16::from_le_bytes([*lo, *hi]),

@@ -28,7 +28,7 @@
 //! |---|---|---|---|
 //! | Hello | no frame open, no frame seen since reset | configures (replaces an earlier Hello) | `WrongVersion`, `BadConfig`, `MidFrameReconfig`; after frames: `NeedsReset` unless identical (then a no-op Ack) |
 //! | FrameBegin | configured, not finished, no frame open | opens frame `frames_seen` | `NotConfigured`, `Finished`, `OutOfOrder` (open frame or wrong index), `BadPose` |
-//! | DepthRows | the open frame, next strided row | voxelizes the rows | `OutOfOrder`, `RowOutOfRange`, `RowTooLong`, `RowTooShort` |
+//! | DepthRows | the open frame, next strided row, at most `MAX_ROW_VALUES` values | voxelizes the rows | `OutOfOrder`, `RowOutOfRange`, `CapacityExhausted` (more values than the row buffer), `RowTooLong`, `RowTooShort` |
 //! | FrameEnd | the open frame, all rows in | selection step; `Decision`s, then Ack | `FrameEndWithoutBegin`, `MissingRows` (frame stays open), `StorageFull` (idem) |
 //! | FrameAbort | the open frame | drops it; the next FrameBegin has its index | `FrameEndWithoutBegin`, `NotConfigured`, `Finished` |
 //! | Finish | configured, no frame open | decides every pending frame (`Decision`s); phase Finished; a repeated Finish is a no-op | `NotConfigured`, `OutOfOrder`, `StorageFull` |

@@ -705,6 +705,72 @@ fn refused_messages_change_nothing() {
     });
 }
 
+/// A camera one strided column wide: a DepthRows of `MAX_ROW_VALUES + 1`
+/// rows fits a frame (small varints) and passes every other check; the
+/// device refuses it as a capacity (not damage), changing nothing, and
+/// accepts `MAX_ROW_VALUES` rows.
+#[test]
+fn depth_rows_beyond_the_row_buffer_are_refused_not_damage() {
+    on_big_stack(|| {
+        let mut b = Bench::<Small>::new();
+        let mut cfg = config(3);
+        cfg.intrinsics = Intrinsics {
+            width: 1,
+            height: 1100,
+            fx: 500.0,
+            fy: 500.0,
+            cx: 0.5,
+            cy: 550.0,
+        };
+        cfg.stride = 1;
+        assert_eq!((cfg.width_sent(), cfg.height_sent()), (1, 1100));
+        b.ok(HostMessage::Hello(cfg));
+        b.ok(HostMessage::FrameBegin {
+            frame: 0,
+            timestamp: 0.0,
+            pose: pose(0),
+        });
+        let max = MAX_ROW_VALUES as u16;
+        let data: Vec<u8> = (0..=MAX_ROW_VALUES)
+            .flat_map(|_| 2000u16.to_le_bytes())
+            .collect();
+        let rows = |first_row: u16, row_count: u16| {
+            let data = &data[..usize::from(row_count) * 2];
+            HostMessage::DepthRows(DepthRows {
+                frame: 0,
+                first_row,
+                row_count,
+                data,
+            })
+        };
+        let mut buf = vec![0u8; MAX_FRAME_LEN];
+        let frame = encode(
+            &HostFrame {
+                seq: 1,
+                msg: rows(0, max + 1),
+            },
+            &mut buf,
+        )
+        .unwrap();
+        assert!(frame.len() <= MAX_FRAME_LEN, "it fits a frame");
+        let before = b.status();
+        let kind = b.refused(rows(0, max + 1));
+        assert_eq!(kind, ErrorKind::CapacityExhausted);
+        assert!(!kind.is_damage(), "a refusal: the host must not resend it");
+        let after = b.status();
+        assert_eq!(after.refused, before.refused + 1);
+        assert_eq!(after.valid_pixels, before.valid_pixels);
+        assert_eq!(after.phase, Phase::InFrame);
+        // The largest accepted, then the rest of the frame.
+        b.ok(rows(0, max));
+        b.ok(rows(max, 1100 - max));
+        b.ok(HostMessage::FrameEnd { frame: 0 });
+        let end = b.status();
+        assert_eq!(end.frames_seen, 1);
+        assert!(end.valid_pixels > 0);
+    });
+}
+
 #[test]
 fn full_database_and_labels_degrade_as_documented() {
     on_big_stack(|| {

@@ -12,11 +12,21 @@ use serde::{Deserialize, Serialize};
 /// frame index (5), first row (3), row count (3), data length varint (3).
 pub const DEPTH_ROWS_OVERHEAD: usize = 5 + 1 + 5 + 3 + 3 + 3;
 
-/// Most `u16` depth values one [`HostMessage::DepthRows`] frame can carry within
-/// [`super::MAX_FRAME_LEN`] (1007 for a 2 KiB frame): 12 strided rows of 80 values,
-/// 1 row of 640.
-pub const MAX_ROW_VALUES: usize =
-    (super::framing::max_message_len(super::MAX_FRAME_LEN) - DEPTH_ROWS_OVERHEAD) / 2;
+/// Most `u16` depth values one [`HostMessage::DepthRows`] may carry (1007 for a
+/// 2 KiB frame: 12 strided rows of 80 values, 1 row of 640): the device's row
+/// buffer, sized so that such a message fits [`super::MAX_FRAME_LEN`] whatever
+/// its sequence number, frame index and row numbers are. The one bound on
+/// rows per message: [`DepthRows::check`] refuses more with
+/// [`ErrorKind::CapacityExhausted`] (a frame with small varints can hold a
+/// few more values), and [`super::depth_rows_per_message`] stays within it.
+pub const MAX_ROW_VALUES: usize = {
+    let values = (super::framing::max_message_len(super::MAX_FRAME_LEN) - DEPTH_ROWS_OVERHEAD) / 2;
+    assert!(
+        super::framing::max_frame_len(DEPTH_ROWS_OVERHEAD + 2 * values) <= super::MAX_FRAME_LEN,
+        "a DepthRows of MAX_ROW_VALUES values must fit a frame"
+    );
+    values
+};
 
 /// What goes on the wire from host to device: a sequence number and a message.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -200,7 +210,11 @@ pub struct DepthRows<'a> {
 
 impl<'a> DepthRows<'a> {
     /// Checks the chunk against the strided image size: rows inside
-    /// `0..height_sent` ([`ErrorKind::RowOutOfRange`]) and exactly
+    /// `0..height_sent` ([`ErrorKind::RowOutOfRange`]), at most
+    /// [`MAX_ROW_VALUES`] depth values (`row_count * width_sent`; more are
+    /// refused with [`ErrorKind::CapacityExhausted`], which is not damage:
+    /// sending it again cannot help, split the rows with
+    /// [`super::depth_rows_per_message`]) and exactly
     /// `row_count * width_sent * 2` data bytes ([`ErrorKind::RowTooLong`] /
     /// [`ErrorKind::RowTooShort`]). A chunk of zero rows and zero bytes is valid.
     pub fn check(&self, width_sent: u16, height_sent: u16) -> Result<(), ErrorKind> {
@@ -208,7 +222,11 @@ impl<'a> DepthRows<'a> {
         if end > u32::from(height_sent) {
             return Err(ErrorKind::RowOutOfRange);
         }
-        let expected = usize::from(self.row_count) * usize::from(width_sent) * 2;
+        let values = usize::from(self.row_count) * usize::from(width_sent);
+        if values > MAX_ROW_VALUES {
+            return Err(ErrorKind::CapacityExhausted);
+        }
+        let expected = values * 2;
         match self.data.len() {
             n if n > expected => Err(ErrorKind::RowTooLong),
             n if n < expected => Err(ErrorKind::RowTooShort),
@@ -647,7 +665,9 @@ pub enum ErrorKind {
     MidFrameReconfig,
     /// ExportRequest past the last record.
     ExportPastEnd,
-    /// A capacity with no defined degradation is exhausted; the message was refused.
+    /// A capacity with no defined degradation is exhausted; the message was
+    /// refused: e.g. DepthRows of more than [`MAX_ROW_VALUES`] depth values,
+    /// the device's row buffer (see [`DepthRows::check`]).
     CapacityExhausted,
     /// A frame message after Finish (send Reset first).
     Finished,

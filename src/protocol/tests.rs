@@ -5,6 +5,7 @@ extern crate std;
 use super::*;
 use crate::camera::{DepthRange, Intrinsics, Pose};
 use proptest::prelude::*;
+use std::format;
 use std::vec;
 use std::vec::Vec;
 
@@ -589,6 +590,81 @@ fn max_depth_rows_fit_the_receive_buffer() {
     };
     assert!(encode_vec(&frame).len() > MAX_FRAME_LEN);
     assert!(max_frame_len(plain_vec(&frame).unwrap().len()) > MAX_FRAME_LEN);
+}
+
+/// The one bound on depth values per DepthRows: the device's row buffer
+/// (`MAX_ROW_VALUES`). The largest message it accepts fits a frame whatever
+/// its varints; the smallest it refuses may fit a frame too (small varints)
+/// and is refused by the message check, with an error that is not damage.
+#[test]
+fn depth_rows_values_are_bounded_by_the_row_buffer() {
+    let max = u16::try_from(MAX_ROW_VALUES).unwrap();
+    // (width_sent, rows at the bound): the bound met exactly, and not.
+    for (width, rows) in [(1u16, max), (19, 53), (80, 12), (1007, 1)] {
+        assert_eq!(depth_rows_per_message(width), rows);
+        let height = rows + 1;
+        for (count, accepted) in [(rows, true), (rows + 1, false)] {
+            let values = usize::from(count) * usize::from(width);
+            assert_eq!(values <= MAX_ROW_VALUES, accepted, "width {width}");
+            let data = vec![0x5Au8; values * 2];
+            let msg = DepthRows {
+                frame: 0,
+                first_row: 0,
+                row_count: count,
+                data: &data,
+            };
+            let ctx = format!("width {width}, {count} rows");
+            if accepted {
+                assert_eq!(msg.check(width, height), Ok(()), "{ctx}");
+                // Fits a frame with the largest varints and no zero byte.
+                let worst = HostFrame {
+                    seq: u32::MAX,
+                    msg: HostMessage::DepthRows(DepthRows {
+                        frame: u32::MAX,
+                        data: &vec![0xFFu8; values * 2],
+                        ..msg
+                    }),
+                };
+                assert!(encode_vec(&worst).len() <= MAX_FRAME_LEN, "{ctx}");
+            } else {
+                let refused = msg.check(width, height);
+                assert_eq!(refused, Err(ErrorKind::CapacityExhausted), "{ctx}");
+                assert!(!ErrorKind::CapacityExhausted.is_damage());
+                // Before the length checks: a wrong length is refused the same.
+                let short = DepthRows {
+                    data: &data[2..],
+                    ..msg
+                };
+                assert_eq!(short.check(width, height), refused, "{ctx}");
+            }
+        }
+    }
+    // The smallest refused message, with small varints, fits a frame and
+    // decodes: the frame layer lets it through, the message check does not.
+    let data = vec![0x5Au8; (MAX_ROW_VALUES + 1) * 2];
+    let frame = HostFrame {
+        seq: 1,
+        msg: HostMessage::DepthRows(DepthRows {
+            frame: 0,
+            first_row: 0,
+            row_count: max + 1,
+            data: &data,
+        }),
+    };
+    let bytes = encode_vec(&frame);
+    assert!(bytes.len() <= MAX_FRAME_LEN);
+    let mut decoder = FrameDecoder::<MAX_FRAME_LEN>::new();
+    match decoder.feed::<HostFrame>(&bytes) {
+        Feed::Frame {
+            result:
+                Ok(HostFrame {
+                    msg: HostMessage::DepthRows(rows),
+                    ..
+                }),
+            ..
+        } => assert_eq!(rows.check(1, max + 1), Err(ErrorKind::CapacityExhausted)),
+        other => panic!("{other:?}"),
+    }
 }
 
 #[test]
