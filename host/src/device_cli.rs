@@ -1068,8 +1068,10 @@ pub fn export_to_with<L: Link>(
 }
 
 /// `placedb device --qemu`: boots the emulated board with UART0 listening on
-/// `tcp:127.0.0.1:PORT` (0: a free port) and waits until QEMU exits
-/// (Ctrl-C stops it). `icount` makes instruction counting exact.
+/// `tcp:127.0.0.1:PORT` (0: a free port) and waits until QEMU exits. Ctrl-C,
+/// SIGTERM or SIGHUP stop QEMU first, and on Linux QEMU is killed if placedb
+/// dies any other way ([`crate::foreground`]). `icount` makes instruction
+/// counting exact.
 pub fn qemu_device_cmd(
     firmware: Option<PathBuf>,
     port: u16,
@@ -1105,7 +1107,8 @@ pub fn qemu_device_cmd(
         &options,
         &format!("tcp:127.0.0.1:{port},server,nowait"),
     );
-    let mut child = command.spawn().map_err(|e| {
+    // QEMU ends with placedb, whatever stops it (host/src/foreground.rs).
+    let mut child = crate::foreground::spawn(&mut command).map_err(|e| {
         DeviceError::Io(io::Error::new(
             e.kind(),
             format!(
@@ -1124,14 +1127,16 @@ pub fn qemu_device_cmd(
         ),
         None => println!("  no --flash file: the board starts empty every time"),
     }
-    println!("  Ctrl-C stops it");
-    let status = child.wait()?;
-    if status.success() {
-        Ok(())
-    } else {
-        Err(DeviceError::Io(io::Error::other(format!(
-            "QEMU exited: {status}"
-        ))))
+    println!("  Ctrl-C (or SIGTERM, SIGHUP) stops it, QEMU with it");
+    match crate::foreground::wait(&mut child)? {
+        crate::foreground::Ended::Exited(status) if status.success() => Ok(()),
+        crate::foreground::Ended::Exited(status) => Err(DeviceError::Io(io::Error::other(
+            format!("QEMU exited: {status}"),
+        ))),
+        crate::foreground::Ended::Stopped(signal) => {
+            println!("stopped (signal {signal}): QEMU ended");
+            Ok(())
+        }
     }
 }
 

@@ -7,6 +7,7 @@ pub mod dbscale;
 pub mod device_cli;
 pub mod error;
 pub mod fault;
+pub mod foreground;
 pub mod graph;
 pub mod link;
 pub mod metrics;

@@ -369,7 +369,8 @@ fn collect_lines(
 }
 
 /// `placedb device --rp2040`: runs the emulated Pico in the foreground
-/// (its TCP port printed), until Ctrl-C.
+/// (its TCP port printed), until Ctrl-C, SIGTERM or SIGHUP, which stop the
+/// emulator first ([`crate::foreground`]).
 pub fn device_cmd(
     firmware: Option<PathBuf>,
     port: u16,
@@ -394,17 +395,19 @@ pub fn device_cmd(
         ),
         None => println!("  no --flash file: the board starts with an erased flash every time"),
     }
-    println!("  Ctrl-C stops it");
-    let mut child = harness_command(&firmware, &options)
-        .spawn()
+    println!("  Ctrl-C (or SIGTERM, SIGHUP) stops it, the emulator with it");
+    // The emulator ends with placedb, whatever stops it (crate::foreground).
+    let mut child = crate::foreground::spawn(&mut harness_command(&firmware, &options))
         .map_err(|e| DeviceError::Input(format!("cannot start node (Node 20 or later): {e}")))?;
-    let status = child.wait()?;
-    if status.success() {
-        Ok(())
-    } else {
-        Err(DeviceError::Io(io::Error::other(format!(
-            "the RP2040 emulator exited: {status}"
-        ))))
+    match crate::foreground::wait(&mut child)? {
+        crate::foreground::Ended::Exited(status) if status.success() => Ok(()),
+        crate::foreground::Ended::Exited(status) => Err(DeviceError::Io(io::Error::other(
+            format!("the RP2040 emulator exited: {status}"),
+        ))),
+        crate::foreground::Ended::Stopped(signal) => {
+            println!("stopped (signal {signal}): the emulator ended");
+            Ok(())
+        }
     }
 }
 
