@@ -106,18 +106,27 @@ fn sigterm_to_placedb_device_rp2040_ends_the_emulator() {
 
 #[test]
 fn sigkill_to_placedb_device_qemu_ends_qemu() {
+    // Orphans of this test process come to it rather than to a PID 1 that
+    // may never reap them: QEMU, once placedb is gone, is reaped here.
+    // SAFETY: prctl(2) with integer arguments.
+    assert_eq!(unsafe { libc::prctl(libc::PR_SET_CHILD_SUBREAPER, 1) }, 0);
     let firmware = placedb_host::link::built_firmware().unwrap_or_else(|e| panic!("{e}"));
     let mut placedb = placedb_device("--qemu", firmware);
     let qemu = child_named(&mut placedb, "qemu-system-arm", Duration::from_secs(60));
     signal(placedb.id(), libc::SIGKILL);
     placedb.wait().unwrap();
-    // The kernel sends QEMU SIGKILL as placedb dies; it is reaped by
-    // whoever adopts it, so wait (bounded) for it to be gone.
+    // The kernel sends QEMU SIGKILL as placedb dies: wait (bounded) for it
+    // to be gone, then reap it.
     let end = Instant::now() + Duration::from_secs(30);
     while running(qemu, "qemu-system-arm") {
         if Instant::now() > end {
             fail_left_running(qemu, "qemu-system-arm", "was killed");
         }
         std::thread::sleep(Duration::from_millis(20));
+    }
+    if stat(qemu).is_some_and(|(_, _, ppid)| ppid == std::process::id()) {
+        let mut status = 0;
+        // SAFETY: waitpid(2) on our (adopted) child, which has exited.
+        unsafe { libc::waitpid(libc::pid_t::try_from(qemu).unwrap(), &mut status, 0) };
     }
 }
