@@ -23,6 +23,8 @@ use std::path::Path;
 
 /// Database frames of the small case.
 pub const SMALL_DB: u32 = 10;
+/// Overlap threshold of the scan (the largest databases).
+pub const MU: f32 = 0.5;
 /// Sectors of the flash log (1 MiB, the boards' region).
 const SECTORS: usize = 256;
 
@@ -64,29 +66,40 @@ impl Probe {
     }
 }
 
-/// Streams the building at `mu`; writes `small.flash`, `big.flash` and
-/// `probe.bin` (the probe frame's messages for each) into `dir`; returns the
-/// two database sizes.
-pub fn prepare(dir: &Path, frames: usize, rooms: usize, mu: f32) -> Result<(u32, u32), String> {
-    let seq = synth::sequence(&SynthConfig {
-        frames,
-        width: 160,
-        height: 120,
-        seed: 1,
-        rooms,
-    });
-    let scan = device_cli::scan_config(&seq, &VoxelConfig::default()).map_err(|e| e.to_string())?;
-    let window = placedb::profile::by_name("ram256k").map_or(16, |p| p.window as u16);
-    let sel = SelectorConfig {
-        mu,
-        window,
-        sketch_margin: 0.05,
-    };
-    let cfg = device_cli::device_config(&scan, &sel).map_err(|e| e.to_string())?;
-    let per_msg = usize::from(depth_rows_per_message(cfg.width_sent()));
-    let frame = |i: usize| -> Result<Probe, String> {
-        let img = seq.depth(i).map_err(|e| e.to_string())?;
-        let (w, values) = sampled_rows(&img, cfg.stride);
+/// The building at its scan settings: the sequence and the device's Hello.
+struct Building {
+    seq: crate::Sequence,
+    cfg: placedb::protocol::Config,
+}
+
+impl Building {
+    /// The synthetic building of `frames` frames (one room per 500, at least
+    /// 2), 160x120, stride 1, on the ram256k profile's window at [`MU`].
+    fn new(frames: usize) -> Result<Building, String> {
+        let seq = synth::sequence(&SynthConfig {
+            frames,
+            width: 160,
+            height: 120,
+            seed: 1,
+            rooms: (frames / 500).max(2),
+        });
+        let scan =
+            device_cli::scan_config(&seq, &VoxelConfig::default()).map_err(|e| e.to_string())?;
+        let window = placedb::profile::by_name("ram256k").map_or(16, |p| p.window as u16);
+        let sel = SelectorConfig {
+            mu: MU,
+            window,
+            sketch_margin: 0.05,
+        };
+        let cfg = device_cli::device_config(&scan, &sel).map_err(|e| e.to_string())?;
+        Ok(Building { seq, cfg })
+    }
+
+    /// Frame `i` as the host sends it.
+    fn frame(&self, i: usize) -> Result<Probe, String> {
+        let per_msg = usize::from(depth_rows_per_message(self.cfg.width_sent()));
+        let img = self.seq.depth(i).map_err(|e| e.to_string())?;
+        let (w, values) = sampled_rows(&img, self.cfg.stride);
         let rows = values
             .chunks(w * per_msg)
             .enumerate()
@@ -96,21 +109,33 @@ pub fn prepare(dir: &Path, frames: usize, rooms: usize, mu: f32) -> Result<(u32,
             })
             .collect();
         Ok(Probe {
-            timestamp: seq.frames[i].timestamp,
-            pose: seq.frames[i].pose().map_err(|e| format!("{e:?}"))?,
+            timestamp: self.seq.frames[i].timestamp,
+            pose: self.seq.frames[i].pose().map_err(|e| format!("{e:?}"))?,
             rows,
         })
-    };
+    }
+
+    /// The probe: a frame from the middle of the walk, where the building
+    /// around it has its database frames.
+    fn probe(&self) -> Result<Probe, String> {
+        self.frame(self.seq.frames.len() / 2)
+    }
+}
+
+/// Streams the building of `frames` frames; writes `small.flash` and
+/// `big.flash` into `dir`; returns the two database sizes.
+pub fn prepare(dir: &Path, frames: usize) -> Result<(u32, u32), String> {
+    let building = Building::new(frames)?;
     let mut device = Box::new(Device256K::new());
     let end = (SECTORS * SimFlash::SECTOR) as u32;
     let mut log = Log::open(SimFlash::new(SECTORS), 0, end).map_err(|e| format!("{e:?}"))?;
     let mut seq_no = 0;
     let mut hello = Vec::new();
-    encode_frame(&mut seq_no, HostMessage::Hello(cfg), &mut hello);
+    encode_frame(&mut seq_no, HostMessage::Hello(building.cfg), &mut hello);
     device.receive_logged(&hello, &mut log, &mut |_| {});
     let mut small = None;
     for i in 0..frames {
-        let bytes = frame(i)?.bytes(i as u32, &mut seq_no);
+        let bytes = building.frame(i)?.bytes(i as u32, &mut seq_no);
         device.receive_logged(&bytes, &mut log, &mut |_| {});
         let db = device.status().database_size;
         if small.is_none() && db >= SMALL_DB {
@@ -121,64 +146,7 @@ pub fn prepare(dir: &Path, frames: usize, rooms: usize, mu: f32) -> Result<(u32,
     }
     let big = device.status().database_size;
     std::fs::write(dir.join("big.flash"), log.flash().bytes()).map_err(|e| e.to_string())?;
-    // The probe: a frame from the middle of the walk, where the building
-    // around it has its database frames.
-    let probe = frame(frames / 2)?;
-    std::fs::write(dir.join("probe.bin"), probe_file(&probe)).map_err(|e| e.to_string())?;
     Ok((small.unwrap_or(big), big))
-}
-
-/// The probe frame as a file: timestamp, pose, then each row chunk.
-fn probe_file(p: &Probe) -> Vec<u8> {
-    let mut out = Vec::new();
-    out.extend(p.timestamp.to_le_bytes());
-    for v in p.pose.translation.iter().chain(&p.pose.rotation) {
-        out.extend(v.to_le_bytes());
-    }
-    for (first, count, data) in &p.rows {
-        out.extend(first.to_le_bytes());
-        out.extend(count.to_le_bytes());
-        out.extend((data.len() as u32).to_le_bytes());
-        out.extend(data);
-    }
-    out
-}
-
-fn read_probe(bytes: &[u8]) -> Option<Probe> {
-    let f64_at = |b: &[u8]| {
-        b.get(..8)
-            .and_then(|b| b.try_into().ok())
-            .map(f64::from_le_bytes)
-    };
-    let f32_at = |b: &[u8]| {
-        b.get(..4)
-            .and_then(|b| b.try_into().ok())
-            .map(f32::from_le_bytes)
-    };
-    let timestamp = f64_at(bytes)?;
-    let mut rest = bytes.get(8..)?;
-    let mut v = [0f32; 7];
-    for x in v.iter_mut() {
-        *x = f32_at(rest)?;
-        rest = rest.get(4..)?;
-    }
-    let pose = Pose {
-        translation: [v[0], v[1], v[2]],
-        rotation: [v[3], v[4], v[5], v[6]],
-    };
-    let mut rows = Vec::new();
-    while !rest.is_empty() {
-        let first = u16::from_le_bytes(rest.get(..2)?.try_into().ok()?);
-        let count = u16::from_le_bytes(rest.get(2..4)?.try_into().ok()?);
-        let len = u32::from_le_bytes(rest.get(4..8)?.try_into().ok()?) as usize;
-        rows.push((first, count, rest.get(8..8 + len)?.to_vec()));
-        rest = rest.get(8 + len..)?;
-    }
-    Some(Probe {
-        timestamp,
-        pose,
-        rows,
-    })
 }
 
 /// The measured part: the probe frame's messages through the device. Kept
@@ -190,8 +158,10 @@ pub fn probe_step(device: &mut Device256K, log: &mut Log<SimFlash>, bytes: &[u8]
     replies
 }
 
-/// Child process: restores a device from `flash` and decides the probe.
-pub fn run_probe(flash: &Path, probe: &Path) -> Result<(), String> {
+/// Child process: restores a device from `flash` (written by [`prepare`]
+/// for a building of `frames` frames) and decides the probe frame, rendered
+/// again here (the building is deterministic).
+pub fn run_probe(flash: &Path, frames: usize) -> Result<(), String> {
     let bytes = std::fs::read(flash).map_err(|e| e.to_string())?;
     let mut sim = SimFlash::new(bytes.len() / SimFlash::SECTOR);
     sim.bytes_mut().copy_from_slice(&bytes);
@@ -200,8 +170,7 @@ pub fn run_probe(flash: &Path, probe: &Path) -> Result<(), String> {
     let mut device = Box::new(Device256K::new());
     device.restore(&mut log).map_err(|e| format!("{e:?}"))?;
     let st = device.status();
-    let p =
-        read_probe(&std::fs::read(probe).map_err(|e| e.to_string())?).ok_or("bad probe file")?;
+    let p = Building::new(frames)?.probe()?;
     let bytes = p.bytes(st.frames_seen, &mut 1000);
     let replies = probe_step(&mut device, &mut log, &bytes);
     let after = device.status();

@@ -808,9 +808,9 @@ struct BenchArgs {
     /// With --db-scaling: frames of the building (40 rooms).
     #[arg(long, default_value_t = 20_000)]
     building_frames: usize,
-    /// Internal (the callgrind child of --db-scaling): flash image and probe.
-    #[arg(long, num_args = 2, hide = true)]
-    db_probe: Option<Vec<PathBuf>>,
+    /// Internal (the callgrind child of --db-scaling): the flash image.
+    #[arg(long, hide = true)]
+    db_probe: Option<PathBuf>,
 }
 
 /// The paper's reference code on this machine, 7scenes-1000 at stride 1
@@ -821,8 +821,8 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
     if a.core {
         return core_cost(&a);
     }
-    if let Some([flash, probe]) = a.db_probe.as_deref() {
-        return Ok(placedb_host::dbscale::run_probe(flash, probe)?);
+    if let Some(flash) = &a.db_probe {
+        return Ok(placedb_host::dbscale::run_probe(flash, a.building_frames)?);
     }
     if a.db_scaling {
         return db_scaling(&a);
@@ -1017,15 +1017,15 @@ fn core_cost(a: &BenchArgs) -> Result<(), Error> {
 fn db_scaling(a: &BenchArgs) -> Result<(), Error> {
     let dir = std::env::temp_dir().join(format!("placedb-dbscale-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
-    let rooms = (a.building_frames / 500).max(2);
-    let (small, big) = placedb_host::dbscale::prepare(&dir, a.building_frames, rooms, 0.5)?;
+    let (small, big) = placedb_host::dbscale::prepare(&dir, a.building_frames)?;
     let mut counts = Vec::new();
     for image in ["small.flash", "big.flash"] {
         let args = [
             "bench".into(),
             "--db-probe".into(),
             dir.join(image).into_os_string(),
-            dir.join("probe.bin").into_os_string(),
+            "--building-frames".into(),
+            a.building_frames.to_string().into(),
         ];
         let (n, stdout) = callgrind_count(&dir, "*probe_step*", &args)?;
         counts.push((n, String::from_utf8_lossy(&stdout).trim().to_string()));

@@ -584,11 +584,6 @@ impl<
         self.db.len()
     }
 
-    /// The database index entries, ascending by frame index.
-    pub fn database(&self) -> &[database::DbEntry] {
-        self.db.entries()
-    }
-
     /// Database entry `i` in frame order, from RAM when it is resident, else
     /// from `store`; `None` past the end or when the store cannot read it.
     pub fn database_record(&self, i: usize, store: &mut dyn FrameStore<K>) -> Option<DbRecord> {
