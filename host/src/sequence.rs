@@ -6,7 +6,7 @@ use crate::error::ReadError;
 use std::path::PathBuf;
 
 /// A decoded depth image: row-major `u16`, 0 = no measurement.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct DepthImage {
     /// Width in pixels.
     pub width: u16,
@@ -97,6 +97,13 @@ pub trait DepthSource: Send + Sync {
     /// Decodes (or renders) frame `i`'s depth.
     fn depth(&self, i: usize) -> Result<DepthImage, ReadError>;
 
+    /// [`Self::depth`] into an existing image, so a loop over frames can
+    /// reuse one buffer; sources that can decode in place override it.
+    fn depth_into(&self, i: usize, image: &mut DepthImage) -> Result<(), ReadError> {
+        *image = self.depth(i)?;
+        Ok(())
+    }
+
     /// Frame `i`'s colour image when the source holds it itself (a ROS 2
     /// bag); `None` when it has none, or when colour is a file
     /// ([`FrameInfo::color_path`]).
@@ -126,7 +133,14 @@ pub struct Sequence {
 impl Sequence {
     /// Depth of frame `i`, checked to have the sequence's size.
     pub fn depth(&self, i: usize) -> Result<DepthImage, ReadError> {
-        let img = self.source.depth(i)?;
+        let mut img = DepthImage::default();
+        self.depth_into(i, &mut img)?;
+        Ok(img)
+    }
+
+    /// [`Self::depth`] into an existing image, reusing its buffer.
+    pub fn depth_into(&self, i: usize, img: &mut DepthImage) -> Result<(), ReadError> {
+        self.source.depth_into(i, img)?;
         if (img.width, img.height) != self.size {
             return Err(ReadError::SizeMismatch {
                 name: self.frames[i].depth_name.clone(),
@@ -134,7 +148,7 @@ impl Sequence {
                 found: (img.width, img.height),
             });
         }
-        Ok(img)
+        Ok(())
     }
 
     /// The core's intrinsics for this sequence.

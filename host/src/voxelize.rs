@@ -3,7 +3,7 @@
 //! would see at the same stride.
 
 use crate::error::ReadError;
-use crate::sequence::Sequence;
+use crate::sequence::{DepthImage, Sequence};
 use indicatif::ProgressBar;
 use placedb::{DepthRange, FrameProjector, VoxelGrid};
 use rayon::prelude::*;
@@ -54,6 +54,8 @@ pub struct VoxelSets {
     pub valid_pixels: Vec<u32>,
     /// Points dropped because their key was out of the representable range.
     pub out_of_range: u64,
+    /// Per frame: the same points.
+    pub frame_out_of_range: Vec<u32>,
     /// Summed over threads: time spent decoding or rendering depth.
     pub read_time: Duration,
     /// Summed over threads: time spent back-projecting and deduplicating.
@@ -107,14 +109,15 @@ pub fn voxelize_on(
     let k = seq.intrinsics();
     let per_frame: Vec<_> = (0..seq.frames.len())
         .into_par_iter()
-        .map(|i| {
+        // One image buffer per worker, reused frame after frame.
+        .map_init(DepthImage::default, |img, i| {
             let camera_err = |reason| VoxelizeError::Camera {
                 frame: i,
                 name: seq.frames[i].depth_name.clone(),
                 reason,
             };
             let t0 = Instant::now();
-            let img = seq.depth(i)?;
+            seq.depth_into(i, img)?;
             let t1 = Instant::now();
             let pose = seq.frames[i].pose().map_err(camera_err)?;
             let proj = FrameProjector::new(
@@ -130,16 +133,22 @@ pub fn voxelize_on(
             let mut oor = 0u32;
             let mut valid = 0u32;
             // Neighbouring pixels mostly fall in the same voxel: dropping
-            // repeats here keeps the sort below small.
+            // repeats here keeps the sort below small. Branch-free: every key
+            // is written, and the end moves only past a new one (a branch
+            // on "new key" would mispredict at every voxel edge).
+            let mut row_keys = vec![0u64; usize::from(img.width) + 1];
             let mut last = u64::MAX;
             for v in 0..img.height {
+                let mut n = 0;
                 valid += proj.project_row(v, img.row(v), &mut oor, |key| {
                     let bits = key.to_bits();
-                    if bits != last {
-                        keys.push(bits);
-                        last = bits;
+                    if let Some(slot) = row_keys.get_mut(n) {
+                        *slot = bits;
                     }
+                    n += usize::from(bits != last);
+                    last = bits;
                 });
+                keys.extend_from_slice(&row_keys[..n.min(row_keys.len())]);
             }
             keys.sort_unstable();
             keys.dedup();
@@ -156,6 +165,7 @@ pub fn voxelize_on(
         sets: Vec::with_capacity(per_frame.len()),
         valid_pixels: Vec::with_capacity(per_frame.len()),
         out_of_range: 0,
+        frame_out_of_range: Vec::with_capacity(per_frame.len()),
         read_time: Duration::ZERO,
         voxelize_time: Duration::ZERO,
     };
@@ -163,10 +173,22 @@ pub fn voxelize_on(
         out.sets.push(keys);
         out.valid_pixels.push(valid);
         out.out_of_range += oor as u64;
+        out.frame_out_of_range.push(oor);
         out.read_time += read;
         out.voxelize_time += vox;
     }
     Ok(out)
+}
+
+/// Decodes every frame's depth as [`voxelize_on`] does (same threads, same
+/// buffer reuse) and does nothing else with them: the floor under
+/// voxelizing, which `placedb bench` prints.
+pub fn decode_all(seq: &Sequence) -> Result<(), VoxelizeError> {
+    (0..seq.frames.len())
+        .into_par_iter()
+        .try_for_each_init(DepthImage::default, |img, i| {
+            seq.depth_into(i, img).map_err(VoxelizeError::from)
+        })
 }
 
 /// Minimum corner of all valid points of the sequence (the reference code's

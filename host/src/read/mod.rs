@@ -22,6 +22,7 @@ pub mod ros2;
 pub mod sevenscenes;
 mod text;
 pub mod tum;
+mod unfilter;
 pub mod vprdb;
 
 use crate::error::ReadError;
