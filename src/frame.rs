@@ -7,7 +7,7 @@
 //! which is also what travels on the wire.
 
 use crate::camera::{CameraError, DepthRange, FrameProjector, Intrinsics, Pose};
-use crate::voxel::{FrameVoxels, VoxelGrid};
+use crate::voxel::{FrameVoxels, VoxelGrid, VoxelKey};
 
 /// What every frame of a scan shares: camera, depth units, sampling, grid.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -173,6 +173,54 @@ impl<const FV: usize> FrameIngest<FV> {
         Ok(())
     }
 
+    /// Whether the frame in progress is projected exactly as `cfg` projects
+    /// it: a frame voxelized by another ingest must have been begun with its
+    /// selector's configuration (see `Selector::end_frame_from`).
+    pub fn begun_with(&self, cfg: &ScanConfig) -> bool {
+        match &self.current {
+            Some((meta, projector)) => FrameProjector::new(
+                &cfg.intrinsics,
+                cfg.depth_scale,
+                cfg.range,
+                cfg.stride,
+                &cfg.grid,
+                &meta.pose,
+            )
+            .is_ok_and(|p| p == *projector),
+            None => false,
+        }
+    }
+
+    /// Completes the frame in progress from its voxel set computed elsewhere
+    /// by the same projector (a host replaying a recording it has already
+    /// voxelized at this stride and grid): `keys` as [`FrameProjector`]
+    /// emitted them for every sampled row (any order, repeats allowed), and
+    /// the counts seen doing so. The result is what pushing the rows gives
+    /// only if no voxel is dropped, so this is all or nothing: it returns
+    /// `false` and changes nothing unless no row has been pushed yet and the
+    /// whole set fits ([`Self::VOXEL_LIMIT`]); the caller then pushes the rows.
+    pub fn fill_from_set(&mut self, keys: &[u64], valid_pixels: u32, out_of_range: u32) -> bool {
+        let Some((_, projector)) = &self.current else {
+            return false;
+        };
+        if self.next_row != 0 || keys.len() > Self::VOXEL_LIMIT {
+            return false;
+        }
+        // Checked before anything changes: a key the projector cannot have
+        // emitted is refused with the rest.
+        if !keys.iter().all(|&bits| VoxelKey::from_bits(bits).is_some()) {
+            return false;
+        }
+        let sampled_rows = projector.sampled_rows();
+        for key in keys.iter().filter_map(|&bits| VoxelKey::from_bits(bits)) {
+            self.voxels.insert(key);
+        }
+        self.stats.valid_pixels = valid_pixels;
+        self.stats.out_of_range = out_of_range;
+        self.next_row = sampled_rows;
+        true
+    }
+
     /// Sampled columns per row of the frame in progress.
     pub fn samples_per_row(&self) -> Option<u16> {
         self.current.as_ref().map(|(_, p)| p.samples_per_row())
@@ -223,5 +271,121 @@ impl<const FV: usize> FrameIngest<FV> {
         self.current = None;
         self.stats.dropped = self.voxels.dropped();
         Ok((meta, self.voxels.sorted(), self.stats))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scan(stride: u16) -> ScanConfig {
+        ScanConfig {
+            intrinsics: Intrinsics {
+                width: 16,
+                height: 12,
+                fx: 10.0,
+                fy: 10.0,
+                cx: 8.0,
+                cy: 6.0,
+            },
+            depth_scale: 1000.0,
+            range: DepthRange::default(),
+            stride,
+            grid: VoxelGrid::new(0.3, [0.0; 3]).unwrap(),
+        }
+    }
+
+    fn meta() -> FrameMeta {
+        FrameMeta {
+            index: 0,
+            timestamp: 0.0,
+            pose: Pose::from_quaternion([0.5, -1.0, 2.0], [0.0, 0.0, 0.38268343, 0.9238795])
+                .unwrap(),
+        }
+    }
+
+    /// Depths with a gradient, holes and an out-of-range value.
+    fn image() -> [u16; 16 * 12] {
+        core::array::from_fn(|i| match i % 11 {
+            0 => 0,
+            1 => 60_000,
+            _ => 500 + 37 * i as u16,
+        })
+    }
+
+    /// The sampled rows of `image()` and the keys the projector emits for
+    /// them, with its counts.
+    fn sampled(cfg: &ScanConfig) -> (heapless::Vec<u16, 192>, heapless::Vec<u64, 192>, u32, u32) {
+        let p = FrameProjector::new(
+            &cfg.intrinsics,
+            cfg.depth_scale,
+            cfg.range,
+            cfg.stride,
+            &cfg.grid,
+            &meta().pose,
+        )
+        .unwrap();
+        let img = image();
+        let (mut rows, mut keys, mut oor) = (heapless::Vec::new(), heapless::Vec::new(), 0);
+        let mut valid = 0;
+        for (v, row) in img.chunks_exact(16).enumerate() {
+            valid += p.project_row(v as u16, row, &mut oor, |k| keys.push(k.to_bits()).unwrap());
+            if p.samples_row(v as u16) {
+                rows.extend(row.iter().step_by(cfg.stride as usize).copied());
+            }
+        }
+        (rows, keys, valid, oor)
+    }
+
+    #[test]
+    fn a_frame_filled_from_its_set_ends_as_a_pushed_one() {
+        for stride in [1, 2, 3] {
+            let cfg = scan(stride);
+            let (rows, keys, valid, oor) = sampled(&cfg);
+            let mut pushed = FrameIngest::<256>::new();
+            pushed.begin(meta(), 0, &cfg).unwrap();
+            pushed.push_rows(0, &rows).unwrap();
+            let mut filled = FrameIngest::<256>::new();
+            filled.begin(meta(), 0, &cfg).unwrap();
+            assert!(filled.begun_with(&cfg));
+            assert!(!filled.begun_with(&scan(stride + 1)));
+            assert!(filled.fill_from_set(&keys, valid, oor));
+            let (m1, k1, s1) = pushed.end().unwrap();
+            let (m1, k1, s1) = (m1, heapless::Vec::<u64, 192>::from_slice(k1).unwrap(), s1);
+            let (m2, k2, s2) = filled.end().unwrap();
+            assert_eq!((m1, k1.as_slice(), s1), (m2, k2, s2), "stride {stride}");
+            assert!(!k2.is_empty());
+        }
+    }
+
+    #[test]
+    fn filling_is_all_or_nothing() {
+        let cfg = scan(1);
+        let (rows, keys, valid, oor) = sampled(&cfg);
+        let mut ingest = FrameIngest::<256>::new();
+        assert!(!ingest.fill_from_set(&keys, valid, oor), "no frame");
+        ingest.begin(meta(), 0, &cfg).unwrap();
+        ingest.push_rows(0, &rows[..16]).unwrap();
+        assert!(
+            !ingest.fill_from_set(&keys, valid, oor),
+            "rows already pushed"
+        );
+        let mut ingest = FrameIngest::<256>::new();
+        ingest.begin(meta(), 0, &cfg).unwrap();
+        assert!(!ingest.fill_from_set(&[u64::MAX], 1, 0), "not a key");
+        // A set larger than the frame can hold would lose voxels.
+        let mut small = FrameIngest::<8>::new();
+        small.begin(meta(), 0, &cfg).unwrap();
+        let mut sorted = keys.clone();
+        sorted.sort_unstable();
+        let distinct = 1 + sorted.windows(2).filter(|w| w[0] != w[1]).count();
+        assert!(distinct > FrameIngest::<8>::VOXEL_LIMIT);
+        assert!(!small.fill_from_set(&keys, valid, oor));
+        let refused = Err(FrameError::MissingRows {
+            received: 0,
+            expected: 12,
+        });
+        assert_eq!(ingest.end().map(|_| ()), refused);
+        assert_eq!(small.end().map(|_| ()), refused);
     }
 }

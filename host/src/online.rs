@@ -3,8 +3,9 @@
 //! chunks, one selector of a named capacity profile.
 
 use crate::sequence::{DepthImage, Sequence};
-use crate::voxelize::VoxelizeError;
+use crate::voxelize::{VoxelSets, VoxelizeError};
 use indicatif::ProgressBar;
+use placedb::frame::{FrameError, FrameIngest};
 use placedb::profile::{Ram1M, Ram256K, Ram512K};
 use placedb::select::{DbSnapshot, FrameStore};
 use placedb::store::{key_of, merge_count};
@@ -80,12 +81,51 @@ pub fn replay(
     rows_per_chunk: usize,
     progress: Option<&ProgressBar>,
 ) -> Result<OnlineRun, ReplayError> {
+    replay_with(seq, None, profile, scan, cfg, rows_per_chunk, progress)
+}
+
+/// [`replay`] of a sequence already voxelized with `scan` (its stride,
+/// grid, range and camera: `sets` from [`crate::voxelize`] on the same
+/// configuration): a frame whose voxel set fits the profile's frame set
+/// is filled from `sets` instead of decoded and voxelized again, with the
+/// same result; the others (a set the device would truncate) are decoded
+/// and their rows pushed as in [`replay`].
+pub fn replay_voxelized(
+    seq: &Sequence,
+    sets: &VoxelSets,
+    profile: &str,
+    scan: ScanConfig,
+    cfg: SelectorConfig,
+    rows_per_chunk: usize,
+    progress: Option<&ProgressBar>,
+) -> Result<OnlineRun, ReplayError> {
+    replay_with(
+        seq,
+        Some(sets),
+        profile,
+        scan,
+        cfg,
+        rows_per_chunk,
+        progress,
+    )
+}
+
+fn replay_with(
+    seq: &Sequence,
+    sets: Option<&VoxelSets>,
+    profile: &str,
+    scan: ScanConfig,
+    cfg: SelectorConfig,
+    rows_per_chunk: usize,
+    progress: Option<&ProgressBar>,
+) -> Result<OnlineRun, ReplayError> {
     // The selectors are hundreds of KiB: build them on a thread with a stack to match.
     std::thread::scope(|s| {
         let job = s.spawn_scoped_big(move || match profile {
             "ram256k" => run(
                 &mut Box::new(Ram256K::new()),
                 seq,
+                sets,
                 scan,
                 cfg,
                 rows_per_chunk,
@@ -94,6 +134,7 @@ pub fn replay(
             "ram512k" => run(
                 &mut Box::new(Ram512K::new()),
                 seq,
+                sets,
                 scan,
                 cfg,
                 rows_per_chunk,
@@ -102,6 +143,7 @@ pub fn replay(
             "ram1m" => run(
                 &mut Box::new(Ram1M::new()),
                 seq,
+                sets,
                 scan,
                 cfg,
                 rows_per_chunk,
@@ -164,6 +206,65 @@ impl<const K: usize> FrameStore<K> for MemStore<K> {
     }
 }
 
+/// One frame voxelized off the selector, ready for `end_frame_from`.
+struct Ingested<const FV: usize> {
+    ingest: Box<FrameIngest<FV>>,
+    read_time: Duration,
+}
+
+/// Voxelizes frame `i`: from its voxel set in `sets` when that fits, else
+/// decoded and voxelized as a board would receive it, its sampled rows
+/// pushed `rows_per_chunk` at a time.
+fn ingest<const FV: usize>(
+    seq: &Sequence,
+    sets: Option<&VoxelSets>,
+    i: usize,
+    scan: &ScanConfig,
+    rows_per_chunk: usize,
+    img: &mut DepthImage,
+) -> Result<Ingested<FV>, ReplayError> {
+    let core_err = |reason: FrameError| ReplayError::Core {
+        frame: i,
+        reason: SelectError::Frame(reason),
+    };
+    let pose = seq.frames[i]
+        .pose()
+        .map_err(|reason| VoxelizeError::Camera {
+            frame: i,
+            name: seq.frames[i].depth_name.clone(),
+            reason,
+        })?;
+    let mut ingest = Box::new(FrameIngest::<FV>::new());
+    let meta = FrameMeta {
+        index: i as u32,
+        timestamp: seq.frames[i].timestamp,
+        pose,
+    };
+    ingest.begin(meta, i as u32, scan).map_err(core_err)?;
+    let known = sets.and_then(|s| {
+        let oor = s.frame_out_of_range.get(i).copied().unwrap_or(0);
+        Some((s.sets.get(i)?, *s.valid_pixels.get(i)?, oor))
+    });
+    if let Some((keys, valid, oor)) = known {
+        if ingest.fill_from_set(keys, valid, oor) {
+            return Ok(Ingested {
+                ingest,
+                read_time: Duration::ZERO,
+            });
+        }
+    }
+    let t = Instant::now();
+    seq.depth_into(i, img).map_err(VoxelizeError::from)?;
+    let read_time = t.elapsed();
+    let (width, rows) = sampled_rows(img, scan.stride);
+    let chunk = width * rows_per_chunk.max(1);
+    for (c, data) in rows.chunks(chunk.max(1)).enumerate() {
+        let first = (c * rows_per_chunk.max(1)) as u16;
+        ingest.push_rows(first, data).map_err(core_err)?;
+    }
+    Ok(Ingested { ingest, read_time })
+}
+
 fn run<
     const FV: usize,
     const POOL: usize,
@@ -174,6 +275,7 @@ fn run<
 >(
     sel: &mut Selector<FV, POOL, DB, W, K, R>,
     seq: &Sequence,
+    sets: Option<&VoxelSets>,
     scan: ScanConfig,
     cfg: SelectorConfig,
     rows_per_chunk: usize,
@@ -193,48 +295,42 @@ fn run<
             }
         }
     };
-    // Decode a batch in parallel, then feed it in order: the core is sequential by nature.
-    let batch = 2 * rayon::current_num_threads().max(1);
-    for start in (0..n).step_by(batch) {
-        let end = (start + batch).min(n);
-        let images: Vec<_> = (start..end)
+    // Frames are decoded and voxelized in parallel, each into its own
+    // ingest, and decided in order (the selection is sequential by nature):
+    // batch k + 1 is voxelized while batch k is decided.
+    let batch = 8 * rayon::current_num_threads().max(1);
+    let voxelize_batch = |start: usize| -> Result<Vec<Ingested<FV>>, ReplayError> {
+        (start..(start + batch).min(n))
             .into_par_iter()
-            .map(|i| {
-                let t = Instant::now();
-                let img = seq.depth(i).map_err(VoxelizeError::from)?;
-                let pose = seq.frames[i]
-                    .pose()
-                    .map_err(|reason| VoxelizeError::Camera {
-                        frame: i,
-                        name: seq.frames[i].depth_name.clone(),
-                        reason,
-                    })?;
-                let (width, rows) = sampled_rows(&img, scan.stride);
-                Ok((pose, width, rows, t.elapsed()))
+            .map_init(DepthImage::default, |img, i| {
+                ingest(seq, sets, i, &scan, rows_per_chunk, img)
             })
-            .collect::<Result<_, VoxelizeError>>()?;
-        for (k, (pose, width, rows, took)) in images.into_iter().enumerate() {
-            let i = start + k;
-            read_time += took;
+            .collect()
+    };
+    let mut ready = voxelize_batch(0)?;
+    let mut start = 0;
+    while start < n {
+        let next = start + batch;
+        let mut decide = |frames: Vec<Ingested<FV>>| -> Result<Duration, ReplayError> {
             let t = Instant::now();
-            let meta = FrameMeta {
-                index: i as u32,
-                timestamp: seq.frames[i].timestamp,
-                pose,
-            };
-            sel.begin_frame(meta).map_err(core_err(i))?;
-            let chunk = width * rows_per_chunk.max(1);
-            for (c, data) in rows.chunks(chunk.max(1)).enumerate() {
-                let first = (c * rows_per_chunk.max(1)) as u16;
-                sel.push_rows(first, data).map_err(core_err(i))?;
+            for (k, mut frame) in frames.into_iter().enumerate() {
+                read_time += frame.read_time;
+                sel.end_frame_from(&mut frame.ingest, &mut store, &mut record)
+                    .map_err(core_err(start + k))?;
+                if let Some(p) = progress {
+                    p.inc(1);
+                }
             }
-            sel.end_frame_with(&mut store, &mut record)
-                .map_err(core_err(i))?;
-            core_time += t.elapsed();
-            if let Some(p) = progress {
-                p.inc(1);
-            }
-        }
+            Ok(t.elapsed())
+        };
+        let (voxelized, decided) = if next < n {
+            rayon::join(|| voxelize_batch(next), || decide(ready))
+        } else {
+            (Ok(Vec::new()), decide(ready))
+        };
+        core_time += decided?;
+        ready = voxelized?;
+        start = next;
     }
     let t = Instant::now();
     sel.finish_with(&mut store, &mut record)

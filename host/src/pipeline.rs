@@ -266,8 +266,12 @@ pub fn solve(
                 sketch_margin: params.sketch_margin,
             };
             let pb = bar(n, "online", quiet);
-            let run = online::replay(
+            // The replay reuses the voxel sets computed above (same stride,
+            // grid and camera): only frames the device would truncate are
+            // decoded again.
+            let run = online::replay_voxelized(
                 seq,
+                &prep.sets,
                 &params.profile,
                 scan,
                 cfg,

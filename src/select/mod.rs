@@ -744,6 +744,44 @@ impl<
         Ok(())
     }
 
+    /// Ends a frame voxelized by another [`FrameIngest`] instead of through
+    /// [`Self::begin_frame`] and [`Self::push_rows`], with the same result:
+    /// a host replaying a recording voxelizes many frames in parallel and
+    /// decides them here in order. `ingest` must hold a complete frame with
+    /// the next frame index, begun with this selector's scan configuration;
+    /// it is exchanged with the selector's own idle ingest, so it comes back
+    /// empty, ready for another frame. Refused with nothing changed (and
+    /// `ingest` untouched) otherwise, and while a frame is in progress here.
+    pub fn end_frame_from(
+        &mut self,
+        ingest: &mut FrameIngest<FV>,
+        store: &mut dyn FrameStore<K>,
+        emit: impl FnMut(FrameDecision),
+    ) -> Result<(), SelectError> {
+        let (scan, _) = self.config.as_ref().ok_or(SelectError::NotConfigured)?;
+        if self.ingest.current().is_some() {
+            return Err(SelectError::FrameInProgress);
+        }
+        let meta = ingest
+            .current()
+            .ok_or(SelectError::Frame(FrameError::NoFrame))?;
+        if meta.index != self.status.frames_seen {
+            return Err(SelectError::Frame(FrameError::WrongIndex {
+                expected: self.status.frames_seen,
+            }));
+        }
+        if !ingest.begun_with(scan) {
+            return Err(SelectError::BadConfig);
+        }
+        core::mem::swap(&mut self.ingest, ingest);
+        let ended = self.end_frame_with(store, emit);
+        if ended.is_err() {
+            // Refused (rows missing): the frame is still open; hand it back.
+            core::mem::swap(&mut self.ingest, ingest);
+        }
+        ended
+    }
+
     /// [`Self::finish_with`] for a selector whose database stays in RAM.
     pub fn finish(&mut self, emit: impl FnMut(FrameDecision)) -> Result<(), SelectError> {
         self.finish_with(&mut NoStore, emit)
