@@ -37,6 +37,7 @@ use placedb::{
     ScanConfig, Selector, SelectorConfig, Status, VoxelGrid,
 };
 use placedb_host::graph::CoObservation;
+use placedb_host::rng::SplitMix64 as Rng;
 use placedb_host::solve::{in_order, is_dominating};
 use proptest::prelude::*;
 
@@ -72,34 +73,6 @@ fn new_selector<
 
 // ---------------------------------------------------------------------------
 // Scene generation.
-
-/// SplitMix64.
-#[derive(Debug, Clone)]
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in [0, 1).
-    fn unit(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.unit()
-    }
-
-    /// Uniform in 1..=n.
-    fn one_to(&mut self, n: usize) -> usize {
-        1 + (self.next() % n as u64) as usize
-    }
-}
 
 /// Everything a scene is derived from (small, so proptest can print and
 /// shrink it); the pixels are a pure function of these.
@@ -271,7 +244,7 @@ fn cast(room: &Aabb3, obstacles: &[Aabb3], o: [f64; 3], d: [f64; 3]) -> f64 {
 /// The scan of `p`: a room of 3-8 m with up to three obstacles, a random walk
 /// of the camera inside it, depth in 1000 or 5000 units per metre.
 fn render(p: &Params) -> Scan {
-    let mut rng = Rng(p.seed);
+    let mut rng = Rng::new(p.seed);
     let (w, h) = (p.width, p.height);
     let fx = rng.range(0.5, 1.2) * w as f64;
     let intrinsics = Intrinsics {
@@ -299,7 +272,7 @@ fn render(p: &Params) -> Scan {
             rng.range(2.4, 3.2),
         ],
     };
-    let obstacles: Vec<Aabb3> = (0..rng.next() % 4)
+    let obstacles: Vec<Aabb3> = (0..rng.next_u64() % 4)
         .map(|_| {
             let (sx, sy, sz) = (
                 rng.range(0.3, 1.2),
@@ -457,7 +430,7 @@ fn run<const FV: usize, const POOL: usize, const DB: usize, const W: usize, cons
     sel.configure(scan.scan, cfg).expect("configure");
     let mut log = Vec::new();
     let mut trace = Vec::new();
-    let mut rng = Rng(match chunking {
+    let mut rng = Rng::new(match chunking {
         Chunking::Random(s) => s,
         _ => 0,
     });
@@ -476,7 +449,7 @@ fn run<const FV: usize, const POOL: usize, const DB: usize, const W: usize, cons
             let take = match chunking {
                 Chunking::PerRow => 1,
                 Chunking::Whole => rows,
-                Chunking::Random(_) => rng.one_to(rows - r),
+                Chunking::Random(_) => 1 + rng.below((rows - r) as u64) as usize,
             };
             sel.push_rows(r as u16, &data[r * width..(r + take) * width])
                 .expect("push_rows");
