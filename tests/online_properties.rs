@@ -27,16 +27,25 @@
 //!    it, the one overlapping the most uncovered open window frames (itself
 //!    included; ties: the latest frame).
 //!
+//! h also runs at the profiles' windows (16, 32, 48) on scans longer than
+//! the window, and on the sketch path (a key pool of 0 words: every overlap
+//! is a sketch estimate) against the same rule over the estimates. A quarter
+//! of the scans anchor the grid so that the voxel key range ends mid-room:
+//! the points beyond are dropped and counted, and nothing else changes.
+//!
 //! Degraded mode (tiny capacities): a, c, d, e and the consistency of the
 //! counters, flags and decisions; never a panic.
 
 use placedb::select::flags;
+use placedb::sketch::Sketch;
+use placedb::store::Aabb;
 use placedb::voxel::{intersection_size, iou};
 use placedb::{
     DbRecord, Decision, DepthRange, FrameDecision, FrameMeta, FrameProjector, Intrinsics, Pose,
     ScanConfig, Selector, SelectorConfig, Status, VoxelGrid,
 };
 use placedb_host::graph::CoObservation;
+use placedb_host::rng::SplitMix64 as Rng;
 use placedb_host::solve::{in_order, is_dominating};
 use proptest::prelude::*;
 
@@ -61,10 +70,11 @@ fn new_selector<
     const DB: usize,
     const W: usize,
     const K: usize,
->() -> Box<Selector<FV, POOL, DB, W, K>> {
+    const R: usize,
+>() -> Box<Selector<FV, POOL, DB, W, K, R>> {
     std::thread::Builder::new()
         .stack_size(64 << 20)
-        .spawn(|| Box::new(Selector::<FV, POOL, DB, W, K>::new()))
+        .spawn(|| Box::new(Selector::<FV, POOL, DB, W, K, R>::new()))
         .expect("spawn")
         .join()
         .expect("selector construction panicked")
@@ -72,34 +82,6 @@ fn new_selector<
 
 // ---------------------------------------------------------------------------
 // Scene generation.
-
-/// SplitMix64.
-#[derive(Debug, Clone)]
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in [0, 1).
-    fn unit(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.unit()
-    }
-
-    /// Uniform in 1..=n.
-    fn one_to(&mut self, n: usize) -> usize {
-        1 + (self.next() % n as u64) as usize
-    }
-}
 
 /// Everything a scene is derived from (small, so proptest can print and
 /// shrink it); the pixels are a pure function of these.
@@ -119,6 +101,9 @@ struct Params {
     turn: f64,
     /// Share of pixels with no measurement.
     dropout: f64,
+    /// The grid anchored so that the voxel key range ends mid-room: the
+    /// points beyond it are out of range (dropped and counted).
+    edge: bool,
 }
 
 fn params() -> impl Strategy<Value = Params> {
@@ -134,9 +119,23 @@ fn params() -> impl Strategy<Value = Params> {
         0.02f64..0.5,
         0.0f64..0.6,
         0.0f64..0.3,
+        prop::bool::weighted(0.25),
     )
         .prop_map(
-            |(seed, width, height, frames, stride, mu, window, voxel, step, turn, dropout)| {
+            |(
+                seed,
+                width,
+                height,
+                frames,
+                stride,
+                mu,
+                window,
+                voxel,
+                step,
+                turn,
+                dropout,
+                edge,
+            )| {
                 Params {
                     seed,
                     width,
@@ -149,9 +148,31 @@ fn params() -> impl Strategy<Value = Params> {
                     step,
                     turn,
                     dropout,
+                    edge,
                 }
             },
         )
+}
+
+/// Scans for the profiles' own windows (16, 32, 48): more frames than the
+/// window, smaller images so that a run stays quick.
+fn wide_params() -> impl Strategy<Value = Params> {
+    (
+        params(),
+        prop::sample::select(vec![16u16, 32, 48]),
+        24u16..=40,
+        18u16..=30,
+        1u16..=2,
+        10usize..=60,
+    )
+        .prop_map(|(p, window, width, height, stride, extra)| Params {
+            window,
+            width,
+            height,
+            stride,
+            frames: usize::from(window) + extra,
+            ..p
+        })
 }
 
 /// An axis-aligned box, metres.
@@ -271,7 +292,7 @@ fn cast(room: &Aabb3, obstacles: &[Aabb3], o: [f64; 3], d: [f64; 3]) -> f64 {
 /// The scan of `p`: a room of 3-8 m with up to three obstacles, a random walk
 /// of the camera inside it, depth in 1000 or 5000 units per metre.
 fn render(p: &Params) -> Scan {
-    let mut rng = Rng(p.seed);
+    let mut rng = Rng::new(p.seed);
     let (w, h) = (p.width, p.height);
     let fx = rng.range(0.5, 1.2) * w as f64;
     let intrinsics = Intrinsics {
@@ -283,14 +304,7 @@ fn render(p: &Params) -> Scan {
         cy: ((h as f64 - 1.0) / 2.0 + rng.range(-3.0, 3.0)) as f32,
     };
     let depth_scale = if rng.unit() < 0.5 { 1000.0 } else { 5000.0 };
-    let origin = [0, 1, 2].map(|_| rng.range(-1.0, 1.0) as f32);
-    let scan = ScanConfig {
-        intrinsics,
-        depth_scale,
-        range: DepthRange::default(),
-        stride: p.stride,
-        grid: VoxelGrid::new(p.voxel, origin).expect("grid"),
-    };
+    let mut origin = [0, 1, 2].map(|_| rng.range(-1.0, 1.0) as f32);
     let room = Aabb3 {
         min: [0.0; 3],
         max: [
@@ -299,7 +313,19 @@ fn render(p: &Params) -> Scan {
             rng.range(2.4, 3.2),
         ],
     };
-    let obstacles: Vec<Aabb3> = (0..rng.next() % 4)
+    if p.edge {
+        // Keys span 2^20 voxels either side of the origin on each axis.
+        let span = f64::from(1u32 << 20) * f64::from(p.voxel);
+        origin[0] = (room.max[0] / 2.0 - span) as f32;
+    }
+    let scan = ScanConfig {
+        intrinsics,
+        depth_scale,
+        range: DepthRange::default(),
+        stride: p.stride,
+        grid: VoxelGrid::new(p.voxel, origin).expect("grid"),
+    };
+    let obstacles: Vec<Aabb3> = (0..rng.next_u64() % 4)
         .map(|_| {
             let (sx, sy, sz) = (
                 rng.range(0.3, 1.2),
@@ -367,10 +393,12 @@ fn render(p: &Params) -> Scan {
 }
 
 /// The voxel set of every frame, computed from the full-resolution rows with
-/// the core's projector (not through the selector's ingest).
-fn voxel_sets(scan: &Scan) -> Vec<Vec<u64>> {
+/// the core's projector (not through the selector's ingest), and the points
+/// out of the key range in all of them.
+fn voxel_sets(scan: &Scan) -> (Vec<Vec<u64>>, u32) {
     let c = &scan.scan;
-    (0..scan.frames.len())
+    let mut out_of_range = 0;
+    let sets = (0..scan.frames.len())
         .map(|f| {
             let proj = FrameProjector::new(
                 &c.intrinsics,
@@ -388,12 +416,13 @@ fn voxel_sets(scan: &Scan) -> Vec<Vec<u64>> {
                     keys.push(k.to_bits())
                 });
             }
-            assert_eq!(oor, 0);
+            out_of_range += oor;
             keys.sort_unstable();
             keys.dedup();
             keys
         })
-        .collect()
+        .collect();
+    (sets, out_of_range)
 }
 
 fn set_iou(a: &[u64], b: &[u64]) -> f32 {
@@ -448,16 +477,23 @@ impl Run {
     }
 }
 
-fn run<const FV: usize, const POOL: usize, const DB: usize, const W: usize, const K: usize>(
+fn run<
+    const FV: usize,
+    const POOL: usize,
+    const DB: usize,
+    const W: usize,
+    const K: usize,
+    const R: usize,
+>(
     scan: &Scan,
     cfg: SelectorConfig,
     chunking: Chunking,
 ) -> Run {
-    let mut sel = new_selector::<FV, POOL, DB, W, K>();
+    let mut sel = new_selector::<FV, POOL, DB, W, K, R>();
     sel.configure(scan.scan, cfg).expect("configure");
     let mut log = Vec::new();
     let mut trace = Vec::new();
-    let mut rng = Rng(match chunking {
+    let mut rng = Rng::new(match chunking {
         Chunking::Random(s) => s,
         _ => 0,
     });
@@ -476,7 +512,7 @@ fn run<const FV: usize, const POOL: usize, const DB: usize, const W: usize, cons
             let take = match chunking {
                 Chunking::PerRow => 1,
                 Chunking::Whole => rows,
-                Chunking::Random(_) => rng.one_to(rows - r),
+                Chunking::Random(_) => 1 + rng.below((rows - r) as u64) as usize,
             };
             sel.push_rows(r as u16, &data[r * width..(r + take) * width])
                 .expect("push_rows");
@@ -623,11 +659,18 @@ fn check_consistency(r: &Run, finals: &[Decision]) -> Result<(), TestCaseError> 
 fn check_exact(
     r: &Run,
     scan: &Scan,
-    sets: &[Vec<u64>],
+    (sets, out_of_range): &(Vec<Vec<u64>>, u32),
     mu: f32,
 ) -> Result<Vec<Decision>, TestCaseError> {
     let n = sets.len();
-    prop_assert_eq!(r.status.flags, 0, "exact mode degraded: {:?}", r.status);
+    // Points out of the key range are dropped and counted, nothing else.
+    prop_assert_eq!(r.status.out_of_range_points, *out_of_range);
+    prop_assert_eq!(
+        r.status.flags & !flags::OUT_OF_RANGE,
+        0,
+        "exact mode degraded: {:?}",
+        r.status
+    );
     prop_assert_eq!(r.status.sketched_frames, 0);
     prop_assert_eq!(r.status.truncated_frames, 0);
     let finals = check_decision_stream(r, n)?;
@@ -662,6 +705,42 @@ fn model(sets: &[Vec<u64>], mu: f32, window: usize) -> Vec<(usize, FrameDecision
     let ious: Vec<Vec<f32>> = (0..n)
         .map(|a| (0..n).map(|b| set_iou(&sets[a], &sets[b])).collect())
         .collect();
+    model_on(&ious, mu, window)
+}
+
+/// The rule when every frame is compared by sketch (no key fits the pool):
+/// the bottom-`K` Jaccard estimate of sets whose boxes touch, counted as an
+/// overlap only above `mu + margin`.
+fn sketch_model<const K: usize>(
+    sets: &[Vec<u64>],
+    mu: f32,
+    margin: f32,
+    window: usize,
+) -> Vec<(usize, FrameDecision)> {
+    let boxes: Vec<Option<Aabb>> = sets.iter().map(|s| Aabb::of_sorted(s)).collect();
+    let sketches: Vec<Sketch<K>> = sets
+        .iter()
+        .map(|s| Sketch::from_keys(s.iter().copied()))
+        .collect();
+    let n = sets.len();
+    let estimates: Vec<Vec<f32>> = (0..n)
+        .map(|a| {
+            (0..n)
+                .map(|b| match (&boxes[a], &boxes[b]) {
+                    (Some(x), Some(y)) if x.touches(y) => sketches[a].jaccard(&sketches[b]),
+                    _ => 0.0,
+                })
+                .collect()
+        })
+        .collect();
+    model_on(&estimates, mu + margin, window)
+}
+
+/// The window rule over a symmetric matrix of overlap scores: `a` and `b`
+/// overlap when their score is above `threshold`; labels go to the highest
+/// score.
+fn model_on(ious: &[Vec<f32>], mu: f32, window: usize) -> Vec<(usize, FrameDecision)> {
+    let n = ious.len();
     let overlaps = |a: usize, b: usize| a != b && ious[a][b] > mu;
     let mut taken = vec![false; n];
     let mut db: Vec<usize> = Vec::new();
@@ -754,6 +833,14 @@ fn tiny_limits() -> [u32; 4] {
     [4, 1024, 4, 192]
 }
 
+fn wide_limits() -> [u32; 4] {
+    [128, 262_144, 48, 1536]
+}
+
+fn sketch_limits() -> [u32; 4] {
+    [64, 0, 8, 3072]
+}
+
 // ---------------------------------------------------------------------------
 // Properties.
 
@@ -764,22 +851,23 @@ proptest! {
     #[test]
     fn exact_mode(p in params(), chunk_seed in any::<u64>()) {
         let scan = render(&p);
-        let sets = voxel_sets(&scan);
+        let voxels = voxel_sets(&scan);
+        let sets = &voxels.0;
         let cfg = config(&p);
-        let base = run::<4096, 131_072, 64, 8, 32>(&scan, cfg, Chunking::PerRow);
+        let base = run::<4096, 131_072, 64, 8, 32, 64>(&scan, cfg, Chunking::PerRow);
         prop_assert_eq!(base.config.window, p.window);
         check_capacities(&base, exact_limits())?;
-        check_exact(&base, &scan, &sets, p.mu)?;
+        check_exact(&base, &scan, &voxels, p.mu)?;
         // h: the documented rule.
-        let expected = model(&sets, p.mu, p.window as usize);
+        let expected = model(sets, p.mu, p.window as usize);
         prop_assert!(base.log == expected, "log {:?}\nmodel {:?}", base.log, expected);
         // c: any chunking gives the same run.
         for chunking in [Chunking::Whole, Chunking::Random(chunk_seed)] {
-            let other = run::<4096, 131_072, 64, 8, 32>(&scan, cfg, chunking);
+            let other = run::<4096, 131_072, 64, 8, 32, 64>(&scan, cfg, chunking);
             prop_assert!(other == base, "{:?} differs from one row per push", chunking);
         }
         // e: same input, same output.
-        let again = run::<4096, 131_072, 64, 8, 32>(&scan, cfg, Chunking::PerRow);
+        let again = run::<4096, 131_072, 64, 8, 32, 64>(&scan, cfg, Chunking::PerRow);
         prop_assert!(again == base, "second run differs");
     }
 
@@ -788,14 +876,15 @@ proptest! {
     #[test]
     fn window_one_is_in_order(p in params()) {
         let scan = render(&p);
-        let sets = voxel_sets(&scan);
+        let voxels = voxel_sets(&scan);
+        let sets = &voxels.0;
         let cfg = SelectorConfig { window: 1, ..config(&p) };
-        let r = run::<4096, 131_072, 64, 8, 32>(&scan, cfg, Chunking::Whole);
+        let r = run::<4096, 131_072, 64, 8, 32, 64>(&scan, cfg, Chunking::Whole);
         check_capacities(&r, exact_limits())?;
-        let finals = check_exact(&r, &scan, &sets, p.mu)?;
-        let graph = CoObservation::new(&sets, None).graph(p.mu);
+        let finals = check_exact(&r, &scan, &voxels, p.mu)?;
+        let graph = CoObservation::new(sets, None).graph(p.mu);
         prop_assert_eq!(r.database_indices(), in_order(&graph));
-        prop_assert!(r.log == model(&sets, p.mu, 1), "window 1 differs from the model");
+        prop_assert!(r.log == model(sets, p.mu, 1), "window 1 differs from the model");
         // Window 1 takes frames in frame order.
         let order: Vec<usize> = r.database.iter().map(|d| d.index as usize).collect();
         prop_assert_eq!(&order, &r.database_indices());
@@ -820,7 +909,7 @@ proptest! {
     fn degraded_mode(p in params(), chunk_seed in any::<u64>()) {
         let scan = render(&p);
         let cfg = config(&p);
-        let base = run::<256, 1024, 4, 4, 16>(&scan, cfg, Chunking::Whole);
+        let base = run::<256, 1024, 4, 4, 16, 64>(&scan, cfg, Chunking::Whole);
         prop_assert_eq!(base.config.window, p.window.min(4));
         check_capacities(&base, tiny_limits())?;
         let finals = check_decision_stream(&base, scan.frames.len())?;
@@ -829,11 +918,50 @@ proptest! {
             prop_assert!(rec.voxels <= 192);
         }
         for chunking in [Chunking::PerRow, Chunking::Random(chunk_seed)] {
-            let other = run::<256, 1024, 4, 4, 16>(&scan, cfg, chunking);
+            let other = run::<256, 1024, 4, 4, 16, 64>(&scan, cfg, chunking);
             prop_assert!(other == base, "{:?} differs from whole frames", chunking);
         }
-        let again = run::<256, 1024, 4, 4, 16>(&scan, cfg, Chunking::Whole);
+        let again = run::<256, 1024, 4, 4, 16, 64>(&scan, cfg, Chunking::Whole);
         prop_assert!(again == base, "second run differs");
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
+
+    /// h at the profiles' own windows (16, 32, 48), on scans longer than the
+    /// window: the decision stream equals the reference model; with a, b, d, g.
+    #[test]
+    fn profile_windows_follow_the_model(p in wide_params()) {
+        let scan = render(&p);
+        let voxels = voxel_sets(&scan);
+        let r = run::<2048, 262_144, 128, 48, 32, 128>(&scan, config(&p), Chunking::Whole);
+        prop_assert_eq!(r.config.window, p.window);
+        check_capacities(&r, wide_limits())?;
+        check_exact(&r, &scan, &voxels, p.mu)?;
+        let expected = model(&voxels.0, p.mu, p.window as usize);
+        prop_assert!(r.log == expected, "log {:?}\nmodel {:?}", r.log, expected);
+    }
+
+    /// The sketch path against the model: a key pool of 0 words keeps no
+    /// frame's keys, so every overlap is the sketch estimate, above
+    /// `mu + sketch_margin`; the decision stream equals the rule run on
+    /// those estimates. With a, c, d and consistent counters.
+    #[test]
+    fn sketch_mode_follows_the_model(p in params(), chunk_seed in any::<u64>()) {
+        let scan = render(&p);
+        let (sets, _) = voxel_sets(&scan);
+        let cfg = config(&p);
+        let r = run::<4096, 0, 64, 8, 32, 64>(&scan, cfg, Chunking::Whole);
+        check_capacities(&r, sketch_limits())?;
+        let finals = check_decision_stream(&r, sets.len())?;
+        check_consistency(&r, &finals)?;
+        let non_empty = sets.iter().filter(|s| !s.is_empty()).count() as u32;
+        prop_assert_eq!(r.status.sketched_frames, non_empty);
+        let expected = sketch_model::<32>(&sets, p.mu, cfg.sketch_margin, p.window as usize);
+        prop_assert!(r.log == expected, "log {:?}\nmodel {:?}", r.log, expected);
+        let other = run::<4096, 0, 64, 8, 32, 64>(&scan, cfg, Chunking::Random(chunk_seed));
+        prop_assert!(other == r, "random chunks differ from whole frames");
     }
 }
 
@@ -843,7 +971,7 @@ proptest! {
 #[test]
 fn generated_scans_are_not_trivial() {
     let (mut frames, mut dominated, mut forward) = (0, 0, 0);
-    let mut degraded = 0u32;
+    let (mut degraded, mut out_of_range) = (0u32, 0u32);
     for seed in 0..12u64 {
         let p = Params {
             seed,
@@ -857,9 +985,11 @@ fn generated_scans_are_not_trivial() {
             step: 0.2,
             turn: 0.3,
             dropout: 0.1,
+            edge: seed % 4 == 0,
         };
         let scan = render(&p);
-        let r = run::<4096, 131_072, 64, 8, 32>(&scan, config(&p), Chunking::Whole);
+        out_of_range += voxel_sets(&scan).1;
+        let r = run::<4096, 131_072, 64, 8, 32, 64>(&scan, config(&p), Chunking::Whole);
         for (i, d) in r.finals(p.frames).into_iter().enumerate() {
             frames += 1;
             if let Decision::DominatedBy(k) = d {
@@ -869,23 +999,26 @@ fn generated_scans_are_not_trivial() {
                 }
             }
         }
-        let t = run::<256, 1024, 4, 4, 16>(&scan, config(&p), Chunking::Whole);
+        let t = run::<256, 1024, 4, 4, 16, 64>(&scan, config(&p), Chunking::Whole);
         degraded |= t.status.flags;
     }
     assert!(dominated * 3 > frames, "{dominated} of {frames} dominated");
     assert!(forward > 0, "the window never picked a later frame");
+    assert!(out_of_range > 0, "no point left the key range");
     assert_eq!(
         degraded,
-        flags::FRAME_VOXELS_FULL | flags::POOL_FULL | flags::DATABASE_FULL,
-        "tiny selector did not hit every capacity"
+        flags::FRAME_VOXELS_FULL | flags::POOL_FULL | flags::DATABASE_FULL | flags::OUT_OF_RANGE,
+        "tiny selector did not hit every capacity and the key range"
     );
 }
 
 // Keep the type aliases honest: they are the capacities the tests use.
 #[test]
 fn aliases_match_limits() {
-    let e = new_selector::<4096, 131_072, 64, 8, 32>();
-    let t = new_selector::<256, 1024, 4, 4, 16>();
+    let e = new_selector::<4096, 131_072, 64, 8, 32, 64>();
+    let t = new_selector::<256, 1024, 4, 4, 16, 64>();
+    let w = new_selector::<2048, 262_144, 128, 48, 32, 128>();
+    let k = new_selector::<4096, 0, 64, 8, 32, 64>();
     let lim = |s: &Status| {
         [
             s.database.limit,
@@ -896,6 +1029,8 @@ fn aliases_match_limits() {
     };
     assert_eq!(lim(&e.status()), exact_limits());
     assert_eq!(lim(&t.status()), tiny_limits());
+    assert_eq!(lim(&w.status()), wide_limits());
+    assert_eq!(lim(&k.status()), sketch_limits());
     let _: Option<Box<Exact>> = Some(e);
     let _: Option<Box<Tiny>> = Some(t);
 }

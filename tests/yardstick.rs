@@ -25,14 +25,9 @@ fn open(name: &str) -> Sequence {
     read::open(&data(name), &ReadOptions::default()).expect("sample reads")
 }
 
-/// A smaller walk of the demo office, so the suite stays quick.
+/// The demo office (`placedb select --demo`): the README's synthetic rows.
 fn synthetic() -> Sequence {
-    synth::sequence(&SynthConfig {
-        frames: 240,
-        width: 160,
-        height: 120,
-        ..SynthConfig::demo()
-    })
+    synth::sequence(&SynthConfig::demo())
 }
 
 fn prepared(seq: &Sequence, origin: GridOrigin) -> Prepared {
@@ -46,25 +41,56 @@ fn prepared(seq: &Sequence, origin: GridOrigin) -> Prepared {
 struct Case {
     seq: Sequence,
     prep: Prepared,
+    /// `runs[m][s]`: solver `SOLVERS[s]` at mu `MUS[m]`.
+    runs: Vec<Vec<Outcome>>,
 }
 
-/// Each sample voxelized once for the whole file.
+const MUS: [f32; 3] = [0.1, 0.3, 0.5];
+const SOLVERS: [Solver; 4] = [
+    Solver::InOrder,
+    Solver::Greedy,
+    Solver::Exact,
+    Solver::Online,
+];
+
+impl Case {
+    fn new(seq: Sequence, origin: GridOrigin, solvers: &[Solver]) -> Case {
+        let prep = prepared(&seq, origin);
+        let runs = MUS
+            .iter()
+            .map(|&mu| solvers.iter().map(|&s| run(&seq, &prep, s, mu)).collect())
+            .collect();
+        Case { seq, prep, runs }
+    }
+
+    fn outcome(&self, solver: Solver, mu: f32) -> &Outcome {
+        let m = MUS.iter().position(|&x| x == mu).expect("a tested mu");
+        self.runs[m]
+            .iter()
+            .find(|o| o.solver == solver)
+            .expect("a tested solver")
+    }
+
+    fn size(&self, solver: Solver, mu: f32) -> usize {
+        self.outcome(solver, mu).metrics.size
+    }
+}
+
+/// The README's Results cases (world-anchored grid), each sample voxelized
+/// and solved once for the whole file.
 fn cases() -> &'static [Case] {
     static CASES: OnceLock<Vec<Case>> = OnceLock::new();
     CASES.get_or_init(|| {
-        [open("vprdb-test-db"), open("7scenes-1000"), synthetic()]
+        [open("7scenes-1000"), synthetic(), open("vprdb-test-db")]
             .into_iter()
-            .map(|seq| {
-                let prep = prepared(&seq, GridOrigin::World);
-                Case { seq, prep }
-            })
+            .map(|seq| Case::new(seq, GridOrigin::World, &SOLVERS))
             .collect()
     })
 }
 
-fn run(case: &Case, solver: Solver, mu: f32) -> Outcome {
+fn run(seq: &Sequence, prep: &Prepared, solver: Solver, mu: f32) -> Outcome {
     let params = SolverParams::default();
-    pipeline::solve(&case.seq, &case.prep, solver, mu, &params, true).expect("solves")
+    pipeline::solve(seq, prep, solver, mu, &params, true).expect("solves")
 }
 
 #[test]
@@ -72,40 +98,49 @@ fn reference_code_answers_on_its_own_test_data() {
     // The reference code anchors the grid at the scene's minimum corner.
     let seq = open("vprdb-test-db");
     let prep = prepared(&seq, GridOrigin::SceneMin);
-    let case = Case { seq, prep };
-    assert_eq!(run(&case, Solver::InOrder, 0.05).database, vec![0, 1, 3]);
-    assert_eq!(run(&case, Solver::InOrder, 0.5).database.len(), 4);
-    assert_eq!(run(&case, Solver::InOrder, 0.8).database.len(), 5);
+    assert_eq!(
+        run(&seq, &prep, Solver::InOrder, 0.05).database,
+        vec![0, 1, 3]
+    );
+    assert_eq!(run(&seq, &prep, Solver::InOrder, 0.5).metrics.size, 4);
+    assert_eq!(run(&seq, &prep, Solver::InOrder, 0.8).metrics.size, 5);
+}
+
+/// The README's "for scale" sentence: with the reference code's grid
+/// anchoring (`placedb compare ../shared/data/7scenes-1000 --grid-origin
+/// scene-min --mu 0.1,0.3,0.5`), in-order / greedy / exact on 7scenes-1000.
+#[test]
+fn paper_answers_on_7scenes_with_the_scene_min_grid() {
+    let solvers = [Solver::InOrder, Solver::Greedy, Solver::Exact];
+    let case = Case::new(open("7scenes-1000"), GridOrigin::SceneMin, &solvers);
+    let sizes = |s| MUS.map(|mu| case.size(s, mu));
+    assert_eq!(
+        sizes(Solver::InOrder),
+        [2, 4, 15],
+        "in-order (the paper's code)"
+    );
+    assert_eq!(sizes(Solver::Greedy), [1, 3, 11], "greedy");
+    assert_eq!(sizes(Solver::Exact), [1, 2, 8], "exact");
 }
 
 #[test]
 fn every_solver_covers_every_frame_and_labels_overlap() {
     for case in cases() {
-        for mu in [0.1, 0.3, 0.5] {
+        for mu in MUS {
             let graph = case.prep.co.graph(mu);
-            let exact = run(case, Solver::Exact, mu);
-            let greedy = run(case, Solver::Greedy, mu);
+            let exact = case.outcome(Solver::Exact, mu);
             assert!(
                 exact.exact.is_some_and(|(optimal, _)| optimal),
                 "{} exact not proven",
                 case.seq.name
             );
             assert!(
-                exact.metrics.size <= greedy.metrics.size,
+                exact.metrics.size <= case.size(Solver::Greedy, mu),
                 "{} mu {mu}",
                 case.seq.name
             );
-            for solver in [
-                Solver::InOrder,
-                Solver::Greedy,
-                Solver::Exact,
-                Solver::Online,
-            ] {
-                let o = if solver == Solver::Exact {
-                    exact.clone()
-                } else {
-                    run(case, solver, mu)
-                };
+            for solver in SOLVERS {
+                let o = case.outcome(solver, mu);
                 let name = format!("{} {} mu {mu}", case.seq.name, solver.name());
                 assert_eq!(o.metrics.uncovered, 0, "{name}");
                 assert_eq!(o.labels.len(), case.seq.frames.len(), "{name}");
@@ -126,17 +161,38 @@ fn every_solver_covers_every_frame_and_labels_overlap() {
     }
 }
 
-/// Issue 3's targets: online never larger than in-order, and within 15 % of
-/// greedy summed over every case.
+/// The README's Results table, cell by cell (`placedb compare SEQ --mu
+/// 0.1,0.3,0.5`, the synthetic scan with `--demo`): database sizes of
+/// in-order, greedy, exact and online (ram512k, window 32).
+#[test]
+fn the_readme_results_table() {
+    let table: [(&str, [[usize; 4]; 3]); 3] = [
+        ("7scenes-1000", [[2, 1, 1, 2], [4, 3, 2, 4], [14, 9, 7, 10]]),
+        (
+            "synthetic",
+            [[23, 18, 14, 19], [60, 41, 35, 42], [121, 95, 85, 98]],
+        ),
+        ("vprdb-test-db", [[4, 4, 4, 4], [4, 4, 4, 4], [4, 4, 4, 4]]),
+    ];
+    for (case, (name, rows)) in cases().iter().zip(table) {
+        assert_eq!(case.seq.name, name);
+        for (mu, row) in MUS.into_iter().zip(rows) {
+            assert_eq!(SOLVERS.map(|s| case.size(s, mu)), row, "{name} mu {mu}");
+        }
+    }
+}
+
+/// Issue 3's targets as the README states them: online never larger than
+/// in-order, and within 5 % of greedy summed over the README's cases.
 #[test]
 fn online_beats_in_order_and_stays_near_greedy() {
     let (mut online_sum, mut greedy_sum, mut exact_sum) = (0, 0, 0);
     for case in cases() {
-        for mu in [0.1, 0.3, 0.5] {
-            let online = run(case, Solver::Online, mu).metrics.size;
-            let in_order = run(case, Solver::InOrder, mu).metrics.size;
-            let greedy = run(case, Solver::Greedy, mu).metrics.size;
-            let exact = run(case, Solver::Exact, mu).metrics.size;
+        for mu in MUS {
+            let online = case.size(Solver::Online, mu);
+            let in_order = case.size(Solver::InOrder, mu);
+            let greedy = case.size(Solver::Greedy, mu);
+            let exact = case.size(Solver::Exact, mu);
             println!(
                 "{:<14} mu {mu}: online {online} in-order {in_order} greedy {greedy} exact {exact}",
                 case.seq.name
@@ -153,8 +209,8 @@ fn online_beats_in_order_and_stays_near_greedy() {
     }
     println!("sums: online {online_sum} greedy {greedy_sum} exact {exact_sum}");
     assert!(
-        online_sum as f64 <= 1.15 * greedy_sum as f64,
-        "online {online_sum} > 1.15 x greedy {greedy_sum}"
+        online_sum as f64 <= 1.05 * greedy_sum as f64,
+        "online {online_sum} > 1.05 x greedy {greedy_sum}"
     );
 }
 
@@ -194,18 +250,14 @@ fn sketch_mode_keeps_labels_close_to_mu() {
 
 /// `oracle_recall@0.3` of a dominating set at mu >= 0.3, tested on its own
 /// sequence, is exactly 1: IoU > mu implies coverage s(q, b) >= IoU > 0.3.
-/// A baseline without the guarantee can fall below.
+/// The cube baseline, without the guarantee, falls below on some scan.
 #[test]
 fn oracle_recall_on_the_scan_itself() {
+    let mut cube_recalls = Vec::new();
     for case in cases().iter().filter(|c| c.seq.frames.len() < 1000) {
         let test = pipeline::prepare_test(&case.seq, &case.prep, true).expect("voxelizes");
-        for solver in [
-            Solver::InOrder,
-            Solver::Greedy,
-            Solver::Exact,
-            Solver::Online,
-        ] {
-            let mut o = run(case, solver, 0.3);
+        for solver in SOLVERS {
+            let mut o = case.outcome(solver, 0.3).clone();
             pipeline::add_oracle_recall(&mut o, &case.prep, &test);
             assert_eq!(
                 o.metrics.oracle_recall_0_3,
@@ -215,9 +267,14 @@ fn oracle_recall_on_the_scan_itself() {
                 solver.name()
             );
         }
-        let mut cube = run(case, Solver::Cube, 0.3);
+        let mut cube = run(&case.seq, &case.prep, Solver::Cube, 0.3);
         pipeline::add_oracle_recall(&mut cube, &case.prep, &test);
         let r = cube.metrics.oracle_recall_0_3.expect("computed");
-        assert!((0.0..=1.0).contains(&r));
+        println!("{}: cube oracle_recall@0.3 {r}", case.seq.name);
+        cube_recalls.push(r);
     }
+    assert!(
+        cube_recalls.iter().any(|&r| r < 1.0),
+        "the cube baseline never fell below 1: {cube_recalls:?}"
+    );
 }

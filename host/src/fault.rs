@@ -21,6 +21,7 @@
 //! [`crate::device_cli::StreamOptions::retries`]).
 
 use crate::link::Link;
+use crate::rng::SplitMix64;
 use std::io;
 use std::time::{Duration, Instant};
 
@@ -100,39 +101,6 @@ pub struct FaultStats {
     pub received_corrupted: u64,
 }
 
-/// xorshift64*: small, fast, reproducible.
-#[derive(Debug, Clone)]
-struct Rng(u64);
-
-impl Rng {
-    fn new(seed: u64) -> Rng {
-        // splitmix64 of the seed, never zero.
-        let mut z = seed.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        Rng((z ^ (z >> 31)) | 1)
-    }
-
-    fn next(&mut self) -> u64 {
-        let mut x = self.0;
-        x ^= x >> 12;
-        x ^= x << 25;
-        x ^= x >> 27;
-        self.0 = x;
-        x.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
-
-    /// Uniform in `[0, 1)`.
-    fn unit(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    /// Uniform in `0..n` (`n > 0`).
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n as u64) as usize
-    }
-}
-
 /// What happened to one frame.
 enum Fate {
     Pass,
@@ -144,7 +112,7 @@ enum Fate {
 pub struct FaultInjector<L: Link> {
     inner: L,
     cfg: FaultConfig,
-    rng: Rng,
+    rng: SplitMix64,
     /// Bytes of a device frame not complete yet.
     partial: Vec<u8>,
     /// Device frames that survived, not handed out yet.
@@ -157,7 +125,7 @@ impl<L: Link> FaultInjector<L> {
     pub fn new(inner: L, cfg: FaultConfig) -> FaultInjector<L> {
         FaultInjector {
             inner,
-            rng: Rng::new(cfg.seed),
+            rng: SplitMix64::new(cfg.seed),
             cfg,
             partial: Vec::new(),
             ready: Vec::new(),
@@ -204,7 +172,7 @@ impl<L: Link> FaultInjector<L> {
         if body == 0 {
             return;
         }
-        let at = self.rng.below(body);
+        let at = self.rng.below(body as u64) as usize;
         let bit = self.rng.below(8);
         frame[at] ^= 1 << bit;
     }

@@ -16,6 +16,7 @@ pub mod output;
 pub mod pipeline;
 pub mod plot;
 pub mod read;
+pub mod rng;
 pub mod rp2040;
 pub mod sequence;
 pub mod session;

@@ -1025,7 +1025,7 @@ mod tests {
                         Ok(HostFrame { seq, .. }) => {
                             let e = DeviceMessage::Error {
                                 seq: Some(seq),
-                                kind: ErrorKind::Unsupported,
+                                kind: ErrorKind::Internal,
                             };
                             replies.push(encode(&e, &mut tx).unwrap().to_vec());
                         }
@@ -1067,7 +1067,7 @@ mod tests {
             replies,
             vec![Received::Message(DeviceMessage::Error {
                 seq: Some(seq),
-                kind: ErrorKind::Unsupported
+                kind: ErrorKind::Internal
             })]
         );
         // Nothing more: a timeout, not a hang.

@@ -1088,7 +1088,23 @@ fn db_scaling(a: &BenchArgs) -> Result<(), Error> {
     Ok(())
 }
 
+/// A closed stdout (`placedb budget | head`) ends placedb quietly, as it
+/// ends any Unix filter, instead of a panic in `println!`: Rust starts every
+/// program with SIGPIPE ignored, so the default is put back. Nothing else
+/// placedb writes can raise it: std writes sockets with `MSG_NOSIGNAL`, and
+/// the emulators' pipes are only read.
+#[cfg(unix)]
+fn quiet_on_closed_stdout() {
+    // SAFETY: sets the disposition of one signal to its default, before any
+    // other thread exists.
+    unsafe { libc::signal(libc::SIGPIPE, libc::SIG_DFL) };
+}
+
+#[cfg(not(unix))]
+fn quiet_on_closed_stdout() {}
+
 fn main() -> ExitCode {
+    quiet_on_closed_stdout();
     let cli = Cli::parse();
     let r = match cli.command {
         Command::Select(a) => select(a),

@@ -10,7 +10,7 @@ use placedb::protocol::{DeviceMessage, ErrorKind, HostMessage, Phase, MAX_FRAME_
 use placedb_host::fault::damaged_frame;
 use placedb_host::link::{Client, Qemu, Received};
 use std::path::PathBuf;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 const REPLY_TIMEOUT: Duration = Duration::from_secs(5);
 
@@ -30,7 +30,6 @@ fn expect_status(replies: &[Received], seq: u32) {
 
 #[test]
 fn status_then_damaged_frame_then_status() {
-    let started = Instant::now();
     let firmware = firmware();
     let qemu = Qemu::start(&firmware, Duration::from_secs(25)).unwrap_or_else(|e| {
         panic!("cannot start qemu-system-arm (apt-get install qemu-system-arm): {e}")
@@ -83,13 +82,11 @@ fn status_then_damaged_frame_then_status() {
         qemu.console()
     );
     drop(qemu);
-    assert!(started.elapsed() < Duration::from_secs(30));
 }
 
 #[test]
 fn largest_depth_rows_fit_and_oversized_frames_are_refused() {
     use placedb::protocol::{depth_rows_per_message, DepthRows, MAX_ROW_VALUES};
-    let started = Instant::now();
     let qemu = Qemu::start(&firmware(), Duration::from_secs(25)).unwrap();
     let mut client = Client::new(qemu);
     client.resync().unwrap();
@@ -130,7 +127,6 @@ fn largest_depth_rows_fit_and_oversized_frames_are_refused() {
         .request(HostMessage::StatusRequest, REPLY_TIMEOUT)
         .unwrap();
     expect_status(&replies, seq);
-    assert!(started.elapsed() < Duration::from_secs(30));
 }
 
 #[test]

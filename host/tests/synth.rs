@@ -346,6 +346,7 @@ fn render_speed() {
     let step = seq.frames.len() / n;
     let mut best = f64::INFINITY;
     let mut valid = 0usize;
+    let mut counts = Vec::new();
     let origin = Instant::now();
     for _ in 0..5 {
         let start = cpu_seconds(origin);
@@ -360,7 +361,14 @@ fn render_speed() {
                 .count();
         }
         best = best.min((cpu_seconds(origin) - start) / n as f64);
+        counts.push(valid);
     }
+    // Rendering is deterministic, and the office has walls in view.
+    assert!(counts.iter().all(|&c| c == valid), "{counts:?}");
+    assert!(
+        valid * 2 > n * cfg.width as usize * cfg.height as usize,
+        "{valid}"
+    );
     println!(
         "render {}x{}: {:.3} ms per frame single-threaded ({:.0} % of pixels valid)",
         cfg.width,

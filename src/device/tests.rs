@@ -813,13 +813,22 @@ fn the_clock_measures_frames() {
         let mut b = Bench::<Small>::new();
         b.device.set_clock(tick, 1000);
         b.ok(HostMessage::Hello(config(3)));
-        b.frame(0, 24);
-        b.frame(1, 24);
+        // Each frame's cost is read right after it; the totals must add up.
+        let mut costs = Vec::new();
+        for i in 0..3 {
+            b.frame(i, 24);
+            let c = b.status().cost;
+            assert_eq!(c.frames, i + 1);
+            assert!(c.last_rows > 0 && c.last_end > 0, "{c:?}");
+            costs.push(c.last_rows + c.last_end);
+        }
         let st = b.status();
         assert_eq!(st.cost.clock_hz, 1000);
-        assert_eq!(st.cost.frames, 2);
-        assert!(st.cost.last_rows > 0 && st.cost.last_end > 0);
-        assert!(st.cost.total >= u64::from(st.cost.max));
+        assert_eq!(
+            st.cost.total,
+            costs.iter().map(|&c| u64::from(c)).sum::<u64>()
+        );
+        assert_eq!(st.cost.max, costs.iter().copied().max().unwrap());
         b.ok(HostMessage::Reset);
         let st = b.status();
         assert_eq!((st.cost.clock_hz, st.cost.frames), (1000, 0));

@@ -625,69 +625,137 @@ pub enum RecordKind {
 }
 
 /// Typed error kinds, on the wire in [`DeviceMessage::Error`] and in
-/// [`ProtocolError`]. Append only.
+/// [`ProtocolError`]. On the wire a kind is its number (a postcard varint,
+/// the encoding of a serde variant index, so the bytes are those of a plain
+/// enum): append only, never renumber or reuse a number (19 is retired).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(into = "u32", try_from = "u32")]
+#[repr(u8)]
 pub enum ErrorKind {
     /// The frame's CRC-32 does not match.
-    BadCrc,
+    BadCrc = 0,
     /// The frame is not valid COBS.
-    BadFraming,
+    BadFraming = 1,
     /// The frame is longer than the receive buffer (or an encode buffer is too small).
-    Oversized,
+    Oversized = 2,
     /// The frame is too short to hold a CRC.
-    Truncated,
+    Truncated = 3,
     /// The CRC matched but the bytes are not a valid message (or have trailing bytes).
-    Decode,
+    Decode = 4,
     /// Unknown message variant (a newer protocol?).
-    UnknownMessage,
+    UnknownMessage = 5,
     /// Hello with another [`super::PROTOCOL_VERSION`].
-    WrongVersion,
+    WrongVersion = 6,
     /// The message is not allowed now (e.g. frame index not increasing, rows of
     /// another frame, rows not consecutive).
-    OutOfOrder,
+    OutOfOrder = 7,
     /// A frame message before any valid Hello.
-    NotConfigured,
+    NotConfigured = 8,
     /// Hello with unusable values.
-    BadConfig,
+    BadConfig = 9,
     /// FrameBegin with a non-finite or non-unit pose, a non-finite timestamp,
     /// or a camera so far from the grid origin that its coordinates leave the
     /// fixed-point range.
-    BadPose,
+    BadPose = 10,
     /// DepthRows beyond the strided image height.
-    RowOutOfRange,
+    RowOutOfRange = 11,
     /// DepthRows with more bytes than its rows need.
-    RowTooLong,
+    RowTooLong = 12,
     /// DepthRows with fewer bytes than its rows need.
-    RowTooShort,
+    RowTooShort = 13,
     /// FrameEnd with no open frame, or for another frame.
-    FrameEndWithoutBegin,
+    FrameEndWithoutBegin = 14,
     /// Hello while a frame is open.
-    MidFrameReconfig,
+    MidFrameReconfig = 15,
     /// ExportRequest past the last record.
-    ExportPastEnd,
+    ExportPastEnd = 16,
     /// A capacity with no defined degradation is exhausted; the message was
     /// refused: e.g. DepthRows of more than [`MAX_ROW_VALUES`] depth values,
     /// the device's row buffer (see [`DepthRows::check`]).
-    CapacityExhausted,
+    CapacityExhausted = 17,
     /// A frame message after Finish (send Reset first).
-    Finished,
-    /// The device does not implement this message.
-    Unsupported,
+    Finished = 18,
+    // 19 was `Unsupported` ("the device does not implement this message"),
+    // which no device ever sent: every message of a protocol version is
+    // implemented, and one it does not know is `UnknownMessage`. Retired;
+    // the number is never reused.
     /// Anything else (a bug): the message was refused.
-    Internal,
+    Internal = 20,
     /// Hello with another configuration after frames were seen (send Reset first).
-    NeedsReset,
+    NeedsReset = 21,
     /// FrameEnd before every strided row of the frame arrived (the frame stays open).
-    MissingRows,
+    MissingRows = 22,
     /// The flash log has no room for what the message would decide: FrameEnd
     /// is refused while there is still room for a Finish (the frame stays
     /// open: FrameAbort it, then Finish); export still works.
-    StorageFull,
+    StorageFull = 23,
     /// The flash failed to erase or write; the message was not applied.
-    StorageFailed,
+    StorageFailed = 24,
+}
+
+/// A number that is no [`ErrorKind`] (a retired one, or one from a newer
+/// protocol): decoding the message fails.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct UnknownErrorKind(pub u32);
+
+impl core::fmt::Display for UnknownErrorKind {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "unknown error kind {}", self.0)
+    }
+}
+
+impl From<ErrorKind> for u32 {
+    fn from(kind: ErrorKind) -> u32 {
+        kind.code()
+    }
+}
+
+impl TryFrom<u32> for ErrorKind {
+    type Error = UnknownErrorKind;
+
+    fn try_from(code: u32) -> Result<Self, Self::Error> {
+        ErrorKind::ALL
+            .iter()
+            .copied()
+            .find(|k| k.code() == code)
+            .ok_or(UnknownErrorKind(code))
+    }
 }
 
 impl ErrorKind {
+    /// Every kind, in wire-number order.
+    pub const ALL: [ErrorKind; 24] = [
+        ErrorKind::BadCrc,
+        ErrorKind::BadFraming,
+        ErrorKind::Oversized,
+        ErrorKind::Truncated,
+        ErrorKind::Decode,
+        ErrorKind::UnknownMessage,
+        ErrorKind::WrongVersion,
+        ErrorKind::OutOfOrder,
+        ErrorKind::NotConfigured,
+        ErrorKind::BadConfig,
+        ErrorKind::BadPose,
+        ErrorKind::RowOutOfRange,
+        ErrorKind::RowTooLong,
+        ErrorKind::RowTooShort,
+        ErrorKind::FrameEndWithoutBegin,
+        ErrorKind::MidFrameReconfig,
+        ErrorKind::ExportPastEnd,
+        ErrorKind::CapacityExhausted,
+        ErrorKind::Finished,
+        ErrorKind::Internal,
+        ErrorKind::NeedsReset,
+        ErrorKind::MissingRows,
+        ErrorKind::StorageFull,
+        ErrorKind::StorageFailed,
+    ];
+
+    /// The kind's number on the wire.
+    pub const fn code(self) -> u32 {
+        self as u32
+    }
+
     /// Whether the error says the frame was damaged on the way (CRC, framing,
     /// length or decoding): the message was not applied and sending it again
     /// (same sequence number) may succeed. Other errors are refusals of a
@@ -726,7 +794,6 @@ impl ErrorKind {
             ErrorKind::ExportPastEnd => "export past the last record",
             ErrorKind::CapacityExhausted => "capacity exhausted",
             ErrorKind::Finished => "sequence finished; reset first",
-            ErrorKind::Unsupported => "unsupported message",
             ErrorKind::Internal => "internal error",
             ErrorKind::NeedsReset => "scan in progress; reset before reconfiguring",
             ErrorKind::MissingRows => "frame end before all its rows",

@@ -93,7 +93,7 @@ pub use framing::{
 pub use messages::{
     degradation, Capacity, CapacitySlot, Config, DecisionKind, DepthRows, DeviceMessage, ErrorKind,
     ExportRecord, FrameCost, HostFrame, HostMessage, Phase, ProtocolError, RecordKind, Status,
-    CAPACITY_SLOTS, DEPTH_ROWS_OVERHEAD, MAX_ROW_VALUES,
+    UnknownErrorKind, CAPACITY_SLOTS, DEPTH_ROWS_OVERHEAD, MAX_ROW_VALUES,
 };
 
 /// Version of this wire protocol; a device refuses a [`HostMessage::Hello`] whose

@@ -285,19 +285,118 @@ fn frame_format_is_postcard_crc_cobs() {
     }
 }
 
+/// The wire tag of every host message, by an exhaustive `match` with no
+/// wildcard: a new variant does not compile until it is numbered here.
+fn host_tag(msg: &HostMessage<'_>) -> u32 {
+    match msg {
+        HostMessage::Hello(_) => 0,
+        HostMessage::FrameBegin { .. } => 1,
+        HostMessage::DepthRows(_) => 2,
+        HostMessage::FrameEnd { .. } => 3,
+        HostMessage::Finish => 4,
+        HostMessage::StatusRequest => 5,
+        HostMessage::ExportRequest { .. } => 6,
+        HostMessage::Reset => 7,
+        HostMessage::FrameAbort { .. } => 8,
+    }
+}
+
+/// The wire tag of every device message (see [`host_tag`]).
+fn device_tag(msg: &DeviceMessage<'_>) -> u32 {
+    match msg {
+        DeviceMessage::Ack { .. } => 0,
+        DeviceMessage::Error { .. } => 1,
+        DeviceMessage::Decision { .. } => 2,
+        DeviceMessage::Status(_) => 3,
+        DeviceMessage::ExportRecord(_) => 4,
+        DeviceMessage::ExportEnd { .. } => 5,
+        DeviceMessage::Log(_) => 6,
+    }
+}
+
+/// Every variant is in the test lists (so every round-trip test covers it),
+/// is encoded with the tag its `match` arm gives, and `VARIANTS` counts them.
 #[test]
 fn variant_counts_match_the_enums() {
     let data = depth_bytes();
-    let last = host_frames(&data).pop().unwrap();
-    let bytes = plain_vec(&last).unwrap();
-    let (_, rest) = postcard::take_from_bytes::<u32>(&bytes).unwrap();
-    assert_eq!(rest[0] as u32 + 1, <HostFrame as WireMessage>::VARIANTS);
-    let last = device_messages().pop().unwrap();
-    let bytes = plain_vec(&last).unwrap();
-    assert_eq!(
-        bytes[0] as u32 + 1,
-        <DeviceMessage as WireMessage>::VARIANTS
-    );
+    let mut host_tags = Vec::new();
+    for frame in host_frames(&data) {
+        let bytes = plain_vec(&frame).unwrap();
+        let (_, rest) = postcard::take_from_bytes::<u32>(&bytes).unwrap();
+        let (tag, _) = postcard::take_from_bytes::<u32>(rest).unwrap();
+        assert_eq!(tag, host_tag(&frame.msg), "{frame:?}");
+        host_tags.push(tag);
+    }
+    host_tags.sort_unstable();
+    host_tags.dedup();
+    let all: Vec<u32> = (0..<HostFrame as WireMessage>::VARIANTS).collect();
+    assert_eq!(host_tags, all, "host_messages() misses a variant");
+
+    let mut device_tags = Vec::new();
+    for msg in device_messages() {
+        let bytes = plain_vec(&msg).unwrap();
+        let (tag, _) = postcard::take_from_bytes::<u32>(&bytes).unwrap();
+        assert_eq!(tag, device_tag(&msg), "{msg:?}");
+        device_tags.push(tag);
+    }
+    device_tags.sort_unstable();
+    device_tags.dedup();
+    let all: Vec<u32> = (0..<DeviceMessage as WireMessage>::VARIANTS).collect();
+    assert_eq!(device_tags, all, "device_messages() misses a variant");
+}
+
+/// The wire numbers of the error kinds: those of the enum as first shipped
+/// (a serde variant index each), with 19 (`Unsupported`, retired) no kind.
+#[test]
+fn error_kinds_keep_their_wire_numbers() {
+    let pinned: [(ErrorKind, u8); 24] = [
+        (ErrorKind::BadCrc, 0),
+        (ErrorKind::BadFraming, 1),
+        (ErrorKind::Oversized, 2),
+        (ErrorKind::Truncated, 3),
+        (ErrorKind::Decode, 4),
+        (ErrorKind::UnknownMessage, 5),
+        (ErrorKind::WrongVersion, 6),
+        (ErrorKind::OutOfOrder, 7),
+        (ErrorKind::NotConfigured, 8),
+        (ErrorKind::BadConfig, 9),
+        (ErrorKind::BadPose, 10),
+        (ErrorKind::RowOutOfRange, 11),
+        (ErrorKind::RowTooLong, 12),
+        (ErrorKind::RowTooShort, 13),
+        (ErrorKind::FrameEndWithoutBegin, 14),
+        (ErrorKind::MidFrameReconfig, 15),
+        (ErrorKind::ExportPastEnd, 16),
+        (ErrorKind::CapacityExhausted, 17),
+        (ErrorKind::Finished, 18),
+        (ErrorKind::Internal, 20),
+        (ErrorKind::NeedsReset, 21),
+        (ErrorKind::MissingRows, 22),
+        (ErrorKind::StorageFull, 23),
+        (ErrorKind::StorageFailed, 24),
+    ];
+    assert_eq!(ErrorKind::ALL, pinned.map(|(k, _)| k));
+    for (kind, code) in pinned {
+        // An Error reply: tag 1, `Some(7)`, then the kind's number.
+        let msg = DeviceMessage::Error { seq: Some(7), kind };
+        let bytes = [1, 1, 7, code];
+        assert_eq!(plain_vec(&msg).unwrap(), bytes, "{kind:?}");
+        let (back, _) = postcard::take_from_bytes::<DeviceMessage>(&bytes).unwrap();
+        assert_eq!(back, msg);
+    }
+    // The retired number and the next unused one are no kind.
+    for code in [19u8, 25] {
+        let raw = raw_frame(&[1, 1, 7, code], true);
+        let mut decoder = FrameDecoder::<N>::new();
+        let Feed::Frame { result, .. } = decoder.feed::<DeviceMessage>(&raw) else {
+            panic!("no frame")
+        };
+        assert_eq!(result.unwrap_err().kind, ErrorKind::Decode, "code {code}");
+        assert_eq!(
+            ErrorKind::try_from(u32::from(code)),
+            Err(UnknownErrorKind(u32::from(code)))
+        );
+    }
 }
 
 #[test]
@@ -546,7 +645,6 @@ fn splitting_the_stream_anywhere_gives_the_same_frames() {
 fn max_depth_rows_fit_the_receive_buffer() {
     assert_eq!(MAX_ROW_VALUES, 1007);
     assert_eq!(depth_rows_per_message(80), 12);
-    assert!(depth_rows_per_message(80) >= 8);
     assert_eq!(depth_rows_per_message(640), 1);
     assert_eq!(depth_rows_per_message(1007), 1);
     assert_eq!(depth_rows_per_message(1008), 0);

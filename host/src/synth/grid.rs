@@ -371,10 +371,10 @@ pub(crate) fn cast_all(boxes: &[SceneBox], o: [f64; 3], d: [f64; 3], t_max: f64)
 
 #[cfg(test)]
 mod tests {
-    use super::super::rng::SplitMix64;
     use super::super::scene::Scene;
     use super::super::SynthConfig;
     use super::*;
+    use crate::rng::SplitMix64;
 
     #[test]
     fn grid_walk_equals_brute_force() {

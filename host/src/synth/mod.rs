@@ -18,7 +18,6 @@
 mod grid;
 pub mod path;
 pub mod render;
-mod rng;
 pub mod scene;
 pub mod shade;
 pub mod tum_writer;

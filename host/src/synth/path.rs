@@ -13,9 +13,9 @@
 //! orientation general (never exactly level), at eye height (world z = 0,
 //! 1.37 m above the floor) give or take 2 cm.
 
-use super::rng::SplitMix64;
 use super::scene::{Room, Scene, CORRIDOR_HALF_WIDTH, WALL};
 use super::SynthConfig;
+use crate::rng::SplitMix64;
 use crate::sequence::FrameInfo;
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
 use std::f64::consts::{PI, TAU};

@@ -14,8 +14,8 @@
 //! Every surface is an axis-aligned box.
 
 use super::grid::Grid;
-use super::rng::SplitMix64;
 use super::SynthConfig;
+use crate::rng::SplitMix64;
 
 /// Floor-to-ceiling height, metres.
 pub const CEILING_HEIGHT: f64 = 2.7;
