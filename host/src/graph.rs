@@ -300,24 +300,26 @@ impl Counter {
         }
     }
 
-    /// Rows of the consecutive frames `frames`; leaves the counters zeroed.
+    /// Rows of the consecutive frames `frames`, one after the other in one
+    /// vector, and where each ends in it; leaves the counters zeroed.
     fn rows(
         &mut self,
         index: &InvertedIndex,
         frames: std::ops::Range<usize>,
         progress: Option<&ProgressBar>,
-    ) -> Vec<Vec<(u32, u32)>> {
-        let rows = frames
-            .map(|i| {
-                let row = self.row(index, i);
-                if let Some(p) = progress {
-                    p.inc(1);
-                }
-                row
-            })
-            .collect();
+    ) -> (Vec<(u32, u32)>, Vec<usize>) {
+        let mut pairs = Vec::new();
+        let mut ends = Vec::with_capacity(frames.len());
+        for i in frames {
+            self.row(index, i, &mut pairs);
+            ends.push(pairs.len());
+            if let Some(p) = progress {
+                p.inc(1);
+            }
+        }
         self.release();
-        rows
+        pairs.shrink_to_fit();
+        (pairs, ends)
     }
 
     /// Zeroes the counters.
@@ -333,7 +335,7 @@ impl Counter {
     ///   voxels entering and subtract those leaving, then sweep `j > i`;
     /// - dense: count frame `i`'s posting-list tails (`j > i`), then sweep;
     /// - sparse: the same, remembering touched counters and sorting them.
-    fn row(&mut self, index: &InvertedIndex, i: usize) -> Vec<(u32, u32)> {
+    fn row(&mut self, index: &InvertedIndex, i: usize, out: &mut Vec<(u32, u32)>) {
         let n = self.count.len();
         let ids = index.ids_of(i);
         if let Some(base) = self.holding {
@@ -357,7 +359,7 @@ impl Counter {
                     }
                 }
                 self.paths[0] += 1;
-                return self.sweep(i);
+                return self.sweep(i, out);
             }
             self.release();
         }
@@ -371,7 +373,7 @@ impl Counter {
             }
             self.holding = Some(i);
             self.paths[1] += 1;
-            return self.sweep(i);
+            return self.sweep(i, out);
         }
         let touched = &mut self.touched;
         for &v in ids {
@@ -385,22 +387,23 @@ impl Counter {
         }
         touched.sort_unstable();
         self.paths[2] += 1;
-        let row = touched
-            .iter()
-            .map(|&j| (j, std::mem::take(&mut count[j as usize])))
-            .collect();
+        out.extend(
+            touched
+                .iter()
+                .map(|&j| (j, std::mem::take(&mut count[j as usize]))),
+        );
         touched.clear();
-        row
     }
 
     /// Non-zero counts of frames after `i`, without clearing them.
-    fn sweep(&self, i: usize) -> Vec<(u32, u32)> {
-        self.count[i + 1..]
-            .iter()
-            .enumerate()
-            .filter(|&(_, &c)| c != 0)
-            .map(|(k, &c)| ((i + 1 + k) as u32, c))
-            .collect()
+    fn sweep(&self, i: usize, out: &mut Vec<(u32, u32)>) {
+        out.extend(
+            self.count[i + 1..]
+                .iter()
+                .enumerate()
+                .filter(|&(_, &c)| c != 0)
+                .map(|(k, &c)| ((i + 1 + k) as u32, c)),
+        );
     }
 
     /// Voxel ids in `d_i` but not `d_{i-1}` (`added`) and the reverse
@@ -435,15 +438,21 @@ impl Counter {
 ///
 /// Only pairs `i < j` with `|d_i ∩ d_j| > 0` are stored, in row `i`
 /// (compressed rows, ascending `j`): memory grows with the number of
-/// co-observing pairs, not with `n²`.
+/// co-observing pairs, not with `n²`. The rows stay in the vectors the
+/// counting threads filled, one per run of consecutive frames: joining
+/// them would hold every pair twice at the peak.
 #[derive(Debug, Clone)]
 pub struct CoObservation {
     /// `|d_i|` per frame.
     sizes: Vec<u32>,
-    /// Row `i` is `pairs[offsets[i]..offsets[i + 1]]`.
-    offsets: Vec<usize>,
-    /// `(j, |d_i ∩ d_j|)` with `j > i`.
-    pairs: Vec<(u32, u32)>,
+    /// Frames per run: row `i` is in `runs[i / run]`.
+    run: usize,
+    /// Per run, its rows one after the other: `(j, |d_i ∩ d_j|)`, `j > i`.
+    runs: Vec<Vec<(u32, u32)>>,
+    /// Per frame, where its row ends in its run's vector.
+    ends: Vec<usize>,
+    /// Co-observing pairs in all.
+    pair_count: usize,
     /// `|∪ d_i|`.
     distinct_keys: usize,
 }
@@ -464,27 +473,19 @@ impl CoObservation {
         // Runs of consecutive frames, so that each run can mostly update
         // the previous frame's counts; several runs per thread for balance.
         let run = (n / (4 * rayon::current_num_threads())).clamp(16, 256);
-        let runs: Vec<Vec<Vec<(u32, u32)>>> = (0..n.div_ceil(run))
+        let (runs, ends): (Vec<_>, Vec<_>) = (0..n.div_ceil(run))
             .into_par_iter()
             .map_init(
                 || Counter::new(n),
                 |counter, r| counter.rows(&index, r * run..((r + 1) * run).min(n), progress),
             )
-            .collect();
-        let rows: Vec<Vec<(u32, u32)>> = runs.into_iter().flatten().collect();
-        let mut offsets = Vec::with_capacity(n + 1);
-        offsets.push(0);
-        for r in &rows {
-            offsets.push(offsets.last().copied().unwrap_or(0) + r.len());
-        }
-        let mut pairs = Vec::with_capacity(offsets[n]);
-        for r in rows {
-            pairs.extend_from_slice(&r);
-        }
+            .unzip();
         CoObservation {
             sizes: sets.iter().map(|s| s.len() as u32).collect(),
-            offsets,
-            pairs,
+            run,
+            pair_count: runs.iter().map(Vec::len).sum(),
+            runs,
+            ends: ends.into_iter().flatten().collect(),
             distinct_keys: index.distinct,
         }
     }
@@ -511,12 +512,17 @@ impl CoObservation {
 
     /// Number of co-observing pairs (`i < j`, at least one common voxel).
     pub fn pair_count(&self) -> usize {
-        self.pairs.len()
+        self.pair_count
     }
 
     /// Row `i`: `(j, |d_i ∩ d_j|)` for every co-observing `j > i`, ascending.
     pub fn row(&self, i: usize) -> &[(u32, u32)] {
-        &self.pairs[self.offsets[i]..self.offsets[i + 1]]
+        let start = if i.is_multiple_of(self.run) {
+            0
+        } else {
+            self.ends[i - 1]
+        };
+        &self.runs[i / self.run][start..self.ends[i]]
     }
 
     /// Every co-observing pair as `(i, j, |d_i ∩ d_j|)` with `i < j`, row by row.
@@ -673,7 +679,10 @@ mod tests {
             let mut counter = Counter::new(sets.len());
             let mut i = 0;
             for r in (0..sets.len()).step_by(run) {
-                for row in counter.rows(&index, r..(r + run).min(sets.len()), None) {
+                let (pairs, ends) = counter.rows(&index, r..(r + run).min(sets.len()), None);
+                let starts = std::iter::once(0).chain(ends.iter().copied());
+                for (start, &end) in starts.zip(&ends) {
+                    let row = &pairs[start..end];
                     let want: Vec<(u32, u32)> = (i + 1..sets.len())
                         .map(|j| (j as u32, intersection_size(&sets[i], &sets[j])))
                         .filter(|&(_, c)| c > 0)
