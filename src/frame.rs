@@ -27,15 +27,19 @@ pub struct ScanConfig {
 impl ScanConfig {
     /// Checks every field as the projector will.
     pub fn validate(&self) -> Result<(), CameraError> {
+        self.projector(&Pose::IDENTITY).map(|_| ())
+    }
+
+    /// The projector of a frame taken at `pose`.
+    pub fn projector(&self, pose: &Pose) -> Result<FrameProjector, CameraError> {
         FrameProjector::new(
             &self.intrinsics,
             self.depth_scale,
             self.range,
             self.stride,
             &self.grid,
-            &Pose::IDENTITY,
+            pose,
         )
-        .map(|_| ())
     }
 }
 
@@ -158,14 +162,7 @@ impl<const FV: usize> FrameIngest<FV> {
         if !meta.timestamp.is_finite() {
             return Err(FrameError::Camera(CameraError::NonFinitePose));
         }
-        let projector = FrameProjector::new(
-            &cfg.intrinsics,
-            cfg.depth_scale,
-            cfg.range,
-            cfg.stride,
-            &cfg.grid,
-            &meta.pose,
-        )?;
+        let projector = cfg.projector(&meta.pose)?;
         self.voxels.clear();
         self.stats = FrameStats::default();
         self.next_row = 0;
@@ -178,15 +175,7 @@ impl<const FV: usize> FrameIngest<FV> {
     /// selector's configuration (see `Selector::end_frame_from`).
     pub fn begun_with(&self, cfg: &ScanConfig) -> bool {
         match &self.current {
-            Some((meta, projector)) => FrameProjector::new(
-                &cfg.intrinsics,
-                cfg.depth_scale,
-                cfg.range,
-                cfg.stride,
-                &cfg.grid,
-                &meta.pose,
-            )
-            .is_ok_and(|p| p == *projector),
+            Some((meta, projector)) => cfg.projector(&meta.pose).is_ok_and(|p| p == *projector),
             None => false,
         }
     }
@@ -316,15 +305,7 @@ mod tests {
     /// The sampled rows of `image()` and the keys the projector emits for
     /// them, with its counts.
     fn sampled(cfg: &ScanConfig) -> (heapless::Vec<u16, 192>, heapless::Vec<u64, 192>, u32, u32) {
-        let p = FrameProjector::new(
-            &cfg.intrinsics,
-            cfg.depth_scale,
-            cfg.range,
-            cfg.stride,
-            &cfg.grid,
-            &meta().pose,
-        )
-        .unwrap();
+        let p = cfg.projector(&meta().pose).unwrap();
         let img = image();
         let (mut rows, mut keys, mut oor) = (heapless::Vec::new(), heapless::Vec::new(), 0);
         let mut valid = 0;
