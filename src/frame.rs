@@ -6,6 +6,16 @@
 //! (row `r` is image row `r * stride`, sample `i` is column `i * stride`),
 //! which is also what travels on the wire.
 
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::indexing_slicing,
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::panic
+    )
+)]
+
 use crate::camera::{CameraError, DepthRange, FrameProjector, Intrinsics, Pose};
 use crate::voxel::{FrameVoxels, VoxelGrid, VoxelKey};
 
@@ -238,9 +248,12 @@ impl<const FV: usize> FrameIngest<FV> {
         let (voxels, stats) = (&mut self.voxels, &mut self.stats);
         for (i, row) in data.chunks_exact(width).enumerate() {
             let v = (first_row as usize + i) as u16 * stride;
-            stats.valid_pixels += proj.project_samples(v, row, &mut stats.out_of_range, |key| {
+            let valid = proj.project_samples(v, row, &mut stats.out_of_range, |key| {
                 voxels.insert(key);
             });
+            // At most width x height < 2^32 per frame; saturating keeps that
+            // a checked fact (once per row, not per pixel).
+            stats.valid_pixels = stats.valid_pixels.saturating_add(valid);
         }
         self.next_row += rows as u16;
         Ok(())

@@ -7,6 +7,16 @@
 //! hashes among the `K` smallest of the union is an unbiased Jaccard (IoU)
 //! estimate with standard error about `sqrt(J (1 - J) / K)`.
 
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::indexing_slicing,
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::panic
+    )
+)]
+
 /// Hash of a packed voxel key: the finaliser of MurmurHash3 (a bijection on
 /// `u64`, so distinct keys collide only in the 32 bits kept).
 #[inline]
@@ -29,18 +39,21 @@ pub struct Sketch<const K: usize> {
 
 impl<const K: usize> Default for Sketch<K> {
     fn default() -> Self {
-        Sketch {
-            hashes: [0; K],
-            len: 0,
-        }
+        Self::EMPTY
     }
 }
 
 impl<const K: usize> Sketch<K> {
+    /// The count of kept hashes is a `u16`: every `len += 1` stops at `K`.
+    const LEN_FITS: () = assert!(K <= u16::MAX as usize, "sketch size must fit u16");
+
     /// The sketch of the empty set.
-    pub const EMPTY: Self = Sketch {
-        hashes: [0; K],
-        len: 0,
+    pub const EMPTY: Self = {
+        let () = Self::LEN_FITS;
+        Sketch {
+            hashes: [0; K],
+            len: 0,
+        }
     };
 
     /// Sketch of a set given as distinct packed keys, in any order.
@@ -61,6 +74,7 @@ impl<const K: usize> Sketch<K> {
             let len = s.len as usize;
             let ascending = len == 0 || s.hashes.get(len - 1).is_some_and(|&p| p < h);
             *s.hashes.get_mut(len).filter(|_| ascending)? = h;
+            // `len < K <= u16::MAX` (see `LEN_FITS`): no wrap.
             s.len += 1;
         }
         Some(s)
@@ -69,34 +83,46 @@ impl<const K: usize> Sketch<K> {
     /// Keeps `h` if it is among the `K` smallest seen so far.
     fn offer(&mut self, h: u32) {
         let len = self.len as usize;
-        if len == K && (K == 0 || h >= self.hashes[K - 1]) {
+        // Full: `h` must beat the largest kept (with `K == 0` nothing is kept).
+        if len == K && self.hashes.last().is_none_or(|&largest| h >= largest) {
             return;
         }
-        // Insertion into the sorted prefix; expected O(K log(n / K)) inserts in all.
-        let mut i = len.min(K.saturating_sub(1));
+        // Insertion into the sorted prefix; expected O(K log(n / K)) inserts in
+        // all. The window is the kept hashes plus the slot the last one moves
+        // to: the free slot after them, or (when full) the largest, dropped.
+        let Some(window) = self.hashes.get_mut(..=len.min(K.saturating_sub(1))) else {
+            return;
+        };
+        let Some((_, kept)) = window.split_last_mut() else {
+            return;
+        };
+        // After every kept hash not above `h`, as the insertion always put it.
+        let at = kept.partition_point(|&p| p <= h);
+        let mut carry = h;
+        for slot in window.iter_mut().skip(at) {
+            carry = core::mem::replace(slot, carry);
+        }
         if len < K {
+            // `len < K <= u16::MAX` (see `LEN_FITS`): no wrap.
             self.len += 1;
-        }
-        while i > 0 && self.hashes[i - 1] > h {
-            self.hashes[i] = self.hashes[i - 1];
-            i -= 1;
-        }
-        if i < K {
-            self.hashes[i] = h;
         }
     }
 
     /// The kept hashes, ascending.
     pub fn hashes(&self) -> &[u32] {
-        &self.hashes[..self.len as usize]
+        // `len <= K` always; the fallback is never taken.
+        self.hashes.get(..self.len as usize).unwrap_or(&[])
     }
 
     /// Estimated Jaccard index (IoU) of the two sets; 0 when either is empty.
     pub fn jaccard(&self, other: &Self) -> f32 {
         let (a, b) = (self.hashes(), other.hashes());
         let (mut i, mut j, mut taken, mut shared) = (0, 0, 0u32, 0u32);
-        while taken < K as u32 && i < a.len() && j < b.len() {
-            match a[i].cmp(&b[j]) {
+        while taken < K as u32 {
+            let (Some(x), Some(y)) = (a.get(i), b.get(j)) else {
+                break;
+            };
+            match x.cmp(y) {
                 core::cmp::Ordering::Less => i += 1,
                 core::cmp::Ordering::Greater => j += 1,
                 core::cmp::Ordering::Equal => {
@@ -151,6 +177,24 @@ mod tests {
             Sketch::<2>::from_hashes(core::iter::empty()),
             Some(Sketch::EMPTY)
         );
+    }
+
+    #[test]
+    fn keeps_exactly_the_k_smallest_hashes() {
+        // Sets around the capacity, offered in a scrambled order (7919 is a
+        // prime, so `i * 7919 % n` visits every key once).
+        for n in [0u64, 1, 7, 8, 9, 100, 1000] {
+            let keys = (0..n).map(|i| (i * 7919) % n + 40_000);
+            let mut all = [0u32; 1000];
+            for (slot, k) in all.iter_mut().zip(keys.clone()) {
+                *slot = hash_key(k);
+            }
+            let all = &mut all[..n as usize];
+            all.sort_unstable();
+            let kept = Sketch::<8>::from_keys(keys.clone());
+            assert_eq!(kept.hashes(), &all[..all.len().min(8)], "n = {n}");
+            assert_eq!(Sketch::<0>::from_keys(keys).hashes(), &[] as &[u32]);
+        }
     }
 
     #[test]

@@ -9,6 +9,16 @@
 //! compacted away at once, so the pool never fragments: the price is a
 //! `copy_within` per freed frame, which is cheap next to voxelizing it.
 
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::indexing_slicing,
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::panic
+    )
+)]
+
 use crate::voxel::VoxelKey;
 
 const DX_BITS: u32 = 11;
@@ -36,9 +46,10 @@ impl Aabb {
         for &k in keys {
             if let Some(key) = VoxelKey::from_bits(k) {
                 let (x, y, z) = key.coords();
-                for (a, c) in [x, y, z].into_iter().enumerate() {
-                    b.min[a] = b.min[a].min(c);
-                    b.max[a] = b.max[a].max(c);
+                let axes = b.min.iter_mut().zip(b.max.iter_mut());
+                for ((lo, hi), c) in axes.zip([x, y, z]) {
+                    *lo = (*lo).min(c);
+                    *hi = (*hi).max(c);
                 }
             }
         }
@@ -48,13 +59,19 @@ impl Aabb {
     /// Whether the boxes share at least one voxel: sets whose boxes do not
     /// cannot intersect, which skips most comparisons in a large building.
     pub fn touches(&self, other: &Aabb) -> bool {
-        (0..3).all(|a| self.min[a] <= other.max[a] && other.min[a] <= self.max[a])
+        let mine = self.min.into_iter().zip(self.max);
+        let theirs = other.min.into_iter().zip(other.max);
+        mine.zip(theirs)
+            .all(|((lo, hi), (other_lo, other_hi))| lo <= other_hi && other_lo <= hi)
     }
 
     /// Whether every key of the box fits the relative 32-bit encoding.
     pub fn fits_relative(&self) -> bool {
-        let span = |a: usize| (self.max[a] as i64 - self.min[a] as i64) as u64;
-        span(0) < (1 << DX_BITS) && span(1) < (1 << DY_BITS) && span(2) < (1 << DZ_BITS)
+        let span = |lo: i32, hi: i32| (hi as i64 - lo as i64) as u64;
+        let ([x0, y0, z0], [x1, y1, z1]) = (self.min, self.max);
+        span(x0, x1) < (1 << DX_BITS)
+            && span(y0, y1) < (1 << DY_BITS)
+            && span(z0, z1) < (1 << DZ_BITS)
     }
 }
 
@@ -115,7 +132,9 @@ impl<const N: usize> KeyPool<N> {
         }
         let base = aabb.min;
         let start = self.used;
-        for (slot, &k) in self.words[start..start + keys.len()].iter_mut().zip(keys) {
+        // In range by the check above; `?` keeps that a checked fact.
+        let run = self.words.get_mut(start..start + keys.len())?;
+        for (slot, &k) in run.iter_mut().zip(keys) {
             let (x, y, z) = VoxelKey::from_bits(k)?.coords();
             let (dx, dy, dz) = (
                 (x - base[0]) as u32,

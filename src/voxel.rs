@@ -6,6 +6,16 @@
 //! and flash formats need no structure. 21 bits cover ±1,048,575 voxels, which
 //! is ±314 km at 0.3 m: points beyond are reported, never wrapped.
 
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::indexing_slicing,
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::panic
+    )
+)]
+
 use crate::camera::CameraError;
 
 /// Bits per axis in a packed key.
@@ -213,17 +223,21 @@ impl<const CAP: usize> FrameVoxels<CAP> {
         // Fibonacci hashing: the top bits of the product spread neighbouring voxels.
         let mut i = (bits.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 32) as usize & Self::MASK;
         loop {
-            let slot = self.slots[i];
-            if slot == bits {
+            // `i` is masked to `CAP - 1`, so the slot always exists and the
+            // compiler drops the check; the `else` is never taken.
+            let Some(slot) = self.slots.get_mut(i) else {
+                return false;
+            };
+            if *slot == bits {
                 self.last = bits;
                 return true;
             }
-            if slot == EMPTY {
+            if *slot == EMPTY {
                 if self.len >= Self::LIMIT {
                     self.dropped = self.dropped.saturating_add(1);
                     return false;
                 }
-                self.slots[i] = bits;
+                *slot = bits;
                 self.len += 1;
                 self.last = bits;
                 return true;
@@ -241,13 +255,19 @@ impl<const CAP: usize> FrameVoxels<CAP> {
         // what keeps this step small on a microcontroller.
         let mut n = 0;
         for i in 0..CAP {
-            let word = self.slots[i];
+            let Some(&word) = self.slots.get(i) else {
+                break;
+            };
             if word != EMPTY {
-                self.slots[n] = word - 1;
+                // `n <= i < CAP`: the mask changes nothing but lets the
+                // compiler see the write in bounds (no check per key).
+                if let Some(front) = self.slots.get_mut(n & Self::MASK) {
+                    *front = word - 1;
+                }
                 n += 1;
             }
         }
-        let keys = &mut self.slots[..n];
+        let keys = self.slots.get_mut(..n).unwrap_or_default();
         keys.sort_unstable();
         keys
     }
@@ -256,8 +276,8 @@ impl<const CAP: usize> FrameVoxels<CAP> {
 /// Size of the intersection of two ascending, duplicate-free key lists.
 pub fn intersection_size(a: &[u64], b: &[u64]) -> u32 {
     let (mut i, mut j, mut n) = (0, 0, 0u32);
-    while i < a.len() && j < b.len() {
-        match a[i].cmp(&b[j]) {
+    while let (Some(x), Some(y)) = (a.get(i), b.get(j)) {
+        match x.cmp(y) {
             core::cmp::Ordering::Less => i += 1,
             core::cmp::Ordering::Greater => j += 1,
             core::cmp::Ordering::Equal => {

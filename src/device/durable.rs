@@ -184,7 +184,8 @@ fn intersect(journal: &mut dyn Journal, at: u32, keys: &[u64]) -> Option<(u32, u
                 j += 1;
             }
             if keys.get(j) == Some(&k) {
-                common += 1;
+                // At most `keys.len()`, but counted as `seen` is: no wrap.
+                common = common.saturating_add(1);
                 j += 1;
             }
         }

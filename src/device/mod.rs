@@ -312,7 +312,9 @@ impl<
         let replayed = log.replay(&mut |at, payload| {
             if failure.is_none() {
                 failure = core.apply(at, payload, n, &mut replay).err();
-                n += 1;
+                // A log cannot hold 2^32 records, but the count comes from
+                // flash contents: it stops at u32::MAX rather than wrap.
+                n = n.saturating_add(1);
             }
         });
         match (replayed, failure) {
