@@ -820,9 +820,14 @@ fn the_clock_measures_frames() {
         assert_eq!(st.cost.frames, 2);
         assert!(st.cost.last_rows > 0 && st.cost.last_end > 0);
         assert!(st.cost.total >= u64::from(st.cost.max));
+        // The core's share is part of the total; the protocol's is the rest.
+        assert!(st.cost.core > 0 && st.cost.core < st.cost.total);
         b.ok(HostMessage::Reset);
         let st = b.status();
-        assert_eq!((st.cost.clock_hz, st.cost.frames), (1000, 0));
+        assert_eq!(
+            (st.cost.clock_hz, st.cost.frames, st.cost.core),
+            (1000, 0, 0)
+        );
     });
 }
 
