@@ -443,22 +443,8 @@ impl FrameProjector {
         // pixels' path.
         let mut invalid = 0u32;
         if self.shift == MAX_SHIFT {
-            // The usual shift: the biased key is the high word of the 64-bit
-            // fixed-point coordinate shifted by 8, so each axis is one 32x32
-            // multiply-accumulate into the translation and one multiply-add.
             let t = self.biased_translation();
-            for raw in samples {
-                let raw = u32::from(raw);
-                if raw.wrapping_sub(lo) > span {
-                    invalid += 1;
-                } else {
-                    let high = |a: usize| high_word(raw, pick(&ray, a), pick(&t, a)) >> 8;
-                    emit_new(VoxelKey::from_biased(high(0), high(1), high(2)));
-                }
-                for (r, s) in ray.iter_mut().zip(&step) {
-                    *r = r.wrapping_add(*s);
-                }
-            }
+            invalid = fast_loop(samples, ray, step, t, (lo, span), &mut emit_new);
         } else {
             let (shift, t) = (self.shift, self.translation);
             for raw in samples {
@@ -505,6 +491,37 @@ impl FrameProjector {
         let bias = i64::from(AXIS_BIAS) << MAX_SHIFT;
         self.translation.map(|t| t.wrapping_add(bias))
     }
+}
+
+/// The projection loop at the usual shift ([`MAX_SHIFT`]), `t` the biased
+/// translation: the biased key is the high word of the 64-bit fixed-point
+/// coordinate shifted by 8, so each axis is one 32x32 multiply-accumulate
+/// into the translation and one multiply-add. Returns the invalid samples.
+/// Out of line, so that the loop gets the registers to itself (three 64-bit
+/// rays and their steps hardly fit a 32-bit core's).
+#[inline(never)]
+fn fast_loop(
+    samples: impl Iterator<Item = u16>,
+    mut ray: [i64; 3],
+    step: [i64; 3],
+    t: [i64; 3],
+    (lo, span): (u32, u32),
+    emit: &mut impl FnMut(Option<VoxelKey>),
+) -> u32 {
+    let mut invalid = 0u32;
+    for raw in samples {
+        let raw = u32::from(raw);
+        if raw.wrapping_sub(lo) > span {
+            invalid += 1;
+        } else {
+            let high = |a: usize| high_word(raw, pick(&ray, a), pick(&t, a)) >> 8;
+            emit(VoxelKey::from_biased(high(0), high(1), high(2)));
+        }
+        for (r, s) in ray.iter_mut().zip(&step) {
+            *r = r.wrapping_add(*s);
+        }
+    }
+    invalid
 }
 
 /// Bits 32..64 of `raw * ray + t`, for `raw < 2^16` and a sum that does not
