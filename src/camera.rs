@@ -6,6 +6,16 @@
 //! Cortex-M4F has only a single-precision FPU; `f32` is exact enough for 0.3 m
 //! voxels within a few kilometres of the origin.
 
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::indexing_slicing,
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::panic
+    )
+)]
+
 use crate::voxel::{VoxelGrid, VoxelKey, AXIS_BIAS};
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 
@@ -166,7 +176,7 @@ impl Pose {
         {
             return Err(CameraError::NonFinitePose);
         }
-        let m = Matrix3::from_fn(|r, c| rotation[r][c]);
+        let m = matrix(rotation);
         let off = (m.transpose() * m - Matrix3::identity()).amax();
         if off > Self::ROTATION_TOLERANCE || m.determinant() <= 0.0 {
             return Err(CameraError::NotARotation);
@@ -199,13 +209,19 @@ impl Pose {
     /// World coordinates of a camera-frame point.
     pub fn transform(&self, p: [f32; 3]) -> [f32; 3] {
         let r = self.rotation_matrix();
-        let v = Matrix3::from_fn(|i, j| r[i][j]) * Vector3::from(p);
+        let v = matrix(r) * Vector3::from(p);
         [
             v.x + self.translation[0],
             v.y + self.translation[1],
             v.z + self.translation[2],
         ]
     }
+}
+
+/// The matrix of row-major `rows`.
+fn matrix(rows: [[f32; 3]; 3]) -> Matrix3<f32> {
+    let [[a, b, c], [d, e, f], [g, h, i]] = rows;
+    Matrix3::new(a, b, c, d, e, f, g, h, i)
 }
 
 /// Back-projects the pixel `(u, v)` with depth `z` metres into the camera frame.
@@ -276,13 +292,10 @@ impl FrameProjector {
         let metres_per_unit = 1.0 / depth_scale;
         let per_unit = metres_per_unit / grid.voxel_size;
         let r = pose.rotation_matrix();
-        let mut rotation = [[0.0f32; 3]; 3];
+        let rotation = r.map(|row| row.map(|x| x * per_unit));
         let mut centre = [0.0f32; 3];
-        for i in 0..3 {
-            for j in 0..3 {
-                rotation[i][j] = r[i][j] * per_unit;
-            }
-            centre[i] = (pose.translation[i] - grid.origin[i]) / grid.voxel_size;
+        for ((c, t), o) in centre.iter_mut().zip(&pose.translation).zip(&grid.origin) {
+            *c = (t - o) / grid.voxel_size;
         }
         let (inv_fx, inv_fy) = (1.0 / intrinsics.fx, 1.0 / intrinsics.fy);
         // Largest |ray per unit| over the image, to keep raw * ray + t in i64.
@@ -300,11 +313,10 @@ impl FrameProjector {
         }
         let mut ray_max = 0.0f32;
         let mut centre_max = 0.0f32;
-        for i in 0..3 {
-            let m = &rotation[i];
+        for (m, c) in rotation.iter().zip(&centre) {
             let ray = libm::fabsf(m[0]) * x_max + libm::fabsf(m[1]) * y_max + libm::fabsf(m[2]);
             ray_max = libm::fmaxf(ray_max, ray);
-            centre_max = libm::fmaxf(centre_max, libm::fabsf(centre[i]));
+            centre_max = libm::fmaxf(centre_max, libm::fabsf(*c));
         }
         let bound = 65535.0 * ray_max + centre_max;
         let shift = (MIN_SHIFT..=MAX_SHIFT)
@@ -722,14 +734,15 @@ mod tests {
         };
         let (mut checked, mut outside) = (0, 0);
         for case in 0..200 {
-            let mut unit = || next() as f32 / (1u64 << 31) as f32;
-            let voxel = [0.001, 0.05, 0.3, 2.0][case % 4];
-            let grid = VoxelGrid::new(voxel, [unit() * 50.0 - 25.0, 0.0, unit()]).unwrap();
-            let q = [unit() - 0.5, unit() - 0.5, unit() - 0.5, unit() + 0.1];
-            let n = libm::sqrtf(q.iter().map(|c| c * c).sum::<f32>());
-            let t = [unit() * 2e3 - 1e3, unit() * 10.0, unit() * 4e3 - 2e3];
-            let pose = Pose::from_quaternion(t, q.map(|c| c / n)).unwrap();
-            drop(unit);
+            let (grid, pose) = {
+                let mut unit = || next() as f32 / (1u64 << 31) as f32;
+                let voxel = [0.001, 0.05, 0.3, 2.0][case % 4];
+                let grid = VoxelGrid::new(voxel, [unit() * 50.0 - 25.0, 0.0, unit()]).unwrap();
+                let q = [unit() - 0.5, unit() - 0.5, unit() - 0.5, unit() + 0.1];
+                let n = libm::sqrtf(q.iter().map(|c| c * c).sum::<f32>());
+                let t = [unit() * 2e3 - 1e3, unit() * 10.0, unit() * 4e3 - 2e3];
+                (grid, Pose::from_quaternion(t, q.map(|c| c / n)).unwrap())
+            };
             let stride = 1 + (case % 5) as u16;
             let proj =
                 FrameProjector::new(&k(), 1000.0, DepthRange::default(), stride, &grid, &pose)

@@ -1023,15 +1023,12 @@ fn core_cost(a: &BenchArgs) -> Result<(), Error> {
     Ok(())
 }
 
-/// Strides whose difference `bench --device` measures (as the README's
-/// figures and tests/end_to_end.rs do).
-const DEVICE_STRIDES: [u16; 2] = [2, 4];
-
 /// `bench --device`: instructions per valid pixel of the QEMU board's
 /// firmware (see `placedb_host::pixelcost`) on the first frames of
 /// 7scenes-1000 and of the synthetic scan.
 fn device_cost(a: &BenchArgs) -> Result<(), Error> {
     use placedb_host::link::{self, Client, Qemu, QemuOptions};
+    use placedb_host::pixelcost::{self, SELECTOR, STRIDES};
     let firmware = link::built_firmware()?;
     let qemu = Qemu::start_with(
         &firmware,
@@ -1050,7 +1047,7 @@ fn device_cost(a: &BenchArgs) -> Result<(), Error> {
     real.frames.truncate(a.device_frames);
     let mut synthetic = synth::sequence(&SynthConfig::demo());
     synthetic.frames.truncate(2 * a.device_frames);
-    let [fine, coarse] = DEVICE_STRIDES;
+    let [fine, coarse] = STRIDES;
     println!(
         "QEMU mps2-an386 (Cortex-M4F), profile ram512k, -icount shift=0: instructions per valid \
          pixel, marginal between strides {fine} and {coarse}"
@@ -1067,19 +1064,8 @@ fn device_cost(a: &BenchArgs) -> Result<(), Error> {
         "per frame"
     );
     for seq in [&real, &synthetic] {
-        let sel = placedb::SelectorConfig {
-            mu: 0.3,
-            window: 16,
-            sketch_margin: SolverParams::default().sketch_margin,
-        };
-        let cost = placedb_host::pixelcost::measure(
-            &mut client,
-            seq,
-            &VoxelConfig::default(),
-            sel,
-            "ram512k",
-            DEVICE_STRIDES,
-        )?;
+        let vcfg = VoxelConfig::default();
+        let cost = pixelcost::measure(&mut client, seq, &vcfg, SELECTOR, "ram512k", STRIDES)?;
         println!(
             "{:<14} {:>6} {:>10.0} {:>10.0} {:>9.1} {:>9.1} {:>9.1} {:>12.0}",
             seq.name,

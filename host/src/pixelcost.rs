@@ -16,6 +16,18 @@ use crate::link::{Client, Link};
 use crate::{Sequence, VoxelConfig};
 use placedb::SelectorConfig;
 
+/// The strides compared (fine, coarse), as `placedb bench --device`, the
+/// README's figures and tests/end_to_end.rs use them.
+pub const STRIDES: [u16; 2] = [2, 4];
+
+/// The selection settings of those measurements (`placedb stream`'s mu, the
+/// default sketch margin, a 16-frame window).
+pub const SELECTOR: SelectorConfig = SelectorConfig {
+    mu: 0.3,
+    window: 16,
+    sketch_margin: 0.05,
+};
+
 /// The device's cost of a scan at one stride, per frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StrideCost {
