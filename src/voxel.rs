@@ -21,7 +21,7 @@ use crate::camera::CameraError;
 /// Bits per axis in a packed key.
 const AXIS_BITS: u32 = 21;
 /// Bias that maps the signed axis range onto `0..2^21`.
-const AXIS_BIAS: i32 = 1 << (AXIS_BITS - 1);
+pub(crate) const AXIS_BIAS: i32 = 1 << (AXIS_BITS - 1);
 const AXIS_MASK: u64 = (1 << AXIS_BITS) - 1;
 
 /// Integer coordinates of one voxel.
@@ -81,6 +81,20 @@ impl VoxelKey {
         if (x | y | z) >> AXIS_BITS != 0 {
             return None;
         }
+        Some(VoxelKey {
+            packed: (x << (2 * AXIS_BITS)) | (y << AXIS_BITS) | z,
+        })
+    }
+
+    /// The key of voxel `(x, y, z)` given biased, each `x + 2^20` (the
+    /// representable range is `0..2^21`); `None` if any is out of range
+    /// (per-pixel path: one test for all three axes).
+    #[inline(always)]
+    pub(crate) fn from_biased(x: u32, y: u32, z: u32) -> Option<VoxelKey> {
+        if (x | y | z) >> AXIS_BITS != 0 {
+            return None;
+        }
+        let (x, y, z) = (u64::from(x), u64::from(y), u64::from(z));
         Some(VoxelKey {
             packed: (x << (2 * AXIS_BITS)) | (y << AXIS_BITS) | z,
         })

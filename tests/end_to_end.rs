@@ -245,6 +245,40 @@ fn real_and_synthetic_scans_match_the_host_replay() {
     println!("end to end: {:.1} s", started.elapsed().as_secs_f64());
 }
 
+/// The Cortex-M4F's instructions per valid pixel, protocol included
+/// (`placedb_host::pixelcost`: the same frames at two strides; what the
+/// firmware counts under `-icount shift=0`, exact up to a SysTick tick per
+/// clock reading): at most 100 on 7-Scenes, the core's share reported.
+#[test]
+fn a_valid_pixel_costs_at_most_100_instructions() {
+    use placedb_host::pixelcost::{self, SELECTOR, STRIDES};
+    let mut client = boot(Duration::from_secs(600));
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/7scenes-1000");
+    let mut real = read::open(&data, &ReadOptions::default()).unwrap();
+    real.frames.truncate(3);
+    let vcfg = VoxelConfig::default();
+    let cost = pixelcost::measure(&mut client, &real, &vcfg, SELECTOR, PROFILE, STRIDES).unwrap();
+    let (total, core) = (cost.per_pixel(), cost.core_per_pixel());
+    println!(
+        "7scenes-1000, strides {STRIDES:?}: {total:.1} instructions per valid pixel \
+         ({core:.1} core, {:.1} protocol), {:.0} per frame besides; {:.0} and {:.0} \
+         valid pixels per frame",
+        cost.protocol_per_pixel(),
+        cost.per_frame(),
+        cost.fine.pixels,
+        cost.coarse.pixels,
+    );
+    assert!(
+        cost.fine.pixels > 50_000.0,
+        "not the 7-Scenes frames expected"
+    );
+    assert!(core > 0.0 && core < total, "core {core}, total {total}");
+    assert!(
+        total <= 100.0,
+        "{total:.1} instructions per valid pixel on the Cortex-M4F (at most 100)"
+    );
+}
+
 #[test]
 fn bad_input_gets_typed_errors_and_changes_nothing() {
     let mut client = boot(Duration::from_secs(120));

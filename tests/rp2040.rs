@@ -20,6 +20,7 @@ use placedb::SelectorConfig;
 use placedb_host::device_cli::{self, ExportOptions, StreamOptions, StreamReport};
 use placedb_host::fault::{FaultConfig, FaultInjector};
 use placedb_host::link::{Client, Link, Received};
+use placedb_host::pixelcost;
 use placedb_host::read::{self, ReadOptions};
 use placedb_host::rp2040::{self, Rp2040, Rp2040Options};
 use placedb_host::synth::{self, SynthConfig};
@@ -167,41 +168,42 @@ fn the_emulated_pico_matches_the_host_replay() {
     println!("pico end to end: {:.1} s", started.elapsed().as_secs_f64());
 }
 
-/// The marginal cost of a valid pixel on the Cortex-M0+: the same frames at
-/// two strides; the difference in cycles over the difference in valid pixels
-/// (what a frame costs besides its pixels cancels out).
-fn marginal(
-    client: &mut Client<Rp2040>,
-    seq: &Sequence,
-    strides: [u16; 2],
-) -> [(f64, f64, f64); 2] {
-    let mut out = [(0.0, 0.0, 0.0); 2];
-    for (slot, s) in out.iter_mut().zip(strides) {
-        let report = stream(client, seq, &stride(s), sel(16), &StreamOptions::default());
-        let st = report.status;
-        let frames = f64::from(st.cost.frames.max(1));
-        *slot = (
-            st.cost.total as f64 * CYCLES_PER_TICK / frames,
-            st.valid_pixels as f64 / frames,
-            report.bytes_sent as f64 / frames,
-        );
-    }
-    out
-}
-
+/// The marginal cost of a valid pixel on the Cortex-M0+
+/// (`placedb_host::pixelcost`: the same frames at two strides; the difference
+/// in cycles over the difference in valid pixels, so what a frame costs
+/// besides its pixels cancels out).
 #[test]
 fn cortex_m0_cycles_per_valid_pixel() {
     let mut client = Client::new(boot(None, Duration::from_secs(600)));
     for (name, seq) in [("7scenes-1000", seven_scenes(3)), ("synthetic", demo(6))] {
-        let [(c2, p2, b2), (c4, p4, b4)] = marginal(&mut client, &seq, [2, 4]);
-        let per_pixel = (c2 - c4) / (p2 - p4);
-        let fixed = c4 - per_pixel * p4;
+        let cost = pixelcost::measure(
+            &mut client,
+            &seq,
+            &stride(1),
+            sel(16),
+            PROFILE,
+            pixelcost::STRIDES,
+        )
+        .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let [f, c] = [cost.fine, cost.coarse];
+        let per_pixel = cost.per_pixel() * CYCLES_PER_TICK;
+        let core = cost.core_per_pixel() * CYCLES_PER_TICK;
+        let fixed = cost.per_frame() * CYCLES_PER_TICK;
         println!(
-            "{name}: stride 2: {c2:.0} cycles/frame, {p2:.0} valid pixels, {b2:.0} bytes sent; \
-             stride 4: {c4:.0} cycles/frame, {p4:.0} valid pixels, {b4:.0} bytes sent; \
-             marginal {per_pixel:.1} cycles per valid pixel, {fixed:.0} cycles per frame besides"
+            "{name}: stride {}: {:.0} cycles/frame, {:.0} valid pixels, {:.0} bytes sent; \
+             stride {}: {:.0} cycles/frame, {:.0} valid pixels, {:.0} bytes sent; \
+             marginal {per_pixel:.1} cycles per valid pixel ({core:.1} in the core), \
+             {fixed:.0} cycles per frame besides",
+            f.stride,
+            f.ticks * CYCLES_PER_TICK,
+            f.pixels,
+            f.bytes,
+            c.stride,
+            c.ticks * CYCLES_PER_TICK,
+            c.pixels,
+            c.bytes,
         );
-        assert!(per_pixel > 0.0 && c2 > c4);
+        assert!(per_pixel > 0.0 && f.ticks > c.ticks);
         // At 133 MHz, every pixel valid (the worst case), and what USB full
         // speed carries: ~1.1 MB/s of bulk payload at best; the host sends
         // 2 bytes per sampled pixel plus ~1 % framing.

@@ -14,6 +14,7 @@ pub mod metrics;
 pub mod online;
 pub mod output;
 pub mod pipeline;
+pub mod pixelcost;
 pub mod plot;
 pub mod read;
 pub mod rng;

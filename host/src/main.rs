@@ -800,6 +800,14 @@ struct BenchArgs {
     /// With --core: frames of 7scenes-1000 to replay.
     #[arg(long, default_value_t = 20)]
     core_frames: usize,
+    /// Instead: count the instructions per valid pixel of the QEMU board's
+    /// Cortex-M4F firmware (-icount shift=0), protocol included, and the
+    /// core's share: the same frames at strides 2 and 4.
+    #[arg(long)]
+    device: bool,
+    /// With --device: frames of 7scenes-1000 (twice as many synthetic ones).
+    #[arg(long, default_value_t = 3)]
+    device_frames: usize,
     /// Instead: count with callgrind the instructions of one frame decided
     /// against a database of 10 frames and of ~900 (a synthetic building at
     /// mu 0.5 on the ram256k device, its database restored from flash).
@@ -824,6 +832,9 @@ const PAPER_7SCENES: (f64, f64) = (51.0, 400.0);
 fn bench(a: BenchArgs) -> Result<(), Error> {
     if a.core {
         return core_cost(&a);
+    }
+    if a.device {
+        return device_cost(&a);
     }
     if let Some(flash) = &a.db_probe {
         return Ok(placedb_host::dbscale::run_probe(flash, a.building_frames)?);
@@ -1053,6 +1064,68 @@ fn core_cost(a: &BenchArgs) -> Result<(), Error> {
         "end frame = sort the frame's voxels, sketch, overlaps with database and window, select"
     );
     let _ = std::fs::remove_dir_all(&dir);
+    Ok(())
+}
+
+/// `bench --device`: instructions per valid pixel of the QEMU board's
+/// firmware (see `placedb_host::pixelcost`) on the first frames of
+/// 7scenes-1000 and of the synthetic scan.
+fn device_cost(a: &BenchArgs) -> Result<(), Error> {
+    use placedb_host::link::{self, Client, Qemu, QemuOptions};
+    use placedb_host::pixelcost::{self, SELECTOR, STRIDES};
+    let firmware = link::built_firmware()?;
+    let qemu = Qemu::start_with(
+        &firmware,
+        QemuOptions {
+            extra_args: vec!["-icount".into(), "shift=0".into()],
+            deadline: Duration::from_secs(3600),
+            ..QemuOptions::default()
+        },
+    )
+    .map_err(|e| format!("cannot start qemu-system-arm (apt-get install qemu-system-arm): {e}"))?;
+    if !qemu.wait_console("calibration", Duration::from_secs(10)) {
+        return Err(format!("the firmware did not boot: {}", qemu.console()).into());
+    }
+    let mut client = Client::new(qemu);
+    let mut real = read::open(&a.data.join("7scenes-1000"), &ReadOptions::default())?;
+    real.frames.truncate(a.device_frames);
+    let mut synthetic = synth::sequence(&SynthConfig::demo());
+    synthetic.frames.truncate(2 * a.device_frames);
+    let [fine, coarse] = STRIDES;
+    println!(
+        "QEMU mps2-an386 (Cortex-M4F), profile ram512k, -icount shift=0: instructions per valid \
+         pixel, marginal between strides {fine} and {coarse}"
+    );
+    println!(
+        "{:<14} {:>6} {:>10} {:>10} {:>9} {:>9} {:>9} {:>12}",
+        "sequence",
+        "frames",
+        "px@fine",
+        "px@coarse",
+        "total/px",
+        "core/px",
+        "proto/px",
+        "per frame"
+    );
+    for seq in [&real, &synthetic] {
+        let vcfg = VoxelConfig::default();
+        let cost = pixelcost::measure(&mut client, seq, &vcfg, SELECTOR, "ram512k", STRIDES)?;
+        println!(
+            "{:<14} {:>6} {:>10.0} {:>10.0} {:>9.1} {:>9.1} {:>9.1} {:>12.0}",
+            seq.name,
+            cost.fine.frames,
+            cost.fine.pixels,
+            cost.coarse.pixels,
+            cost.per_pixel(),
+            cost.core_per_pixel(),
+            cost.protocol_per_pixel(),
+            cost.per_frame()
+        );
+    }
+    println!(
+        "core = projection, voxel set, selection step; proto = COBS, CRC, decoding, copying \
+         the samples, dispatch; per frame = the rest of a frame's instructions"
+    );
     Ok(())
 }
 

@@ -9,7 +9,7 @@ use crate::protocol::{
 use crate::select::{FrameDecision, FrameStore, SelectError, Selector};
 
 use super::durable::{step_records, LogStore};
-use super::reply::{delta, select_error, storage_error, Out};
+use super::reply::{delta, now, select_error, storage_error, Out};
 use super::retransmit::{Applied, MessageKey};
 use super::Core;
 
@@ -61,7 +61,10 @@ impl<
                     timestamp,
                     pose,
                 })
-                .map(|()| self.rows_ticks = delta(clock, t0, 0)),
+                .map(|()| {
+                    self.rows_ticks = delta(clock, t0, 0);
+                    self.core_ticks = 0;
+                }),
             HostMessage::DepthRows(rows) => self.depth_rows(&rows).map(|()| {
                 self.rows_ticks = self.rows_ticks.saturating_add(delta(clock, t0, 0));
             }),
@@ -188,9 +191,10 @@ impl<
             };
         }
         let values = self.rows.get(..n).ok_or(ErrorKind::Internal)?;
-        self.selector
-            .push_rows(rows.first_row, values)
-            .map_err(select_error)
+        let t0 = now(self.clock);
+        let pushed = self.selector.push_rows(rows.first_row, values);
+        self.core_ticks = self.core_ticks.saturating_add(delta(self.clock, t0, 0));
+        pushed.map_err(select_error)
     }
 
     fn frame_end(
@@ -208,18 +212,21 @@ impl<
         // Room for this step and, after it, a Finish of a full window, so
         // that a scan whose log is full still ends with every frame decided.
         let records = 2 * step_records(W) + 1;
-        let sending = self.decide(journal, records, false, send, |s, store, emit| {
+        let ticks = self.decide(journal, records, false, send, |s, store, emit| {
             s.end_frame_with(store, emit)
         })?;
-        let end = delta(self.clock, t0, sending);
+        let end = delta(self.clock, t0, ticks.sending);
         let rows = self.rows_ticks;
+        let core = self.core_ticks.saturating_add(ticks.step);
         let c = &mut self.cost;
         c.frames = c.frames.saturating_add(1);
         c.total = c.total.saturating_add(rows.saturating_add(end));
+        c.core = c.core.saturating_add(core);
         c.last_rows = u32::try_from(rows).unwrap_or(u32::MAX);
         c.last_end = u32::try_from(end).unwrap_or(u32::MAX);
         c.max = c.max.max(c.last_rows.saturating_add(c.last_end));
         self.rows_ticks = 0;
+        self.core_ticks = 0;
         Ok(())
     }
 
@@ -231,6 +238,7 @@ impl<
         }
         self.selector.abort_frame();
         self.rows_ticks = 0;
+        self.core_ticks = 0;
         Ok(())
     }
 
@@ -278,7 +286,7 @@ impl<
     /// step; final decisions join the batch on its way to the journal (and
     /// go out once it is written; all of them when `flush`); Pending ones go
     /// out at once. Returns the ticks spent sending, which the frame cost
-    /// leaves out (they measure the link, not the device).
+    /// leaves out (they measure the link, not the device), and in the step.
     fn decide(
         &mut self,
         journal: &mut dyn Journal,
@@ -290,7 +298,7 @@ impl<
             &mut dyn FrameStore<K>,
             &mut dyn FnMut(FrameDecision),
         ) -> Result<(), SelectError>,
-    ) -> Result<u64, ErrorKind> {
+    ) -> Result<StepTicks, ErrorKind> {
         // `records` bounds what may be written; checked first so that a
         // refusal changes nothing.
         if !self.storage_failed && !journal.has_room(records, Self::STEP_RECORD_LEN) {
@@ -309,6 +317,7 @@ impl<
             ..
         } = self;
         decided.clear();
+        let t0 = now(*clock);
         let mut store = LogStore {
             journal,
             record,
@@ -321,6 +330,7 @@ impl<
             let _ = decided.push(d);
         })
         .map_err(select_error)?;
+        let step_ticks = delta(*clock, t0, 0);
         let mut out = Out {
             tx,
             send,
@@ -350,6 +360,17 @@ impl<
                 kind: DecisionKind::Pending,
             });
         }
-        Ok(out.ticks)
+        Ok(StepTicks {
+            sending: out.ticks,
+            step: step_ticks,
+        })
     }
+}
+
+/// Where a selection step's ticks went.
+struct StepTicks {
+    /// Sending replies (left out of the frame cost).
+    sending: u64,
+    /// The selector's step itself (the core's share).
+    step: u64,
 }

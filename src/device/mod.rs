@@ -146,6 +146,8 @@ struct Core<
     cost: FrameCost,
     /// Ticks of the open frame's FrameBegin and DepthRows so far.
     rows_ticks: u64,
+    /// Of those, ticks inside the core (voxelizing the rows).
+    core_ticks: u64,
     /// The last state-changing message handled, to answer its retransmission.
     last: Applied,
     /// Decisions of the selection step in progress.
@@ -226,6 +228,7 @@ impl<
                 clock: None,
                 cost: FrameCost::ZERO,
                 rows_ticks: 0,
+                core_ticks: 0,
                 last: Applied::NONE,
                 step: heapless::Vec::new(),
                 timestamps: [0.0; 65],
@@ -412,6 +415,7 @@ impl<
             ..FrameCost::ZERO
         };
         self.rows_ticks = 0;
+        self.core_ticks = 0;
         self.last = Applied::NONE;
         self.stored = 0;
         self.storage_failed = false;

@@ -829,9 +829,14 @@ fn the_clock_measures_frames() {
             costs.iter().map(|&c| u64::from(c)).sum::<u64>()
         );
         assert_eq!(st.cost.max, costs.iter().copied().max().unwrap());
+        // The core's share is part of the total; the protocol's is the rest.
+        assert!(st.cost.core > 0 && st.cost.core < st.cost.total);
         b.ok(HostMessage::Reset);
         let st = b.status();
-        assert_eq!((st.cost.clock_hz, st.cost.frames), (1000, 0));
+        assert_eq!(
+            (st.cost.clock_hz, st.cost.frames, st.cost.core),
+            (1000, 0, 0)
+        );
     });
 }
 

@@ -6,8 +6,8 @@
 //! does not use postcard's `CobsAccumulator`: it cannot tell a bad CRC from bad
 //! COBS from a bad message, and after an overflow it restarts in the middle of
 //! the oversized frame instead of at its end. [`FrameDecoder`] keeps the COBS
-//! bytes of one frame, decodes them in place when the delimiter arrives, checks
-//! the CRC, then lets postcard deserialize straight from its buffer, so borrowed
+//! bytes of one frame, decodes them in place when the delimiter arrives
+//! (computing the CRC in the same pass, [`super::cobs`]), checks the CRC, then lets postcard deserialize straight from its buffer, so borrowed
 //! payloads ([`super::DepthRows::data`]) point into the decoder: no copy.
 
 use super::messages::{DeviceMessage, ErrorKind, ExportRecord, HostFrame, ProtocolError};
@@ -311,13 +311,13 @@ impl<const N: usize> FrameDecoder<N> {
             .buf
             .get_mut(..n)
             .ok_or(ProtocolError::new(ErrorKind::Internal))?;
-        let decoded =
-            cobs_decode_in_place(body).ok_or(ProtocolError::new(ErrorKind::BadFraming))?;
+        let (decoded, crc) =
+            super::cobs::decode_in_place(body).ok_or(ProtocolError::new(ErrorKind::BadFraming))?;
         let body: &'d [u8] = body;
         let payload = body
             .get(..decoded)
             .ok_or(ProtocolError::new(ErrorKind::Internal))?;
-        decode_payload(payload)
+        decode_payload(payload, crc)
     }
 
     /// [`Self::push`] then, when a frame is complete, [`Self::decode`].
@@ -339,42 +339,9 @@ impl<const N: usize> FrameDecoder<N> {
     }
 }
 
-/// Decodes COBS in place (no delimiter in `buf`); returns the decoded length,
-/// or `None` when the bytes are not valid COBS.
-fn cobs_decode_in_place(buf: &mut [u8]) -> Option<usize> {
-    let n = buf.len();
-    let mut read = 0usize;
-    let mut write = 0usize;
-    while read < n {
-        let code = usize::from(*buf.get(read)?);
-        if code == 0 {
-            return None;
-        }
-        read += 1;
-        let block_end = read.checked_add(code - 1)?;
-        if block_end > n {
-            return None;
-        }
-        // `write < read` always holds, so copying forwards never clobbers unread bytes.
-        while read < block_end {
-            let b = *buf.get(read)?;
-            if b == 0 {
-                return None;
-            }
-            *buf.get_mut(write)? = b;
-            write += 1;
-            read += 1;
-        }
-        if code != 0xFF && read < n {
-            *buf.get_mut(write)? = 0;
-            write += 1;
-        }
-    }
-    Some(write)
-}
-
-/// Checks the CRC of a decoded frame and deserializes its message.
-fn decode_payload<'d, M>(payload: &'d [u8]) -> Result<M, ProtocolError>
+/// Checks the CRC of a decoded frame (`crc`: the CRC of the whole payload,
+/// its CRC bytes included) and deserializes its message.
+fn decode_payload<'d, M>(payload: &'d [u8], crc: u32) -> Result<M, ProtocolError>
 where
     M: Deserialize<'d> + WireMessage,
 {
@@ -392,12 +359,10 @@ where
         (None, message)
     };
     let error = |kind| ProtocolError { kind, seq };
-    let mut crc = [0u8; CRC_LEN];
     if crc_bytes.len() != CRC_LEN {
         return Err(error(ErrorKind::Internal));
     }
-    crc.copy_from_slice(crc_bytes);
-    if CRC.checksum(message) != u32::from_le_bytes(crc) {
+    if crc != super::cobs::CRC_RESIDUE {
         return Err(error(ErrorKind::BadCrc));
     }
     if M::SEQ_PREFIX && seq.is_none() {

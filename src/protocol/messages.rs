@@ -480,7 +480,8 @@ pub mod degradation {
 
 /// Cost of frames on the device, measured with a board clock (all zero when
 /// the board gives none). Decoding, voxelizing and selecting are counted;
-/// sending replies is not.
+/// sending replies is not. `total - core` is the protocol's share: COBS,
+/// CRC, message decoding, dispatch and copying the depth samples.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct FrameCost {
     /// Clock rate, ticks per second (0: no clock). The QEMU board counts
@@ -496,6 +497,10 @@ pub struct FrameCost {
     pub last_end: u32,
     /// Most ticks of one frame.
     pub max: u32,
+    /// Ticks of every measured frame inside the core alone: voxelizing its
+    /// rows (projection and the frame's voxel set) and its selection step
+    /// (sketch, overlaps, decisions, the database frame it writes).
+    pub core: u64,
 }
 
 impl FrameCost {
@@ -508,6 +513,7 @@ impl FrameCost {
         last_rows: 0,
         last_end: 0,
         max: 0,
+        core: 0,
     };
 }
 

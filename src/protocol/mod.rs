@@ -83,6 +83,7 @@
     )
 )]
 
+mod cobs;
 mod framing;
 mod messages;
 
@@ -109,7 +110,8 @@ pub use messages::{
 ///   `HostMessage::FrameAbort`.
 /// - 4: the database lives in flash: capacity slots `Resident` and `Flash`;
 ///   final decisions are sent once durable (in batches, with a flash log).
-pub const PROTOCOL_VERSION: u16 = 4;
+/// - 5: `FrameCost::core`, the core's share of the frame cost.
+pub const PROTOCOL_VERSION: u16 = 5;
 
 /// Largest encoded frame (delimiter included) of any [`DeviceMessage`] but a
 /// [`DeviceMessage::Log`]: a device's transmit buffer. Longer logs are dropped.

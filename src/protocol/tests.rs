@@ -519,6 +519,7 @@ fn the_largest_replies_fit_the_reply_buffer() {
             last_rows: u32::MAX,
             last_end: u32::MAX,
             max: u32::MAX,
+            core: u64::MAX,
         },
         ..Status::new(u32::MAX, Phase::Finished)
     };
