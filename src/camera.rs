@@ -541,11 +541,20 @@ fn fast_loop(
 /// low word of `ray`, accumulated onto `t` (one `umlal` on a Cortex-M), then
 /// `raw` times the high word of `ray` (one `mla`). Exactly the high word of
 /// the `i64` sum.
+#[cfg(not(target_pointer_width = "64"))]
 #[inline(always)]
 fn high_word(raw: u32, ray: i64, t: i64) -> u32 {
     let (ray_low, ray_high) = (ray as u32, (ray >> 32) as u32);
     let low_sum = (u64::from(raw) * u64::from(ray_low)).wrapping_add(t as u64);
     ((low_sum >> 32) as u32).wrapping_add(raw.wrapping_mul(ray_high))
+}
+
+/// [`high_word`] where 64-bit multiplies are native (the host): the same
+/// bits of the same wrapping sum, in one multiply-add.
+#[cfg(target_pointer_width = "64")]
+#[inline(always)]
+fn high_word(raw: u32, ray: i64, t: i64) -> u32 {
+    (i64::from(raw).wrapping_mul(ray).wrapping_add(t) >> 32) as u32
 }
 
 /// `a[i]` for `i < 3`, as the per-pixel loops use it: no bounds check to
