@@ -57,10 +57,11 @@ use placedb::device::harness::{on_big_stack, AnyDevice, Harness};
 use placedb::device::{Device, Device512K, RestoreFailure};
 use placedb::persist::sim::{SimFlash, Tear};
 use placedb::protocol::{
-    degradation, depth_rows_per_message, Config, DecisionKind, DepthRows, DeviceMessage, ErrorKind,
+    degradation, depth_rows_per_message, Config, DecisionKind, DeviceMessage, ErrorKind,
     ExportRecord, HostMessage, Phase, RecordKind, Status,
 };
 use placedb::{Pose, SelectorConfig};
+use placedb_host::row_chunks::{row_chunks, RowChunk};
 use placedb_host::synth::{self, SynthConfig};
 use placedb_host::{device_cli, online, VoxelConfig};
 use std::collections::{BTreeMap, BTreeSet};
@@ -88,8 +89,8 @@ type Small = Device<4096, 16384, 64, 8, 16, 512>;
 struct Frame {
     timestamp: f64,
     pose: Pose,
-    /// DepthRows payloads: first strided row, row count, bytes.
-    rows: Vec<(u16, u16, Vec<u8>)>,
+    /// Its DepthRows payloads.
+    rows: Vec<RowChunk>,
 }
 
 /// A scan: its Hello and its frames, cut into messages once.
@@ -133,14 +134,7 @@ impl Scan {
                 let img = seq.depth(i).unwrap();
                 let (w, values) = online::sampled_rows(&img, cfg.stride);
                 assert_eq!(w, usize::from(cfg.width_sent()));
-                let rows = values
-                    .chunks(w * per_msg)
-                    .enumerate()
-                    .map(|(k, chunk)| {
-                        let data = chunk.iter().flat_map(|d| d.to_le_bytes()).collect();
-                        ((k * per_msg) as u16, (chunk.len() / w) as u16, data)
-                    })
-                    .collect();
+                let rows = row_chunks(w, &values, per_msg).collect();
                 Frame {
                     timestamp: seq.frames[i].timestamp,
                     pose: seq.frames[i].pose().unwrap(),
@@ -305,14 +299,8 @@ fn send_frame<D: AnyDevice>(
     if !step(rig, begin, seen, ctx) {
         return false;
     }
-    for (first_row, row_count, data) in &f.rows {
-        let rows = HostMessage::DepthRows(DepthRows {
-            frame: i,
-            first_row: *first_row,
-            row_count: *row_count,
-            data,
-        });
-        if !step(rig, rows, seen, ctx) {
+    for rows in &f.rows {
+        if !step(rig, rows.message(i), seen, ctx) {
             return false;
         }
     }
@@ -1082,13 +1070,8 @@ fn a_full_log_refuses_frame_end_and_changes_nothing() {
                 timestamp: f.timestamp,
                 pose: f.pose,
             });
-            for (first_row, row_count, data) in &f.rows {
-                rig.ok(HostMessage::DepthRows(DepthRows {
-                    frame: i,
-                    first_row: *first_row,
-                    row_count: *row_count,
-                    data,
-                }));
+            for rows in &f.rows {
+                rig.ok(rows.message(i));
             }
             let (st, export, steps) = (rig.status(), rig.export(), rig.flash().steps());
             let replies = rig.send(HostMessage::FrameEnd { frame: i });

@@ -17,6 +17,7 @@ pub mod pipeline;
 pub mod plot;
 pub mod read;
 pub mod rng;
+pub mod row_chunks;
 pub mod rp2040;
 pub mod sequence;
 pub mod session;
