@@ -2,7 +2,8 @@
 //! tests (feature `sim-flash`, which needs `std`): the one harness of the
 //! device's unit tests (`src/device/tests.rs`) and of the integration tests
 //! that drive a device over its wire protocol (`tests/bad_inputs.rs`,
-//! `tests/power_cut.rs`).
+//! `tests/power_cut.rs`); the fuzz targets (`fuzz/src/harness.rs`) decode
+//! and check replies with its [`decode_reply`] and [`terminal`].
 //!
 //! A [`Harness`] holds a device, its log on a [`SimFlash`] (or no journal)
 //! and the host's sequence numbers. It encodes each message as a host would,
