@@ -12,16 +12,16 @@
 //! byte is set), `s` cycling over the size bytes; `k = 0` feeds it whole.
 
 use placedb::camera::{DepthRange, Intrinsics, Pose};
-use placedb::device::harness::{decode_reply, terminal};
+use placedb::device::harness::{check_export, decode_reply, terminal};
 use placedb::device::Device;
 use placedb::frame::FrameMeta;
 use placedb::persist::record::{KeyChunks, DECISION_BATCH};
 use placedb::persist::sim::SimFlash;
 use placedb::persist::{Log, Record};
 use placedb::protocol::{
-    degradation, depth_rows_per_message, encode, export_crc, strided_len, CapacitySlot, Config,
-    DecisionKind, DepthRows, DeviceMessage, ErrorKind, ExportRecord, Feed, FrameDecoder, HostFrame,
-    HostMessage, Phase, ProtocolError, RecordKind, Status, MAX_FRAME_LEN, PROTOCOL_VERSION,
+    degradation, depth_rows_per_message, encode, strided_len, CapacitySlot, Config, DecisionKind,
+    DepthRows, DeviceMessage, ErrorKind, ExportRecord, Feed, FrameDecoder, HostFrame, HostMessage,
+    Phase, ProtocolError, RecordKind, Status, MAX_FRAME_LEN, PROTOCOL_VERSION,
 };
 use placedb::store::Aabb;
 
@@ -265,15 +265,6 @@ fn expected_terminals(stream: &[u8]) -> Vec<Option<u32>> {
     }
     assert_eq!(seqs.len(), expected_frames(stream, MAX_FRAME_LEN));
     seqs
-}
-
-/// Checks the records of one export against its `ExportEnd`.
-fn check_export(records: &[ExportRecord], from_record: u32, count: u32, crc32: u32) {
-    assert_eq!(count as usize, records.len(), "ExportEnd count");
-    assert_eq!(crc32, export_crc(records), "ExportEnd crc");
-    for (k, r) in records.iter().enumerate() {
-        assert_eq!(Some(r.record), from_record.checked_add(k as u32), "{r:?}");
-    }
 }
 
 /// A device being fed, with its flash log, everything it was fed and

@@ -3,7 +3,8 @@
 //! device's unit tests (`src/device/tests.rs`) and of the integration tests
 //! that drive a device over its wire protocol (`tests/bad_inputs.rs`,
 //! `tests/power_cut.rs`); the fuzz targets (`fuzz/src/harness.rs`) decode
-//! and check replies with its [`decode_reply`] and [`terminal`].
+//! and check replies with its [`decode_reply`], [`terminal`] and
+//! [`check_export`].
 //!
 //! A [`Harness`] holds a device, its log on a [`SimFlash`] (or no journal)
 //! and the host's sequence numbers. It encodes each message as a host would,
@@ -255,20 +256,33 @@ impl<D: AnyDevice> Harness<D> {
                 other => panic!("not an export record: {other:?}"),
             })
             .collect();
-        assert_eq!(
-            *last,
+        match last {
             DeviceMessage::ExportEnd {
-                seq: self.seq,
-                from_record: from,
-                count: records.len() as u32,
-                crc32: export_crc(&records),
-            },
-            "export end"
-        );
-        for (k, r) in records.iter().enumerate() {
-            assert_eq!(r.record, from + k as u32, "export record numbers");
+                seq,
+                from_record,
+                count,
+                crc32,
+            } => {
+                assert_eq!((*seq, *from_record), (self.seq, from), "export end");
+                check_export(&records, from, *count, *crc32);
+            }
+            other => panic!("no ExportEnd: {other:?}"),
         }
         records
+    }
+}
+
+/// Checks the records of one export against its ExportEnd: their count,
+/// their CRC, and their numbers, from `from_record` on.
+pub fn check_export(records: &[ExportRecord], from_record: u32, count: u32, crc32: u32) {
+    assert_eq!(count as usize, records.len(), "ExportEnd count");
+    assert_eq!(crc32, export_crc(records), "ExportEnd CRC");
+    for (k, r) in records.iter().enumerate() {
+        assert_eq!(
+            Some(r.record),
+            from_record.checked_add(k as u32),
+            "export record numbers: {r:?}"
+        );
     }
 }
 
