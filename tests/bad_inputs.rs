@@ -36,13 +36,12 @@
 //! tests/capacities.rs, tests/end_to_end.rs); this file is the one readable
 //! list of every case.
 
+use placedb::device::harness::{on_big_stack, Harness};
 use placedb::device::Device256K;
-use placedb::persist::sim::SimFlash;
-use placedb::persist::Log;
 use placedb::protocol::{
     depth_rows_per_message, encode, pack_rows, CapacitySlot, Config, DepthRows, DeviceMessage,
-    ErrorKind, ExportRecord, Feed, FrameDecoder, HostFrame, HostMessage, Phase, Status, CRC,
-    MAX_FRAME_LEN, MAX_REPLY_LEN, PROTOCOL_VERSION,
+    ErrorKind, ExportRecord, HostFrame, HostMessage, Phase, Status, CRC, MAX_FRAME_LEN,
+    PROTOCOL_VERSION,
 };
 use placedb::{Intrinsics, Pose, SelectorConfig};
 use placedb_host::fault::damaged_frame;
@@ -352,11 +351,10 @@ impl Table {
 // ---------------------------------------------------------------------------
 // The device under test.
 
-/// One device with its flash log, and a host's sequence numbers.
+/// The device under test (a harness with its flash log), and the cases
+/// that went wrong.
 struct Bench {
-    device: Box<Device256K>,
-    log: Log<SimFlash>,
-    seq: u32,
+    h: Harness<Device256K>,
     /// Cases that did not get their error or changed something.
     failures: Vec<String>,
 }
@@ -411,130 +409,23 @@ impl Snapshot {
     }
 }
 
-fn owned(msg: DeviceMessage<'_>) -> DeviceMessage<'static> {
-    msg.into_static()
-        .unwrap_or_else(|| panic!("the device logged {msg:?}"))
-}
-
-/// Decodes one reply frame, checking it is one complete frame within the
-/// device's transmit buffer.
-fn decode_reply(frame: &[u8]) -> DeviceMessage<'static> {
-    assert!(
-        frame.len() <= MAX_REPLY_LEN,
-        "reply of {} bytes",
-        frame.len()
-    );
-    let mut decoder = FrameDecoder::<MAX_REPLY_LEN>::new();
-    match decoder.feed::<DeviceMessage>(frame) {
-        Feed::Frame {
-            result: Ok(msg),
-            remaining: [],
-        } => owned(msg),
-        other => panic!("bad reply frame {frame:?}: {other:?}"),
-    }
-}
-
 impl Bench {
     fn new() -> Bench {
-        let flash = SimFlash::new(FLASH_SECTORS);
-        let log = Log::open(flash, 0, (FLASH_SECTORS * SimFlash::SECTOR) as u32).unwrap();
         Bench {
-            device: Box::new(Device256K::new()),
-            log,
-            seq: 0,
+            h: Harness::new(FLASH_SECTORS),
             failures: Vec::new(),
         }
-    }
-
-    /// A fresh device restored from a copy of this one's flash.
-    fn restored(&mut self) -> Bench {
-        let flash = self.log.flash().clone();
-        let mut log = Log::open(flash, 0, (FLASH_SECTORS * SimFlash::SECTOR) as u32).unwrap();
-        let mut device = Box::new(Device256K::new());
-        device.restore(&mut log).unwrap();
-        Bench {
-            device,
-            log,
-            seq: 0,
-            failures: Vec::new(),
-        }
-    }
-
-    /// Feeds `bytes` in chunks of `chunk` bytes; every reply, decoded.
-    fn feed(&mut self, bytes: &[u8], chunk: usize) -> Vec<DeviceMessage<'static>> {
-        let mut frames: Vec<Vec<u8>> = Vec::new();
-        for part in bytes.chunks(chunk.max(1)) {
-            self.device
-                .receive_logged(part, &mut self.log, &mut |f: &[u8]| frames.push(f.to_vec()));
-        }
-        frames.iter().map(|f| decode_reply(f)).collect()
-    }
-
-    /// Sends `msg` with the next sequence number; the sequence number and
-    /// every reply.
-    fn request(&mut self, msg: HostMessage<'_>) -> (u32, Vec<DeviceMessage<'static>>) {
-        self.seq += 1;
-        let seq = self.seq;
-        (seq, self.feed(&frame_of(seq, msg), usize::MAX))
-    }
-
-    /// Sends `msg`, which must be accepted: decisions, then its Ack.
-    fn ok(&mut self, msg: HostMessage<'_>) -> Vec<DeviceMessage<'static>> {
-        let (seq, replies) = self.request(msg);
-        let (last, decisions) = replies.split_last().expect("a reply");
-        assert_eq!(*last, DeviceMessage::Ack { seq }, "{msg:?} -> {replies:?}");
-        assert!(
-            decisions
-                .iter()
-                .all(|m| matches!(m, DeviceMessage::Decision { .. })),
-            "{msg:?} -> {replies:?}"
-        );
-        replies
-    }
-
-    fn status(&mut self) -> Status {
-        let (seq, replies) = self.request(HostMessage::StatusRequest);
-        match replies.as_slice() {
-            [DeviceMessage::Status(st)] if st.seq == seq => *st,
-            other => panic!("no status: {other:?}"),
-        }
-    }
-
-    /// The whole export, checked by its ExportEnd.
-    fn export(&mut self) -> Vec<ExportRecord> {
-        let (seq, replies) = self.request(HostMessage::ExportRequest {
-            from_record: 0,
-            max_records: u32::MAX,
-        });
-        let (last, records) = replies.split_last().expect("a reply");
-        let records: Vec<ExportRecord> = records
-            .iter()
-            .map(|m| match m {
-                DeviceMessage::ExportRecord(r) => *r,
-                other => panic!("not an export record: {other:?}"),
-            })
-            .collect();
-        assert_eq!(
-            *last,
-            DeviceMessage::ExportEnd {
-                seq,
-                from_record: 0,
-                count: records.len() as u32,
-                crc32: placedb::protocol::export_crc(&records),
-            }
-        );
-        records
     }
 
     fn snapshot(&mut self) -> Snapshot {
-        let mut status = self.status();
+        let mut status = self.h.status();
         let refused = status.refused;
         status.seq = 0;
         status.refused = 0;
         // The receive buffer's last and peak use follow the frames received.
         *status.capacity_mut(CapacitySlot::RxFrame).unwrap() = Default::default();
-        let export = self.export();
-        let flash = self.log.flash();
+        let export = self.h.export();
+        let flash = self.h.flash();
         Snapshot {
             status,
             refused,
@@ -550,11 +441,11 @@ impl Bench {
     /// would make the rest of the scan meaningless.
     fn run(&mut self, table: Table) -> usize {
         assert!(!table.cases.is_empty());
-        self.seq = self.seq.max(table.next_seq);
+        self.h.seq = self.h.seq.max(table.next_seq);
         let mut changed = false;
         let mut before = self.snapshot();
         for case in &table.cases {
-            let replies = self.feed(&case.bytes, case.chunk);
+            let replies = self.h.feed(&case.bytes, case.chunk);
             let want = DeviceMessage::Error {
                 seq: case.seq,
                 kind: case.kind,
@@ -590,9 +481,9 @@ impl Bench {
 
     /// Streams frame `k` of `scan` whole: FrameBegin, every row, FrameEnd.
     fn stream_frame(&mut self, scan: &Scan, k: u32) {
-        self.ok(scan.begin(k));
+        self.h.ok(scan.begin(k));
         self.stream_rows(scan, k, 0);
-        self.ok(HostMessage::FrameEnd { frame: k });
+        self.h.ok(HostMessage::FrameEnd { frame: k });
     }
 
     /// Streams the rows of frame `k` from strided row `first` on.
@@ -600,7 +491,8 @@ impl Bench {
         let mut row = first;
         while row < scan.height_sent() {
             let count = scan.rows_per_message().min(scan.height_sent() - row);
-            self.ok(depth_rows(k, row, count, &scan.rows(k, row, count)));
+            self.h
+                .ok(depth_rows(k, row, count, &scan.rows(k, row, count)));
             row += count;
         }
     }
@@ -608,8 +500,9 @@ impl Bench {
     /// Panics unless a device restored from the flash exports what this one
     /// does.
     fn assert_restores(&mut self, when: &str) {
-        let live = self.export();
-        let mut restored = self.restored();
+        let live = self.h.export();
+        let (mut restored, records) = Harness::<Device256K>::boot(self.h.flash().clone());
+        records.unwrap();
         assert_eq!(
             restored.export(),
             live,
@@ -1327,25 +1220,16 @@ fn finished(scan: &Scan, t: &mut Table, frames: u32, export_len: u32) {
 // ---------------------------------------------------------------------------
 // The runs.
 
-fn on_big_stack(f: impl FnOnce() + Send + 'static) {
-    std::thread::Builder::new()
-        .stack_size(64 << 20)
-        .spawn(f)
-        .unwrap()
-        .join()
-        .unwrap();
-}
-
 /// Streams the scan of `scan`; with `catalogue`, runs every table at its
 /// point (returns the number of cases run).
 fn scan_run(b: &mut Bench, scan: &Scan, catalogue: bool) -> usize {
     let mut cases = 0;
-    b.ok(HostMessage::Hello(scan.cfg));
+    b.h.ok(HostMessage::Hello(scan.cfg));
     for k in 0..BEFORE {
         b.stream_frame(scan, k);
     }
     if catalogue {
-        let st = b.status();
+        let st = b.h.status();
         assert_eq!((st.phase, st.frames_seen), (Phase::Ready, BEFORE));
         assert!(st.database_size >= 2, "a database to protect: {st:?}");
         assert!(
@@ -1353,7 +1237,7 @@ fn scan_run(b: &mut Bench, scan: &Scan, catalogue: bool) -> usize {
             "labels to protect: {st:?}"
         );
         assert!(st.stored_records > 1, "records in flash: {st:?}");
-        let mut t = Table::new(b.seq + 1);
+        let mut t = Table::new(b.h.seq + 1);
         between_frames(scan, &mut t, BEFORE, st.export_records());
         cases += b.run(t);
         b.assert_restores("between frames");
@@ -1361,27 +1245,27 @@ fn scan_run(b: &mut Bench, scan: &Scan, catalogue: bool) -> usize {
     // Frame BEFORE opens with its first message of rows.
     let open = BEFORE;
     let rpm = scan.rows_per_message();
-    b.ok(scan.begin(open));
-    b.ok(depth_rows(open, 0, rpm, &scan.rows(open, 0, rpm)));
+    b.h.ok(scan.begin(open));
+    b.h.ok(depth_rows(open, 0, rpm, &scan.rows(open, 0, rpm)));
     if catalogue {
-        let st = b.status();
+        let st = b.h.status();
         assert_eq!(st.phase, Phase::InFrame);
-        let mut t = Table::new(b.seq + 1);
+        let mut t = Table::new(b.h.seq + 1);
         in_frame(scan, &mut t, open, rpm, st.export_records());
         cases += b.run(t);
         b.assert_restores("inside a frame");
     }
     // The frame goes on where it was, the scan ends.
     b.stream_rows(scan, open, rpm);
-    b.ok(HostMessage::FrameEnd { frame: open });
+    b.h.ok(HostMessage::FrameEnd { frame: open });
     for k in open + 1..FRAMES {
         b.stream_frame(scan, k);
     }
-    b.ok(HostMessage::Finish);
+    b.h.ok(HostMessage::Finish);
     if catalogue {
-        let st = b.status();
+        let st = b.h.status();
         assert_eq!((st.phase, st.frames_decided), (Phase::Finished, FRAMES));
-        let mut t = Table::new(b.seq + 1);
+        let mut t = Table::new(b.h.seq + 1);
         finished(scan, &mut t, FRAMES, st.export_records());
         cases += b.run(t);
         b.assert_restores("after Finish");
@@ -1398,13 +1282,13 @@ fn bad_inputs_before_hello_change_nothing() {
         before_hello(&scan, &mut t);
         let n = b.run(t);
         b.assert_no_failures(n);
-        let st = b.status();
+        let st = b.h.status();
         assert_eq!(st.phase, Phase::Unconfigured);
-        assert_eq!(b.log.flash().steps(), 0, "nothing written before Hello");
+        assert_eq!(b.h.flash().steps(), 0, "nothing written before Hello");
         // Not wedged: the Hello is accepted, the first frame goes through.
-        b.ok(HostMessage::Hello(scan.cfg));
+        b.h.ok(HostMessage::Hello(scan.cfg));
         b.stream_frame(&scan, 0);
-        assert_eq!(b.status().frames_seen, 1);
+        assert_eq!(b.h.status().frames_seen, 1);
         println!("{n} bad inputs before Hello refused, nothing changed");
     });
 }
@@ -1421,12 +1305,12 @@ fn every_bad_input_gets_its_typed_error_and_changes_nothing() {
         b.assert_no_failures(cases);
         // The catalogue left no trace: the export and the flash are those of
         // the same scan without a single bad input.
-        let st = b.status();
+        let st = b.h.status();
         assert_eq!(st.refused as usize, cases);
-        assert_eq!(b.export(), clean.export());
-        assert_eq!(b.log.flash().steps(), clean.log.flash().steps());
+        assert_eq!(b.h.export(), clean.h.export());
+        assert_eq!(b.h.flash().steps(), clean.h.flash().steps());
         assert!(
-            b.log.flash().bytes() == clean.log.flash().bytes(),
+            b.h.flash().bytes() == clean.h.flash().bytes(),
             "the flash differs from that of the clean run"
         );
         println!(

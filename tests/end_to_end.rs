@@ -11,6 +11,9 @@
 //! rate over the emulated UART and the instructions per frame (QEMU runs with
 //! `-icount shift=0`); run with `--nocapture` to see them.
 
+mod common;
+
+use common::{export_all, host_replay, killed_mid_scan_restores_and_resumes, Board};
 use placedb::protocol::{
     CapacitySlot, DeviceMessage, ErrorKind, ExportRecord, HostMessage, Phase, MAX_FRAME_LEN,
 };
@@ -20,7 +23,7 @@ use placedb_host::fault::damaged_frame;
 use placedb_host::link::{Client, Qemu, QemuOptions, Received};
 use placedb_host::read::{self, ReadOptions};
 use placedb_host::synth::{self, SynthConfig};
-use placedb_host::{online, output, GridOrigin, Sequence, VoxelConfig};
+use placedb_host::{GridOrigin, Sequence, VoxelConfig};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -109,30 +112,6 @@ fn firmware_fits_its_budget() {
     );
 }
 
-/// database.csv and labels.csv of `placedb select --solver online`: the host
-/// replay of the core with the same profile and configuration.
-fn host_replay(seq: &Sequence, vcfg: &VoxelConfig, sel: SelectorConfig) -> (String, String) {
-    let scan = device_cli::scan_config(seq, vcfg).unwrap();
-    let run = online::replay(seq, PROFILE, scan, sel, 8, None).unwrap();
-    let timestamps: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
-    (
-        output::database_csv(&output::rows_from_records(&run.database)),
-        output::labels_csv(&timestamps, &run.labels),
-    )
-}
-
-/// Every record the device holds, with the default export options.
-fn export_all(client: &mut Client<Qemu>) -> device_cli::Export {
-    device_cli::export(
-        client,
-        Vec::new(),
-        &ExportOptions::default(),
-        None,
-        &mut |_| Ok(()),
-    )
-    .unwrap()
-}
-
 /// Streams `seq`, exports, and checks the files against the host replay.
 fn stream_and_compare(
     client: &mut Client<Qemu>,
@@ -149,7 +128,7 @@ fn stream_and_compare(
     assert!(report.decisions.iter().all(Option::is_some));
     let export = export_all(client);
     let (db_csv, labels_csv) = export.csv();
-    let (want_db, want_labels) = host_replay(seq, vcfg, sel);
+    let (want_db, want_labels) = host_replay(PROFILE, seq, vcfg, sel);
     assert_eq!(db_csv, want_db, "database.csv differs on {}", seq.name);
     assert_eq!(
         labels_csv, want_labels,
@@ -391,15 +370,24 @@ fn bad_input_gets_typed_errors_and_changes_nothing() {
 /// frame: the final export equals an uninterrupted run's.
 #[test]
 fn a_board_killed_mid_scan_restores_from_flash_and_resumes() {
-    let dir = std::env::temp_dir().join(format!("placedb-e2e-flash-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let flash = dir.join("flash.bin");
-    let _ = std::fs::remove_file(&flash);
-    let boot_on_flash = || {
+    killed_mid_scan_restores_and_resumes::<QemuBoard>(48);
+}
+
+/// The QEMU board on a flash file; a power cut kills QEMU.
+struct QemuBoard;
+
+impl Board for QemuBoard {
+    type Link = Qemu;
+    const NAME: &'static str = "qemu";
+    const PROFILE: &'static str = PROFILE;
+    const REPLY: Duration = REPLY;
+
+    fn boot(flash: &Path) -> (Client<Qemu>, String) {
+        let blank = !flash.exists();
         let options = QemuOptions {
             extra_args: vec!["-icount".into(), "shift=0".into()],
             deadline: Duration::from_secs(120),
-            flash: Some(flash.clone()),
+            flash: Some(flash.to_path_buf()),
             ..QemuOptions::default()
         };
         let qemu = Qemu::start_with(&firmware(), options).unwrap();
@@ -409,101 +397,13 @@ fn a_board_killed_mid_scan_restores_from_flash_and_resumes() {
             qemu.console()
         );
         let console = qemu.console();
+        if blank {
+            assert!(console.contains("restored 0 records"), "{console}");
+        }
         (Client::new(qemu), console)
-    };
-    let mut demo = synth::sequence(&SynthConfig::demo());
-    demo.frames.truncate(48);
-    let vcfg = VoxelConfig {
-        stride: 8,
-        ..VoxelConfig::default()
-    };
-    let sel = SelectorConfig {
-        mu: 0.3,
-        window: 8,
-        sketch_margin: 0.05,
-    };
-    let scan = device_cli::scan_config(&demo, &vcfg).unwrap();
-    let cfg = device_cli::device_config(&scan, &sel).unwrap();
-
-    // First power-on: 30 frames, no Finish, then half of frame 30, then the
-    // cut. (Decisions are durable, and sent, in batches of 16: 30 frames
-    // with a window of 8 make one.)
-    let (mut client, console) = boot_on_flash();
-    assert!(console.contains("restored 0 records"), "{console}");
-    let mut first = synth::sequence(&SynthConfig::demo());
-    first.frames.truncate(30);
-    let opts = StreamOptions {
-        finish: false,
-        ..StreamOptions::default()
-    };
-    let report = device_cli::stream(&mut client, &first, &cfg, PROFILE, &opts, None).unwrap();
-    let acknowledged: Vec<(u32, placedb::protocol::DecisionKind)> = report
-        .decisions
-        .iter()
-        .enumerate()
-        .filter_map(|(i, d)| d.map(|d| (i as u32, d)))
-        .collect();
-    let durable = report
-        .status
-        .capacity(placedb::protocol::CapacitySlot::Labels)
-        .used;
-    assert!(report.status.frames_decided > 0 && report.status.frames_decided < 30);
-    assert!(durable >= 16 && durable <= report.status.frames_decided);
-    assert_eq!(
-        acknowledged.len() as u32,
-        durable,
-        "decisions go out once durable"
-    );
-    let (seq, replies) = client
-        .request(
-            HostMessage::FrameBegin {
-                frame: 30,
-                timestamp: demo.frames[30].timestamp,
-                pose: demo.frames[30].pose().unwrap(),
-            },
-            REPLY,
-        )
-        .unwrap();
-    assert_eq!(replies, vec![Received::Message(DeviceMessage::Ack { seq })]);
-    drop(client); // kills QEMU: the power cut
-
-    // Second power-on on the same flash.
-    let (mut client, console) = boot_on_flash();
-    let st = device_cli::status(&mut client, REPLY).unwrap();
-    assert_eq!(st.phase, Phase::Ready, "{console}");
-    assert_eq!(st.frames_seen, durable);
-    assert_eq!(st.frames_decided, durable);
-    assert_ne!(st.degradation & placedb::protocol::degradation::RESTORED, 0);
-    let restored = export_all(&mut client);
-    let (_, labels_before) = restored.csv();
-    for &(frame, kind) in &acknowledged {
-        let class = kind.class(frame);
-        let label = labels_before.lines().nth(frame as usize + 1).unwrap();
-        assert!(
-            label.ends_with(&format!(",{}", class.unwrap())),
-            "frame {frame} ({kind:?}) came back as {label}"
-        );
     }
-    let resume = StreamOptions {
-        resume: true,
-        ..StreamOptions::default()
-    };
-    let report2 = device_cli::stream(&mut client, &demo, &cfg, PROFILE, &resume, None).unwrap();
-    assert_eq!(report2.frames, 48 - st.frames_seen as usize);
-    assert_eq!(report2.status.phase, Phase::Finished);
-    let export = export_all(&mut client);
-    let (db_csv, labels_csv) = export.csv();
-    let (want_db, want_labels) = host_replay(&demo, &vcfg, sel);
-    assert_eq!(db_csv, want_db);
-    assert_eq!(labels_csv, want_labels);
-    println!(
-        "power cut in frame 30 of 48: {} decisions acknowledged before the cut, all restored \
-         ({} log records); resumed at frame {}; final export identical to an uninterrupted run \
-         ({} database frames)",
-        acknowledged.len(),
-        st.stored_records,
-        st.frames_seen,
-        export.status.database_size
-    );
-    let _ = std::fs::remove_dir_all(&dir);
+
+    fn power_cut(client: Client<Qemu>, _flash: &Path) {
+        drop(client); // kills QEMU
+    }
 }

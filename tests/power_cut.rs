@@ -53,19 +53,20 @@
 //! found that bug).
 //! No sleeps, no clocks.
 
+use placedb::device::harness::{on_big_stack, AnyDevice, Harness};
 use placedb::device::{Device, Device512K, RestoreFailure};
 use placedb::persist::sim::{SimFlash, Tear};
-use placedb::persist::{Journal, Log, NoJournal};
 use placedb::protocol::{
-    degradation, depth_rows_per_message, encode, export_crc, Config, DecisionKind, DepthRows,
-    DeviceMessage, ErrorKind, ExportRecord, Feed, FrameDecoder, HostFrame, HostMessage, Phase,
-    RecordKind, Status, MAX_FRAME_LEN, MAX_REPLY_LEN,
+    degradation, depth_rows_per_message, Config, DecisionKind, DeviceMessage, ErrorKind,
+    ExportRecord, HostMessage, Phase, RecordKind, Status,
 };
 use placedb::{Pose, SelectorConfig};
+use placedb_host::row_chunks::{row_chunks, RowChunk};
 use placedb_host::synth::{self, SynthConfig};
 use placedb_host::{device_cli, online, VoxelConfig};
 use std::collections::{BTreeMap, BTreeSet};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::ops::{Deref, DerefMut};
+use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
 /// Frames of the full run.
@@ -88,8 +89,8 @@ type Small = Device<4096, 16384, 64, 8, 16, 512>;
 struct Frame {
     timestamp: f64,
     pose: Pose,
-    /// DepthRows payloads: first strided row, row count, bytes.
-    rows: Vec<(u16, u16, Vec<u8>)>,
+    /// Its DepthRows payloads.
+    rows: Vec<RowChunk>,
 }
 
 /// A scan: its Hello and its frames, cut into messages once.
@@ -133,14 +134,7 @@ impl Scan {
                 let img = seq.depth(i).unwrap();
                 let (w, values) = online::sampled_rows(&img, cfg.stride);
                 assert_eq!(w, usize::from(cfg.width_sent()));
-                let rows = values
-                    .chunks(w * per_msg)
-                    .enumerate()
-                    .map(|(k, chunk)| {
-                        let data = chunk.iter().flat_map(|d| d.to_le_bytes()).collect();
-                        ((k * per_msg) as u16, (chunk.len() / w) as u16, data)
-                    })
-                    .collect();
+                let rows = row_chunks(w, &values, per_msg).collect();
                 Frame {
                     timestamp: seq.frames[i].timestamp,
                     pose: seq.frames[i].pose().unwrap(),
@@ -158,135 +152,50 @@ impl Scan {
 
 // ------------------------------------------------------ the device and rig
 
-/// What the tests need of a device of any capacities.
-trait Dut: Send + 'static {
-    fn boxed() -> Box<Self>;
-    fn feed(&mut self, bytes: &[u8], journal: &mut dyn Journal, send: &mut dyn FnMut(&[u8]));
-    fn restore_from(&mut self, log: &mut Log<SimFlash>) -> Result<u32, RestoreFailure>;
-}
+/// The shared harness, with power: the host hears the device only while it
+/// has power (the harness is silent while the flash's power is off), or
+/// always after [`Rig::listen_always`]; and it can look at a device without
+/// power (its RAM, and its flash as the power left it).
+struct Rig<D>(Harness<D>);
 
-impl<
-        const FV: usize,
-        const POOL: usize,
-        const DB: usize,
-        const W: usize,
-        const K: usize,
-        const L: usize,
-    > Dut for Device<FV, POOL, DB, W, K, L>
-{
-    fn boxed() -> Box<Self> {
-        Box::new(Self::new())
-    }
+impl<D> Deref for Rig<D> {
+    type Target = Harness<D>;
 
-    fn feed(&mut self, bytes: &[u8], journal: &mut dyn Journal, send: &mut dyn FnMut(&[u8])) {
-        self.receive_logged(bytes, journal, send);
-    }
-
-    fn restore_from(&mut self, log: &mut Log<SimFlash>) -> Result<u32, RestoreFailure> {
-        self.restore(log)
+    fn deref(&self) -> &Harness<D> {
+        &self.0
     }
 }
 
-/// A reply as the host decoded it.
-#[derive(Debug, Clone, PartialEq)]
-enum Reply {
-    Ack(u32),
-    Error(Option<u32>, ErrorKind),
-    Decision(u32, DecisionKind),
-    Status(Box<Status>),
-    Record(ExportRecord),
-    End { seq: u32, count: u32, crc32: u32 },
-}
-
-impl Reply {
-    /// Decodes one reply frame; anything but exactly one valid frame fails.
-    fn decode(frame: &[u8]) -> Reply {
-        assert!(frame.len() <= MAX_REPLY_LEN);
-        let mut decoder = FrameDecoder::<MAX_REPLY_LEN>::new();
-        match decoder.feed::<DeviceMessage>(frame) {
-            Feed::Frame {
-                result: Ok(msg),
-                remaining: [],
-            } => match msg {
-                DeviceMessage::Ack { seq } => Reply::Ack(seq),
-                DeviceMessage::Error { seq, kind } => Reply::Error(seq, kind),
-                DeviceMessage::Decision { frame, kind } => Reply::Decision(frame, kind),
-                DeviceMessage::Status(s) => Reply::Status(Box::new(s)),
-                DeviceMessage::ExportRecord(r) => Reply::Record(r),
-                DeviceMessage::ExportEnd {
-                    seq, count, crc32, ..
-                } => Reply::End { seq, count, crc32 },
-                DeviceMessage::Log(text) => panic!("the device does not log: {text}"),
-            },
-            other => panic!("bad reply frame {frame:?}: {other:?}"),
-        }
+impl<D> DerefMut for Rig<D> {
+    fn deref_mut(&mut self) -> &mut Harness<D> {
+        &mut self.0
     }
 }
 
-/// Whose replies the host hears.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Listen {
-    /// Only while the power is on: a device without power sends nothing.
-    WhilePowered,
-    /// Always: the flash failed but the device itself still runs.
-    Always,
-}
-
-/// A device, its log on a simulated flash (or no journal), and the host's
-/// side of the link.
-struct Rig<D: Dut> {
-    device: Box<D>,
-    log: Option<Log<SimFlash>>,
-    power: Arc<AtomicBool>,
-    listen: Listen,
-    seq: u32,
-}
-
-/// The replies to one message.
-struct Sent {
-    replies: Vec<Reply>,
-    /// The device kept power until the message was handled.
-    powered: bool,
-}
-
-impl<D: Dut> Rig<D> {
+impl<D: AnyDevice> Rig<D> {
     /// A device without flash (`receive`, no journal).
     fn without_flash() -> Self {
-        Rig {
-            device: D::boxed(),
-            log: None,
-            power: Arc::new(AtomicBool::new(false)),
-            listen: Listen::WhilePowered,
-            seq: 0,
-        }
+        Rig(Harness::without_flash())
     }
 
     /// Power on: a new device (all state as after power-on), the log opened
-    /// on `flash`, and the scan restored from it.
-    fn boot(mut flash: SimFlash) -> (Self, Result<u32, RestoreFailure>) {
-        flash.power_on();
-        let power = flash.power();
-        let end = flash.bytes().len() as u32;
-        let mut log = Log::open(flash, 0, end).expect("the log opens on any flash contents");
-        let mut device = D::boxed();
-        let restored = device.restore_from(&mut log);
-        let rig = Rig {
-            device,
-            log: Some(log),
-            power,
-            listen: Listen::WhilePowered,
-            seq: 0,
-        };
-        (rig, restored)
+    /// on `flash`, and the scan restored from it. The host hears the device
+    /// while it has power.
+    fn boot(flash: SimFlash) -> (Self, Result<u32, RestoreFailure>) {
+        let (mut harness, restored) = Harness::boot(flash);
+        harness.silent_while = Some(harness.flash().power());
+        (Rig(harness), restored)
     }
 
     /// Power off for good: the flash as the power left it.
     fn into_flash(self) -> SimFlash {
-        self.log.expect("a device with flash").into_flash()
+        self.0.into_flash()
     }
 
-    fn flash(&mut self) -> &mut SimFlash {
-        self.log.as_mut().expect("a device with flash").flash()
+    /// The host hears every reply: the flash fails, but the device itself
+    /// still runs.
+    fn listen_always(&mut self) {
+        self.silent_while = None;
     }
 
     /// Flash steps so far (`None` without flash).
@@ -294,120 +203,34 @@ impl<D: Dut> Rig<D> {
         self.log.as_mut().map(|log| log.flash().steps())
     }
 
-    fn is_off(&self) -> bool {
-        self.power.load(Ordering::Relaxed)
-    }
-
-    /// Sends `msg` with the next sequence number; the replies the host
-    /// hears. A host does not talk to a device without power.
-    fn send(&mut self, msg: HostMessage<'_>) -> Sent {
-        assert!(
-            self.listen == Listen::Always || !self.is_off(),
-            "the host talks to a device without power"
-        );
-        self.seq = self.seq.wrapping_add(1);
-        let mut buf = vec![0u8; MAX_FRAME_LEN];
-        let frame = encode(&HostFrame { seq: self.seq, msg }, &mut buf).unwrap();
-        let mut raw: Vec<Vec<u8>> = Vec::new();
-        let (power, listen) = (Arc::clone(&self.power), self.listen);
-        let mut hear = |f: &[u8]| {
-            if listen == Listen::Always || !power.load(Ordering::Relaxed) {
-                raw.push(f.to_vec());
-            }
-        };
-        match self.log.as_mut() {
-            Some(log) => self.device.feed(frame, log, &mut hear),
-            None => self.device.feed(frame, &mut NoJournal, &mut hear),
-        }
-        let replies: Vec<Reply> = raw.iter().map(|f| Reply::decode(f)).collect();
-        // With `Listen::Always` only the flash lost power, not the device.
-        let powered = self.listen == Listen::Always || !self.is_off();
-        if powered {
-            assert_eq!(
-                replies.last().and_then(terminal_seq),
-                Some(self.seq),
-                "{msg:?} -> {replies:?}"
-            );
-            assert_eq!(
-                replies.iter().filter_map(terminal_seq).count(),
-                1,
-                "{msg:?} -> {replies:?}"
-            );
-        }
-        Sent { replies, powered }
-    }
-
-    /// Sends `msg`, which must be acknowledged; its replies.
-    fn ok(&mut self, msg: HostMessage<'_>) -> Vec<Reply> {
-        let sent = self.send(msg);
-        assert!(sent.powered);
-        assert_eq!(sent.replies.last(), Some(&Reply::Ack(self.seq)), "{msg:?}");
-        sent.replies
-    }
-
-    /// Sends `msg`, which must be refused; why.
-    fn refused(&mut self, msg: HostMessage<'_>) -> ErrorKind {
-        let sent = self.send(msg);
-        match sent.replies.as_slice() {
-            [Reply::Error(Some(s), kind)] if *s == self.seq => *kind,
-            other => panic!("{msg:?} not refused: {other:?}"),
-        }
+    fn is_off(&mut self) -> bool {
+        self.log.as_mut().is_some_and(|log| log.flash().is_off())
     }
 
     /// The device's status (changes nothing; also from a device whose power
     /// is off, to look at its RAM).
     fn status(&mut self) -> Status {
-        let listen = std::mem::replace(&mut self.listen, Listen::Always);
-        let sent = self.send(HostMessage::StatusRequest);
-        self.listen = listen;
-        match sent.replies.as_slice() {
-            [Reply::Status(s)] => **s,
-            other => panic!("no status: {other:?}"),
-        }
+        let silent = self.silent_while.take();
+        let status = self.0.status();
+        self.silent_while = silent;
+        status
     }
 
-    /// The whole export, checked by count and CRC (changes nothing; also
-    /// from a device whose power is off, to look at what it held: its RAM,
-    /// and the labels in its flash as the power left it).
+    /// The whole export, checked by the harness (changes nothing; also from
+    /// a device whose power is off, to look at what it held: its RAM, and
+    /// the labels in its flash as the power left it).
     fn export(&mut self) -> Vec<ExportRecord> {
-        let listen = std::mem::replace(&mut self.listen, Listen::Always);
-        let off = self.is_off();
-        self.power.store(false, Ordering::Relaxed);
-        let sent = self.send(HostMessage::ExportRequest {
-            from_record: 0,
-            max_records: u32::MAX,
-        });
-        self.power.store(off, Ordering::Relaxed);
-        self.listen = listen;
-        let (last, records) = sent.replies.split_last().expect("an ExportEnd");
-        let records: Vec<ExportRecord> = records
-            .iter()
-            .map(|r| match r {
-                Reply::Record(r) => *r,
-                other => panic!("unexpected {other:?} in an export"),
-            })
-            .collect();
-        match last {
-            Reply::End { seq, count, crc32 } => {
-                assert_eq!(*seq, self.seq);
-                assert_eq!(*count as usize, records.len(), "export count");
-                assert_eq!(*crc32, export_crc(&records), "export CRC");
-            }
-            other => panic!("no ExportEnd: {other:?}"),
+        let silent = self.silent_while.take();
+        let power = self.log.as_mut().map(|log| log.flash().power());
+        let off = power
+            .as_ref()
+            .is_some_and(|power| power.swap(false, Ordering::Relaxed));
+        let records = self.0.export();
+        if let Some(power) = power {
+            power.store(off, Ordering::Relaxed);
         }
-        for (k, r) in records.iter().enumerate() {
-            assert_eq!(r.record, k as u32, "export record numbers");
-        }
+        self.silent_while = silent;
         records
-    }
-}
-
-fn terminal_seq(reply: &Reply) -> Option<u32> {
-    match reply {
-        Reply::Ack(seq) | Reply::End { seq, .. } => Some(*seq),
-        Reply::Status(s) => Some(s.seq),
-        Reply::Error(seq, _) => Some(seq.unwrap_or(u32::MAX)),
-        Reply::Decision(..) | Reply::Record(_) => None,
     }
 }
 
@@ -427,9 +250,9 @@ struct Seen {
 }
 
 impl Seen {
-    fn note(&mut self, replies: &[Reply], ctx: &str) {
+    fn note(&mut self, replies: &[DeviceMessage], ctx: &str) {
         for r in replies {
-            if let Reply::Decision(frame, kind) = *r {
+            if let DeviceMessage::Decision { frame, kind } = *r {
                 self.decisions.push((frame, kind));
                 if kind != DecisionKind::Pending {
                     let before = self.finals.insert(frame, kind);
@@ -445,22 +268,28 @@ impl Seen {
 
 /// Sends one message of a scan; `false` when the power went while the device
 /// handled it (the host stops there).
-fn step<D: Dut>(rig: &mut Rig<D>, msg: HostMessage<'_>, seen: &mut Seen, ctx: &str) -> bool {
-    let sent = rig.send(msg);
-    seen.note(&sent.replies, ctx);
-    if !sent.powered {
+fn step<D: AnyDevice>(rig: &mut Rig<D>, msg: HostMessage<'_>, seen: &mut Seen, ctx: &str) -> bool {
+    let replies = rig.send(msg);
+    seen.note(&replies, ctx);
+    if !rig.hears() {
         return false;
     }
     assert_eq!(
-        sent.replies.last(),
-        Some(&Reply::Ack(rig.seq)),
+        replies.last(),
+        Some(&DeviceMessage::Ack { seq: rig.seq }),
         "{ctx}: {msg:?} not acknowledged"
     );
     true
 }
 
 /// Streams frame `i` of `scan`; `false` when the power went.
-fn send_frame<D: Dut>(rig: &mut Rig<D>, scan: &Scan, i: u32, seen: &mut Seen, ctx: &str) -> bool {
+fn send_frame<D: AnyDevice>(
+    rig: &mut Rig<D>,
+    scan: &Scan,
+    i: u32,
+    seen: &mut Seen,
+    ctx: &str,
+) -> bool {
     let f = &scan.frames[i as usize];
     let begin = HostMessage::FrameBegin {
         frame: i,
@@ -470,14 +299,8 @@ fn send_frame<D: Dut>(rig: &mut Rig<D>, scan: &Scan, i: u32, seen: &mut Seen, ct
     if !step(rig, begin, seen, ctx) {
         return false;
     }
-    for (first_row, row_count, data) in &f.rows {
-        let rows = HostMessage::DepthRows(DepthRows {
-            frame: i,
-            first_row: *first_row,
-            row_count: *row_count,
-            data,
-        });
-        if !step(rig, rows, seen, ctx) {
+    for rows in &f.rows {
+        if !step(rig, rows.message(i), seen, ctx) {
             return false;
         }
     }
@@ -487,12 +310,12 @@ fn send_frame<D: Dut>(rig: &mut Rig<D>, scan: &Scan, i: u32, seen: &mut Seen, ct
 /// The host's run, as after any boot: Hello (the same again on a restored
 /// scan), the frames from `status.frames_seen`, Finish. `true` when it got
 /// to the end, `false` when the power went.
-fn drive<D: Dut>(rig: &mut Rig<D>, scan: &Scan, seen: &mut Seen, ctx: &str) -> bool {
+fn drive<D: AnyDevice>(rig: &mut Rig<D>, scan: &Scan, seen: &mut Seen, ctx: &str) -> bool {
     drive_to(rig, scan, scan.len(), true, seen, ctx)
 }
 
 /// [`drive`] up to frame `end` (excluded), then Finish if `finish`.
-fn drive_to<D: Dut>(
+fn drive_to<D: AnyDevice>(
     rig: &mut Rig<D>,
     scan: &Scan,
     end: u32,
@@ -629,7 +452,7 @@ fn assert_acknowledged(got: &Parsed, seen: &Seen, ctx: &str) {
 /// acknowledged, nothing corrupt, and a prefix of what the device held in RAM
 /// when the power went (`ram`) and, for a first cut, of the uninterrupted
 /// run (`reference`). Returns the restored status.
-fn check_restored<D: Dut>(
+fn check_restored<D: AnyDevice>(
     rig: &mut Rig<D>,
     restored: Result<u32, RestoreFailure>,
     scan: &Scan,
@@ -692,7 +515,7 @@ fn check_restored<D: Dut>(
 /// a database frame, every acknowledged decision holds, and a further
 /// reboot restores exactly this export. Returns the rig after that reboot
 /// and the export.
-fn check_complete<D: Dut>(
+fn check_complete<D: AnyDevice>(
     mut rig: Rig<D>,
     scan: &Scan,
     seen: &Seen,
@@ -732,15 +555,6 @@ fn check_complete<D: Dut>(
 }
 
 // ---------------------------------------------------------------- helpers
-
-fn on_big_stack<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> T {
-    std::thread::Builder::new()
-        .stack_size(64 << 20)
-        .spawn(f)
-        .unwrap()
-        .join()
-        .unwrap()
-}
 
 fn tear_name(t: Tear) -> &'static str {
     match t {
@@ -1000,7 +814,7 @@ fn live_head(flash: &SimFlash) -> (u32, usize) {
 
 /// Reboots `rig` and checks that the scan comes back exactly as the device
 /// exported it (labels, database, counters).
-fn reboot_exact<D: Dut>(rig: Rig<D>, ctx: &str) -> Rig<D> {
+fn reboot_exact<D: AnyDevice>(rig: Rig<D>, ctx: &str) -> Rig<D> {
     let mut rig = rig;
     let st = rig.status();
     let export = rig.export();
@@ -1097,7 +911,7 @@ struct Outcomes {
 
 /// The switch from a finished scan A to scan B: Reset (if `reset`), Hello
 /// B, the first frames of B. `false` when the power went.
-fn switch<D: Dut>(
+fn switch<D: AnyDevice>(
     rig: &mut Rig<D>,
     b: &Scan,
     reset: bool,
@@ -1126,7 +940,7 @@ fn boot_on_a(flash: &SimFlash, restore: bool, a_export: &[ExportRecord]) -> Rig<
     assert!(restored.is_ok());
     assert_eq!(rig.export(), a_export);
     if !restore {
-        rig.device = Small::boxed();
+        rig.device = Small::new_boxed();
     }
     rig
 }
@@ -1256,20 +1070,18 @@ fn a_full_log_refuses_frame_end_and_changes_nothing() {
                 timestamp: f.timestamp,
                 pose: f.pose,
             });
-            for (first_row, row_count, data) in &f.rows {
-                rig.ok(HostMessage::DepthRows(DepthRows {
-                    frame: i,
-                    first_row: *first_row,
-                    row_count: *row_count,
-                    data,
-                }));
+            for rows in &f.rows {
+                rig.ok(rows.message(i));
             }
             let (st, export, steps) = (rig.status(), rig.export(), rig.flash().steps());
-            let sent = rig.send(HostMessage::FrameEnd { frame: i });
-            seen.note(&sent.replies, &ctx);
-            match sent.replies.as_slice() {
-                [.., Reply::Ack(_)] => continue,
-                [Reply::Error(_, ErrorKind::StorageFull)] => {}
+            let replies = rig.send(HostMessage::FrameEnd { frame: i });
+            seen.note(&replies, &ctx);
+            match replies.as_slice() {
+                [.., DeviceMessage::Ack { .. }] => continue,
+                [DeviceMessage::Error {
+                    kind: ErrorKind::StorageFull,
+                    ..
+                }] => {}
                 other => panic!("{ctx}: {other:?}"),
             }
             // Refused: nothing changed, the frame is still open.
@@ -1358,14 +1170,18 @@ fn a_failing_flash_degrades_and_restores_a_prefix() {
             );
             let (mut rig, _) = Rig::<Small>::boot(SimFlash::new(SECTORS));
             // The device itself keeps running: the host hears every reply.
-            rig.listen = Listen::Always;
+            rig.listen_always();
             rig.flash().cut_at(k, Tear::Half);
             let hello = rig.send(HostMessage::Hello(scan.cfg));
+            let seq = rig.seq;
             if rig.is_off() {
                 // The scan could not start: Hello refused, nothing configured.
                 assert_eq!(
-                    hello.replies,
-                    vec![Reply::Error(Some(rig.seq), ErrorKind::StorageFailed)],
+                    hello,
+                    vec![DeviceMessage::Error {
+                        seq: Some(seq),
+                        kind: ErrorKind::StorageFailed
+                    }],
                     "{ctx}"
                 );
                 assert_eq!(rig.status().phase, Phase::Unconfigured, "{ctx}");
@@ -1378,7 +1194,7 @@ fn a_failing_flash_degrades_and_restores_a_prefix() {
                 check_complete(rig, &scan, &seen, &ctx);
                 continue;
             }
-            assert_eq!(hello.replies, vec![Reply::Ack(rig.seq)], "{ctx}");
+            assert_eq!(hello, vec![DeviceMessage::Ack { seq }], "{ctx}");
             let mut seen = Seen {
                 hello: true,
                 ..Seen::default()

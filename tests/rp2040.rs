@@ -15,16 +15,18 @@
 //! valid pixel (rp2040js counts cycles; the firmware's timer is read at
 //! 125 cycles per microsecond); run with `--nocapture` to see them.
 
-use placedb::protocol::{DecisionKind, DeviceMessage, HostMessage, Phase, Status};
+mod common;
+
+use common::{demo, host_replay, killed_mid_scan_restores_and_resumes, Board};
+use placedb::protocol::{Phase, Status};
 use placedb::SelectorConfig;
 use placedb_host::device_cli::{self, ExportOptions, StreamOptions, StreamReport};
 use placedb_host::fault::{FaultConfig, FaultInjector};
-use placedb_host::link::{Client, Link, Received};
+use placedb_host::link::{Client, Link};
 use placedb_host::pixelcost;
 use placedb_host::read::{self, ReadOptions};
 use placedb_host::rp2040::{self, Rp2040, Rp2040Options};
-use placedb_host::synth::{self, SynthConfig};
-use placedb_host::{online, output, Sequence, VoxelConfig};
+use placedb_host::{Sequence, VoxelConfig};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -54,12 +56,6 @@ fn seven_scenes(frames: usize) -> Sequence {
     seq
 }
 
-fn demo(frames: usize) -> Sequence {
-    let mut seq = synth::sequence(&SynthConfig::demo());
-    seq.frames.truncate(frames);
-    seq
-}
-
 fn stride(stride: u16) -> VoxelConfig {
     VoxelConfig {
         stride,
@@ -73,17 +69,6 @@ fn sel(window: u16) -> SelectorConfig {
         window,
         sketch_margin: 0.05,
     }
-}
-
-/// database.csv and labels.csv of `placedb select --solver online --profile ram256k`.
-fn host_replay(seq: &Sequence, vcfg: &VoxelConfig, sel: SelectorConfig) -> (String, String) {
-    let scan = device_cli::scan_config(seq, vcfg).unwrap();
-    let run = online::replay(seq, PROFILE, scan, sel, 8, None).unwrap();
-    let timestamps: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
-    (
-        output::database_csv(&output::rows_from_records(&run.database)),
-        output::labels_csv(&timestamps, &run.labels),
-    )
 }
 
 fn export_csv<L: Link>(client: &mut Client<L>, opts: &ExportOptions) -> (String, String) {
@@ -128,7 +113,7 @@ fn stream_and_compare(
     assert_eq!(report.status.frames_seen as usize, seq.frames.len());
     assert!(report.decisions.iter().all(Option::is_some));
     let (db, labels) = export_csv(client, &ExportOptions::default());
-    let (want_db, want_labels) = host_replay(seq, vcfg, sel);
+    let (want_db, want_labels) = host_replay(PROFILE, seq, vcfg, sel);
     assert_eq!(db, want_db, "database.csv differs on {}", seq.name);
     assert_eq!(labels, want_labels, "labels.csv differs on {}", seq.name);
     let (per_frame, per_pixel) = cycles(&report.status);
@@ -229,101 +214,40 @@ fn cortex_m0_cycles_per_valid_pixel() {
 /// the final export equals an uninterrupted run's.
 #[test]
 fn a_pico_killed_mid_scan_restores_from_flash_and_resumes() {
-    let dir = std::env::temp_dir().join(format!("placedb-rp2040-flash-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let flash = dir.join("pico.flash");
-    let _ = std::fs::remove_file(&flash);
-    let all = demo(60);
-    let (vcfg, sel) = (stride(8), sel(8));
-
-    // First power-on: 30 frames without Finish, then half of frame 30, then
-    // the cut. (Decisions are durable, and sent, in batches of 16: 30 frames
-    // with a window of 8 make one.)
-    let mut client = Client::new(boot(Some(&flash), Duration::from_secs(300)));
-    let first = demo(30);
-    let opts = StreamOptions {
-        finish: false,
-        ..StreamOptions::default()
-    };
-    let report = stream(&mut client, &first, &vcfg, sel, &opts);
-    let acknowledged: Vec<(u32, DecisionKind)> = report
-        .decisions
-        .iter()
-        .enumerate()
-        .filter_map(|(i, d)| d.map(|d| (i as u32, d)))
-        .collect();
-    let durable = report
-        .status
-        .capacity(placedb::protocol::CapacitySlot::Labels)
-        .used;
-    assert!(report.status.frames_decided > 0 && report.status.frames_decided < 30);
-    assert!(durable >= 16 && durable <= report.status.frames_decided);
-    assert_eq!(
-        acknowledged.len() as u32,
-        durable,
-        "decisions go out once durable"
-    );
-    assert!(
-        report.status.stored_records > 0,
-        "nothing was written to the flash log"
-    );
-    let (seq, replies) = client
-        .request(
-            HostMessage::FrameBegin {
-                frame: 30,
-                timestamp: all.frames[30].timestamp,
-                pose: all.frames[30].pose().unwrap(),
-            },
-            REPLY,
-        )
-        .unwrap();
-    assert_eq!(replies, vec![Received::Message(DeviceMessage::Ack { seq })]);
-    client.into_link().power_cut();
-    let image = std::fs::read(&flash).unwrap();
-    assert_eq!(image.len(), 2 << 20, "the flash file is the Pico's 2 MiB");
-    assert!(
-        image[1 << 20..].iter().any(|&b| b != 0xFF),
-        "nothing was written to the log region (the second MiB)"
-    );
-
-    // Second power-on on the same flash.
-    let mut client = Client::new(boot(Some(&flash), Duration::from_secs(300)));
-    let st = device_cli::status(&mut client, REPLY).unwrap();
-    assert_eq!(st.phase, Phase::Ready);
-    assert_eq!(st.frames_seen, durable);
-    assert_ne!(st.degradation & placedb::protocol::degradation::RESTORED, 0);
-    let (_, labels_before) = export_csv(&mut client, &ExportOptions::default());
-    for &(frame, kind) in &acknowledged {
-        let class = kind.class(frame).unwrap();
-        let label = labels_before.lines().nth(frame as usize + 1).unwrap();
-        assert!(
-            label.ends_with(&format!(",{class}")),
-            "frame {frame} ({kind:?}) came back as {label}"
-        );
-    }
-    let resume = StreamOptions {
-        resume: true,
-        ..StreamOptions::default()
-    };
-    let report2 = stream(&mut client, &all, &vcfg, sel, &resume);
-    assert_eq!(report2.frames, 60 - st.frames_seen as usize);
-    assert_eq!(report2.status.phase, Phase::Finished);
-    let (db, labels) = export_csv(&mut client, &ExportOptions::default());
-    let (want_db, want_labels) = host_replay(&all, &vcfg, sel);
-    assert_eq!(db, want_db);
-    assert_eq!(labels, want_labels);
+    let client = killed_mid_scan_restores_and_resumes::<Pico>(60);
     let console = client.into_link().stop();
-    println!(
-        "pico power cut in frame 30 of 60: {} decisions acknowledged before the cut, all restored \
-         ({} log records); resumed at frame {}; final export identical to an uninterrupted run",
-        acknowledged.len(),
-        st.stored_records,
-        st.frames_seen,
-    );
     if let Some(line) = console.lines().find(|l| l.starts_with("stats")) {
         println!("emulator after the restart: {line}");
     }
-    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The emulated Pico on a flash file; a power cut kills the emulator
+/// (SIGKILL).
+struct Pico;
+
+impl Board for Pico {
+    type Link = Rp2040;
+    const NAME: &'static str = "pico";
+    const PROFILE: &'static str = PROFILE;
+    const REPLY: Duration = REPLY;
+
+    fn boot(flash: &Path) -> (Client<Rp2040>, String) {
+        // The emulator's console is read when it stops.
+        (
+            Client::new(boot(Some(flash), Duration::from_secs(300))),
+            String::new(),
+        )
+    }
+
+    fn power_cut(client: Client<Rp2040>, flash: &Path) {
+        client.into_link().power_cut();
+        let image = std::fs::read(flash).unwrap();
+        assert_eq!(image.len(), 2 << 20, "the flash file is the Pico's 2 MiB");
+        assert!(
+            image[1 << 20..].iter().any(|&b| b != 0xFF),
+            "nothing was written to the log region (the second MiB)"
+        );
+    }
 }
 
 #[test]
@@ -331,7 +255,7 @@ fn the_emulated_pico_recovers_from_5_percent_faults_over_usb() {
     let started = Instant::now();
     let seq = demo(30);
     let (vcfg, sel) = (stride(8), sel(8));
-    let want = host_replay(&seq, &vcfg, sel);
+    let want = host_replay(PROFILE, &seq, &vcfg, sel);
     let board = boot(None, Duration::from_secs(300));
     let mut client = Client::new(FaultInjector::new(board, FaultConfig::new(0.05, 0.05, 5)));
     let resend_after = Duration::from_millis(250);

@@ -12,16 +12,16 @@
 //! byte is set), `s` cycling over the size bytes; `k = 0` feeds it whole.
 
 use placedb::camera::{DepthRange, Intrinsics, Pose};
+use placedb::device::harness::{check_export, decode_reply, terminal};
 use placedb::device::Device;
 use placedb::frame::FrameMeta;
 use placedb::persist::record::{KeyChunks, DECISION_BATCH};
 use placedb::persist::sim::SimFlash;
 use placedb::persist::{Log, Record};
 use placedb::protocol::{
-    degradation, depth_rows_per_message, encode, export_crc, strided_len, CapacitySlot, Config,
-    DecisionKind, DepthRows, DeviceMessage, ErrorKind, ExportRecord, Feed, FrameDecoder, HostFrame,
-    HostMessage, Phase, ProtocolError, RecordKind, Status, MAX_FRAME_LEN, MAX_REPLY_LEN,
-    PROTOCOL_VERSION,
+    degradation, depth_rows_per_message, encode, strided_len, CapacitySlot, Config, DecisionKind,
+    DepthRows, DeviceMessage, ErrorKind, ExportRecord, Feed, FrameDecoder, HostFrame, HostMessage,
+    Phase, ProtocolError, RecordKind, Status, MAX_FRAME_LEN, PROTOCOL_VERSION,
 };
 use placedb::store::Aabb;
 
@@ -211,77 +211,6 @@ pub fn frame_decoder(data: &[u8]) {
 
 // ------------------------------------------------------------------ device
 
-/// A reply of the device, decoded and owned.
-#[derive(Debug, Clone, PartialEq)]
-enum Reply {
-    Ack(u32),
-    Error(Option<u32>, ErrorKind),
-    Decision(u32, DecisionKind),
-    Status(Box<Status>),
-    Record(ExportRecord),
-    ExportEnd {
-        seq: u32,
-        from_record: u32,
-        count: u32,
-        crc32: u32,
-    },
-    Log,
-}
-
-impl Reply {
-    /// The sequence number of a terminal reply; `None` for the others.
-    fn terminal(&self) -> Option<Option<u32>> {
-        match self {
-            Reply::Ack(seq) | Reply::ExportEnd { seq, .. } => Some(Some(*seq)),
-            Reply::Status(s) => Some(Some(s.seq)),
-            Reply::Error(seq, _) => Some(*seq),
-            Reply::Decision(..) | Reply::Record(_) | Reply::Log => None,
-        }
-    }
-}
-
-/// Checks one reply frame: at most [`MAX_REPLY_LEN`] bytes, one delimiter at
-/// the end, one whole [`DeviceMessage`].
-fn decode_reply(frame: &[u8]) -> Reply {
-    assert!(
-        frame.len() <= MAX_REPLY_LEN,
-        "reply of {} bytes",
-        frame.len()
-    );
-    assert_eq!(frame.last(), Some(&0), "reply without delimiter");
-    assert!(
-        !frame[..frame.len() - 1].contains(&0),
-        "reply with a 0x00 inside"
-    );
-    let mut decoder = FrameDecoder::<MAX_REPLY_LEN>::new();
-    let msg = match decoder.feed::<DeviceMessage>(frame) {
-        Feed::Frame {
-            result: Ok(msg),
-            remaining: [],
-        } => msg,
-        other => panic!("bad reply frame {frame:?}: {other:?}"),
-    };
-    match msg {
-        DeviceMessage::Ack { seq } => Reply::Ack(seq),
-        DeviceMessage::Error { seq, kind } => Reply::Error(seq, kind),
-        DeviceMessage::Decision { frame, kind } => Reply::Decision(frame, kind),
-        DeviceMessage::Status(s) => Reply::Status(Box::new(s)),
-        DeviceMessage::ExportRecord(r) => Reply::Record(r),
-        DeviceMessage::ExportEnd {
-            seq,
-            from_record,
-            count,
-            crc32,
-        } => Reply::ExportEnd {
-            seq,
-            from_record,
-            count,
-            crc32,
-        },
-        DeviceMessage::Log(_) => Reply::Log,
-    }
-}
-
 /// Invariants of any status of a [`FuzzDevice`].
 fn check_status(st: &Status) {
     let limits = [
@@ -338,15 +267,6 @@ fn expected_terminals(stream: &[u8]) -> Vec<Option<u32>> {
     seqs
 }
 
-/// Checks the records of one export against its `ExportEnd`.
-fn check_export(records: &[ExportRecord], from_record: u32, count: u32, crc32: u32) {
-    assert_eq!(count as usize, records.len(), "ExportEnd count");
-    assert_eq!(crc32, export_crc(records), "ExportEnd crc");
-    for (k, r) in records.iter().enumerate() {
-        assert_eq!(Some(r.record), from_record.checked_add(k as u32), "{r:?}");
-    }
-}
-
 /// A device being fed, with its flash log, everything it was fed and
 /// everything it sent.
 struct Run {
@@ -375,7 +295,7 @@ fn export_of(device: &mut FuzzDevice, log: &mut Log<SimFlash>) -> Vec<ExportReco
     replies
         .iter()
         .filter_map(|f| match decode_reply(f) {
-            Reply::Record(r) => Some(r),
+            DeviceMessage::ExportRecord(r) => Some(r),
             _ => None,
         })
         .collect()
@@ -428,8 +348,8 @@ impl Run {
         }
         self.feed(&tail, &mut Chunker::split(&[]).0);
 
-        let replies: Vec<Reply> = self.replies.iter().map(|f| decode_reply(f)).collect();
-        let terminals: Vec<Option<u32>> = replies.iter().filter_map(Reply::terminal).collect();
+        let replies: Vec<DeviceMessage> = self.replies.iter().map(|f| decode_reply(f)).collect();
+        let terminals: Vec<Option<u32>> = replies.iter().filter_map(terminal).collect();
         assert_eq!(
             terminals,
             expected_terminals(&self.stream),
@@ -438,20 +358,22 @@ impl Run {
 
         // Replies come in groups ending with a terminal reply: decisions
         // before an Ack, records before an ExportEnd, nothing else.
-        let mut group: Vec<&Reply> = Vec::new();
+        let mut group: Vec<&DeviceMessage> = Vec::new();
         let mut last_status = None;
         let mut last_export = None;
         for reply in &replies {
-            if reply.terminal().is_none() {
+            if terminal(reply).is_none() {
                 group.push(reply);
                 continue;
             }
             match reply {
-                Reply::Ack(_) => assert!(
-                    group.iter().all(|r| matches!(r, Reply::Decision(..))),
+                DeviceMessage::Ack { .. } => assert!(
+                    group
+                        .iter()
+                        .all(|r| matches!(r, DeviceMessage::Decision { .. })),
                     "{group:?} before {reply:?}"
                 ),
-                Reply::ExportEnd {
+                DeviceMessage::ExportEnd {
                     from_record,
                     count,
                     crc32,
@@ -460,17 +382,17 @@ impl Run {
                     let records: Vec<ExportRecord> = group
                         .iter()
                         .map(|r| match r {
-                            Reply::Record(rec) => *rec,
+                            DeviceMessage::ExportRecord(rec) => *rec,
                             other => panic!("{other:?} inside an export"),
                         })
                         .collect();
                     check_export(&records, *from_record, *count, *crc32);
                     last_export = Some(records);
                 }
-                Reply::Status(s) => {
+                DeviceMessage::Status(s) => {
                     assert!(group.is_empty(), "{group:?} before a status");
                     check_status(s);
-                    last_status = Some(s.clone());
+                    last_status = Some(*s);
                 }
                 _ => assert!(group.is_empty(), "{group:?} before {reply:?}"),
             }
@@ -517,7 +439,8 @@ impl Run {
 
 /// Target `device`: arbitrary bytes in arbitrary chunks into a [`FuzzDevice`];
 /// then a resynchronising 0x00, a status request and a full export. No panic;
-/// every reply frame at most [`MAX_REPLY_LEN`] bytes and one whole
+/// every reply frame at most
+/// [`MAX_REPLY_LEN`](placedb::protocol::MAX_REPLY_LEN) bytes and one whole
 /// [`DeviceMessage`]; exactly one terminal reply per host frame, with its
 /// sequence number; capacities within their limits after every chunk; every
 /// export consistent with its `ExportEnd` and the status.
@@ -1112,7 +1035,10 @@ fn restore_image(flash: SimFlash, r: &mut Reader<'_>) {
         });
     }
     assert!(
-        matches!(replies.as_slice(), [Reply::Ack(1), Reply::Ack(2)]),
+        matches!(
+            replies.as_slice(),
+            [DeviceMessage::Ack { seq: 1 }, DeviceMessage::Ack { seq: 2 }]
+        ),
         "{replies:?}"
     );
     let mut again = Box::new(FuzzDevice::new());

@@ -11,13 +11,12 @@
 
 use crate::device_cli;
 use crate::online::sampled_rows;
+use crate::row_chunks::{row_chunks, RowChunk};
 use crate::synth::{self, SynthConfig};
 use crate::VoxelConfig;
 use placedb::device::Device256K;
 use placedb::persist::{sim::SimFlash, Log};
-use placedb::protocol::{
-    depth_rows_per_message, encode, DepthRows, HostFrame, HostMessage, MAX_FRAME_LEN,
-};
+use placedb::protocol::{depth_rows_per_message, encode, HostFrame, HostMessage, MAX_FRAME_LEN};
 use placedb::{Pose, SelectorConfig};
 use std::path::Path;
 
@@ -33,7 +32,7 @@ const SECTORS: usize = 256;
 struct Probe {
     timestamp: f64,
     pose: Pose,
-    rows: Vec<(u16, u16, Vec<u8>)>,
+    rows: Vec<RowChunk>,
 }
 
 fn encode_frame(seq: &mut u32, msg: HostMessage<'_>, out: &mut Vec<u8>) {
@@ -52,14 +51,8 @@ impl Probe {
             pose: self.pose,
         };
         encode_frame(seq, begin, &mut out);
-        for (first_row, row_count, data) in &self.rows {
-            let rows = DepthRows {
-                frame: index,
-                first_row: *first_row,
-                row_count: *row_count,
-                data,
-            };
-            encode_frame(seq, HostMessage::DepthRows(rows), &mut out);
+        for rows in &self.rows {
+            encode_frame(seq, rows.message(index), &mut out);
         }
         encode_frame(seq, HostMessage::FrameEnd { frame: index }, &mut out);
         out
@@ -100,14 +93,7 @@ impl Building {
         let per_msg = usize::from(depth_rows_per_message(self.cfg.width_sent()));
         let img = self.seq.depth(i).map_err(|e| e.to_string())?;
         let (w, values) = sampled_rows(&img, self.cfg.stride);
-        let rows = values
-            .chunks(w * per_msg)
-            .enumerate()
-            .map(|(k, c)| {
-                let data = c.iter().flat_map(|d| d.to_le_bytes()).collect();
-                ((k * per_msg) as u16, (c.len() / w) as u16, data)
-            })
-            .collect();
+        let rows = row_chunks(w, &values, per_msg).collect();
         Ok(Probe {
             timestamp: self.seq.frames[i].timestamp,
             pose: self.seq.frames[i].pose().map_err(|e| format!("{e:?}"))?,

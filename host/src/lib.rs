@@ -18,6 +18,7 @@ pub mod pixelcost;
 pub mod plot;
 pub mod read;
 pub mod rng;
+pub mod row_chunks;
 pub mod rp2040;
 pub mod sequence;
 pub mod session;

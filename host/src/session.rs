@@ -44,9 +44,10 @@ use crate::device_cli::{
 };
 use crate::link::{self, Client, Link, Received};
 use crate::online::sampled_rows_of;
+use crate::row_chunks::row_chunks;
 use placedb::protocol::{
-    depth_rows_per_message, encode, Config, DecisionKind, DepthRows, DeviceMessage, ErrorKind,
-    HostFrame, HostMessage, Phase, Status, MAX_FRAME_LEN,
+    depth_rows_per_message, encode, Config, DecisionKind, DeviceMessage, ErrorKind, HostFrame,
+    HostMessage, Phase, Status, MAX_FRAME_LEN,
 };
 use placedb::{Intrinsics, Pose, ScanConfig, SelectorConfig};
 use std::collections::VecDeque;
@@ -342,20 +343,11 @@ impl ScanState {
             },
             || format!("FrameBegin {frame}"),
         )?;
-        let rows_per_msg = usize::from(self.rows_per_msg);
-        for (k, chunk) in rows.chunks((width * rows_per_msg).max(1)).enumerate() {
-            let data: Vec<u8> = chunk.iter().flat_map(|d| d.to_le_bytes()).collect();
-            let first_row = (k * rows_per_msg) as u16;
-            self.send(
-                client,
-                HostMessage::DepthRows(DepthRows {
-                    frame,
-                    first_row,
-                    row_count: (chunk.len() / width.max(1)) as u16,
-                    data: &data,
-                }),
-                || format!("DepthRows {frame}:{first_row}"),
-            )?;
+        for chunk in row_chunks(width, &rows, usize::from(self.rows_per_msg)) {
+            let first_row = chunk.first_row;
+            self.send(client, chunk.message(frame), || {
+                format!("DepthRows {frame}:{first_row}")
+            })?;
         }
         self.send(client, HostMessage::FrameEnd { frame }, || {
             format!("FrameEnd {frame}")

@@ -84,6 +84,8 @@
 mod dispatch;
 mod durable;
 mod export;
+#[cfg(feature = "sim-flash")]
+pub mod harness;
 mod reply;
 mod restore;
 mod retransmit;

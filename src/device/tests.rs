@@ -1,10 +1,11 @@
 extern crate std;
 
+use super::harness::{on_big_stack, AnyDevice, Harness};
 use super::*;
 use crate::camera::{DepthRange, Intrinsics, Pose};
 use crate::frame::FrameMeta;
 use crate::persist::sim::SimFlash;
-use crate::protocol::{encode, DepthRows, Feed, PROTOCOL_VERSION};
+use crate::protocol::{encode, DepthRows, PROTOCOL_VERSION};
 use crate::protocol::{
     DecisionKind, DeviceMessage, ErrorKind, ExportRecord, HostMessage, RecordKind,
 };
@@ -80,170 +81,38 @@ fn timestamp(i: u32) -> f64 {
     1_305_031_102.175_304 + f64::from(i) / 30.0
 }
 
-/// Owned copies of the messages a device can send (it never logs).
-fn owned(msg: DeviceMessage<'_>) -> DeviceMessage<'static> {
-    msg.into_static().expect("the device does not log")
-}
-
-fn terminal(msg: &DeviceMessage<'_>) -> Option<Option<u32>> {
-    match msg {
-        DeviceMessage::Ack { seq } | DeviceMessage::ExportEnd { seq, .. } => Some(Some(*seq)),
-        DeviceMessage::Status(s) => Some(Some(s.seq)),
-        DeviceMessage::Error { seq, .. } => Some(*seq),
-        _ => None,
-    }
-}
-
-/// A device on a simulated flash log, and a host-side decoder of its replies.
-struct Bench<D> {
-    device: std::boxed::Box<D>,
-    log: Log<SimFlash>,
-    seq: u32,
-}
-
 /// Sectors of the benches' flash log.
 const BENCH_SECTORS: usize = 64;
 
-macro_rules! bench_impl {
-    ($t:ty) => {
-        #[allow(dead_code)]
-        impl Bench<$t> {
-            fn new() -> Self {
-                let flash = SimFlash::new(BENCH_SECTORS);
-                let end = (BENCH_SECTORS * SimFlash::SECTOR) as u32;
-                Bench {
-                    device: std::boxed::Box::new(<$t>::new()),
-                    log: Log::open(flash, 0, end).unwrap(),
-                    seq: 0,
-                }
-            }
-
-            /// Feeds `bytes` in chunks of `chunk` and decodes every reply.
-            fn feed(&mut self, bytes: &[u8], chunk: usize) -> Vec<DeviceMessage<'static>> {
-                let mut raw = Vec::new();
-                for c in bytes.chunks(chunk.max(1)) {
-                    self.device
-                        .receive_logged(c, &mut self.log, &mut |f: &[u8]| raw.push(f.to_vec()));
-                }
-                raw.iter()
-                    .map(|f| {
-                        assert!(f.len() <= MAX_REPLY_LEN);
-                        assert_eq!(f.last(), Some(&0));
-                        assert!(!f[..f.len() - 1].contains(&0));
-                        let mut dec = FrameDecoder::<MAX_REPLY_LEN>::new();
-                        match dec.feed::<DeviceMessage>(f) {
-                            Feed::Frame {
-                                result: Ok(m),
-                                remaining: [],
-                            } => owned(m),
-                            other => panic!("bad reply frame: {other:?}"),
-                        }
-                    })
-                    .collect()
-            }
-
-            /// Sends one message; checks it gets exactly one terminal reply,
-            /// last, with its sequence number; returns every reply.
-            fn send(&mut self, msg: HostMessage<'_>) -> Vec<DeviceMessage<'static>> {
-                self.seq += 1;
-                let mut buf = vec![0u8; MAX_FRAME_LEN];
-                let frame = encode(&HostFrame { seq: self.seq, msg }, &mut buf).unwrap();
-                let frame = frame.to_vec();
-                let replies = self.feed(&frame, frame.len());
-                let terminals: Vec<_> = replies.iter().filter_map(terminal).collect();
-                assert_eq!(terminals, vec![Some(self.seq)], "{msg:?} -> {replies:?}");
-                assert!(terminal(replies.last().unwrap()).is_some());
-                replies
-            }
-
-            fn ok(&mut self, msg: HostMessage<'_>) -> Vec<DeviceMessage<'static>> {
-                let replies = self.send(msg);
-                assert!(
-                    matches!(replies.last(), Some(DeviceMessage::Ack { .. })),
-                    "{msg:?} -> {replies:?}"
-                );
-                replies
-            }
-
-            fn refused(&mut self, msg: HostMessage<'_>) -> ErrorKind {
-                match self.send(msg).as_slice() {
-                    [DeviceMessage::Error { kind, .. }] => *kind,
-                    other => panic!("{msg:?} accepted: {other:?}"),
-                }
-            }
-
-            fn status(&mut self) -> Status {
-                match self.send(HostMessage::StatusRequest).as_slice() {
-                    [DeviceMessage::Status(s)] => *s,
-                    other => panic!("no status: {other:?}"),
-                }
-            }
-
-            /// Streams frame `i` with `rows_per_msg` rows per message;
-            /// returns the decisions.
-            fn frame(&mut self, i: u32, rows_per_msg: u16) -> Vec<(u32, DecisionKind)> {
-                self.ok(HostMessage::FrameBegin {
-                    frame: i,
-                    timestamp: timestamp(i),
-                    pose: pose(i),
-                });
-                let rows = frame_rows(i);
-                let ws = usize::from(W.div_ceil(STRIDE));
-                let mut first = 0u16;
-                for chunk in rows.chunks(ws * usize::from(rows_per_msg)) {
-                    let data: Vec<u8> = chunk.iter().flat_map(|d| d.to_le_bytes()).collect();
-                    let n = (chunk.len() / ws) as u16;
-                    self.ok(HostMessage::DepthRows(DepthRows {
-                        frame: i,
-                        first_row: first,
-                        row_count: n,
-                        data: &data,
-                    }));
-                    first += n;
-                }
-                decisions(&self.ok(HostMessage::FrameEnd { frame: i }))
-            }
-
-            fn export(&mut self, from: u32) -> Vec<ExportRecord> {
-                self.export_some(from, u32::MAX)
-            }
-
-            fn export_some(&mut self, from: u32, max: u32) -> Vec<ExportRecord> {
-                let replies = self.send(HostMessage::ExportRequest {
-                    from_record: from,
-                    max_records: max,
-                });
-                let (last, records) = replies.split_last().unwrap();
-                let records: Vec<ExportRecord> = records
-                    .iter()
-                    .map(|m| match m {
-                        DeviceMessage::ExportRecord(r) => *r,
-                        other => panic!("unexpected {other:?}"),
-                    })
-                    .collect();
-                match last {
-                    DeviceMessage::ExportEnd {
-                        from_record,
-                        count,
-                        crc32,
-                        ..
-                    } => {
-                        assert_eq!(*from_record, from);
-                        assert_eq!(*count as usize, records.len());
-                        assert_eq!(*crc32, crate::protocol::export_crc(&records));
-                    }
-                    other => panic!("no export end: {other:?}"),
-                }
-                for (k, r) in records.iter().enumerate() {
-                    assert_eq!(r.record, from + k as u32);
-                }
-                records
-            }
-        }
-    };
+/// A device with a log on a blank flash.
+fn bench<D: AnyDevice>() -> Harness<D> {
+    Harness::new(BENCH_SECTORS)
 }
-bench_impl!(Small);
-bench_impl!(Tiny);
+
+/// Streams frame `i` with `rows_per_msg` rows per message; returns the
+/// decisions.
+fn frame<D: AnyDevice>(b: &mut Harness<D>, i: u32, rows_per_msg: u16) -> Vec<(u32, DecisionKind)> {
+    b.ok(HostMessage::FrameBegin {
+        frame: i,
+        timestamp: timestamp(i),
+        pose: pose(i),
+    });
+    let rows = frame_rows(i);
+    let ws = usize::from(W.div_ceil(STRIDE));
+    let mut first = 0u16;
+    for chunk in rows.chunks(ws * usize::from(rows_per_msg)) {
+        let data: Vec<u8> = chunk.iter().flat_map(|d| d.to_le_bytes()).collect();
+        let n = (chunk.len() / ws) as u16;
+        b.ok(HostMessage::DepthRows(DepthRows {
+            frame: i,
+            first_row: first,
+            row_count: n,
+            data: &data,
+        }));
+        first += n;
+    }
+    decisions(&b.ok(HostMessage::FrameEnd { frame: i }))
+}
 
 /// Final decisions, in the order they came (frame order).
 fn finals(decided: &[(u32, DecisionKind)]) -> Vec<(u32, DecisionKind)> {
@@ -344,26 +213,17 @@ fn reference<const FV: usize, const P: usize, const DB: usize, const WN: usize, 
     (got, records)
 }
 
-fn on_big_stack(f: impl FnOnce() + Send + 'static) {
-    std::thread::Builder::new()
-        .stack_size(32 << 20)
-        .spawn(f)
-        .unwrap()
-        .join()
-        .unwrap();
-}
-
 #[test]
 fn a_scan_matches_the_selector_and_exports_in_frame_order() {
     on_big_stack(|| {
-        let mut b = Bench::<Small>::new();
+        let mut b = bench::<Small>();
         assert_eq!(b.status().phase, Phase::Unconfigured);
         let cfg = config(4);
         b.ok(HostMessage::Hello(cfg));
         let n = 30;
         let mut got = Vec::new();
         for i in 0..n {
-            got.extend(b.frame(i, 5));
+            got.extend(frame(&mut b, i, 5));
         }
         assert_eq!(b.status().phase, Phase::Ready);
         got.extend(decisions(&b.ok(HostMessage::Finish)));
@@ -377,7 +237,7 @@ fn a_scan_matches_the_selector_and_exports_in_frame_order() {
         assert_eq!(st.export_records() as usize, records.len());
         assert!(st.database_size > 1 && st.database_size < n);
         assert_eq!(st.degradation, 0);
-        let all = b.export(0);
+        let all = b.export();
         assert_eq!(all, records);
         // Resume from any record: the tail of the full export.
         for k in [
@@ -386,13 +246,13 @@ fn a_scan_matches_the_selector_and_exports_in_frame_order() {
             st.export_records() - 1,
             st.export_records(),
         ] {
-            assert_eq!(b.export(k), records[k as usize..]);
+            assert_eq!(b.export_from(k, u32::MAX), records[k as usize..]);
         }
         // In batches of any size.
         for batch in [1, 2, 7, st.database_size, 1000] {
             let mut got = Vec::new();
             loop {
-                let part = b.export_some(got.len() as u32, batch);
+                let part = b.export_from(got.len() as u32, batch);
                 assert!(part.len() <= batch as usize);
                 if part.is_empty() {
                     break;
@@ -401,7 +261,7 @@ fn a_scan_matches_the_selector_and_exports_in_frame_order() {
             }
             assert_eq!(got, records);
         }
-        assert_eq!(b.export_some(3, 0), vec![]);
+        assert_eq!(b.export_from(3, 0), vec![]);
         assert_eq!(
             b.refused(HostMessage::ExportRequest {
                 from_record: st.export_records() + 1,
@@ -417,7 +277,7 @@ fn a_scan_matches_the_selector_and_exports_in_frame_order() {
             pose: pose(0),
         };
         assert_eq!(b.refused(begin), ErrorKind::Finished);
-        assert_eq!(b.export(0), records);
+        assert_eq!(b.export(), records);
         // Reset forgets everything.
         b.ok(HostMessage::Reset);
         let st = b.status();
@@ -467,9 +327,9 @@ fn byte_by_byte_delivery_gives_the_same_replies() {
                 max_records: u32::MAX,
             },
         );
-        let whole = Bench::<Small>::new().feed(&stream, stream.len());
-        assert_eq!(Bench::<Small>::new().feed(&stream, 1), whole);
-        assert_eq!(Bench::<Small>::new().feed(&stream, 61), whole);
+        let whole = bench::<Small>().feed(&stream, stream.len());
+        assert_eq!(bench::<Small>().feed(&stream, 1), whole);
+        assert_eq!(bench::<Small>().feed(&stream, 61), whole);
         assert!(matches!(
             whole.last(),
             Some(DeviceMessage::ExportEnd { .. })
@@ -514,8 +374,8 @@ fn a_retransmitted_message_is_answered_again_not_applied_twice() {
             seq += 5;
         }
         push(seq, HostMessage::Finish);
-        let mut clean = Bench::<Small>::new();
-        let mut twice = Bench::<Small>::new();
+        let mut clean = bench::<Small>();
+        let mut twice = bench::<Small>();
         for f in &frames {
             let once = clean.feed(f, f.len());
             let first = twice.feed(f, f.len());
@@ -529,7 +389,7 @@ fn a_retransmitted_message_is_answered_again_not_applied_twice() {
         assert_eq!(a.frames_seen, 8);
         assert_eq!(b.frames_seen, 8);
         assert_eq!(b.refused, a.refused);
-        assert_eq!(twice.export(0), clean.export(0));
+        assert_eq!(twice.export(), clean.export());
         // The same sequence number with another message is not a retry.
         let mut buf = vec![0u8; MAX_FRAME_LEN];
         let reset = encode(
@@ -552,7 +412,7 @@ fn a_retransmitted_message_is_answered_again_not_applied_twice() {
 #[test]
 fn hello_rules() {
     on_big_stack(|| {
-        let mut b = Bench::<Small>::new();
+        let mut b = bench::<Small>();
         let mut bad = config(4);
         bad.version = PROTOCOL_VERSION + 1;
         assert_eq!(b.refused(HostMessage::Hello(bad)), ErrorKind::WrongVersion);
@@ -563,7 +423,7 @@ fn hello_rules() {
         // Before any frame a Hello replaces the previous one.
         b.ok(HostMessage::Hello(config(2)));
         b.ok(HostMessage::Hello(config(4)));
-        b.frame(0, 24);
+        frame(&mut b, 0, 24);
         b.ok(HostMessage::FrameBegin {
             frame: 1,
             timestamp: 1.0,
@@ -597,7 +457,7 @@ fn hello_rules() {
 #[test]
 fn refused_messages_change_nothing() {
     on_big_stack(|| {
-        let mut b = Bench::<Small>::new();
+        let mut b = bench::<Small>();
         let begin = |i: u32| HostMessage::FrameBegin {
             frame: i,
             timestamp: timestamp(i),
@@ -607,9 +467,9 @@ fn refused_messages_change_nothing() {
         assert_eq!(b.refused(HostMessage::Finish), ErrorKind::NotConfigured);
         b.ok(HostMessage::Hello(config(3)));
         for i in 0..5 {
-            b.frame(i, 7);
+            frame(&mut b, i, 7);
         }
-        let before = b.export(0);
+        let before = b.export();
         let status = b.status();
         let ws = W.div_ceil(STRIDE);
         let row = vec![0x10u8; usize::from(ws) * 2];
@@ -683,7 +543,7 @@ fn refused_messages_change_nothing() {
                 kind: ErrorKind::Oversized,
             }]
         ));
-        assert_eq!(b.export(0), before);
+        assert_eq!(b.export(), before);
         let after = b.status();
         assert_eq!(after.phase, Phase::InFrame);
         assert_eq!(after.frames_seen, status.frames_seen);
@@ -712,7 +572,7 @@ fn refused_messages_change_nothing() {
 #[test]
 fn depth_rows_beyond_the_row_buffer_are_refused_not_damage() {
     on_big_stack(|| {
-        let mut b = Bench::<Small>::new();
+        let mut b = bench::<Small>();
         let mut cfg = config(3);
         cfg.intrinsics = Intrinsics {
             width: 1,
@@ -774,12 +634,12 @@ fn depth_rows_beyond_the_row_buffer_are_refused_not_damage() {
 #[test]
 fn full_database_and_labels_degrade_as_documented() {
     on_big_stack(|| {
-        let mut b = Bench::<Tiny>::new();
+        let mut b = bench::<Tiny>();
         b.ok(HostMessage::Hello(config(2)));
         let n = 12;
         let mut got = Vec::new();
         for i in 0..n {
-            got.extend(b.frame(i, 24));
+            got.extend(frame(&mut b, i, 24));
         }
         got.extend(decisions(&b.ok(HostMessage::Finish)));
         let (want, records) = reference::<1024, 2048, 2, 4, 16>(&config(2), n);
@@ -798,7 +658,7 @@ fn full_database_and_labels_degrade_as_documented() {
             degradation::DATABASE_FULL
         );
         assert_eq!(st.degradation & degradation::LABELS_FULL, 0);
-        assert_eq!(b.export(0), records);
+        assert_eq!(b.export(), records);
     });
 }
 
@@ -810,13 +670,13 @@ fn the_clock_measures_frames() {
         TICKS.fetch_add(10, Ordering::Relaxed)
     }
     on_big_stack(|| {
-        let mut b = Bench::<Small>::new();
+        let mut b = bench::<Small>();
         b.device.set_clock(tick, 1000);
         b.ok(HostMessage::Hello(config(3)));
         // Each frame's cost is read right after it; the totals must add up.
         let mut costs = Vec::new();
         for i in 0..3 {
-            b.frame(i, 24);
+            frame(&mut b, i, 24);
             let c = b.status().cost;
             assert_eq!(c.frames, i + 1);
             assert!(c.last_rows > 0 && c.last_end > 0, "{c:?}");
@@ -925,8 +785,8 @@ proptest! {
                 }
                 dirty.extend_from_slice(m);
             }
-            let want = Bench::<Small>::new().feed(&clean, 4096);
-            let got = Bench::<Small>::new().feed(&dirty, 97);
+            let want = bench::<Small>().feed(&clean, 4096);
+            let got = bench::<Small>().feed(&dirty, 97);
             let errors = got.iter().filter(|m| matches!(m, DeviceMessage::Error { .. })).count();
             let kept: Vec<_> = got
                 .into_iter()
