@@ -261,6 +261,11 @@ struct ParamArgs {
     /// online: frames held undecided (1 reproduces in-order; capped by the profile's window).
     #[arg(long, default_value_t = 32)]
     window: u16,
+    /// online: decode every frame again and push its rows, as a board
+    /// receives them, instead of reusing the voxel sets (same decisions;
+    /// `bench --core` counts the core's voxelizing this way).
+    #[arg(long, hide = true)]
+    push_rows: bool,
     /// Test sequence of the same place: adds oracle_recall@0.3.
     #[arg(long)]
     test: Option<PathBuf>,
@@ -421,6 +426,7 @@ fn solver_params(p: &ParamArgs) -> Result<SolverParams, Error> {
         time_limit: Duration::from_secs_f64(p.time_limit),
         profile: p.profile.clone(),
         window: p.window.max(1),
+        push_rows: p.push_rows,
         ..SolverParams::default()
     })
 }
@@ -1020,19 +1026,26 @@ fn core_cost(a: &BenchArgs) -> Result<(), Error> {
     let mut counts = Vec::new();
     let mut meta = serde_json::Value::Null;
     for (_, pattern) in CORE_PARTS {
-        let args: Vec<std::ffi::OsString> =
-            ["select", "--solver", "online", "--json", "-q", "--stride"]
-                .iter()
-                .map(Into::into)
-                .chain([
-                    a.stride.to_string().into(),
-                    "--max-frames".into(),
-                    a.core_frames.to_string().into(),
-                    seq.clone().into_os_string(),
-                    "-o".into(),
-                    dir.join("out").into_os_string(),
-                ])
-                .collect();
+        let args: Vec<std::ffi::OsString> = [
+            "select",
+            "--solver",
+            "online",
+            "--push-rows",
+            "--json",
+            "-q",
+            "--stride",
+        ]
+        .iter()
+        .map(Into::into)
+        .chain([
+            a.stride.to_string().into(),
+            "--max-frames".into(),
+            a.core_frames.to_string().into(),
+            seq.clone().into_os_string(),
+            "-o".into(),
+            dir.join("out").into_os_string(),
+        ])
+        .collect();
         let (n, stdout) = callgrind_count(&dir, pattern, &args)?;
         meta = serde_json::from_slice(&stdout)?;
         counts.push(n);

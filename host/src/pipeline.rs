@@ -77,6 +77,8 @@ pub struct SolverParams {
     pub sketch_margin: f32,
     /// `online`: sampled rows per pushed chunk.
     pub chunk_rows: usize,
+    /// `online`: push every frame's rows instead of reusing the voxel sets.
+    pub push_rows: bool,
 }
 
 impl Default for SolverParams {
@@ -90,6 +92,7 @@ impl Default for SolverParams {
             window: 32,
             sketch_margin: 0.05,
             chunk_rows: 8,
+            push_rows: false,
         }
     }
 }
@@ -269,15 +272,26 @@ pub fn solve(
             // The replay reuses the voxel sets computed above (same stride,
             // grid and camera): only frames the device would truncate are
             // decoded again.
-            let run = online::replay_voxelized(
-                seq,
-                &prep.sets,
-                &params.profile,
-                scan,
-                cfg,
-                params.chunk_rows,
-                pb.as_ref(),
-            )?;
+            let sets = (!params.push_rows).then_some(&prep.sets);
+            let run = match sets {
+                Some(sets) => online::replay_voxelized(
+                    seq,
+                    sets,
+                    &params.profile,
+                    scan,
+                    cfg,
+                    params.chunk_rows,
+                    pb.as_ref(),
+                ),
+                None => online::replay(
+                    seq,
+                    &params.profile,
+                    scan,
+                    cfg,
+                    params.chunk_rows,
+                    pb.as_ref(),
+                ),
+            }?;
             pb.inspect(|p| p.finish_and_clear());
             let mut db: Vec<usize> = run.database.iter().map(|r| r.index as usize).collect();
             db.sort_unstable();
