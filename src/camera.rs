@@ -6,16 +6,6 @@
 //! Cortex-M4F has only a single-precision FPU; `f32` is exact enough for 0.3 m
 //! voxels within a few kilometres of the origin.
 
-#![cfg_attr(
-    not(test),
-    deny(
-        clippy::indexing_slicing,
-        clippy::unwrap_used,
-        clippy::expect_used,
-        clippy::panic
-    )
-)]
-
 use crate::voxel::{VoxelGrid, VoxelKey, AXIS_BIAS};
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 

@@ -6,16 +6,6 @@
 //! (row `r` is image row `r * stride`, sample `i` is column `i * stride`),
 //! which is also what travels on the wire.
 
-#![cfg_attr(
-    not(test),
-    deny(
-        clippy::indexing_slicing,
-        clippy::unwrap_used,
-        clippy::expect_used,
-        clippy::panic
-    )
-)]
-
 use crate::camera::{CameraError, DepthRange, FrameProjector, Intrinsics, Pose};
 use crate::voxel::{FrameVoxels, VoxelGrid, VoxelKey};
 

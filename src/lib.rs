@@ -8,6 +8,18 @@
 #![no_std]
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
+// No panicking path on any input, checked rather than argued: every module
+// of the core is under this block (tests may index and unwrap; the std-only
+// test support, `persist::sim` and `device::harness`, opts out).
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::indexing_slicing,
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::panic
+    )
+)]
 
 // Only the test flash (feature `sim-flash`) uses std.
 #[cfg(feature = "sim-flash")]

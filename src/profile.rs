@@ -4,16 +4,6 @@
 //! fits its RAM (the firmware's `memory.x` makes an oversized choice fail to
 //! link). `placedb budget` prints each profile's exact size and what it holds.
 
-#![cfg_attr(
-    not(test),
-    deny(
-        clippy::indexing_slicing,
-        clippy::unwrap_used,
-        clippy::expect_used,
-        clippy::panic
-    )
-)]
-
 use crate::device::Device;
 use crate::select::Selector;
 

@@ -7,16 +7,6 @@
 //! hashes among the `K` smallest of the union is an unbiased Jaccard (IoU)
 //! estimate with standard error about `sqrt(J (1 - J) / K)`.
 
-#![cfg_attr(
-    not(test),
-    deny(
-        clippy::indexing_slicing,
-        clippy::unwrap_used,
-        clippy::expect_used,
-        clippy::panic
-    )
-)]
-
 /// Hash of a packed voxel key: the finaliser of MurmurHash3 (a bijection on
 /// `u64`, so distinct keys collide only in the 32 bits kept).
 #[inline]

@@ -9,16 +9,6 @@
 //! compacted away at once, so the pool never fragments: the price is a
 //! `copy_within` per freed frame, which is cheap next to voxelizing it.
 
-#![cfg_attr(
-    not(test),
-    deny(
-        clippy::indexing_slicing,
-        clippy::unwrap_used,
-        clippy::expect_used,
-        clippy::panic
-    )
-)]
-
 use crate::voxel::VoxelKey;
 
 const DX_BITS: u32 = 11;

@@ -6,16 +6,6 @@
 //! and flash formats need no structure. 21 bits cover ±1,048,575 voxels, which
 //! is ±314 km at 0.3 m: points beyond are reported, never wrapped.
 
-#![cfg_attr(
-    not(test),
-    deny(
-        clippy::indexing_slicing,
-        clippy::unwrap_used,
-        clippy::expect_used,
-        clippy::panic
-    )
-)]
-
 use crate::camera::CameraError;
 
 /// Bits per axis in a packed key.

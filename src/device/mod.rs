@@ -71,16 +71,6 @@
 //! `database_size + j` is the label of frame `j`, read from the log. The
 //! `ExportEnd` count and CRC cover exactly the records sent.
 
-#![cfg_attr(
-    not(test),
-    deny(
-        clippy::indexing_slicing,
-        clippy::unwrap_used,
-        clippy::expect_used,
-        clippy::panic
-    )
-)]
-
 mod dispatch;
 mod durable;
 mod export;

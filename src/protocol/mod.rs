@@ -73,16 +73,6 @@
 //! strided rows fit one frame; [`pack_rows`] builds the payload from a
 //! full-resolution image.
 
-#![cfg_attr(
-    not(test),
-    deny(
-        clippy::indexing_slicing,
-        clippy::unwrap_used,
-        clippy::expect_used,
-        clippy::panic
-    )
-)]
-
 mod cobs;
 mod framing;
 mod messages;

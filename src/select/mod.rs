@@ -26,16 +26,6 @@
 //! resident set is full, its oldest frame that the store holds leaves RAM;
 //! with [`NoStore`] none can, so the database is at most `R` frames.
 
-#![cfg_attr(
-    not(test),
-    deny(
-        clippy::indexing_slicing,
-        clippy::unwrap_used,
-        clippy::expect_used,
-        clippy::panic
-    )
-)]
-
 use crate::camera::Pose;
 use crate::frame::{FrameError, FrameIngest, FrameMeta, ScanConfig};
 use crate::sketch::Sketch;
