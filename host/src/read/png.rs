@@ -155,57 +155,77 @@ pub(crate) fn decode_into(
     invalid_65535: bool,
     image: &mut DepthImage,
 ) -> Result<(), ReadError> {
-    image.width = 0;
-    image.height = 0;
-    image.data.clear();
+    match decode_pixels(path, invalid_65535, &mut image.data) {
+        Ok((width, height)) => {
+            (image.width, image.height) = (width, height);
+            Ok(())
+        }
+        Err(e) => {
+            *image = DepthImage::default();
+            Err(e)
+        }
+    }
+}
+
+/// Decodes the file's pixels into `data` (resized, not cleared first: a
+/// buffer of the right size is overwritten without being zeroed) and
+/// returns the image's width and height.
+fn decode_pixels(
+    path: &Path,
+    invalid_65535: bool,
+    data: &mut Vec<u16>,
+) -> Result<(u16, u16), ReadError> {
     let bytes = read_file(path)?;
     let header = parse_header(path, &bytes)?;
     let (width, height) = (header.width, header.height);
     if header.interlaced {
-        image.data = decode_interlaced(path, &bytes, width, height)?;
+        *data = decode_with_png_crate(path, &bytes, width, height)?;
         if invalid_65535 {
-            for v in &mut image.data {
-                if *v == u16::MAX {
-                    *v = 0;
-                }
-            }
+            blank_invalid(data);
         }
-    } else {
-        SCRATCH.with(|scratch| {
-            let scratch = &mut *scratch.borrow_mut();
-            collect_image_data(path, &bytes, &mut scratch.zlib)?;
-            let row_bytes = 2 * width as usize;
-            let total = (row_bytes + 1) * height as usize;
-            scratch.scanlines.resize(total, 0);
-            let n = inflate(&scratch.zlib, &mut scratch.scanlines, &mut scratch.inflater)
-                .map_err(|e| {
-                    let reason = match e {
-                        Inflate::TooLong => format!(
-                            "image data inflates to more than the {total} bytes of a {width}x{height} 16-bit image"
-                        ),
-                        Inflate::Invalid => "image data is not a valid zlib stream".into(),
-                    };
-                    png_error(path, reason)
-                })?;
-            if n != total {
-                return Err(png_error(
-                    path,
-                    format!("image data inflates to {n} bytes, a {width}x{height} 16-bit image has {total}"),
-                ));
-            }
-            image.data.resize(width as usize * height as usize, 0);
-            unfilter_rows(
-                path,
-                &mut scratch.scanlines[..total],
-                row_bytes,
-                invalid_65535,
-                &mut image.data,
-            )
-        })?;
+        return Ok((width, height));
     }
-    image.width = width;
-    image.height = height;
-    Ok(())
+    SCRATCH.with(|scratch| {
+        let scratch = &mut *scratch.borrow_mut();
+        collect_image_data(path, &bytes, &mut scratch.zlib)?;
+        let row_bytes = 2 * width as usize;
+        let total = (row_bytes + 1) * height as usize;
+        scratch.scanlines.resize(total, 0);
+        let n = inflate(&scratch.zlib, &mut scratch.scanlines, &mut scratch.inflater)
+            .map_err(|e| {
+                let reason = match e {
+                    Inflate::TooLong => format!(
+                        "image data inflates to more than the {total} bytes of a {width}x{height} 16-bit image"
+                    ),
+                    Inflate::Invalid => "image data is not a valid zlib stream".into(),
+                };
+                png_error(path, reason)
+            })?;
+        if n != total {
+            return Err(png_error(
+                path,
+                format!("image data inflates to {n} bytes, a {width}x{height} 16-bit image has {total}"),
+            ));
+        }
+        data.resize(width as usize * height as usize, 0);
+        unfilter_rows(
+            path,
+            &mut scratch.scanlines[..total],
+            row_bytes,
+            invalid_65535,
+            data,
+        )
+    })?;
+    Ok((width, height))
+}
+
+/// 65535, "no measurement" in 7-Scenes, becomes 0.
+fn blank_invalid(values: &mut [u16]) {
+    for v in values {
+        if *v == u16::MAX {
+            *v = 0;
+        }
+    }
 }
 
 /// Walks the chunks after IHDR up to IEND, checking every CRC, and gathers
@@ -328,18 +348,14 @@ fn unfilter_rows(
             *v = u16::from_be_bytes([px[0], px[1]]);
         }
         if invalid_65535 {
-            for v in out_row.iter_mut() {
-                if *v == u16::MAX {
-                    *v = 0;
-                }
-            }
+            blank_invalid(out_row);
         }
     }
     Ok(())
 }
 
-/// The `png` crate's decoder, for interlaced files only.
-fn decode_interlaced(
+/// The `png` crate's decoder: for interlaced files, and the tests' reference.
+fn decode_with_png_crate(
     path: &Path,
     bytes: &[u8],
     width: u16,
@@ -535,15 +551,7 @@ mod tests {
         for i in [0, 1, 499, 999] {
             let path = dir.join(format!("frame-{i:06}.depth.png"));
             let bytes = std::fs::read(&path).unwrap();
-            let mut decoder = png::Decoder::new(bytes.as_slice());
-            decoder.set_transformations(png::Transformations::IDENTITY);
-            let mut reader = decoder.read_info().unwrap();
-            let mut raw = vec![0u8; reader.output_buffer_size()];
-            reader.next_frame(&mut raw).unwrap();
-            let expected: Vec<u16> = raw
-                .chunks_exact(2)
-                .map(|p| u16::from_be_bytes([p[0], p[1]]))
-                .collect();
+            let expected = decode_with_png_crate(&path, &bytes, 640, 480).unwrap();
             assert_eq!(decode(&path, false).unwrap().data, expected, "{path:?}");
         }
     }
@@ -670,6 +678,8 @@ mod tests {
             ),
         ];
         let path = temp("damaged.png");
+        let good_path = temp("damaged-good.png");
+        std::fs::write(&good_path, &good).unwrap();
         let ancillary = png_file(&[
             (b"IHDR", ihdr(w, h, 0)),
             (b"tEXt", b"a\0b".to_vec()),
@@ -683,6 +693,10 @@ mod tests {
             let e = decode(&path, false).unwrap_err();
             assert!(e.to_string().contains(reason), "{name}: {e}");
             assert!(e.to_string().contains("damaged.png"), "{name}: {e}");
+            // A reused image is left empty, not half-written.
+            let mut reused = decode(&good_path, false).unwrap();
+            assert!(decode_into(&path, false, &mut reused).is_err(), "{name}");
+            assert_eq!(reused, DepthImage::default(), "{name}");
             // Every cut of a good file is refused, wherever it falls.
         }
         for cut in 0..good.len() {
@@ -691,6 +705,7 @@ mod tests {
             assert!(matches!(e, ReadError::Png { .. }), "cut at {cut}: {e}");
         }
         std::fs::remove_file(&path).ok();
+        std::fs::remove_file(&good_path).ok();
     }
 
     #[test]
