@@ -272,25 +272,25 @@ pub fn solve(
             // The replay reuses the voxel sets computed above (same stride,
             // grid and camera): only frames the device would truncate are
             // decoded again.
-            let sets = (!params.push_rows).then_some(&prep.sets);
-            let run = match sets {
-                Some(sets) => online::replay_voxelized(
-                    seq,
-                    sets,
-                    &params.profile,
-                    scan,
-                    cfg,
-                    params.chunk_rows,
-                    pb.as_ref(),
-                ),
-                None => online::replay(
+            let run = if params.push_rows {
+                online::replay(
                     seq,
                     &params.profile,
                     scan,
                     cfg,
                     params.chunk_rows,
                     pb.as_ref(),
-                ),
+                )
+            } else {
+                online::replay_voxelized(
+                    seq,
+                    &prep.sets,
+                    &params.profile,
+                    scan,
+                    cfg,
+                    params.chunk_rows,
+                    pb.as_ref(),
+                )
             }?;
             pb.inspect(|p| p.finish_and_clear());
             let mut db: Vec<usize> = run.database.iter().map(|r| r.index as usize).collect();
