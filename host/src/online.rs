@@ -2,6 +2,7 @@
 //! exactly as a board would receive it: frame by frame, sampled rows in
 //! chunks, one selector of a named capacity profile.
 
+use crate::row_chunks::row_spans;
 use crate::sequence::{DepthImage, Sequence};
 use crate::voxelize::{VoxelSets, VoxelizeError};
 use indicatif::ProgressBar;
@@ -257,9 +258,7 @@ fn ingest<const FV: usize>(
     seq.depth_into(i, img).map_err(VoxelizeError::from)?;
     let read_time = t.elapsed();
     let (width, rows) = sampled_rows(img, scan.stride);
-    let chunk = width * rows_per_chunk.max(1);
-    for (c, data) in rows.chunks(chunk.max(1)).enumerate() {
-        let first = (c * rows_per_chunk.max(1)) as u16;
+    for (first, data) in row_spans(width, &rows, rows_per_chunk) {
         ingest.push_rows(first, data).map_err(core_err)?;
     }
     Ok(Ingested { ingest, read_time })

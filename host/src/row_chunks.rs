@@ -1,7 +1,7 @@
 //! One frame's sampled rows cut into `DepthRows` messages: the one place
 //! the host splits a frame for the wire (the device client's
 //! `Session::push_frame`, `bench --db-scaling`'s probe frames, the power-cut
-//! tests).
+//! tests) and into the chunks the online replay pushes.
 
 use placedb::protocol::{DepthRows, HostMessage};
 
@@ -37,15 +37,25 @@ pub fn row_chunks(
     values: &[u16],
     rows_per_message: usize,
 ) -> impl Iterator<Item = RowChunk> + '_ {
-    let per_message = rows_per_message.max(1);
+    row_spans(width, values, rows_per_message).map(move |(first_row, chunk)| RowChunk {
+        first_row,
+        row_count: (chunk.len() / width.max(1)) as u16,
+        data: chunk.iter().flat_map(|d| d.to_le_bytes()).collect(),
+    })
+}
+
+/// The same cut as [`row_chunks`], as the values themselves: each chunk's
+/// first strided row and its values (what `push_rows` takes in the replay).
+pub fn row_spans(
+    width: usize,
+    values: &[u16],
+    rows_per_chunk: usize,
+) -> impl Iterator<Item = (u16, &[u16])> + '_ {
+    let per_chunk = rows_per_chunk.max(1);
     values
-        .chunks((width * per_message).max(1))
+        .chunks((width * per_chunk).max(1))
         .enumerate()
-        .map(move |(k, chunk)| RowChunk {
-            first_row: (k * per_message) as u16,
-            row_count: (chunk.len() / width.max(1)) as u16,
-            data: chunk.iter().flat_map(|d| d.to_le_bytes()).collect(),
-        })
+        .map(move |(k, chunk)| ((k * per_chunk) as u16, chunk))
 }
 
 #[cfg(test)]
