@@ -27,11 +27,29 @@
 //!   generation exactly as it was.
 //! - Reading stops at the first record that does not check out, then goes on
 //!   at the next sector only if that sector opens with the expected sequence
-//!   number of the same generation. After a restore, and after any failed
+//!   number of the same generation (or a lower one: see the next section).
+//!   After a restore, and after any failed
 //!   write, appending resumes at the next sector (the current one is
 //!   *sealed*): a byte that a torn write may have touched is never written
 //!   again before an erase, and no intact record ever follows a damaged one
 //!   within a sector.
+//!
+//! # Dropping a tail
+//!
+//! A reader that finds a record it cannot use (a CRC-valid record that breaks
+//! its grammar) keeps the records before it with [`Log::truncate`]: the
+//! sectors after the one holding the last kept record are erased, last
+//! first, and that sector is sealed, so the next record opens the following
+//! sector with the sequence number of the first dropped one. The rule that
+//! makes this durable: **a sector that opens with record `j` of the
+//! generation voids the records numbered `j` and up in the sector before
+//! it.** Normally `j` is one past that sector's last record and voids
+//! nothing. The drop is complete once a record follows; a cut before that
+//! leaves the unusable record in place, and the next boot drops it again. A
+//! cut while erasing leaves a shorter run of the same records (sectors are
+//! erased last first, so none is left beyond a gap). The same rule makes a
+//! write that failed yet landed harmless: its retry opens the next sector
+//! with the same number and voids it.
 //!
 //! # Generation numbers never wrap into the past
 //!
@@ -145,6 +163,12 @@ pub struct Cursor {
     offset: u32,
     /// Records read; the next one's sequence number.
     records: u32,
+    /// Records of this sector from this number on are void
+    /// ([`Log::void_from`]), read when the sector was entered ...
+    void_from: u32,
+    /// ... while the live generation held this many records (an append may
+    /// since have opened the next sector).
+    void_checked: u32,
 }
 
 impl Cursor {
@@ -153,6 +177,8 @@ impl Cursor {
         sector: 0,
         offset: 0,
         records: 0,
+        void_from: 0,
+        void_checked: 0,
     };
 
     /// Records before this position.
@@ -330,18 +356,36 @@ impl<F: NorFlash> Log<F> {
             }
         }
         self.live = match head {
-            Some((generation, head)) => Some(self.walk(generation, head, &mut |_, _| {})?),
+            Some((generation, head)) => {
+                Some(self.walk(generation, head, u32::MAX, &mut |_, _| {})?)
+            }
             None => None,
         };
         Ok(())
     }
 
-    /// Follows generation `generation` from sector `head`, handing each
-    /// payload to `visit`; returns its extent, sealed.
+    /// The sequence number from which the records of `sector`, the `used`-th
+    /// sector of generation `generation`, are void: the number of the record
+    /// that opens the next sector if that one can belong to the generation
+    /// and does, else none (`u32::MAX`). See "Dropping a tail". Record 0
+    /// voids nothing: it opens a generation, and no tail drop writes it.
+    fn void_from(&mut self, generation: u32, sector: u32, used: u32) -> Result<u32, LogError> {
+        if used.saturating_add(1) >= self.sectors {
+            return Ok(u32::MAX);
+        }
+        let next = self.read_record(sector.wrapping_add(1), 0)?;
+        Ok(next
+            .filter(|h| h.generation == generation && h.seq > 0)
+            .map_or(u32::MAX, |h| h.seq))
+    }
+
+    /// Follows generation `generation` from sector `head`, handing each of
+    /// its first `limit` payloads to `visit`; returns its extent, sealed.
     fn walk(
         &mut self,
         generation: u32,
         head: u32,
+        limit: u32,
         visit: &mut dyn FnMut(u32, &[u8]),
     ) -> Result<Live, LogError> {
         let mut live = Live {
@@ -353,11 +397,15 @@ impl<F: NorFlash> Log<F> {
         };
         let sector_len = self.sector_len();
         let mut offset = 0u32;
-        loop {
+        let mut void_from = u32::MAX;
+        while live.records < limit {
             let sector = head + live.sectors - 1;
-            let found = self
-                .read_record(sector, offset)?
-                .filter(|h| h.generation == generation && h.seq == live.records);
+            if offset == 0 {
+                void_from = self.void_from(generation, sector, live.sectors)?;
+            }
+            let found = self.read_record(sector, offset)?.filter(|h| {
+                h.generation == generation && h.seq == live.records && h.seq < void_from
+            });
             match found {
                 Some(h) => {
                     let at = self.position(sector, offset);
@@ -386,6 +434,7 @@ impl<F: NorFlash> Log<F> {
             live.sectors += 1;
             offset = 0;
         }
+        Ok(live)
     }
 
     /// Where record `offset` bytes into `sector` (counted from the range's
@@ -400,7 +449,7 @@ impl<F: NorFlash> Log<F> {
         let Some(live) = self.live else {
             return Ok(0);
         };
-        let again = self.walk(live.generation, live.head, visit)?;
+        let again = self.walk(live.generation, live.head, live.records, visit)?;
         Ok(again.records)
     }
 
@@ -496,9 +545,15 @@ impl<F: NorFlash> Log<F> {
         let sector_len = self.sector_len();
         while cursor.records < live.records && cursor.sector < live.sectors {
             let sector = live.head + cursor.sector;
-            let found = self
-                .read_record(sector, cursor.offset)?
-                .filter(|h| h.generation == live.generation && h.seq == cursor.records);
+            if cursor.offset == 0 || cursor.void_checked != live.records {
+                cursor.void_from = self.void_from(live.generation, sector, cursor.sector + 1)?;
+                cursor.void_checked = live.records;
+            }
+            let found = self.read_record(sector, cursor.offset)?.filter(|h| {
+                h.generation == live.generation
+                    && h.seq == cursor.records
+                    && h.seq < cursor.void_from
+            });
             let Some(h) = found else {
                 // The rest of this sector is not the generation's: on to the next.
                 cursor.sector += 1;
@@ -516,6 +571,50 @@ impl<F: NorFlash> Log<F> {
             return payload.map(|p| Some((at, p))).ok_or(LogError::NoRecord);
         }
         Ok(None)
+    }
+
+    /// Keeps the first `keep` records of the live generation and drops the
+    /// rest (see "Dropping a tail"): the sectors after the one that holds
+    /// record `keep - 1` are erased, last first, and that one is sealed, so
+    /// that the next record, numbered `keep`, opens the following sector and
+    /// voids what follows the kept records there. Dropping nothing is a
+    /// no-op; `keep` 0 (nothing to keep: start a new generation instead) and
+    /// more records than there are are [`LogError::NoRecord`]. On a flash
+    /// error the log is read again from the flash.
+    pub fn truncate(&mut self, keep: u32) -> Result<(), LogError> {
+        let live = self.live.ok_or(LogError::NotStarted)?;
+        if keep == 0 || keep > live.records {
+            return Err(LogError::NoRecord);
+        }
+        if keep == live.records {
+            return Ok(());
+        }
+        let mut cursor = Cursor::START;
+        for _ in 0..keep {
+            self.next(&mut cursor)?.ok_or(LogError::NoRecord)?;
+        }
+        // The cursor is where record `keep` would be read: in the sector of
+        // the last kept record, or at the start of the next one when that
+        // record filled its sector (a sector holding dropped records only).
+        let kept_sectors = if cursor.offset == 0 {
+            cursor.sector
+        } else {
+            cursor.sector + 1
+        };
+        for s in (kept_sectors..live.sectors).rev() {
+            let at = self.sector_offset(live.head + s);
+            if let Err(e) = self.flash.erase(at, at + self.sector_len()) {
+                self.scan()?;
+                return Err(flash_err(e));
+            }
+        }
+        self.live = Some(Live {
+            sectors: kept_sectors,
+            records: keep,
+            offset: None,
+            ..live
+        });
+        Ok(())
     }
 
     /// Bytes the live generation occupies (whole sectors), and the most one
@@ -602,13 +701,15 @@ mod tests {
     use super::*;
     use crate::persist::sim::{SimFlash, Tear};
     use std::format;
+    use std::vec;
     use std::vec::Vec;
 
     const SECTORS: usize = 4;
-    const END: u32 = (SECTORS * SimFlash::SECTOR) as u32;
 
+    /// The log over the whole of `flash`.
     fn open(flash: SimFlash) -> Log<SimFlash> {
-        Log::open(flash, 0, END).unwrap()
+        let end = flash.bytes().len() as u32;
+        Log::open(flash, 0, end).unwrap()
     }
 
     /// Every payload of the live generation.
@@ -755,5 +856,157 @@ mod tests {
         log.start(b"new").unwrap();
         let (_, found) = reboot(log);
         assert_eq!(found, owned(&[b"new"]));
+    }
+
+    /// Records of many sizes written through the log over three sectors
+    /// of six (a drop costs the rest of a sector), the first filled exactly
+    /// (four records of 1,024 bytes).
+    fn three_sectors() -> (SimFlash, Vec<Vec<u8>>) {
+        let sizes = [
+            1004, 1004, 1004, 1004, 300, 17, 900, 1000, 1004, 60, 8, 500, 700, 1004,
+        ];
+        let mut log = open(SimFlash::new(6));
+        let mut written = Vec::new();
+        for (i, &n) in sizes.iter().enumerate() {
+            let p = vec![i as u8; n];
+            match i {
+                0 => log.start(&p).unwrap(),
+                _ => drop(log.append(&p).unwrap()),
+            }
+            written.push(p);
+        }
+        assert_eq!(log.sectors_used(), 3);
+        (log.into_flash(), written)
+    }
+
+    /// Every payload from `Cursor::START` on, read with [`Log::next`].
+    fn read_all(log: &mut Log<SimFlash>) -> Vec<Vec<u8>> {
+        let mut cursor = Cursor::START;
+        let mut out = Vec::new();
+        while let Some((_, p)) = log.next(&mut cursor).unwrap() {
+            out.push(p.to_vec());
+        }
+        out
+    }
+
+    fn with(prefix: &[Vec<u8>], more: &[&[u8]]) -> Vec<Vec<u8>> {
+        prefix.iter().cloned().chain(owned(more)).collect()
+    }
+
+    #[test]
+    fn truncate_keeps_every_prefix_and_the_log_goes_on_after_it() {
+        let (flash, written) = three_sectors();
+        for keep in 1..=written.len() {
+            let ctx = format!("keep {keep}");
+            let mut log = open(flash.clone());
+            log.truncate(keep as u32).unwrap();
+            let kept = &written[..keep];
+            assert_eq!(log.records(), keep as u32, "{ctx}");
+            assert_eq!(payloads(&mut log), kept, "{ctx}");
+            assert_eq!(read_all(&mut log), kept, "{ctx}");
+            // A cursor that read the kept records before the next append
+            // does not read on into the dropped ones after it.
+            let mut cursor = Cursor::START;
+            for _ in 0..keep {
+                log.next(&mut cursor).unwrap().unwrap();
+            }
+            log.append(b"after").unwrap();
+            let next = log.next(&mut cursor).unwrap().map(|(_, p)| p.to_vec());
+            assert_eq!(next, Some(b"after".to_vec()), "{ctx}");
+            log.append(b"more").unwrap();
+            let expected = with(kept, &[b"after", b"more"]);
+            assert_eq!(read_all(&mut log), expected, "{ctx}");
+            let (mut log, found) = reboot(log);
+            assert_eq!(found, expected, "{ctx}");
+            assert_eq!(read_all(&mut log), expected, "{ctx}");
+            // Dropping again, inside what was kept, works the same way.
+            if keep > 1 {
+                log.truncate(keep as u32 - 1).unwrap();
+                log.append(b"again").unwrap();
+                let (_, found) = reboot(log);
+                assert_eq!(found, with(&written[..keep - 1], &[b"again"]), "{ctx}");
+            }
+        }
+    }
+
+    #[test]
+    fn truncate_refuses_nothing_to_keep_and_past_the_end() {
+        let (flash, written) = three_sectors();
+        let n = written.len() as u32;
+        let mut log = open(flash);
+        assert_eq!(log.truncate(0), Err(LogError::NoRecord));
+        assert_eq!(log.truncate(n + 1), Err(LogError::NoRecord));
+        let steps = log.flash().steps();
+        log.truncate(n).unwrap();
+        assert_eq!(
+            log.flash().steps(),
+            steps,
+            "dropping nothing writes nothing"
+        );
+        log.append(b"after").unwrap();
+        let (_, found) = reboot(log);
+        assert_eq!(found, with(&written, &[b"after"]));
+        let mut empty = open(SimFlash::new(SECTORS));
+        assert_eq!(empty.truncate(1), Err(LogError::NotStarted));
+    }
+
+    #[test]
+    fn a_power_cut_at_every_step_of_a_truncate_keeps_the_prefix() {
+        let (flash, written) = three_sectors();
+        let mut cuts = 0;
+        for keep in 1..written.len() {
+            let kept = &written[..keep];
+            for step in 0.. {
+                let mut done = false;
+                for tear in [Tear::Before, Tear::Half, Tear::After] {
+                    let ctx = format!("keep {keep}, cut at step {step} ({tear:?})");
+                    let mut cut = flash.clone();
+                    cut.cut_at(cut.steps() + step, tear);
+                    let mut log = open(cut);
+                    let _ = log.truncate(keep as u32).and_then(|_| log.append(b"after"));
+                    let off = log.flash().is_off();
+                    log.flash().power_on();
+                    let (mut log, found) = reboot(log);
+                    // The records before the drop are all there; after them
+                    // either the new record or some of the old ones.
+                    let whole = with(kept, &[b"after"]);
+                    let old_prefix = found.len() >= keep && written.starts_with(&found);
+                    assert!(found == whole || old_prefix, "{ctx}: {} found", found.len());
+                    // The way out: drop again (if the old records are
+                    // still there) and go on.
+                    if found != whole {
+                        log.truncate(keep as u32).unwrap();
+                        log.append(b"after").unwrap();
+                    }
+                    log.append(b"more").unwrap();
+                    let (_, found) = reboot(log);
+                    assert_eq!(found, with(kept, &[b"after", b"more"]), "{ctx}");
+                    cuts += u32::from(off);
+                    done |= !off;
+                }
+                if done {
+                    break;
+                }
+            }
+        }
+        // Erases of the dropped sectors and the append's erase and write.
+        assert!(cuts >= 3 * 2 * (written.len() as u32 - 1), "{cuts} cuts");
+    }
+
+    #[test]
+    fn a_write_that_failed_yet_landed_is_voided_by_its_retry() {
+        let mut log = open(SimFlash::new(SECTORS));
+        log.start(b"first").unwrap();
+        let step = log.flash().steps();
+        log.flash().cut_at(step, Tear::After);
+        assert!(log.append(b"landed").is_err());
+        log.flash().power_on();
+        // The retry opens the next sector with the same number.
+        log.append(b"landed").unwrap();
+        log.append(b"next").unwrap();
+        let (mut log, found) = reboot(log);
+        let all = owned(&[b"first", b"landed", b"next"]);
+        assert_eq!(found, all);
+        assert_eq!(read_all(&mut log), all);
     }
 }
