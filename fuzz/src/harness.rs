@@ -1022,6 +1022,17 @@ fn restore_image(flash: SimFlash, r: &mut Reader<'_>) {
             RecordKind::Label { .. } => assert_eq!(rec.frame as usize, i - db, "{rec:?}"),
         }
     }
+    // A second boot on the same flash restores the same scan: a tail that
+    // was dropped is gone (no `TAIL_DROPPED` then), or is dropped again.
+    let mut log = open_log(log.into_flash());
+    let mut twice = Box::new(FuzzDevice::new());
+    assert_eq!(twice.restore(&mut log), restored);
+    let dropped = |s: Status| Status {
+        degradation: s.degradation | degradation::TAIL_DROPPED,
+        ..s
+    };
+    assert_eq!(dropped(twice.status()), dropped(st));
+    assert_eq!(export_of(&mut twice, &mut log), records);
 
     // The device goes on: Reset, a new scan, and that is what comes back
     // (not an older generation that outranks it).

@@ -921,6 +921,13 @@ pub fn stream_cmd(
             st.stored_records
         );
     }
+    if st.degradation & placedb::protocol::degradation::TAIL_DROPPED != 0 {
+        println!(
+            "  WARNING: at boot the device found records in its flash log that no scan can \
+             hold (damaged flash) and dropped them with everything after them; the scan went \
+             on from the last good record"
+        );
+    }
     if let Some(k) = report.log_full_at {
         println!(
             "  the device's flash log is full: frames {k}..{} were not scanned; the scan \

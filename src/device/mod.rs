@@ -162,6 +162,8 @@ struct Core<
     storage_failed: bool,
     /// The scan came back from the log at boot.
     restored: bool,
+    /// Records after the restored scan were dropped at boot.
+    tail_dropped: bool,
 }
 
 /// Most decisions one selection step makes: a full window and the Pending
@@ -231,6 +233,7 @@ impl<
                 flash: (0, 0),
                 storage_failed: false,
                 restored: false,
+                tail_dropped: false,
             },
         }
     }
@@ -295,9 +298,41 @@ impl<
 
     /// Rebuilds the scan kept in `log` (at boot): configuration, database,
     /// labels, finished flag. Returns the records replayed; the host resumes
-    /// with frame `status().frames_seen`. On failure the device is reset
-    /// (the log is left as it is; the next Hello starts over).
+    /// with frame `status().frames_seen`.
+    ///
+    /// A record that breaks the record grammar or contradicts the records
+    /// before it ([`RestoreFailure::unusable_record`]) ends the scan there:
+    /// the records before it are kept, the rest are dropped from the log
+    /// ([`Log::truncate`]), the scan is restored from what is kept and the
+    /// status carries [`degradation::TAIL_DROPPED`]. Otherwise (the first
+    /// record is unusable, the log cannot be read, a record needs more than
+    /// this device has, or the drop fails) the device is reset and the
+    /// failure returned; the log is then left as it is and the next Hello
+    /// starts over.
     pub fn restore<F: embedded_storage::nor_flash::NorFlash>(
+        &mut self,
+        log: &mut Log<F>,
+    ) -> Result<u32, RestoreFailure> {
+        match self.replay(log) {
+            Err(failure) => {
+                let keep = failure
+                    .unusable_record()
+                    .filter(|&n| n > 0)
+                    .ok_or(failure)?;
+                log.truncate(keep).map_err(|_| failure)?;
+                // The same records again, now only the ones kept: the first
+                // pass may have applied part of the unusable one.
+                let records = self.replay(log)?;
+                self.core.tail_dropped = true;
+                Ok(records)
+            }
+            restored => restored,
+        }
+    }
+
+    /// Replays the live generation of `log` into a reset device; on failure
+    /// the device is reset again.
+    fn replay<F: embedded_storage::nor_flash::NorFlash>(
         &mut self,
         log: &mut Log<F>,
     ) -> Result<u32, RestoreFailure> {
@@ -412,6 +447,7 @@ impl<
         self.stored = 0;
         self.storage_failed = false;
         self.restored = false;
+        self.tail_dropped = false;
     }
 
     fn phase(&self) -> Phase {
@@ -466,7 +502,8 @@ impl<
         let flag = |on: bool, bit: u32| if on { bit } else { 0 };
         let device_flags = flag(self.decisions.dropped > 0, degradation::LABELS_FULL)
             | flag(self.storage_failed, degradation::STORAGE_FAILED)
-            | flag(self.restored, degradation::RESTORED);
+            | flag(self.restored, degradation::RESTORED)
+            | flag(self.tail_dropped, degradation::TAIL_DROPPED);
         Status {
             seq,
             phase: self.phase(),

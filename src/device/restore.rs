@@ -2,11 +2,14 @@
 //! generation replayed in order, each checked against the record grammar
 //!
 //! ```text
-//! log := Cleared | Begin (Database | Decisions)* Finished?
+//! log := Cleared | Begin (Keys | Database | Decisions)* Finished?
 //! ```
 //!
 //! and against the state before it (the selector refuses a decision for a
-//! frame out of order, or naming a frame not in the database).
+//! frame out of order, or naming a frame not in the database). Every prefix
+//! of a valid log is valid (a power cut ends the log anywhere), so the
+//! records before the first that fails are a scan to go on from: the device
+//! keeps them and drops the rest ([`super::Device::restore`]).
 
 use crate::persist::{LogError, Record};
 use crate::select::{DbSnapshot, RestoreError};
@@ -37,6 +40,27 @@ pub enum RestoreFailure {
         /// Its position in the log.
         record: u32,
     },
+}
+
+impl RestoreFailure {
+    /// The record from which the log is unusable to any device: one that
+    /// does not decode, breaks the grammar or contradicts the records before
+    /// it. `None` when the flash could not be read, or when the record needs
+    /// a capacity or configuration this device lacks (firmware built for
+    /// it may still read the log, so it is not dropped).
+    pub fn unusable_record(&self) -> Option<u32> {
+        match *self {
+            RestoreFailure::Log(_)
+            | RestoreFailure::BadConfig { .. }
+            | RestoreFailure::Refused {
+                error: RestoreError::DatabaseFull,
+                ..
+            } => None,
+            RestoreFailure::Malformed { record } | RestoreFailure::Refused { record, .. } => {
+                Some(record)
+            }
+        }
+    }
 }
 
 /// Where the replay is: its place in the record grammar, and the key bytes

@@ -12,6 +12,7 @@ use crate::protocol::{
 use crate::select::SelectorConfig;
 use crate::{ScanConfig, VoxelGrid};
 use proptest::prelude::*;
+use std::format;
 use std::vec;
 use std::vec::Vec;
 
@@ -798,4 +799,157 @@ proptest! {
         prop_assert!(same);
         prop_assert_eq!(errors, junk_frames);
     }
+}
+
+/// CRC-valid records that no device can use after the first record of a
+/// scan: each breaks the record grammar or contradicts the records before it.
+fn unusable_records(cfg: Config) -> Vec<(&'static str, Vec<u8>)> {
+    use crate::persist::Record;
+    let mut buf = [0u8; 512];
+    let mut encoded = |r: Record| r.encode(&mut buf).unwrap().to_vec();
+    let begin = encoded(Record::Begin(cfg));
+    let cleared = encoded(Record::Cleared);
+    let decisions = Record::encode_decisions(1000, &[(0.0, DecisionKind::Taken)], &mut buf)
+        .unwrap()
+        .to_vec();
+    vec![
+        ("a second Begin", begin),
+        ("Cleared inside a scan", cleared),
+        ("bytes that are no record", vec![0xFF; 9]),
+        ("decisions out of order", decisions),
+    ]
+}
+
+#[test]
+fn an_unusable_record_drops_the_tail_and_the_scan_goes_on_from_before_it() {
+    on_big_stack(|| {
+        use crate::persist::Record;
+        let cfg = config(4);
+        let n = 24;
+        let mut cases = unusable_records(cfg);
+        cases.push(("Finished, then more", {
+            let mut buf = [0u8; 16];
+            Record::Finished.encode(&mut buf).unwrap().to_vec()
+        }));
+        let mut dropped = 0;
+        for streamed in [1, 4, 9, 13, 20] {
+            for (name, bad) in &cases {
+                let ctx = format!("{name} after frame {streamed}");
+                let finished = name.starts_with("Finished");
+                let mut b = bench::<Small>();
+                b.ok(HostMessage::Hello(cfg));
+                for i in 0..streamed {
+                    frame(&mut b, i, 5);
+                }
+                // The reference: the log as it was before the record, and
+                // with `Finished`, which may end a scan, the record too.
+                let mut before = b.log.take().unwrap();
+                if finished {
+                    before.append(bad).unwrap();
+                }
+                let reference_flash = before.flash().clone();
+                if !finished {
+                    before.append(bad).unwrap();
+                }
+                b.log = Some(before);
+                // The device writes on after it, not knowing.
+                for i in streamed..n {
+                    frame(&mut b, i, 5);
+                }
+                let (mut damaged, restored) = Harness::<Small>::boot(b.into_flash());
+                let (mut reference, expected) = Harness::<Small>::boot(reference_flash);
+                assert!(expected.is_ok(), "{ctx}: {expected:?}");
+                assert_eq!(restored, expected, "{ctx}");
+                let (got, want) = (damaged.status(), reference.status());
+                assert_eq!(
+                    got.degradation,
+                    want.degradation | degradation::TAIL_DROPPED
+                );
+                let state =
+                    |s: &Status| (s.phase, s.frames_seen, s.frames_decided, s.database_size);
+                assert_eq!(state(&got), state(&want), "{ctx}");
+                assert_eq!(got.stored_records, want.stored_records, "{ctx}");
+                assert_eq!(damaged.export(), reference.export(), "{ctx}");
+                // Both go on the same way to the end of the scan.
+                for h in [&mut damaged, &mut reference] {
+                    h.ok(HostMessage::Hello(cfg));
+                    let from = h.status().frames_seen;
+                    if !finished {
+                        for i in from..n {
+                            frame(h, i, 5);
+                        }
+                    }
+                    h.ok(HostMessage::Finish);
+                }
+                let export = reference.export();
+                assert_eq!(damaged.export(), export, "{ctx}");
+                // The drop is complete once a record follows the kept ones:
+                // then the next boot finds nothing to drop. (A finished scan
+                // writes nothing more: a boot drops again what is left of
+                // the tail in the last kept record's sector.)
+                let (mut again, restored) = Harness::<Small>::boot(damaged.into_flash());
+                assert!(restored.is_ok(), "{ctx}: {restored:?}");
+                if !finished {
+                    let flag = again.status().degradation & degradation::TAIL_DROPPED;
+                    assert_eq!(flag, 0, "{ctx}");
+                }
+                assert_eq!(again.export(), export, "{ctx}");
+                dropped += 1;
+            }
+        }
+        assert_eq!(dropped, 25);
+    });
+}
+
+#[test]
+fn a_log_unusable_from_its_first_record_is_refused_whole_and_left_as_it_is() {
+    on_big_stack(|| {
+        use crate::persist::Record;
+        let mut cases = unusable_records(config(4));
+        // Begin and Cleared are what a log opens with.
+        cases.retain(|(name, _)| {
+            !name.starts_with("a second Begin") && !name.starts_with("Cleared")
+        });
+        let mut buf = [0u8; 16];
+        let finished = Record::Finished.encode(&mut buf).unwrap().to_vec();
+        cases.push(("Finished first", finished));
+        for (name, bad) in &cases {
+            let mut log = Log::open(
+                SimFlash::new(BENCH_SECTORS),
+                0,
+                (BENCH_SECTORS * SimFlash::SECTOR) as u32,
+            )
+            .unwrap();
+            log.start(bad).unwrap();
+            log.append(&config_record()).unwrap();
+            let flash = log.into_flash();
+            let (mut b, restored) = Harness::<Small>::boot(flash.clone());
+            assert_eq!(
+                restored,
+                Err(RestoreFailure::Malformed { record: 0 }),
+                "{name}"
+            );
+            assert_eq!(b.status().phase, Phase::Unconfigured, "{name}");
+            assert_eq!(
+                b.flash().bytes(),
+                flash.bytes(),
+                "{name}: the flash is left as it is"
+            );
+            // The next Hello starts a new scan.
+            b.ok(HostMessage::Hello(config(4)));
+            frame(&mut b, 0, 5);
+            let (mut again, restored) = Harness::<Small>::boot(b.into_flash());
+            assert!(restored.is_ok(), "{name}: {restored:?}");
+            assert_eq!(again.status().phase, Phase::Ready, "{name}");
+        }
+    });
+}
+
+/// A `Begin` record of the tests' configuration.
+fn config_record() -> Vec<u8> {
+    let mut buf = [0u8; 512];
+    crate::persist::Record::Begin(config(4))
+        .encode(&mut buf)
+        .unwrap()
+        .to_vec()
 }

@@ -476,6 +476,11 @@ pub mod degradation {
     /// The scan was restored from flash at boot; the restored database
     /// frames are compared by sketch (their exact keys are not stored).
     pub const RESTORED: u32 = 1 << 10;
+    /// The log held records after the restored scan that broke the record
+    /// grammar or did not fit the state before them (damaged or adversarial
+    /// flash): they were dropped at boot, and the scan goes on from the last
+    /// good record.
+    pub const TAIL_DROPPED: u32 = 1 << 11;
 }
 
 /// Cost of frames on the device, measured with a board clock (all zero when

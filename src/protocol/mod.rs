@@ -100,7 +100,8 @@ pub use messages::{
 ///   `HostMessage::FrameAbort`.
 /// - 4: the database lives in flash: capacity slots `Resident` and `Flash`;
 ///   final decisions are sent once durable (in batches, with a flash log).
-/// - 5: `FrameCost::core`, the core's share of the frame cost.
+/// - 5: `FrameCost::core`, the core's share of the frame cost; degradation
+///   `TAIL_DROPPED` (a new bit, no change of encoding).
 pub const PROTOCOL_VERSION: u16 = 5;
 
 /// Largest encoded frame (delimiter included) of any [`DeviceMessage`] but a

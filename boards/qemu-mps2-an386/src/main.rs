@@ -33,7 +33,7 @@ use cortex_m_semihosting::{debug, hprintln};
 use embedded_io::{Read, Write};
 use placedb::device::Device512K;
 use placedb::persist::Log;
-use placedb::protocol::{Phase, MAX_FRAME_LEN, PROTOCOL_VERSION};
+use placedb::protocol::{degradation, Phase, MAX_FRAME_LEN, PROTOCOL_VERSION};
 
 /// Bytes read from the transport per call (the UART returns what it has).
 const RX_CHUNK: usize = 64;
@@ -170,6 +170,9 @@ fn main() -> ! {
                 log.sectors_used(),
                 log.sector_count()
             );
+            if st.degradation & degradation::TAIL_DROPPED != 0 {
+                hprintln!("records after those were unusable and were dropped");
+            }
         }
         Err(e) => hprintln!("nothing restored ({:?}): starting empty", e),
     }
