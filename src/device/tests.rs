@@ -831,6 +831,8 @@ fn an_unusable_record_drops_the_tail_and_the_scan_goes_on_from_before_it() {
             let mut buf = [0u8; 16];
             Record::Finished.encode(&mut buf).unwrap().to_vec()
         }));
+        // Filled in from the log: its first database frame, again.
+        cases.push(("a database frame again", Vec::new()));
         let mut dropped = 0;
         for streamed in [1, 4, 9, 13, 20] {
             for (name, bad) in &cases {
@@ -844,6 +846,24 @@ fn an_unusable_record_drops_the_tail_and_the_scan_goes_on_from_before_it() {
                 // The reference: the log as it was before the record, and
                 // with `Finished`, which may end a scan, the record too.
                 let mut before = b.log.take().unwrap();
+                let mut bad = bad.clone();
+                if bad.is_empty() {
+                    let mut database = Vec::new();
+                    before
+                        .replay(&mut |_, p| {
+                            let is_db =
+                                matches!(Record::decode(p), Ok((Record::Database { .. }, _)));
+                            if is_db && database.is_empty() {
+                                database = p.to_vec();
+                            }
+                        })
+                        .unwrap();
+                    if database.is_empty() {
+                        continue; // no database frame yet
+                    }
+                    bad = database;
+                }
+                let bad = &bad;
                 if finished {
                     before.append(bad).unwrap();
                 }
@@ -897,7 +917,35 @@ fn an_unusable_record_drops_the_tail_and_the_scan_goes_on_from_before_it() {
                 dropped += 1;
             }
         }
-        assert_eq!(dropped, 25);
+        // Frame 0 is still in the window after one frame: no database
+        // frame to repeat then.
+        assert_eq!(dropped, 29);
+    });
+}
+
+#[test]
+fn nothing_may_follow_cleared() {
+    on_big_stack(|| {
+        let mut buf = [0u8; 16];
+        let cleared = crate::persist::Record::Cleared
+            .encode(&mut buf)
+            .unwrap()
+            .to_vec();
+        let end = (BENCH_SECTORS * SimFlash::SECTOR) as u32;
+        let mut log = Log::open(SimFlash::new(BENCH_SECTORS), 0, end).unwrap();
+        log.start(&cleared).unwrap();
+        log.append(&config_record()).unwrap();
+        let (mut b, restored) = Harness::<Small>::boot(log.into_flash());
+        assert_eq!(restored, Ok(1));
+        let st = b.status();
+        assert_eq!(st.phase, Phase::Unconfigured);
+        assert_eq!(st.degradation, degradation::TAIL_DROPPED);
+        // A Hello starts a scan as on a blank device.
+        b.ok(HostMessage::Hello(config(4)));
+        frame(&mut b, 0, 5);
+        let (mut again, restored) = Harness::<Small>::boot(b.into_flash());
+        assert!(restored.is_ok(), "{restored:?}");
+        assert_eq!(again.status().degradation, degradation::RESTORED);
     });
 }
 
@@ -913,6 +961,15 @@ fn a_log_unusable_from_its_first_record_is_refused_whole_and_left_as_it_is() {
         let mut buf = [0u8; 16];
         let finished = Record::Finished.encode(&mut buf).unwrap().to_vec();
         cases.push(("Finished first", finished));
+        let mut buf = [0u8; 512];
+        let meta = FrameMeta {
+            index: 0,
+            timestamp: 0.0,
+            pose: pose(0),
+        };
+        let keys = crate::persist::record::KeyChunks::NONE;
+        let database = Record::encode_database(meta, 1, None, &[7], keys, &mut buf).unwrap();
+        cases.push(("a database frame first", database.to_vec()));
         for (name, bad) in &cases {
             let mut log = Log::open(
                 SimFlash::new(BENCH_SECTORS),
