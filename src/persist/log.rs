@@ -38,12 +38,13 @@
 //!
 //! A reader that finds a record it cannot use (a CRC-valid record that breaks
 //! its grammar) keeps the records before it with [`Log::truncate`]: the
-//! sectors after the one holding the last kept record are erased, last
+//! sectors after the one holding the first dropped record are erased, last
 //! first, and that sector is sealed, so the next record opens the following
 //! sector with the sequence number of the first dropped one. The rule that
 //! makes this durable: **a sector that opens with record `j` of the
 //! generation voids the records numbered `j` and up in the sector before
-//! it.** Normally `j` is one past that sector's last record and voids
+//! it** (all of them, when that one opens with `j` too: the run goes on
+//! through it). Normally `j` is one past that sector's last record and voids
 //! nothing. The drop is complete once a record follows; a cut before that
 //! leaves the unusable record in place, and the next boot drops it again. A
 //! cut while erasing leaves a shorter run of the same records (sectors are
@@ -403,11 +404,11 @@ impl<F: NorFlash> Log<F> {
             if offset == 0 {
                 void_from = self.void_from(generation, sector, live.sectors)?;
             }
-            let found = self.read_record(sector, offset)?.filter(|h| {
-                h.generation == generation && h.seq == live.records && h.seq < void_from
-            });
+            let found = self
+                .read_record(sector, offset)?
+                .filter(|h| h.generation == generation && h.seq == live.records);
             match found {
-                Some(h) => {
+                Some(h) if h.seq < void_from => {
                     let at = self.position(sector, offset);
                     visit(
                         at,
@@ -421,6 +422,9 @@ impl<F: NorFlash> Log<F> {
                         continue;
                     }
                 }
+                // Void from here on (the whole sector, when a drop kept
+                // none of it): the next sector goes on with this number.
+                Some(_) => {}
                 None if offset == 0 => {
                     // This sector does not continue the generation.
                     live.sectors -= 1;
@@ -575,12 +579,15 @@ impl<F: NorFlash> Log<F> {
 
     /// Keeps the first `keep` records of the live generation and drops the
     /// rest (see "Dropping a tail"): the sectors after the one that holds
-    /// record `keep - 1` are erased, last first, and that one is sealed, so
-    /// that the next record, numbered `keep`, opens the following sector and
-    /// voids what follows the kept records there. Dropping nothing is a
-    /// no-op; `keep` 0 (nothing to keep: start a new generation instead) and
-    /// more records than there are are [`LogError::NoRecord`]. On a flash
-    /// error the log is read again from the flash.
+    /// record `keep` (the first dropped) are erased, last first, and that
+    /// one is sealed, so that the next record, numbered `keep`, opens the
+    /// following sector and voids record `keep` and what follows it there.
+    /// That sector is not erased: it may open with record `keep` after
+    /// records of the sector before it that it voids (an earlier drop, or a
+    /// write that failed yet landed), which must stay void. Dropping nothing
+    /// is a no-op; `keep` 0 (nothing to keep: start a new generation
+    /// instead) and more records than there are are [`LogError::NoRecord`].
+    /// On a flash error the log is read again from the flash.
     pub fn truncate(&mut self, keep: u32) -> Result<(), LogError> {
         let live = self.live.ok_or(LogError::NotStarted)?;
         if keep == 0 || keep > live.records {
@@ -593,14 +600,9 @@ impl<F: NorFlash> Log<F> {
         for _ in 0..keep {
             self.next(&mut cursor)?.ok_or(LogError::NoRecord)?;
         }
-        // The cursor is where record `keep` would be read: in the sector of
-        // the last kept record, or at the start of the next one when that
-        // record filled its sector (a sector holding dropped records only).
-        let kept_sectors = if cursor.offset == 0 {
-            cursor.sector
-        } else {
-            cursor.sector + 1
-        };
+        let (first_dropped, _) = self.next(&mut cursor)?.ok_or(LogError::NoRecord)?;
+        let sector = first_dropped / self.sector_len();
+        let kept_sectors = (sector + self.sectors - live.head % self.sectors) % self.sectors + 1;
         for s in (kept_sectors..live.sectors).rev() {
             let at = self.sector_offset(live.head + s);
             if let Err(e) = self.flash.erase(at, at + self.sector_len()) {
@@ -919,6 +921,18 @@ mod tests {
             let (mut log, found) = reboot(log);
             assert_eq!(found, expected, "{ctx}");
             assert_eq!(read_all(&mut log), expected, "{ctx}");
+            // Dropping at the same place again: what the first drop voided
+            // stays void, before the next record (the same records come
+            // back) and after it.
+            log.truncate(keep as u32).unwrap();
+            assert_eq!(payloads(&mut log), kept, "{ctx}");
+            let (mut log, found) = reboot(log);
+            assert_eq!(found, expected, "{ctx}");
+            log.truncate(keep as u32).unwrap();
+            log.append(b"again").unwrap();
+            let (mut log, found) = reboot(log);
+            assert_eq!(found, with(kept, &[b"again"]), "{ctx}");
+            assert_eq!(read_all(&mut log), with(kept, &[b"again"]), "{ctx}");
             // Dropping again, inside what was kept, works the same way.
             if keep > 1 {
                 log.truncate(keep as u32 - 1).unwrap();
