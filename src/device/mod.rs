@@ -43,7 +43,10 @@
 //! log has room for its worst case *and* a Finish after it, so a scan whose
 //! log fills up still ends cleanly: FrameAbort the open frame, then Finish.
 //! A failed write (not a full log) sets `STORAGE_FAILED`; the step's replies
-//! still go out but nothing more is written in this scan.
+//! still go out but nothing more is written in this scan. At boot
+//! [`Device::restore`] replays the log; records that no scan can hold
+//! (damaged flash) end it, and are dropped with everything after them
+//! (`TAIL_DROPPED`).
 //!
 //! Retransmission: the device remembers the sequence number, the message and
 //! the terminal reply of the last state-changing message it handled (Hello,
