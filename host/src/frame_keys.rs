@@ -134,13 +134,13 @@ fn frame_keys_chunked(
     img: &DepthImage,
     keys: &mut Vec<u64>,
     row_keys: &mut Vec<u64>,
-    mut kernel: impl FnMut(&[u16; CHUNK], ChunkRays, u64, &mut [u64; CHUNK]) -> ChunkCounts,
+    kernel: &mut impl FnMut(&[u16; CHUNK], ChunkRays, u64, &mut [u64; CHUNK]) -> ChunkCounts,
 ) -> (u32, u32) {
     row_keys.resize(usize::from(proj.samples_per_row()), 0);
     let (mut valid, mut out_of_range) = (0u32, 0u32);
     for v in (0..img.height).step_by(usize::from(proj.stride())) {
         let (row_valid, n) =
-            proj.project_row_with(v, img.row(v), &mut out_of_range, row_keys, &mut kernel);
+            proj.project_row_with(v, img.row(v), &mut out_of_range, row_keys, kernel);
         valid += row_valid;
         keys.extend_from_slice(&row_keys[..n]);
     }

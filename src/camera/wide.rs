@@ -109,7 +109,7 @@ impl FrameProjector {
         out_of_range: &mut u32,
         keys: &mut [u64],
     ) -> (u32, usize) {
-        self.project_row_with(v, row, out_of_range, keys, portable_chunk)
+        self.project_row_with(v, row, out_of_range, keys, &mut portable_chunk)
     }
 
     /// The keys of [`Self::project_row`], computed by `kernel` a chunk at a
@@ -128,7 +128,7 @@ impl FrameProjector {
         row: &[u16],
         out_of_range: &mut u32,
         keys: &mut [u64],
-        mut kernel: impl FnMut(&[u16; CHUNK], ChunkRays, u64, &mut [u64; CHUNK]) -> ChunkCounts,
+        kernel: &mut impl FnMut(&[u16; CHUNK], ChunkRays, u64, &mut [u64; CHUNK]) -> ChunkCounts,
     ) -> (u32, usize) {
         let mut written = 0usize;
         if self.shift != MAX_SHIFT {

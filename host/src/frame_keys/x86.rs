@@ -15,7 +15,11 @@ pub(super) fn frame_keys_avx2(
     keys: &mut Vec<u64>,
     row_keys: &mut Vec<u64>,
 ) -> (u32, u32) {
-    frame_keys_chunked(proj, img, keys, row_keys, portable_chunk)
+    // A closure, not the function itself: defined here, it is compiled
+    // with this function's features, and the kernel inlined into it.
+    let mut kernel =
+        |raws: &_, rays, previous, chunk: &mut _| portable_chunk(raws, rays, previous, chunk);
+    frame_keys_chunked(proj, img, keys, row_keys, &mut kernel)
 }
 
 #[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,popcnt,bmi1")]
@@ -25,9 +29,9 @@ pub(super) fn frame_keys_avx512(
     keys: &mut Vec<u64>,
     row_keys: &mut Vec<u64>,
 ) -> (u32, u32) {
-    frame_keys_chunked(proj, img, keys, row_keys, |raws, rays, previous, chunk| {
-        avx512_chunk(raws, rays, previous, chunk)
-    })
+    let mut kernel =
+        |raws: &_, rays, previous, chunk: &mut _| avx512_chunk(raws, rays, previous, chunk);
+    frame_keys_chunked(proj, img, keys, row_keys, &mut kernel)
 }
 
 /// [`portable_chunk`] eight samples per step: the same arithmetic on
