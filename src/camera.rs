@@ -2,12 +2,16 @@
 //!
 //! The hot loop is [`FrameProjector::project_row`]: it is the only place that turns
 //! depth pixels into world points, so the host yardstick, the online selector and
-//! the firmware all voxelize identically. Arithmetic is `f32` because a
+//! the firmware all voxelize identically. 64-bit hosts may take the chunked
+//! form of the same arithmetic in [`wide`], tested against it key for key. Arithmetic is `f32` because a
 //! Cortex-M4F has only a single-precision FPU; `f32` is exact enough for 0.3 m
 //! voxels within a few kilometres of the origin.
 
 use crate::voxel::{VoxelGrid, VoxelKey, AXIS_BIAS};
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
+
+#[cfg(target_pointer_width = "64")]
+pub mod wide;
 
 /// Why a camera or pose description was refused.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -756,6 +760,8 @@ mod tests {
                 got[n] = key.to_bits();
                 n += 1;
             });
+            #[cfg(target_pointer_width = "64")]
+            chunked_matches(&proj, v, &row, &want);
             let emitted: usize = want.iter().filter(|w| w.is_some()).count();
             assert_eq!(n, emitted, "case {case}");
             assert_eq!(valid as usize, n + oor as usize, "case {case}");
@@ -768,6 +774,29 @@ mod tests {
             outside += oor;
         }
         assert!(checked > 10_000 && outside > 1_000, "{checked} {outside}");
+    }
+
+    /// Each run of one key once.
+    #[cfg(target_pointer_width = "64")]
+    fn runs(keys: impl Iterator<Item = u64>) -> impl Iterator<Item = u64> {
+        let mut last = None;
+        keys.filter(move |&k| last.replace(k) != Some(k))
+    }
+
+    /// The chunked loop of 64-bit hosts with its portable kernel gives
+    /// `want`'s keys, some consecutive repeats dropped, and its counts.
+    #[cfg(target_pointer_width = "64")]
+    fn chunked_matches(proj: &FrameProjector, v: u16, row: &[u16], want: &[Option<u64>]) {
+        let (mut got, mut oor) = ([0u64; 640], 0);
+        let (valid, n) = proj.project_row_into(v, row, &mut oor, &mut got);
+        assert!(runs(got[..n].iter().copied()).eq(runs(want.iter().flatten().copied())));
+        let samples = want.len().min(row.len().div_ceil(proj.stride as usize));
+        let invalid = row.iter().step_by(proj.stride as usize).take(samples);
+        let invalid = invalid
+            .filter(|&&r| r < proj.raw_min || r > proj.raw_max)
+            .count();
+        assert_eq!(valid as usize, samples - invalid);
+        assert_eq!(valid as usize, want.iter().flatten().count() + oor as usize);
     }
 
     #[test]

@@ -8,6 +8,7 @@ pub mod device_cli;
 pub mod error;
 pub mod fault;
 pub mod foreground;
+pub mod frame_keys;
 pub mod graph;
 pub mod link;
 pub mod metrics;

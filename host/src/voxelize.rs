@@ -3,6 +3,7 @@
 //! would see at the same stride.
 
 use crate::error::ReadError;
+use crate::frame_keys::{frame_keys, VectorUnit};
 use crate::sequence::{DepthImage, Sequence};
 use indicatif::ProgressBar;
 use placedb::{DepthRange, FrameProjector, VoxelGrid};
@@ -107,10 +108,11 @@ pub fn voxelize_on(
     progress: Option<&ProgressBar>,
 ) -> Result<VoxelSets, VoxelizeError> {
     let k = seq.intrinsics();
+    let unit = VectorUnit::best();
     let per_frame: Vec<_> = (0..seq.frames.len())
         .into_par_iter()
-        // One image buffer per worker, reused frame after frame.
-        .map_init(DepthImage::default, |img, i| {
+        // One image and one row of keys per worker, reused frame after frame.
+        .map_init(<(DepthImage, Vec<u64>)>::default, |(img, row_keys), i| {
             let camera_err = |reason| VoxelizeError::Camera {
                 frame: i,
                 name: seq.frames[i].depth_name.clone(),
@@ -129,27 +131,10 @@ pub fn voxelize_on(
                 &pose,
             )
             .map_err(camera_err)?;
-            let mut keys = Vec::new();
-            let mut oor = 0u32;
-            let mut valid = 0u32;
             // Neighbouring pixels mostly fall in the same voxel: dropping
-            // repeats here keeps the sort below small. Branch-free: every key
-            // is written, and the end moves only past a new one (a branch
-            // on "new key" would mispredict at every voxel edge).
-            let mut row_keys = vec![0u64; usize::from(img.width) + 1];
-            let mut last = u64::MAX;
-            for v in 0..img.height {
-                let mut n = 0;
-                valid += proj.project_row(v, img.row(v), &mut oor, |key| {
-                    let bits = key.to_bits();
-                    if let Some(slot) = row_keys.get_mut(n) {
-                        *slot = bits;
-                    }
-                    n += usize::from(bits != last);
-                    last = bits;
-                });
-                keys.extend_from_slice(&row_keys[..n.min(row_keys.len())]);
-            }
+            // repeats there keeps the sort below small.
+            let mut keys = Vec::new();
+            let (valid, oor) = frame_keys(unit, &proj, img, &mut keys, row_keys);
             keys.sort_unstable();
             keys.dedup();
             keys.shrink_to_fit();
