@@ -825,8 +825,10 @@ struct BenchArgs {
     /// Internal (the callgrind child of --db-scaling): the flash image.
     #[arg(long, hide = true)]
     db_probe: Option<PathBuf>,
-    /// Runs of each child of the timing table; the row is the run of median
-    /// wall time (a single run of a half-second job moves by 10 % and more).
+    /// Rounds of the timing table, each running every row of a sequence in
+    /// turn; a row is its run of median wall time, a ratio to the floor the
+    /// median of the rounds' (a single run of a half-second job moves by
+    /// 10 % and more, and the machine's speed drifts).
     #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..))]
     repeat: u32,
     /// Internal (a child of the timing table): only decode every depth
@@ -894,38 +896,33 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
         "solve_s",
         "peak_MB"
     );
-    // Runs `placedb ARGS` in a child `--repeat` times; the run of median
-    // wall time (from spawn to exit), with the JSON it printed.
-    let timed = |args: &[String]| -> Result<(f64, serde_json::Value), Error> {
-        let mut runs = Vec::new();
-        for _ in 0..a.repeat {
-            let t = Instant::now();
-            let child = std::process::Command::new(&exe).args(args).output()?;
-            let wall = t.elapsed().as_secs_f64();
-            if !child.status.success() {
-                let err = String::from_utf8_lossy(&child.stderr);
-                return Err(format!("placedb {}: {err}", args.join(" ")).into());
-            }
-            runs.push((wall, serde_json::from_slice(&child.stdout)?));
+    // Runs `placedb ARGS` in a child: its wall time from spawn to exit, and
+    // the JSON it printed.
+    let run = |args: &[String]| -> Result<(f64, serde_json::Value), Error> {
+        let t = Instant::now();
+        let child = std::process::Command::new(&exe).args(args).output()?;
+        let wall = t.elapsed().as_secs_f64();
+        if !child.status.success() {
+            let err = String::from_utf8_lossy(&child.stderr);
+            return Err(format!("placedb {}: {err}", args.join(" ")).into());
         }
-        runs.sort_by(|x: &(f64, serde_json::Value), y| x.0.total_cmp(&y.0));
-        Ok(runs.swap_remove(runs.len() / 2))
+        Ok((wall, serde_json::from_slice(&child.stdout)?))
+    };
+    let median = |mut xs: Vec<f64>| {
+        xs.sort_by(f64::total_cmp);
+        xs.get(xs.len() / 2).copied().unwrap_or(f64::NAN)
     };
     for (name, args) in &inputs {
-        // The floor: decoding every depth image and nothing else.
-        let floor = match args.first() {
-            Some(path) if !path.starts_with("--") => {
-                let (wall, m) = timed(&["bench".into(), "--decode-only".into(), path.clone()])?;
-                let mb = m["peak_rss_mb"].as_f64().unwrap_or(f64::NAN);
-                let nan = f64::NAN;
-                println!(
-                    "{:<16} {:<11} {:>6} {:>7.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.1}",
-                    name, "decode-only", m["frames"].as_u64().unwrap_or(0), wall, nan, nan, nan, nan, nan, nan, mb
-                );
-                Some(wall)
-            }
-            _ => None,
-        };
+        // Row 0 is the floor (decoding every depth image and nothing else),
+        // where the input is a recorded sequence; then one row a solver.
+        let mut rows: Vec<(&str, Vec<String>)> = Vec::new();
+        if let Some(path) = args.first().filter(|p| !p.starts_with("--")) {
+            rows.push((
+                "decode-only",
+                vec!["bench".into(), "--decode-only".into(), path.clone()],
+            ));
+        }
+        let has_floor = !rows.is_empty();
         for solver in &a.solvers {
             let mut select: Vec<String> = vec!["select".into()];
             select.extend(args.iter().cloned());
@@ -934,12 +931,28 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
             );
             select.extend(["--json", "-q", "-o"].map(String::from));
             select.push(out.display().to_string());
-            let (wall, m) = timed(&select)?;
+            rows.push((solver.name(), select));
+        }
+        // Rounds of every row in turn, so that a drift of the machine's
+        // speed reaches the floor and the rows compared with it alike; each
+        // round starts one row later, so that no row always runs first.
+        let mut runs: Vec<Vec<(f64, serde_json::Value)>> = vec![Vec::new(); rows.len()];
+        for round in 0..a.repeat as usize {
+            for i in 0..rows.len() {
+                let r = (i + round) % rows.len();
+                runs[r].push(run(&rows[r].1)?);
+            }
+        }
+        for (r, ((row, _), row_runs)) in rows.iter().zip(&runs).enumerate() {
+            // The run of median wall time, and its figures.
+            let mut order: Vec<usize> = (0..row_runs.len()).collect();
+            order.sort_by(|&i, &j| row_runs[i].0.total_cmp(&row_runs[j].0));
+            let (wall, m) = &row_runs[order[order.len() / 2]];
             let f = |k: &str| m[k].as_f64().unwrap_or(f64::NAN);
             println!(
                 "{:<16} {:<11} {:>6} {:>7.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.1}",
                 name,
-                solver.name(),
+                row,
                 f("frames"),
                 wall,
                 f("total_s"),
@@ -950,15 +963,16 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
                 f("solve_s"),
                 f("peak_rss_mb")
             );
-            if let Some(floor) = floor {
+            if has_floor && r > 0 {
+                let ratios = row_runs.iter().zip(&runs[0]).map(|(s, d)| s.0 / d.0);
                 println!(
-                    "{:<16} {:<11} {:.2}x the decode-only wall time (target <= 1.3x)",
+                    "{:<16} {:<11} {:.2}x the decode-only wall time, median of the rounds (target <= 1.3x)",
                     "",
                     "",
-                    wall / floor
+                    median(ratios.collect())
                 );
             }
-            if name == "7scenes-1000" && a.stride == 1 && *solver == Solver::InOrder {
+            if *name == "7scenes-1000" && a.stride == 1 && *row == Solver::InOrder.name() {
                 let (s, mb) = PAPER_7SCENES;
                 println!(
                     "{:<16} {:<11} paper's code: {s} s, {mb} MB -> {:.0}x faster, {:.1}x less memory (target 100x, 10x)",
@@ -973,7 +987,7 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
     let _ = std::fs::remove_dir_all(&out);
     println!(
         "wall_s: the child process from spawn to exit (reading, voxelizing, solving, writing),\n\
-         the median of {} runs (the other columns are that run's);\n\
+         the median of {} rounds that run every row in turn (the other columns are that run's);\n\
          total_s: select's own clock, up to its outputs; * read and voxel are CPU time summed\n\
          over threads; the others are wall time",
         a.repeat
