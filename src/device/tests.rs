@@ -5,6 +5,7 @@ use super::*;
 use crate::camera::{DepthRange, Intrinsics, Pose};
 use crate::frame::FrameMeta;
 use crate::persist::sim::SimFlash;
+use crate::persist::Record;
 use crate::protocol::{encode, DepthRows, PROTOCOL_VERSION};
 use crate::protocol::{
     DecisionKind, DeviceMessage, ErrorKind, ExportRecord, HostMessage, RecordKind,
@@ -804,17 +805,13 @@ proptest! {
 /// CRC-valid records that no device can use after the first record of a
 /// scan: each breaks the record grammar or contradicts the records before it.
 fn unusable_records(cfg: Config) -> Vec<(&'static str, Vec<u8>)> {
-    use crate::persist::Record;
     let mut buf = [0u8; 512];
-    let mut encoded = |r: Record| r.encode(&mut buf).unwrap().to_vec();
-    let begin = encoded(Record::Begin(cfg));
-    let cleared = encoded(Record::Cleared);
     let decisions = Record::encode_decisions(1000, &[(0.0, DecisionKind::Taken)], &mut buf)
         .unwrap()
         .to_vec();
     vec![
-        ("a second Begin", begin),
-        ("Cleared inside a scan", cleared),
+        ("a second Begin", encoded(Record::Begin(cfg))),
+        ("Cleared inside a scan", encoded(Record::Cleared)),
         ("bytes that are no record", vec![0xFF; 9]),
         ("decisions out of order", decisions),
     ]
@@ -823,14 +820,10 @@ fn unusable_records(cfg: Config) -> Vec<(&'static str, Vec<u8>)> {
 #[test]
 fn an_unusable_record_drops_the_tail_and_the_scan_goes_on_from_before_it() {
     on_big_stack(|| {
-        use crate::persist::Record;
         let cfg = config(4);
         let n = 24;
         let mut cases = unusable_records(cfg);
-        cases.push(("Finished, then more", {
-            let mut buf = [0u8; 16];
-            Record::Finished.encode(&mut buf).unwrap().to_vec()
-        }));
+        cases.push(("Finished, then more", encoded(Record::Finished)));
         // Filled in from the log: its first database frame, again.
         cases.push(("a database frame again", Vec::new()));
         let mut dropped = 0;
@@ -926,15 +919,9 @@ fn an_unusable_record_drops_the_tail_and_the_scan_goes_on_from_before_it() {
 #[test]
 fn nothing_may_follow_cleared() {
     on_big_stack(|| {
-        let mut buf = [0u8; 16];
-        let cleared = crate::persist::Record::Cleared
-            .encode(&mut buf)
-            .unwrap()
-            .to_vec();
-        let end = (BENCH_SECTORS * SimFlash::SECTOR) as u32;
-        let mut log = Log::open(SimFlash::new(BENCH_SECTORS), 0, end).unwrap();
-        log.start(&cleared).unwrap();
-        log.append(&config_record()).unwrap();
+        let mut log = blank_log();
+        log.start(&encoded(Record::Cleared)).unwrap();
+        log.append(&encoded(Record::Begin(config(4)))).unwrap();
         let (mut b, restored) = Harness::<Small>::boot(log.into_flash());
         assert_eq!(restored, Ok(1));
         let st = b.status();
@@ -952,15 +939,12 @@ fn nothing_may_follow_cleared() {
 #[test]
 fn a_log_unusable_from_its_first_record_is_refused_whole_and_left_as_it_is() {
     on_big_stack(|| {
-        use crate::persist::Record;
         let mut cases = unusable_records(config(4));
         // Begin and Cleared are what a log opens with.
         cases.retain(|(name, _)| {
             !name.starts_with("a second Begin") && !name.starts_with("Cleared")
         });
-        let mut buf = [0u8; 16];
-        let finished = Record::Finished.encode(&mut buf).unwrap().to_vec();
-        cases.push(("Finished first", finished));
+        cases.push(("Finished first", encoded(Record::Finished)));
         let mut buf = [0u8; 512];
         let meta = FrameMeta {
             index: 0,
@@ -971,14 +955,9 @@ fn a_log_unusable_from_its_first_record_is_refused_whole_and_left_as_it_is() {
         let database = Record::encode_database(meta, 1, None, &[7], keys, &mut buf).unwrap();
         cases.push(("a database frame first", database.to_vec()));
         for (name, bad) in &cases {
-            let mut log = Log::open(
-                SimFlash::new(BENCH_SECTORS),
-                0,
-                (BENCH_SECTORS * SimFlash::SECTOR) as u32,
-            )
-            .unwrap();
+            let mut log = blank_log();
             log.start(bad).unwrap();
-            log.append(&config_record()).unwrap();
+            log.append(&encoded(Record::Begin(config(4)))).unwrap();
             let flash = log.into_flash();
             let (mut b, restored) = Harness::<Small>::boot(flash.clone());
             assert_eq!(
@@ -1002,11 +981,14 @@ fn a_log_unusable_from_its_first_record_is_refused_whole_and_left_as_it_is() {
     });
 }
 
-/// A `Begin` record of the tests' configuration.
-fn config_record() -> Vec<u8> {
+/// The payload of a record without a tail.
+fn encoded(record: Record) -> Vec<u8> {
     let mut buf = [0u8; 512];
-    crate::persist::Record::Begin(config(4))
-        .encode(&mut buf)
-        .unwrap()
-        .to_vec()
+    record.encode(&mut buf).unwrap().to_vec()
+}
+
+/// A log on a blank flash of the bench's size.
+fn blank_log() -> Log<SimFlash> {
+    let end = (BENCH_SECTORS * SimFlash::SECTOR) as u32;
+    Log::open(SimFlash::new(BENCH_SECTORS), 0, end).unwrap()
 }
