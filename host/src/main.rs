@@ -908,10 +908,12 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
         }
         Ok((wall, serde_json::from_slice(&child.stdout)?))
     };
-    let median = |mut xs: Vec<f64>| {
-        xs.sort_by(f64::total_cmp);
-        xs.get(xs.len() / 2).copied().unwrap_or(f64::NAN)
-    };
+    // The item of median `key` (the upper one of an even count).
+    fn median_by<T>(items: &[T], key: impl Fn(&T) -> f64) -> Option<&T> {
+        let mut sorted: Vec<&T> = items.iter().collect();
+        sorted.sort_by(|x, y| key(x).total_cmp(&key(y)));
+        sorted.get(sorted.len() / 2).copied()
+    }
     for (name, args) in &inputs {
         // Row 0 is the floor (decoding every depth image and nothing else),
         // where the input is a recorded sequence; then one row a solver.
@@ -944,10 +946,11 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
             }
         }
         for (r, ((row, _), row_runs)) in rows.iter().zip(&runs).enumerate() {
-            // The run of median wall time, and its figures.
-            let mut order: Vec<usize> = (0..row_runs.len()).collect();
-            order.sort_by(|&i, &j| row_runs[i].0.total_cmp(&row_runs[j].0));
-            let (wall, m) = &row_runs[order[order.len() / 2]];
+            // The run of median wall time, and its figures (`--repeat` is
+            // at least 1).
+            let Some((wall, m)) = median_by(row_runs, |run| run.0) else {
+                continue;
+            };
             let f = |k: &str| m[k].as_f64().unwrap_or(f64::NAN);
             println!(
                 "{:<16} {:<11} {:>6} {:>7.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.1}",
@@ -964,12 +967,16 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
                 f("peak_rss_mb")
             );
             if has_floor && r > 0 {
-                let ratios = row_runs.iter().zip(&runs[0]).map(|(s, d)| s.0 / d.0);
+                let ratios: Vec<f64> = row_runs
+                    .iter()
+                    .zip(&runs[0])
+                    .map(|(s, d)| s.0 / d.0)
+                    .collect();
                 println!(
                     "{:<16} {:<11} {:.2}x the decode-only wall time, median of the rounds (target <= 1.3x)",
                     "",
                     "",
-                    median(ratios.collect())
+                    median_by(&ratios, |r| *r).copied().unwrap_or(f64::NAN)
                 );
             }
             if *name == "7scenes-1000" && a.stride == 1 && *row == Solver::InOrder.name() {
