@@ -131,7 +131,9 @@ fn largest_depth_rows_fit_and_oversized_frames_are_refused() {
 
 #[test]
 fn qemu_is_killed_at_its_deadline() {
-    let qemu = Qemu::start(&firmware(), Duration::from_secs(1)).unwrap();
+    // Long enough for QEMU to connect its UART first on a loaded machine
+    // (with 1 s the deadline once struck before the connection did).
+    let qemu = Qemu::start(&firmware(), Duration::from_secs(3)).unwrap();
     let status = qemu.wait_exit(Duration::from_secs(10)).unwrap();
     assert!(
         matches!(status, Some(s) if !s.success()),
