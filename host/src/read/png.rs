@@ -322,6 +322,13 @@ fn unfilter_rows(
 ) -> Result<(), ReadError> {
     unfilter::unfilter_scanlines(scanlines, row_bytes)
         .map_err(|f| png_error(path, format!("unknown scanline filter {f}")))?;
+    write_native(scanlines, row_bytes, invalid_65535, out);
+    Ok(())
+}
+
+/// Writes unfiltered scanlines to `out` in native byte order, 65535 as 0
+/// with `invalid_65535`.
+fn write_native(scanlines: &[u8], row_bytes: usize, invalid_65535: bool, out: &mut [u16]) {
     let rows = scanlines
         .chunks_exact(row_bytes + 1)
         .zip(out.chunks_exact_mut(row_bytes / 2));
@@ -351,7 +358,6 @@ fn unfilter_rows(
             blank_invalid(out_row);
         }
     }
-    Ok(())
 }
 
 /// The `png` crate's decoder: for interlaced files, and the tests' reference.
@@ -734,6 +740,54 @@ mod tests {
         assert_eq!(src.depth(0).unwrap().data[5], 0);
         assert!(matches!(src.depth(1), Err(ReadError::Layout { .. })));
         std::fs::remove_file(&path).ok();
+    }
+
+    /// Not a check: the cost of the decoder's steps after inflating, on
+    /// recorded frames, for `perf stat -e instructions,cycles` (the
+    /// printed wall times drift with the machine's load). `PLACEDB_BENCH`
+    /// picks the work: `copy` (refilling the scanlines, which every mode
+    /// also does: subtract it), `unfilter`, or `convert` (byte swap and
+    /// 65535 blanking); `PLACEDB_BENCH_REPS` the passes over 20 frames.
+    /// `cargo test --release -p placedb-host --lib decode_step_cost -- --ignored`
+    #[test]
+    #[ignore]
+    fn decode_step_cost() {
+        let mode = std::env::var("PLACEDB_BENCH").unwrap_or_else(|_| "unfilter".into());
+        let reps: usize = std::env::var("PLACEDB_BENCH_REPS")
+            .ok()
+            .and_then(|r| r.parse().ok())
+            .unwrap_or(50);
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/7scenes-1000");
+        let mut inflater = libdeflater::Decompressor::new();
+        let frames: Vec<Vec<u8>> = (0..1000)
+            .step_by(50)
+            .map(|i| {
+                let path = dir.join(format!("frame-{i:06}.depth.png"));
+                let bytes = std::fs::read(&path).unwrap();
+                let mut zlib = Vec::new();
+                collect_image_data(&path, &bytes, &mut zlib).unwrap();
+                let mut scanlines = vec![0; 480 * 1281];
+                let n = inflate(&zlib, &mut scanlines, &mut inflater).ok().unwrap();
+                assert_eq!(n, scanlines.len());
+                scanlines
+            })
+            .collect();
+        let (mut work, mut out) = (vec![0u8; 480 * 1281], vec![0u16; 640 * 480]);
+        let start = std::time::Instant::now();
+        for _ in 0..reps {
+            for frame in &frames {
+                work.copy_from_slice(frame);
+                match mode.as_str() {
+                    "copy" => {}
+                    "unfilter" => unfilter::unfilter_scanlines(&mut work, 1280).unwrap(),
+                    "convert" => write_native(&work, 1280, true, &mut out),
+                    _ => panic!("unknown PLACEDB_BENCH {mode}"),
+                }
+                std::hint::black_box((&mut work, &mut out));
+            }
+        }
+        let per_frame = start.elapsed().as_secs_f64() * 1e6 / (reps * frames.len()) as f64;
+        println!("{mode}: {per_frame:.1} us a frame");
     }
 
     #[test]
