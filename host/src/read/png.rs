@@ -12,6 +12,7 @@
 
 use super::unfilter;
 use crate::error::ReadError;
+use crate::frame_keys::VectorUnit;
 use crate::sequence::{DepthImage, DepthSource};
 use std::cell::RefCell;
 use std::path::{Path, PathBuf};
@@ -320,7 +321,7 @@ fn unfilter_rows(
     invalid_65535: bool,
     out: &mut [u16],
 ) -> Result<(), ReadError> {
-    unfilter::unfilter_scanlines(scanlines, row_bytes)
+    unfilter::unfilter_scanlines(VectorUnit::best(), scanlines, row_bytes)
         .map_err(|f| png_error(path, format!("unknown scanline filter {f}")))?;
     write_native(scanlines, row_bytes, invalid_65535, out);
     Ok(())
@@ -743,16 +744,17 @@ mod tests {
     }
 
     /// Not a check: the cost of the decoder's steps after inflating, on
-    /// recorded frames, for `perf stat -e instructions,cycles` (the
-    /// printed wall times drift with the machine's load). `PLACEDB_BENCH`
+    /// recorded frames, as wall time a frame (compare medians of
+    /// interleaved runs: the machine's speed drifts). `PLACEDB_BENCH`
     /// picks the work: `copy` (refilling the scanlines, which every mode
-    /// also does: subtract it), `unfilter`, or `convert` (byte swap and
-    /// 65535 blanking); `PLACEDB_BENCH_REPS` the passes over 20 frames.
-    /// `cargo test --release -p placedb-host --lib decode_step_cost -- --ignored`
+    /// also does: subtract it), unfiltering with a [`VectorUnit`]
+    /// (`baseline`, `avx2`, `avx512`), or `convert` (byte swap and 65535
+    /// blanking); `PLACEDB_BENCH_REPS` the passes over 20 frames.
+    /// `PLACEDB_BENCH=avx2 cargo test --release -p placedb-host --lib decode_step_cost -- --ignored --nocapture`
     #[test]
     #[ignore]
     fn decode_step_cost() {
-        let mode = std::env::var("PLACEDB_BENCH").unwrap_or_else(|_| "unfilter".into());
+        let mode = std::env::var("PLACEDB_BENCH").unwrap_or_else(|_| "baseline".into());
         let reps: usize = std::env::var("PLACEDB_BENCH_REPS")
             .ok()
             .and_then(|r| r.parse().ok())
@@ -772,6 +774,12 @@ mod tests {
                 scanlines
             })
             .collect();
+        let unit = match mode.as_str() {
+            "avx2" => VectorUnit::Avx2,
+            "avx512" => VectorUnit::Avx512,
+            _ => VectorUnit::Baseline,
+        };
+        assert!(VectorUnit::available().contains(&unit), "{unit:?}");
         let (mut work, mut out) = (vec![0u8; 480 * 1281], vec![0u16; 640 * 480]);
         let start = std::time::Instant::now();
         for _ in 0..reps {
@@ -779,7 +787,9 @@ mod tests {
                 work.copy_from_slice(frame);
                 match mode.as_str() {
                     "copy" => {}
-                    "unfilter" => unfilter::unfilter_scanlines(&mut work, 1280).unwrap(),
+                    "baseline" | "avx2" | "avx512" => {
+                        unfilter::unfilter_scanlines(unit, &mut work, 1280).unwrap()
+                    }
                     "convert" => write_native(&work, 1280, true, &mut out),
                     _ => panic!("unknown PLACEDB_BENCH {mode}"),
                 }
