@@ -6,13 +6,17 @@
 //! filter, which depth encoders choose for most rows, makes each pixel wait
 //! for its left neighbour: a row is one long dependency chain, about ten
 //! cycles a pixel however the predictor is written. The only parallelism is
-//! across rows, so on x86-64 four rows are unfiltered at once as a wavefront:
-//! row `r + k` runs `k` pixels behind row `r`, which makes the pixel above and
-//! the one above-left of every lane the previous step's output of the lane
-//! before it. All four filters are computed for every lane (eight 16-bit SSE2
-//! lanes: four rows times two bytes) and each lane keeps its row's. Other
-//! targets, narrow images and the last rows of an image take the row-at-a-time
-//! path; both paths are checked against each other and the specification.
+//! across rows, so on x86-64 several rows are unfiltered at once as a
+//! wavefront: each row runs behind the one above it, so that the pixel
+//! above and the one above-left of every lane are earlier outputs of the
+//! lane before it. All four filters are computed for every lane and each
+//! lane keeps its row's. Which wavefront runs is chosen at run time
+//! ([`VectorUnit`]): with AVX2 (or AVX-512, which runs the same code),
+//! sixteen rows, two pixels apart, in two vectors of sixteen 16-bit lanes
+//! (`avx2.rs`); otherwise four rows, one pixel apart, in SSE2's eight lanes
+//! (part of every x86-64 CPU). Rows too narrow for a wavefront, the last
+//! rows of an image that do not fill a group, and other targets take the
+//! row-at-a-time path; every path is checked against the specification.
 
 use crate::frame_keys::VectorUnit;
 
