@@ -40,7 +40,7 @@ impl VectorUnit {
     }
 
     /// Whether this CPU has the unit's features.
-    fn runs_here(self) -> bool {
+    pub(crate) fn runs_here(self) -> bool {
         #[cfg(target_arch = "x86_64")]
         let has = |features: &[bool]| features.iter().all(|&f| f);
         match self {

@@ -12,6 +12,7 @@
 
 use super::unfilter;
 use crate::error::ReadError;
+use crate::frame_keys::VectorUnit;
 use crate::sequence::{DepthImage, DepthSource};
 use std::cell::RefCell;
 use std::path::{Path, PathBuf};
@@ -308,9 +309,6 @@ fn inflate(
     }
 }
 
-/// The low byte of every 16-bit lane of a 64-bit word.
-const LOW_BYTES: u64 = 0x00ff_00ff_00ff_00ff;
-
 /// Unfilters the scanlines in place and writes the rows to `out` in native
 /// byte order, 65535 as 0 with `invalid_65535`.
 fn unfilter_rows(
@@ -320,38 +318,69 @@ fn unfilter_rows(
     invalid_65535: bool,
     out: &mut [u16],
 ) -> Result<(), ReadError> {
-    unfilter::unfilter_scanlines(scanlines, row_bytes)
+    unfilter::unfilter_scanlines(VectorUnit::best(), scanlines, row_bytes)
         .map_err(|f| png_error(path, format!("unknown scanline filter {f}")))?;
+    write_native(scanlines, row_bytes, invalid_65535, out);
+    Ok(())
+}
+
+/// Writes unfiltered scanlines to `out` in native byte order, 65535 as 0
+/// with `invalid_65535`.
+fn write_native(scanlines: &[u8], row_bytes: usize, invalid_65535: bool, out: &mut [u16]) {
     let rows = scanlines
         .chunks_exact(row_bytes + 1)
         .zip(out.chunks_exact_mut(row_bytes / 2));
     for (line, out_row) in rows {
-        // Four pixels at a time, as one 8-byte word whose 16-bit lanes are
-        // byte-swapped (a byte-wise gather would be slower).
-        let blocks = out_row.chunks_exact_mut(4).zip(line[1..].chunks_exact(8));
-        for (v, bytes) in blocks {
-            let Ok(word) = <[u8; 8]>::try_from(bytes) else {
-                continue; // chunks_exact(8) yields 8 bytes
-            };
-            let word = u64::from_le_bytes(word);
-            let swapped = (word & LOW_BYTES) << 8 | (word >> 8) & LOW_BYTES;
-            if let [d0, d1, d2, d3] = v {
-                (*d0, *d1) = (swapped as u16, (swapped >> 16) as u16);
-                (*d2, *d3) = ((swapped >> 32) as u16, (swapped >> 48) as u16);
-            }
-        }
-        let tail = out_row.len() / 4 * 4;
-        for (v, px) in out_row[tail..]
+        let bytes = &line[1..];
+        #[cfg(target_arch = "x86_64")]
+        let done = sse2::write_native_row(bytes, invalid_65535, out_row);
+        #[cfg(not(target_arch = "x86_64"))]
+        let done = 0;
+        for (v, px) in out_row[done..]
             .iter_mut()
-            .zip(line[1 + 2 * tail..].chunks_exact(2))
+            .zip(bytes[2 * done..].chunks_exact(2))
         {
             *v = u16::from_be_bytes([px[0], px[1]]);
         }
         if invalid_65535 {
-            blank_invalid(out_row);
+            blank_invalid(&mut out_row[done..]);
         }
     }
-    Ok(())
+}
+
+#[cfg(target_arch = "x86_64")]
+mod sse2 {
+    //! [`super::write_native`] eight pixels at a time in SSE2 (part of
+    //! every x86-64 CPU): a byte swap as two shifts, 65535 blanked with a
+    //! compare. Wider vectors gain nothing here: the pass is bound by
+    //! memory, not by its few instructions.
+    use std::arch::x86_64::*;
+
+    /// Writes the pixels of whole 16-byte blocks of `bytes` (big-endian
+    /// pixels) to `out` and returns how many.
+    pub(super) fn write_native_row(bytes: &[u8], invalid_65535: bool, out: &mut [u16]) -> usize {
+        // SAFETY: the function only needs SSE2, which every x86-64 CPU has.
+        unsafe { write_blocks(bytes, invalid_65535, out) }
+    }
+
+    #[target_feature(enable = "sse2")]
+    fn write_blocks(bytes: &[u8], invalid_65535: bool, out: &mut [u16]) -> usize {
+        let invalid = _mm_set1_epi16(if invalid_65535 { -1 } else { 0 });
+        let mut done = 0;
+        for (block, pixels) in bytes.chunks_exact(16).zip(out.chunks_exact_mut(8)) {
+            // SAFETY: `block` is 16 bytes, the load's width.
+            let v = unsafe { _mm_loadu_si128(block.as_ptr().cast()) };
+            let native = _mm_or_si128(_mm_slli_epi16::<8>(v), _mm_srli_epi16::<8>(v));
+            // All ones where the value is 65535 and that means nothing.
+            let blank = _mm_and_si128(_mm_cmpeq_epi16(v, _mm_set1_epi16(-1)), invalid);
+            // SAFETY: `pixels` is eight u16, the store's 16 bytes.
+            unsafe {
+                _mm_storeu_si128(pixels.as_mut_ptr().cast(), _mm_andnot_si128(blank, native))
+            };
+            done += 8;
+        }
+        done
+    }
 }
 
 /// The `png` crate's decoder: for interlaced files, and the tests' reference.
@@ -546,6 +575,29 @@ mod tests {
     }
 
     #[test]
+    fn native_order_and_blanking_match_the_pixel_at_a_time_form() {
+        for width in 1..=41usize {
+            let height = 3;
+            let values = test_depths(width * height, width as u64);
+            let mut scanlines = Vec::new();
+            for row in values.chunks_exact(width) {
+                scanlines.push(4); // the filter byte, ignored here
+                scanlines.extend(row.iter().flat_map(|v| v.to_be_bytes()));
+            }
+            for invalid_65535 in [false, true] {
+                let mut out = vec![1u16; width * height];
+                write_native(&scanlines, 2 * width, invalid_65535, &mut out);
+                let want: Vec<u16> = values
+                    .iter()
+                    .map(|&v| if invalid_65535 && v == u16::MAX { 0 } else { v })
+                    .collect();
+                assert_eq!(out, want, "width {width} invalid_65535 {invalid_65535}");
+            }
+            assert!(width < 16 || values.contains(&u16::MAX), "width {width}");
+        }
+    }
+
+    #[test]
     fn recorded_frames_decode_as_the_png_crate_does() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/7scenes-1000");
         for i in [0, 1, 499, 999] {
@@ -734,6 +786,63 @@ mod tests {
         assert_eq!(src.depth(0).unwrap().data[5], 0);
         assert!(matches!(src.depth(1), Err(ReadError::Layout { .. })));
         std::fs::remove_file(&path).ok();
+    }
+
+    /// Not a check: the cost of the decoder's steps after inflating, on
+    /// recorded frames, as wall time a frame (compare medians of
+    /// interleaved runs: the machine's speed drifts). `PLACEDB_BENCH`
+    /// picks the work: `copy` (refilling the scanlines, which every mode
+    /// also does: subtract it), unfiltering with a [`VectorUnit`]
+    /// (`baseline`, `avx2`, `avx512`), or `convert` (byte swap and 65535
+    /// blanking); `PLACEDB_BENCH_REPS` the passes over 20 frames.
+    /// `PLACEDB_BENCH=avx2 cargo test --release -p placedb-host --lib decode_step_cost -- --ignored --nocapture`
+    #[test]
+    #[ignore]
+    fn decode_step_cost() {
+        let mode = std::env::var("PLACEDB_BENCH").unwrap_or_else(|_| "baseline".into());
+        let reps: usize = std::env::var("PLACEDB_BENCH_REPS")
+            .ok()
+            .and_then(|r| r.parse().ok())
+            .unwrap_or(50);
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/7scenes-1000");
+        let mut inflater = libdeflater::Decompressor::new();
+        let frames: Vec<Vec<u8>> = (0..1000)
+            .step_by(50)
+            .map(|i| {
+                let path = dir.join(format!("frame-{i:06}.depth.png"));
+                let bytes = std::fs::read(&path).unwrap();
+                let mut zlib = Vec::new();
+                collect_image_data(&path, &bytes, &mut zlib).unwrap();
+                let mut scanlines = vec![0; 480 * 1281];
+                let n = inflate(&zlib, &mut scanlines, &mut inflater).ok().unwrap();
+                assert_eq!(n, scanlines.len());
+                scanlines
+            })
+            .collect();
+        let unit = match mode.as_str() {
+            "avx2" => VectorUnit::Avx2,
+            "avx512" => VectorUnit::Avx512,
+            _ => VectorUnit::Baseline,
+        };
+        assert!(VectorUnit::available().contains(&unit), "{unit:?}");
+        let (mut work, mut out) = (vec![0u8; 480 * 1281], vec![0u16; 640 * 480]);
+        let start = std::time::Instant::now();
+        for _ in 0..reps {
+            for frame in &frames {
+                work.copy_from_slice(frame);
+                match mode.as_str() {
+                    "copy" => {}
+                    "baseline" | "avx2" | "avx512" => {
+                        unfilter::unfilter_scanlines(unit, &mut work, 1280).unwrap()
+                    }
+                    "convert" => write_native(&work, 1280, true, &mut out),
+                    _ => panic!("unknown PLACEDB_BENCH {mode}"),
+                }
+                std::hint::black_box((&mut work, &mut out));
+            }
+        }
+        let per_frame = start.elapsed().as_secs_f64() * 1e6 / (reps * frames.len()) as f64;
+        println!("{mode}: {per_frame:.1} us a frame");
     }
 
     #[test]

@@ -6,19 +6,30 @@
 //! filter, which depth encoders choose for most rows, makes each pixel wait
 //! for its left neighbour: a row is one long dependency chain, about ten
 //! cycles a pixel however the predictor is written. The only parallelism is
-//! across rows, so on x86-64 four rows are unfiltered at once as a wavefront:
-//! row `r + k` runs `k` pixels behind row `r`, which makes the pixel above and
-//! the one above-left of every lane the previous step's output of the lane
-//! before it. All four filters are computed for every lane (eight 16-bit SSE2
-//! lanes: four rows times two bytes) and each lane keeps its row's. Other
-//! targets, narrow images and the last rows of an image take the row-at-a-time
-//! path; both paths are checked against each other and the specification.
+//! across rows, so on x86-64 several rows are unfiltered at once as a
+//! wavefront: each row runs behind the one above it, so that the pixel
+//! above and the one above-left of every lane are earlier outputs of the
+//! lane before it. All four filters are computed for every lane and each
+//! lane keeps its row's. Which wavefront runs is chosen at run time
+//! ([`VectorUnit`]): with AVX2 (or AVX-512, which runs the same code),
+//! sixteen rows, two pixels apart, in two vectors of sixteen 16-bit lanes
+//! (`avx2.rs`); otherwise four rows, one pixel apart, in SSE2's eight lanes
+//! (part of every x86-64 CPU). Rows too narrow for a wavefront, the last
+//! rows of an image that do not fill a group, and other targets take the
+//! row-at-a-time path; every path is checked against the specification.
+
+use crate::frame_keys::VectorUnit;
 
 /// Undoes the filters of `scanlines` in place: rows of `1 + row_bytes` bytes,
 /// each a filter type byte followed by the filtered row. `row_bytes` must be
-/// even. Returns the first unknown filter type met, leaving later rows as
-/// they were.
-pub(crate) fn unfilter_scanlines(scanlines: &mut [u8], row_bytes: usize) -> Result<(), u8> {
+/// even. `unit` picks the wavefront (one of [`VectorUnit::available`];
+/// others run as [`VectorUnit::Baseline`]). Returns the first unknown filter
+/// type met, leaving later rows as they were.
+pub(crate) fn unfilter_scanlines(
+    unit: VectorUnit,
+    scanlines: &mut [u8],
+    row_bytes: usize,
+) -> Result<(), u8> {
     let line = row_bytes + 1;
     if let Some(bad) = scanlines.chunks_exact(line).map(|l| l[0]).find(|&f| f > 4) {
         // Unfilter the rows before the bad one, so the error is the only
@@ -27,29 +38,50 @@ pub(crate) fn unfilter_scanlines(scanlines: &mut [u8], row_bytes: usize) -> Resu
             .chunks_exact(line)
             .take_while(|l| l[0] <= 4)
             .count();
-        unfilter_checked(&mut scanlines[..rows * line], row_bytes);
+        unfilter_checked(unit, &mut scanlines[..rows * line], row_bytes);
         return Err(bad);
     }
-    unfilter_checked(scanlines, row_bytes);
+    unfilter_checked(unit, scanlines, row_bytes);
     Ok(())
 }
 
 /// Unfilters rows whose filter types are all known.
-fn unfilter_checked(scanlines: &mut [u8], row_bytes: usize) {
+fn unfilter_checked(unit: VectorUnit, scanlines: &mut [u8], row_bytes: usize) {
     let line = row_bytes + 1;
     let rows = scanlines.len() / line;
     let mut done = 0;
+    // Groups of `n` rows from row `done` on with `unfilter_group` (which
+    // gets the group and the row above it).
     #[cfg(target_arch = "x86_64")]
-    if row_bytes >= 2 * wavefront::MIN_WIDTH {
-        while done + 4 <= rows {
+    let mut groups = |n: usize, unfilter_group: &mut UnfilterGroup| {
+        while done + n <= rows {
             let (before, group) = scanlines.split_at_mut(done * line);
             let above = before.get(before.len().wrapping_sub(row_bytes)..);
+            unfilter_group(&mut group[..n * line], above);
+            done += n;
+        }
+    };
+    #[cfg(target_arch = "x86_64")]
+    {
+        let wide =
+            matches!(unit, VectorUnit::Avx2 | VectorUnit::Avx512) && VectorUnit::Avx2.runs_here();
+        if wide && row_bytes >= 2 * avx2::MIN_WIDTH {
+            // SAFETY: the CPU has AVX2 (`runs_here`).
+            let mut scratch = Vec::new();
+            groups(avx2::ROWS, &mut |group, above| unsafe {
+                avx2::unfilter_group(group, above, row_bytes, &mut scratch)
+            });
+        }
+        if row_bytes >= 2 * wavefront::MIN_WIDTH {
             // SAFETY: `unfilter_four` only needs SSE2, which every x86-64
             // CPU has (it is part of the architecture's baseline).
-            unsafe { wavefront::unfilter_four(&mut group[..4 * line], above, row_bytes) };
-            done += 4;
+            groups(4, &mut |group, above| unsafe {
+                wavefront::unfilter_four(group, above, row_bytes)
+            });
         }
     }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = unit;
     for r in done..rows {
         let (before, rest) = scanlines.split_at_mut(r * line);
         let above = before.get(before.len().wrapping_sub(row_bytes)..);
@@ -57,6 +89,10 @@ fn unfilter_checked(scanlines: &mut [u8], row_bytes: usize) {
         unfilter_row(filter[0], row, above);
     }
 }
+
+/// A wavefront's unfiltering of a group of rows (the group, the row above).
+#[cfg(target_arch = "x86_64")]
+type UnfilterGroup<'a> = dyn FnMut(&mut [u8], Option<&[u8]>) + 'a;
 
 /// One row, against the unfiltered row above (`None` for the first row,
 /// which the specification treats as zeros).
@@ -120,6 +156,9 @@ fn paeth(a: i16, b: i16, c: i16) -> u8 {
     let t = if hi <= threshold { lo } else { c };
     (if threshold <= lo { hi } else { t }) as u8
 }
+
+#[cfg(target_arch = "x86_64")]
+mod avx2;
 
 #[cfg(target_arch = "x86_64")]
 mod wavefront {
@@ -326,7 +365,7 @@ mod tests {
     }
 
     #[test]
-    fn every_filter_mix_matches_the_specification() {
+    fn every_filter_mix_matches_the_specification_on_every_vector_unit() {
         let mut x = 0x2545_f491_4f6c_dd1du64;
         let mut next = move || {
             x ^= x << 13;
@@ -334,10 +373,15 @@ mod tests {
             x ^= x << 17;
             x
         };
-        // Widths around the wavefront's minimum, heights around groups of 4.
-        for width in [1usize, 2, 7, 8, 9, 13, 64] {
-            for height in [1usize, 3, 4, 5, 8, 11] {
-                for trial in 0..8 {
+        let units = VectorUnit::available();
+        // Widths around each wavefront's minimum (and odd ones), heights
+        // around each group size; the last rows of a height that is not a
+        // multiple take the narrower paths.
+        let widths = [1usize, 2, 7, 8, 9, 13, 15, 16, 17, 31, 33, 47, 64, 101];
+        let heights = [1usize, 3, 4, 5, 7, 8, 9, 12, 15, 16, 17, 23, 31, 33, 40];
+        for width in widths {
+            for height in heights {
+                for trial in 0..6 {
                     let row_bytes = 2 * width;
                     let mut lines = vec![0u8; (row_bytes + 1) * height];
                     for line in lines.chunks_exact_mut(row_bytes + 1) {
@@ -348,12 +392,15 @@ mod tests {
                         }
                     }
                     let expected = reference(&lines, row_bytes);
-                    unfilter_scanlines(&mut lines, row_bytes).unwrap();
-                    let got: Vec<u8> = lines
-                        .chunks_exact(row_bytes + 1)
-                        .flat_map(|l| l[1..].to_vec())
-                        .collect();
-                    assert_eq!(got, expected, "{width}x{height} trial {trial}");
+                    for &unit in &units {
+                        let mut lines = lines.clone();
+                        unfilter_scanlines(unit, &mut lines, row_bytes).unwrap();
+                        let got: Vec<u8> = lines
+                            .chunks_exact(row_bytes + 1)
+                            .flat_map(|l| l[1..].to_vec())
+                            .collect();
+                        assert_eq!(got, expected, "{unit:?} {width}x{height} trial {trial}");
+                    }
                 }
             }
         }
@@ -361,13 +408,19 @@ mod tests {
 
     #[test]
     fn unknown_filter_is_reported_after_the_rows_before_it() {
-        let mut lines = vec![1, 1, 2, 3, 4, 7, 0, 0, 0, 0, 1, 9, 9, 9, 9];
-        assert_eq!(unfilter_scanlines(&mut lines, 4), Err(7));
-        assert_eq!(
-            &lines[..5],
-            &[1, 1, 2, 4, 6],
-            "the row before is unfiltered"
-        );
-        assert_eq!(&lines[10..], &[1, 9, 9, 9, 9], "the row after is untouched");
+        for unit in VectorUnit::available() {
+            let mut lines = vec![1, 1, 2, 3, 4, 7, 0, 0, 0, 0, 1, 9, 9, 9, 9];
+            assert_eq!(unfilter_scanlines(unit, &mut lines, 4), Err(7));
+            assert_eq!(
+                &lines[..5],
+                &[1, 1, 2, 4, 6],
+                "{unit:?}: the row before is unfiltered"
+            );
+            assert_eq!(
+                &lines[10..],
+                &[1, 9, 9, 9, 9],
+                "{unit:?}: the row after is untouched"
+            );
+        }
     }
 }
