@@ -883,11 +883,12 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
         }
     }
     println!(
-        "{:<16} {:<11} {:>6} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
+        "{:<16} {:<11} {:>6} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
         "sequence",
         "solver",
         "frames",
         "wall_s",
+        "cpu_s",
         "total_s",
         "read*",
         "voxel*",
@@ -896,17 +897,17 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
         "solve_s",
         "peak_MB"
     );
-    // Runs `placedb ARGS` in a child: its wall time from spawn to exit, and
-    // the JSON it printed.
-    let run = |args: &[String]| -> Result<(f64, serde_json::Value), Error> {
-        let t = Instant::now();
+    // Runs `placedb ARGS` in a child: its wall time from spawn to exit, its
+    // CPU time (user and system, all threads), and the JSON it printed.
+    let run = |args: &[String]| -> Result<(f64, f64, serde_json::Value), Error> {
+        let (t, cpu) = (Instant::now(), children_cpu_s());
         let child = std::process::Command::new(&exe).args(args).output()?;
-        let wall = t.elapsed().as_secs_f64();
+        let (wall, cpu) = (t.elapsed().as_secs_f64(), children_cpu_s() - cpu);
         if !child.status.success() {
             let err = String::from_utf8_lossy(&child.stderr);
             return Err(format!("placedb {}: {err}", args.join(" ")).into());
         }
-        Ok((wall, serde_json::from_slice(&child.stdout)?))
+        Ok((wall, cpu, serde_json::from_slice(&child.stdout)?))
     };
     // The item of median `key` (the upper one of an even count).
     fn median_by<T>(items: &[T], key: impl Fn(&T) -> f64) -> Option<&T> {
@@ -938,7 +939,7 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
         // Rounds of every row in turn, so that a drift of the machine's
         // speed reaches the floor and the rows compared with it alike; each
         // round starts one row later, so that no row always runs first.
-        let mut runs: Vec<Vec<(f64, serde_json::Value)>> = vec![Vec::new(); rows.len()];
+        let mut runs: Vec<Vec<(f64, f64, serde_json::Value)>> = vec![Vec::new(); rows.len()];
         for round in 0..a.repeat as usize {
             for i in 0..rows.len() {
                 let r = (i + round) % rows.len();
@@ -948,16 +949,17 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
         for (r, ((row, _), row_runs)) in rows.iter().zip(&runs).enumerate() {
             // The run of median wall time, and its figures (`--repeat` is
             // at least 1).
-            let Some((wall, m)) = median_by(row_runs, |run| run.0) else {
+            let Some((wall, cpu, m)) = median_by(row_runs, |run| run.0) else {
                 continue;
             };
             let f = |k: &str| m[k].as_f64().unwrap_or(f64::NAN);
             println!(
-                "{:<16} {:<11} {:>6} {:>7.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.1}",
+                "{:<16} {:<11} {:>6} {:>7.3} {:>7.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.1}",
                 name,
                 row,
                 f("frames"),
                 wall,
+                cpu,
                 f("total_s"),
                 f("read_cpu_s"),
                 f("voxelize_cpu_s"),
@@ -967,16 +969,21 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
                 f("peak_rss_mb")
             );
             if has_floor && r > 0 {
-                let ratios: Vec<f64> = row_runs
-                    .iter()
-                    .zip(&runs[0])
-                    .map(|(s, d)| s.0 / d.0)
-                    .collect();
-                println!(
-                    "{:<16} {:<11} {:.2}x the decode-only wall time, median of the rounds (target <= 1.3x)",
-                    "",
-                    "",
+                // Per round, against the floor's run of the same round.
+                let ratio = |time: fn(&(f64, f64, serde_json::Value)) -> f64| {
+                    let ratios: Vec<f64> = row_runs
+                        .iter()
+                        .zip(&runs[0])
+                        .map(|(s, d)| time(s) / time(d))
+                        .collect();
                     median_by(&ratios, |r| *r).copied().unwrap_or(f64::NAN)
+                };
+                println!(
+                    "{:<16} {:<11} {:.2}x the decode-only wall time, {:.2}x its CPU time, medians of the rounds (target <= 1.3x)",
+                    "",
+                    "",
+                    ratio(|run| run.0),
+                    ratio(|run| run.1)
                 );
             }
             if *name == "7scenes-1000" && a.stride == 1 && *row == Solver::InOrder.name() {
@@ -995,11 +1002,28 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
     println!(
         "wall_s: the child process from spawn to exit (reading, voxelizing, solving, writing),\n\
          the median of {} rounds that run every row in turn (the other columns are that run's);\n\
-         total_s: select's own clock, up to its outputs; * read and voxel are CPU time summed\n\
-         over threads; the others are wall time",
+         cpu_s: that child's CPU time, user and system, all threads (steadier than wall time\n\
+         when the machine's speed drifts); total_s: select's own clock, up to its outputs;\n\
+         * read and voxel are CPU time summed over threads; the others are wall time",
         a.repeat
     );
     Ok(())
+}
+
+/// CPU time, user and system, of this process's children that have been
+/// waited for; NaN where the platform does not say.
+fn children_cpu_s() -> f64 {
+    #[cfg(unix)]
+    {
+        // SAFETY: `getrusage` fills the struct it is given and reads nothing.
+        let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+        // SAFETY: `usage` is a valid, writable `rusage`.
+        if unsafe { libc::getrusage(libc::RUSAGE_CHILDREN, &mut usage) } == 0 {
+            let s = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+            return s(usage.ru_utime) + s(usage.ru_stime);
+        }
+    }
+    f64::NAN
 }
 
 /// The core's parts, each a function kept out of line in the core so that
