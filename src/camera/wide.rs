@@ -145,22 +145,10 @@ impl FrameProjector {
             });
             return (valid, written);
         }
-        let (lo, hi) = (self.raw_min, self.raw_max);
-        let Some(span) = hi.checked_sub(lo) else {
+        let Some(mut rays) = self.row_chunk_rays(v) else {
             return (0, 0);
         };
-        if !self.projects_row(v) {
-            return (0, 0);
-        }
-        let (ray, step) = self.row_rays(v);
-        let mut rays = ChunkRays {
-            ray,
-            step,
-            t: self.biased_translation(),
-            lo: u64::from(lo),
-            span: u64::from(span),
-        };
-        let chunk_step = step.map(|s| s.wrapping_mul(CHUNK as i64));
+        let chunk_step = rays.step.map(|s| s.wrapping_mul(CHUNK as i64));
         // The samples are pixels 0, stride, ..: cut the row after the last.
         let stride = usize::from(self.stride);
         let samples = usize::from(self.samples_per_row());
@@ -192,6 +180,29 @@ impl FrameProjector {
         }
         *out_of_range = out_of_range.saturating_add(outside);
         (valid, written)
+    }
+}
+
+impl FrameProjector {
+    /// The [`ChunkRays`] of the first sample of row `v`, for a host that
+    /// runs a row loop of its own (sample `i`'s ray is `ray + i * step`).
+    /// `None` where [`Self::project_row_with`] projects nothing (a row the
+    /// stride skips or below the image, an empty depth range), and where the
+    /// projector uses fewer fixed-point bits (extreme scales), which only
+    /// [`Self::project_row_with`] handles.
+    pub fn row_chunk_rays(&self, v: u16) -> Option<ChunkRays> {
+        let span = self.raw_max.checked_sub(self.raw_min)?;
+        if self.shift != MAX_SHIFT || !self.projects_row(v) {
+            return None;
+        }
+        let (ray, step) = self.row_rays(v);
+        Some(ChunkRays {
+            ray,
+            step,
+            t: self.biased_translation(),
+            lo: u64::from(self.raw_min),
+            span: u64::from(span),
+        })
     }
 }
 

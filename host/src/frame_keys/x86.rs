@@ -2,11 +2,17 @@
 //! portable kernel, and for AVX-512 with a kernel of its own: LLVM's
 //! vectorization of the portable kernel spends about twice the
 //! instructions of this hand-written one (masks kept in vectors instead of
-//! mask registers, counts converted lane by lane).
+//! mask registers, counts converted lane by lane). With AVX-512, bands of
+//! four rows take the tile path of `tiles.rs` (single precision, a tile of
+//! 4 x 8 samples at a time where its samples share a key) wherever it can
+//! promise the exact keys; other rows (strides above 1, the last rows,
+//! extreme scales) the exact kernel.
 
 use super::{frame_keys_chunked, DepthImage, FrameProjector};
 use placedb::camera::wide::{portable_chunk, ChunkCounts, ChunkRays, CHUNK};
 use std::arch::x86_64::*;
+
+mod tiles;
 
 #[target_feature(enable = "avx2,bmi1")]
 pub(super) fn frame_keys_avx2(
@@ -29,9 +35,60 @@ pub(super) fn frame_keys_avx512(
     keys: &mut Vec<u64>,
     row_keys: &mut Vec<u64>,
 ) -> (u32, u32) {
-    let mut kernel =
+    let mut exact =
         |raws: &_, rays, previous, chunk: &mut _| avx512_chunk(raws, rays, previous, chunk);
-    frame_keys_chunked(proj, img, keys, row_keys, &mut kernel)
+    let mut bands = tiles::Bands::default();
+    let samples = usize::from(proj.samples_per_row());
+    row_keys.resize(samples, 0);
+    let (mut valid, mut out_of_range) = (0u32, 0u32);
+    // Rows below `done` were projected with their band.
+    let mut done = 0u16;
+    for v in (0..img.height).step_by(usize::from(proj.stride())) {
+        if v < done {
+            continue;
+        }
+        // Bands of four consecutive rows (stride 1) in single precision
+        // where it can promise the exact keys.
+        if proj.stride() == 1 && usize::from(v) % tiles::ROWS == 0 {
+            if let Some(band_valid) = band(proj, img, v, samples, &mut bands, keys) {
+                valid += band_valid;
+                done = v + tiles::ROWS as u16;
+                continue;
+            }
+        }
+        let (row_valid, n) =
+            proj.project_row_with(v, img.row(v), &mut out_of_range, row_keys, &mut exact);
+        valid += row_valid;
+        keys.extend_from_slice(&row_keys[..n]);
+    }
+    (valid, out_of_range)
+}
+
+/// Rows `v..v + 4` with [`tiles::Bands::band`], or `None` (nothing
+/// appended) where it does not run: rows past the image or shorter than
+/// `samples`, rays only the exact loop handles.
+#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,popcnt,bmi1")]
+fn band(
+    proj: &FrameProjector,
+    img: &DepthImage,
+    v: u16,
+    samples: usize,
+    bands: &mut tiles::Bands,
+    keys: &mut Vec<u64>,
+) -> Option<u32> {
+    if usize::from(v) + tiles::ROWS > usize::from(img.height) {
+        return None;
+    }
+    let row = |r: usize| {
+        let v = v + r as u16;
+        Some((proj.row_chunk_rays(v)?, img.row(v).get(..samples)?))
+    };
+    let [a, b, c, d] = [row(0)?, row(1)?, row(2)?, row(3)?];
+    let width = usize::from(img.width);
+    let next = usize::from(v) + tiles::ROWS;
+    let ahead = img.data.get(next * width..).unwrap_or(&[]);
+    let ahead = &ahead[..ahead.len().min(tiles::ROWS * width)];
+    bands.band(&[a.0, b.0, c.0, d.0], [a.1, b.1, c.1, d.1], ahead, keys)
 }
 
 /// [`portable_chunk`] eight samples per step: the same arithmetic on
