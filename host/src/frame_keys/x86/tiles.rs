@@ -307,6 +307,7 @@ impl Bands {
             }
         }
         let n = records.n;
+        let n = drop_repeats(&mut self.locals, n);
         emit(&frame, &self.locals[..n], keys);
         Some(valid)
     }
@@ -331,6 +332,34 @@ impl Records<'_> {
             self.n += new.count_ones() as usize;
         }
     }
+}
+
+/// Drops from `locals[..n]` each local key equal to the one before it (the
+/// last pixels of a failing tile and the next tiles, the two row pairs of a
+/// tile, mostly share a key: fewer keys to convert and sort), in place;
+/// returns the new length. `locals` has room for a vector past `n`.
+#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,popcnt,bmi1")]
+fn drop_repeats(locals: &mut [i32], n: usize) -> usize {
+    let (mut kept, mut before) = (0usize, _mm512_set1_epi32(NOT_A_KEY));
+    for start in (0..n).step_by(LANES) {
+        let Some(group) = locals.get(start..start + LANES) else {
+            break;
+        };
+        // SAFETY: reads the 64 bytes of `group`, sixteen i32.
+        let local = unsafe { _mm512_loadu_si512(group.as_ptr().cast()) };
+        let inside = u16::MAX >> (LANES - (n - start).min(LANES));
+        let new =
+            _mm512_mask_cmpneq_epi32_mask(inside, local, _mm512_alignr_epi32::<15>(local, before));
+        before = local;
+        // Written at or before where it was read: the next group is intact.
+        if let Some(slot) = locals.get_mut(kept..kept + LANES) {
+            let packed = _mm512_maskz_compress_epi32(new, local);
+            // SAFETY: writes the 64 bytes of `slot`, sixteen i32.
+            unsafe { _mm512_storeu_si512(slot.as_mut_ptr().cast(), packed) };
+            kept += new.count_ones() as usize;
+        }
+    }
+    kept
 }
 
 /// Appends to `keys` the keys of `locals`, sixteen at a time.
