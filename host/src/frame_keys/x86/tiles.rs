@@ -728,4 +728,76 @@ mod tests {
             "{frames_in_bands} {passed} {tiles}"
         );
     }
+
+    /// Rows whose fixed-point sums land exactly on voxel edges, and one
+    /// raw unit either side, where single precision alone would floor some
+    /// of them wrong: the error bounds must send those samples to the exact
+    /// arithmetic. The same ray in every sample and row and one raw a tile,
+    /// so a tile has no spread at all and only the margin keeps one on an
+    /// edge from passing.
+    #[test]
+    fn samples_on_voxel_edges_get_the_exact_keys() {
+        if !VectorUnit::Avx512.runs_here() {
+            return;
+        }
+        let mut rng = SplitMix64::new(11);
+        let (mut on_edges, mut keys_seen) = (0usize, 0usize);
+        for _ in 0..300 {
+            // Up to 2^-8 voxel a raw unit: floors within the digits.
+            let ray = [0; 3].map(|_: i64| rng.below(1 << 32) as i64 - (1 << 31));
+            let edge_raw = 1 + rng.below(60_000) as i64;
+            // t puts `edge_raw * ray + t` on a multiple of 2^40 (a voxel
+            // edge), near the middle of the key range.
+            let t = ray.map(|r| {
+                let to_edge = (-(edge_raw * r)).rem_euclid(1 << 40);
+                ((1i64 << 20) + rng.below(1000) as i64 - 500) * (1 << 40) + to_edge
+            });
+            let rays = ChunkRays {
+                ray,
+                step: [0; 3],
+                t,
+                lo: 1,
+                span: 65_534,
+            };
+            // A raw per tile (a tile's rows are alike), so tiles have no
+            // spread: centres on the edge, and in half the rows also a raw
+            // unit off it (whose keys are the two a wrong floor on the edge
+            // would give, so the other half must do without them).
+            let off_edge = rng.chance(0.5);
+            let row: Vec<u16> = (0..200usize.div_ceil(WIDTH))
+                .flat_map(|_| {
+                    let raw = match rng.below(4) {
+                        0 if off_edge => edge_raw - 1,
+                        1 if off_edge => edge_raw + 1,
+                        _ => edge_raw,
+                    };
+                    [raw as u16; WIDTH]
+                })
+                .take(200)
+                .collect();
+            let rows = [&row[..], &row[..], &row[..], &row[..]];
+            let mut got = Vec::new();
+            // SAFETY: the CPU has AVX-512 (checked above).
+            let valid = unsafe { Bands::default().band(&[rays; ROWS], rows, &[], &mut got) };
+            assert_eq!(valid, Some(4 * 200));
+            let mut want: Vec<u64> = row
+                .iter()
+                .map(|&raw| {
+                    let axis = |a: usize| ((i64::from(raw) * ray[a] + t[a]) >> 40) as u64;
+                    axis(0) << 42 | axis(1) << 21 | axis(2)
+                })
+                .collect();
+            for keys in [&mut got, &mut want] {
+                keys.sort_unstable();
+                keys.dedup();
+            }
+            assert_eq!(got, want, "ray {ray:?} edge raw {edge_raw}");
+            on_edges += row.iter().filter(|&&r| i64::from(r) == edge_raw).count();
+            keys_seen += want.len();
+        }
+        assert!(
+            on_edges > 30_000 && keys_seen > 450,
+            "{on_edges} {keys_seen}"
+        );
+    }
 }
