@@ -65,8 +65,6 @@ const UNIT: f32 = 1.0 / (1u64 << 40) as f32;
 /// valid raws are the same in every row.
 #[derive(Debug, Clone, Copy)]
 struct Frame {
-    /// The fixed-point step, translation, `lo` and `span` these are of.
-    source: ([i64; 3], [i64; 3], u64, u64),
     /// The step per raw unit, voxels.
     step: [f32; 3],
     /// Fractional and integer parts of the biased translation, voxels.
@@ -92,7 +90,6 @@ impl Frame {
             .map(|&t| t.min(AXIS_KEYS - 1 - t))
             .fold(DIGIT_MAX, i64::min);
         Frame {
-            source: source(rays),
             step,
             t_frac,
             t_int,
@@ -102,8 +99,8 @@ impl Frame {
     }
 }
 
-/// What a frame's rows share, as compared.
-fn source(rays: &ChunkRays) -> ([i64; 3], [i64; 3], u64, u64) {
+/// What a frame's rows share, as compared: what [`Frame`] is made of.
+fn shared(rays: &ChunkRays) -> ([i64; 3], [i64; 3], u64, u64) {
     (rays.step, rays.t, rays.lo, rays.span)
 }
 
@@ -195,24 +192,14 @@ impl Band {
     }
 }
 
-/// The tile path's band loop, holding the constants of the frame it last
-/// saw and its scratch space.
+/// The tile path's band loop, holding its scratch space.
 #[derive(Debug, Default)]
 pub(super) struct Bands {
-    frame: Option<Frame>,
     /// A band's local keys that start a run, packed.
     locals: Vec<i32>,
 }
 
 impl Bands {
-    /// The frame constants of `rays`, computed when they change.
-    fn frame(&mut self, rays: &ChunkRays) -> Frame {
-        match self.frame {
-            Some(frame) if frame.source == source(rays) => frame,
-            _ => *self.frame.insert(Frame::new(rays)),
-        }
-    }
-
     /// Appends to `keys` the keys of four consecutive rows of samples
     /// (`rows[r]` with rays `rays[r]`, sample `l`'s ray
     /// `rays[r].ray + l * rays[r].step`; rows of one frame and length),
@@ -230,12 +217,14 @@ impl Bands {
         ahead: &[u16],
         keys: &mut Vec<u64>,
     ) -> Option<u32> {
-        let frame = self.frame(&rays[0]);
         let samples = rows[0].len();
-        if rays.iter().any(|r| source(r) != frame.source) || rows.iter().any(|r| r.len() != samples)
+        if rays.iter().any(|r| shared(r) != shared(&rays[0]))
+            || rows.iter().any(|r| r.len() != samples)
         {
             return None;
         }
+        // A few conversions a band: cheaper than keeping them per frame.
+        let frame = Frame::new(&rays[0]);
         let padded = samples.div_ceil(STEP) * STEP;
         let band = Band::new(&frame, rays, padded)?;
         // Room for a key per sample, and a vector's store past the last.
