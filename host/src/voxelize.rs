@@ -111,7 +111,8 @@ pub fn voxelize_on(
     let unit = VectorUnit::best();
     let per_frame: Vec<_> = (0..seq.frames.len())
         .into_par_iter()
-        // One image and one row of keys per worker, reused frame after frame.
+        // One image, one row of keys and one bitmap per worker, reused frame
+        // after frame.
         .map_init(
             <(DepthImage, Vec<u64>, Vec<u64>)>::default,
             |(img, row_keys, bitmap), i| {
@@ -187,7 +188,6 @@ fn sort_unique(keys: &mut Vec<u64>, bitmap: &mut Vec<u64>) {
         return;
     };
     bitmap.resize(cells.div_ceil(64) as usize, 0);
-    let axes = |k: u64| [k >> 42, (k >> 21) & AXIS_MASK, k & AXIS_MASK];
     for &k in keys.iter() {
         let [x, y, z] = axes(k);
         let cell = ((x - lo[0]) * ey + (y - lo[1])) * ez + (z - lo[2]);
@@ -206,8 +206,12 @@ fn sort_unique(keys: &mut Vec<u64>, bitmap: &mut Vec<u64>) {
     }
 }
 
-/// One axis of a packed key: 21 bits.
-const AXIS_MASK: u64 = (1 << 21) - 1;
+/// The three 21-bit coordinates of a packed key, x first.
+#[inline(always)]
+fn axes(k: u64) -> [u64; 3] {
+    const MASK: u64 = (1 << 21) - 1;
+    [k >> 42, (k >> 21) & MASK, k & MASK]
+}
 
 /// The smallest and the largest coordinate of `keys` on each axis (`lo`
 /// all `u64::MAX` and `hi` zero for no keys). With AVX2, where the CPU has
@@ -233,11 +237,7 @@ fn key_box_avx2(keys: &[u64]) -> ([u64; 3], [u64; 3]) {
 fn key_box_portable(keys: &[u64]) -> ([u64; 3], [u64; 3]) {
     let (mut lo, mut hi) = ([u32::MAX; 3], [0u32; 3]);
     for &k in keys {
-        let axes = [
-            (k >> 42) as u32,
-            ((k >> 21) & AXIS_MASK) as u32,
-            (k & AXIS_MASK) as u32,
-        ];
+        let axes = axes(k).map(|a| a as u32);
         for a in 0..3 {
             lo[a] = lo[a].min(axes[a]);
             hi[a] = hi[a].max(axes[a]);
