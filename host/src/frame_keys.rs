@@ -23,7 +23,7 @@ pub enum VectorUnit {
     Baseline,
     /// x86-64 with AVX2 (and BMI1).
     Avx2,
-    /// x86-64 with AVX-512 (F, VL, DQ, BW; and POPCNT, BMI1).
+    /// x86-64 with AVX-512 (F, VL, DQ, BW, CD; and POPCNT, BMI1).
     Avx512,
 }
 
@@ -58,6 +58,7 @@ impl VectorUnit {
                 is_x86_feature_detected!("avx512vl"),
                 is_x86_feature_detected!("avx512dq"),
                 is_x86_feature_detected!("avx512bw"),
+                is_x86_feature_detected!("avx512cd"),
                 is_x86_feature_detected!("popcnt"),
                 is_x86_feature_detected!("bmi1"),
             ]),
@@ -236,6 +237,49 @@ mod tests {
             valid += proj.project_row(v, img.row(v), &mut out_of_range, |k| keys.push(k.to_bits()));
         }
         (keys, valid, out_of_range)
+    }
+
+    /// Recorded frames: every unit gives the frame's key set, and the
+    /// AVX-512 path, which drops repeats through a table of the keys it
+    /// kept, hands on fewer than two keys per distinct voxel (the others
+    /// drop only neighbours' repeats, dozens per voxel).
+    #[test]
+    fn recorded_frames_give_their_key_sets_with_few_repeats() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
+        let seq = crate::read::open(&dir.join("7scenes-1000"), &Default::default()).unwrap();
+        let grid = VoxelGrid::new(0.3, [0.0; 3]).unwrap();
+        for i in [0, 250, 500, 999] {
+            let img = seq.depth(i).unwrap();
+            let pose = seq.frames[i].pose().unwrap();
+            let proj = FrameProjector::new(
+                &seq.intrinsics(),
+                seq.depth_scale as f32,
+                DepthRange::default(),
+                1,
+                &grid,
+                &pose,
+            )
+            .unwrap();
+            let (mut want, valid, out_of_range) = reference(&proj, &img);
+            want.sort_unstable();
+            want.dedup();
+            for unit in VectorUnit::available() {
+                let (mut got, mut row_keys) = (Vec::new(), Vec::new());
+                let counts = frame_keys(unit, &proj, &img, &mut got, &mut row_keys);
+                let handed_on = got.len();
+                got.sort_unstable();
+                got.dedup();
+                assert_eq!(counts, (valid, out_of_range), "frame {i} {unit:?}");
+                assert!(got == want, "frame {i} {unit:?}");
+                if unit == VectorUnit::Avx512 {
+                    assert!(
+                        handed_on < 2 * want.len(),
+                        "frame {i}: {handed_on} keys for {} voxels",
+                        want.len()
+                    );
+                }
+            }
+        }
     }
 
     #[test]

@@ -28,7 +28,7 @@ pub(super) fn frame_keys_avx2(
     frame_keys_chunked(proj, img, keys, row_keys, &mut kernel)
 }
 
-#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,popcnt,bmi1")]
+#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,avx512cd,popcnt,bmi1")]
 pub(super) fn frame_keys_avx512(
     proj: &FrameProjector,
     img: &DepthImage,
@@ -67,7 +67,7 @@ pub(super) fn frame_keys_avx512(
 /// Rows `v..v + 4` with [`tiles::Bands::band`], or `None` (nothing
 /// appended) where it does not run: rows past the image or shorter than
 /// `samples`, rays only the exact loop handles.
-#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,popcnt,bmi1")]
+#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,avx512cd,popcnt,bmi1")]
 fn band(
     proj: &FrameProjector,
     img: &DepthImage,
@@ -93,7 +93,7 @@ fn band(
 
 /// [`portable_chunk`] eight samples per step: the same arithmetic on
 /// 64-bit lanes, with validity, range and novelty as mask registers.
-#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,popcnt,bmi1")]
+#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,avx512cd,popcnt,bmi1")]
 #[inline]
 fn avx512_chunk(
     raws: &[u16; CHUNK],

@@ -38,7 +38,12 @@
 //! is far below a tile's spread: it costs no passes).
 //!
 //! Keys are deduplicated as 32-bit local keys (the three floors as
-//! balanced base-1024 digits) and packed only for the few that start a run.
+//! balanced base-1024 digits): a passing tile's key where it differs from
+//! the tile before, a failing tile's keys once per two rows, then once per
+//! frame as far as a small table of the keys kept so far remembers them.
+//! Only those are packed into keys: fewer than two per distinct voxel on
+//! recorded 7-Scenes frames (a test checks it), where dropping the
+//! neighbours' repeats alone left about a hundred.
 
 use placedb::camera::wide::ChunkRays;
 use std::arch::x86_64::*;
@@ -56,6 +61,10 @@ const STEP: usize = WIDTH * LANES;
 const DIGIT_MAX: i64 = 511;
 /// A local key no valid sample has: an invalid sample's.
 const NOT_A_KEY: i32 = i32::MIN;
+/// The table of kept local keys has `2^SEEN_BITS` slots: about twice the
+/// distinct voxels of a 7-Scenes frame at 0.3 m, and 1 KiB.
+const SEEN_BITS: u32 = 8;
+const SEEN_SLOTS: usize = 1 << SEEN_BITS;
 /// Keys are 21 bits an axis.
 const AXIS_KEYS: i64 = 1 << 21;
 /// `2^-40`: fixed point to voxels (a power of two: multiplying by it is
@@ -129,7 +138,7 @@ impl Band {
     /// that might not fit the digits or keys the key range (the path has
     /// no range test), or an error so large that most samples would be
     /// near an integer.
-    #[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,popcnt,bmi1")]
+    #[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,avx512cd,popcnt,bmi1")]
     #[inline]
     fn new(frame: &Frame, rays: &[ChunkRays; ROWS], padded: usize) -> Option<Band> {
         let last = padded.saturating_sub(1) as f64;
@@ -193,10 +202,25 @@ impl Band {
 }
 
 /// The tile path's band loop, holding its scratch space.
-#[derive(Debug, Default)]
+///
+/// One serves one frame: its table of kept keys is the frame's (a key kept
+/// for another frame would be missing from this one's).
+#[derive(Debug)]
 pub(super) struct Bands {
-    /// A band's local keys that start a run, packed.
+    /// A band's local keys its vectors found new, packed.
     locals: Vec<i32>,
+    /// The local keys kept so far, by hash (local keys are the frame's:
+    /// its rows share their translation).
+    seen: [i32; SEEN_SLOTS],
+}
+
+impl Default for Bands {
+    fn default() -> Self {
+        Bands {
+            locals: Vec::new(),
+            seen: [NOT_A_KEY; SEEN_SLOTS],
+        }
+    }
 }
 
 impl Bands {
@@ -209,7 +233,7 @@ impl Bands {
     /// `None`, with nothing appended, where the float path cannot promise
     /// the exact keys (no key of the rows is out of range otherwise): the
     /// caller then runs the exact loop.
-    #[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,popcnt,bmi1")]
+    #[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,avx512cd,popcnt,bmi1")]
     pub(super) fn band(
         &mut self,
         rays: &[ChunkRays; ROWS],
@@ -296,13 +320,13 @@ impl Bands {
             }
         }
         let n = records.n;
-        let n = drop_repeats(&mut self.locals, n);
+        let n = drop_seen(&mut self.locals, n, &mut self.seen);
         emit(&frame, &self.locals[..n], keys);
         Some(valid)
     }
 }
 
-/// The local keys that start a run, packed into a buffer a vector at a
+/// The local keys a vector found new, packed into a buffer a vector at a
 /// time.
 struct Records<'a> {
     locals: &'a mut [i32],
@@ -311,7 +335,7 @@ struct Records<'a> {
 
 impl Records<'_> {
     /// Appends the lanes of `local` marked in `new`.
-    #[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,popcnt,bmi1")]
+    #[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,avx512cd,popcnt,bmi1")]
     #[inline]
     fn push(&mut self, local: __m512i, new: u16) {
         if let Some(slot) = self.locals.get_mut(self.n..self.n + LANES) {
@@ -323,36 +347,28 @@ impl Records<'_> {
     }
 }
 
-/// Drops from `locals[..n]` each local key equal to the one before it (the
-/// last pixels of a failing tile and the next tiles, the two row pairs of a
-/// tile, mostly share a key: fewer keys to convert and sort), in place;
-/// returns the new length. `locals` has room for a vector past `n`.
-#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,popcnt,bmi1")]
-fn drop_repeats(locals: &mut [i32], n: usize) -> usize {
-    let (mut kept, mut before) = (0usize, _mm512_set1_epi32(NOT_A_KEY));
-    for start in (0..n).step_by(LANES) {
-        let Some(group) = locals.get(start..start + LANES) else {
-            break;
-        };
-        // SAFETY: reads the 64 bytes of `group`, sixteen i32.
-        let local = unsafe { _mm512_loadu_si512(group.as_ptr().cast()) };
-        let inside = u16::MAX >> (LANES - (n - start).min(LANES));
-        let new =
-            _mm512_mask_cmpneq_epi32_mask(inside, local, _mm512_alignr_epi32::<15>(local, before));
-        before = local;
-        // Written at or before where it was read: the next group is intact.
-        if let Some(slot) = locals.get_mut(kept..kept + LANES) {
-            let packed = _mm512_maskz_compress_epi32(new, local);
-            // SAFETY: writes the 64 bytes of `slot`, sixteen i32.
-            unsafe { _mm512_storeu_si512(slot.as_mut_ptr().cast(), packed) };
-            kept += new.count_ones() as usize;
-        }
+/// Drops from `locals[..n]` each local key found in its slot of `seen`,
+/// a table of the keys kept before, and records the others there, in
+/// place; returns the new length. A frame's few voxels recur all along its
+/// rows (tiles alternate between the voxels of an edge, failing tiles emit
+/// two row pairs): what is left to convert, sort and store is little more
+/// than the frame's key set.
+fn drop_seen(locals: &mut [i32], n: usize, seen: &mut [i32; SEEN_SLOTS]) -> usize {
+    let mut kept = 0usize;
+    for i in 0..n.min(locals.len()) {
+        let local = locals[i];
+        // Fibonacci hashing: the top bits of the product mix all digits.
+        let slot = &mut seen[(local as u32).wrapping_mul(0x9E37_79B1) as usize >> (32 - SEEN_BITS)];
+        // Branch-free: whether a key repeats is not predictable.
+        locals[kept] = local;
+        kept += usize::from(*slot != local);
+        *slot = local;
     }
     kept
 }
 
 /// Appends to `keys` the keys of `locals`, sixteen at a time.
-#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,popcnt,bmi1")]
+#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,avx512cd,popcnt,bmi1")]
 fn emit(frame: &Frame, locals: &[i32], keys: &mut Vec<u64>) {
     let start = keys.len();
     keys.resize(start + locals.len(), 0);
@@ -411,7 +427,7 @@ struct Tiles {
 
 /// The tile test on the four rows `raws` of [`STEP`] samples, of which the
 /// first is sample `first` of its row; `lo` and `span` as in [`ChunkRays`].
-#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,popcnt,bmi1")]
+#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,avx512cd,popcnt,bmi1")]
 #[inline]
 fn step_tiles(band: &Band, raws: [&[u16; STEP]; ROWS], first: usize, lo: u16, span: u16) -> Tiles {
     let (lo16, span16, hi16) = (
@@ -512,7 +528,7 @@ fn step_tiles(band: &Band, raws: [&[u16; STEP]; ROWS], first: usize, lo: u16, sp
 }
 
 /// The local keys of floors `[x, y, z]`, which fit the digits.
-#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,popcnt,bmi1")]
+#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,avx512cd,popcnt,bmi1")]
 #[inline]
 fn combine([x, y, z]: [__m512i; 3]) -> __m512i {
     _mm512_add_epi32(
@@ -522,9 +538,9 @@ fn combine([x, y, z]: [__m512i; 3]) -> __m512i {
 }
 
 /// Rows `2 pair` and `2 pair + 1` of tile `t` of `raws` sample by sample:
-/// their local keys and which start a run, or `None` without a valid
-/// sample.
-#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,popcnt,bmi1")]
+/// their local keys and which are new (valid, and the first lane with that
+/// key), or `None` without a valid sample.
+#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,avx512cd,popcnt,bmi1")]
 #[inline]
 #[allow(clippy::too_many_arguments)]
 fn pixel_locals(
@@ -571,17 +587,17 @@ fn pixel_locals(
         local = exact_locals(frame, rays, raws, first, t, pair, ok);
     }
     let local = _mm512_mask_blend_epi32(ok, _mm512_set1_epi32(NOT_A_KEY), local);
-    // Lane i's predecessor is lane i - 1 (across the rows too: a repeat
-    // dropped there is a repeat all the same).
-    let shifted = _mm512_alignr_epi32::<15>(local, _mm512_set1_epi32(NOT_A_KEY));
-    Some((local, _mm512_mask_cmpneq_epi32_mask(ok, local, shifted)))
+    // A key once: the lanes with no equal valid lane before them (the
+    // two rows of a failing tile hold two or three voxels' keys).
+    let first = _mm512_cmpeq_epi32_mask(_mm512_conflict_epi32(local), _mm512_setzero_si512());
+    Some((local, ok & first))
 }
 
 /// The local keys of [`pixel_locals`]'s samples, exactly, for the rare
 /// vector with a sample too near an integer for the float path: the
 /// fixed-point definition, `(raw * ray + t) >> 40` an axis. Lanes not in
 /// `ok` are left zero.
-#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,popcnt,bmi1")]
+#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,avx512cd,popcnt,bmi1")]
 #[inline(never)]
 fn exact_locals(
     frame: &Frame,
