@@ -106,6 +106,20 @@ impl Frame {
             room: room as f64,
         }
     }
+
+    /// The packed key of local key `local` (balanced base-1024 digits
+    /// `[x, y, z]` of floors that fit them: `local = x 2^20 + y 2^10 + z`).
+    fn key(&self, local: i32) -> u64 {
+        // Each digit is the low ten bits, sign-extended; taken off, the
+        // rest shifts down exactly.
+        let low = |v: i32| (v << 22) >> 22;
+        let z = low(local);
+        let rest = (local - z) >> 10;
+        let y = low(rest);
+        let x = (rest - y) >> 10;
+        let axis = |floor: i32, a: usize| (i64::from(floor) + self.t_int[a]) as u64;
+        axis(x, 0) << 42 | axis(y, 1) << 21 | axis(z, 2)
+    }
 }
 
 /// What a frame's rows share, as compared: what [`Frame`] is made of.
@@ -320,8 +334,7 @@ impl Bands {
             }
         }
         let n = records.n;
-        let n = drop_seen(&mut self.locals, n, &mut self.seen);
-        emit(&frame, &self.locals[..n], keys);
+        keep_unseen(&frame, &self.locals[..n], &mut self.seen, keys);
         Some(valid)
     }
 }
@@ -347,69 +360,19 @@ impl Records<'_> {
     }
 }
 
-/// Drops from `locals[..n]` each local key found in its slot of `seen`,
-/// a table of the keys kept before, and records the others there, in
-/// place; returns the new length. A frame's few voxels recur all along its
-/// rows (tiles alternate between the voxels of an edge, failing tiles emit
-/// two row pairs): what is left to convert, sort and store is little more
-/// than the frame's key set.
-fn drop_seen(locals: &mut [i32], n: usize, seen: &mut [i32; SEEN_SLOTS]) -> usize {
-    let mut kept = 0usize;
-    for i in 0..n.min(locals.len()) {
-        let local = locals[i];
+/// Appends to `keys` the key of each of `locals` not found in its slot of
+/// `seen`, a table of the keys kept before, and records it there. A
+/// frame's few voxels recur all along its rows (tiles alternate between
+/// the voxels of an edge, failing tiles emit two row pairs): what is left
+/// to convert, sort and store is little more than the frame's key set, and
+/// the loop mostly reads (the branch to a new key is rarely taken).
+fn keep_unseen(frame: &Frame, locals: &[i32], seen: &mut [i32; SEEN_SLOTS], keys: &mut Vec<u64>) {
+    for &local in locals {
         // Fibonacci hashing: the top bits of the product mix all digits.
         let slot = &mut seen[(local as u32).wrapping_mul(0x9E37_79B1) as usize >> (32 - SEEN_BITS)];
-        // Branch-free: whether a key repeats is not predictable.
-        locals[kept] = local;
-        kept += usize::from(*slot != local);
-        *slot = local;
-    }
-    kept
-}
-
-/// Appends to `keys` the keys of `locals`, sixteen at a time.
-#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx512bw,avx512cd,popcnt,bmi1")]
-fn emit(frame: &Frame, locals: &[i32], keys: &mut Vec<u64>) {
-    let start = keys.len();
-    keys.resize(start + locals.len(), 0);
-    let t_int = frame.t_int.map(|t| _mm512_set1_epi64(t));
-    let (groups, rest) = locals.as_chunks::<LANES>();
-    let mut last = [0i32; LANES];
-    last[..rest.len()].copy_from_slice(rest);
-    let out = &mut keys[start..];
-    for (g, group) in groups.iter().chain([&last]).enumerate() {
-        // SAFETY: reads the 64 bytes of `group`, sixteen i32.
-        let local = unsafe { _mm512_loadu_si512(group.as_ptr().cast()) };
-        // Balanced digits: sign-extend the low ten bits, take them off, shift.
-        let low = |x: __m512i| _mm512_srai_epi32::<22>(_mm512_slli_epi32::<22>(x));
-        let z = low(local);
-        let rest = _mm512_srai_epi32::<10>(_mm512_sub_epi32(local, z));
-        let y = low(rest);
-        let x = _mm512_srai_epi32::<10>(_mm512_sub_epi32(rest, y));
-        for half in 0..2 {
-            let wide = |v: __m512i, a: usize| {
-                let v = match half {
-                    0 => _mm512_castsi512_si256(v),
-                    _ => _mm512_extracti64x4_epi64::<1>(v),
-                };
-                _mm512_add_epi64(_mm512_cvtepi32_epi64(v), t_int[a])
-            };
-            let key = _mm512_ternarylogic_epi64::<0xfe>(
-                _mm512_slli_epi64::<42>(wide(x, 0)),
-                _mm512_slli_epi64::<21>(wide(y, 1)),
-                wide(z, 2),
-            );
-            let first = 2 * g * 8 + 8 * half;
-            if let Some(slot) = out.get_mut(first..first + 8) {
-                // SAFETY: writes the 64 bytes of `slot`, eight u64.
-                unsafe { _mm512_storeu_si512(slot.as_mut_ptr().cast(), key) };
-            } else if let Some(slot) = out.get_mut(first..) {
-                // The last few keys.
-                let mut whole = [0u64; 8];
-                // SAFETY: writes the 64 bytes of `whole`, eight u64.
-                unsafe { _mm512_storeu_si512(whole.as_mut_ptr().cast(), key) };
-                slot.copy_from_slice(&whole[..slot.len()]);
-            }
+        if *slot != local {
+            *slot = local;
+            keys.push(frame.key(local));
         }
     }
 }
