@@ -142,10 +142,15 @@ pub fn oracle_recall(test_sets: &[Vec<u64>], db_sets: &[&[u64]], threshold: f64)
 
 /// Number of distinct keys over some ascending sets.
 fn distinct<'a>(sets: impl Iterator<Item = &'a [u64]>) -> usize {
+    union(sets).len()
+}
+
+/// The distinct keys of some sets, ascending.
+pub(crate) fn union<'a>(sets: impl Iterator<Item = &'a [u64]>) -> Vec<u64> {
     let mut all: Vec<u64> = sets.flatten().copied().collect();
     all.par_sort_unstable();
     all.dedup();
-    all.len()
+    all
 }
 
 #[cfg(test)]

@@ -7,7 +7,7 @@
 //! [`Image`] without touching the file system.
 
 use crate::sequence::Sequence;
-use std::collections::{HashMap, HashSet};
+use std::collections::HashMap;
 use std::io::BufWriter;
 use std::path::Path;
 
@@ -388,10 +388,7 @@ pub fn project(
     let proj = Projection::new(vertical_axis(down));
     let (i, j) = proj.axes();
 
-    let mut union: HashSet<u64> = HashSet::new();
-    for set in sets {
-        union.extend(set.iter().copied());
-    }
+    let union = crate::metrics::union(sets.iter().map(Vec::as_slice));
     let mut counts: HashMap<(i32, i32), u32> = HashMap::new();
     for key in union.into_iter().filter_map(placedb::VoxelKey::from_bits) {
         let (x, y, z) = key.coords();
