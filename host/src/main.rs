@@ -936,14 +936,37 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
             select.push(out.display().to_string());
             rows.push((solver.name(), select));
         }
-        // Rounds of every row in turn, so that a drift of the machine's
-        // speed reaches the floor and the rows compared with it alike; each
-        // round starts one row later, so that no row always runs first.
+        // Rounds of every row in turn; each round starts one row later, so
+        // that no row always runs first. With a floor, every run of a
+        // solver's row is paired with a run of the floor right beside it
+        // (before it in even rounds, after it in odd ones): a machine's
+        // speed can drift (10-15 % on ours within a bench), which a ratio
+        // to a run a few rows away would count as the solver's cost.
         let mut runs: Vec<Vec<(f64, f64, serde_json::Value)>> = vec![Vec::new(); rows.len()];
+        // Per row, the floor's runs beside its runs.
+        let mut beside: Vec<Vec<(f64, f64)>> = vec![Vec::new(); rows.len()];
+        let first = usize::from(has_floor);
+        let solver_rows = rows.len() - first;
         for round in 0..a.repeat as usize {
-            for i in 0..rows.len() {
-                let r = (i + round) % rows.len();
+            for i in 0..solver_rows {
+                let r = first + (i + round) % solver_rows;
+                if !has_floor {
+                    runs[r].push(run(&rows[r].1)?);
+                    continue;
+                }
+                let floor_first = round % 2 == 0;
+                let before = if floor_first {
+                    Some(run(&rows[0].1)?)
+                } else {
+                    None
+                };
                 runs[r].push(run(&rows[r].1)?);
+                let floor = match before {
+                    Some(floor) => floor,
+                    None => run(&rows[0].1)?,
+                };
+                beside[r].push((floor.0, floor.1));
+                runs[0].push(floor);
             }
         }
         for (r, ((row, _), row_runs)) in rows.iter().zip(&runs).enumerate() {
@@ -969,17 +992,17 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
                 f("peak_rss_mb")
             );
             if has_floor && r > 0 {
-                // Per round, against the floor's run of the same round.
-                let ratio = |time: fn(&(f64, f64, serde_json::Value)) -> f64| {
+                // Per run, against the floor's run beside it.
+                let ratio = |time: fn(&(f64, f64)) -> f64| {
                     let ratios: Vec<f64> = row_runs
                         .iter()
-                        .zip(&runs[0])
-                        .map(|(s, d)| time(s) / time(d))
+                        .zip(&beside[r])
+                        .map(|(s, d)| time(&(s.0, s.1)) / time(d))
                         .collect();
                     median_by(&ratios, |r| *r).copied().unwrap_or(f64::NAN)
                 };
                 println!(
-                    "{:<16} {:<11} {:.2}x the decode-only wall time, {:.2}x its CPU time, medians of the rounds (target <= 1.3x)",
+                    "{:<16} {:<11} {:.2}x the decode-only wall time, {:.2}x its CPU time, medians of the runs beside a floor run (target <= 1.3x)",
                     "",
                     "",
                     ratio(|run| run.0),
@@ -1001,7 +1024,8 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
     let _ = std::fs::remove_dir_all(&out);
     println!(
         "wall_s: the child process from spawn to exit (reading, voxelizing, solving, writing),\n\
-         the median of {} rounds that run every row in turn (the other columns are that run's);\n\
+         the median of {} rounds that run every row in turn (the other columns are that run's;\n\
+         decode-only runs beside every run of a solver, and its row is the median of those);\n\
          cpu_s: that child's CPU time, user and system, all threads (steadier than wall time\n\
          when the machine's speed drifts); total_s: select's own clock, up to its outputs;\n\
          * read and voxel are CPU time summed over threads; the others are wall time",
