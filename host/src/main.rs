@@ -1025,7 +1025,7 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
     println!(
         "wall_s: the child process from spawn to exit (reading, voxelizing, solving, writing),\n\
          the median of {} rounds that run every row in turn (the other columns are that run's;\n\
-         decode-only runs beside every run of a solver, and its row is the median of those);\n\
+         a recorded sequence's decode-only runs beside every run of a solver, its row the median);\n\
          cpu_s: that child's CPU time, user and system, all threads (steadier than wall time\n\
          when the machine's speed drifts); total_s: select's own clock, up to its outputs;\n\
          * read and voxel are CPU time summed over threads; the others are wall time",
