@@ -187,6 +187,7 @@ impl KeyRun {
 }
 
 /// The packed absolute key of relative word `w` of a run based at `base`.
+#[inline]
 pub fn key_of(base: [i32; 3], w: u32) -> u64 {
     let dx = (w >> (DY_BITS + DZ_BITS)) as i32;
     let dy = ((w >> DZ_BITS) & ((1 << DY_BITS) - 1)) as i32;

@@ -29,6 +29,7 @@ impl VoxelKey {
 
     /// The key of voxel `(x, y, z)`; coordinates are clamped to
     /// [`Self::MIN`]..=[`Self::MAX`] (use [`Self::checked`] to refuse instead).
+    #[inline]
     pub fn new(x: i32, y: i32, z: i32) -> VoxelKey {
         let c = |a: i32| (a.clamp(Self::MIN, Self::MAX) + AXIS_BIAS) as u64;
         VoxelKey {
