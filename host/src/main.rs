@@ -954,19 +954,16 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
                     runs[r].push(run(&rows[r].1)?);
                     continue;
                 }
-                let floor_first = round % 2 == 0;
-                let before = if floor_first {
-                    Some(run(&rows[0].1)?)
+                let (floor, solver) = if round % 2 == 0 {
+                    let floor = run(&rows[0].1)?;
+                    (floor, run(&rows[r].1)?)
                 } else {
-                    None
-                };
-                runs[r].push(run(&rows[r].1)?);
-                let floor = match before {
-                    Some(floor) => floor,
-                    None => run(&rows[0].1)?,
+                    let solver = run(&rows[r].1)?;
+                    (run(&rows[0].1)?, solver)
                 };
                 beside[r].push((floor.0, floor.1));
                 runs[0].push(floor);
+                runs[r].push(solver);
             }
         }
         for (r, ((row, _), row_runs)) in rows.iter().zip(&runs).enumerate() {
@@ -993,11 +990,11 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
             );
             if has_floor && r > 0 {
                 // Per run, against the floor's run beside it.
-                let ratio = |time: fn(&(f64, f64)) -> f64| {
+                let ratio = |time: fn((f64, f64)) -> f64| {
                     let ratios: Vec<f64> = row_runs
                         .iter()
                         .zip(&beside[r])
-                        .map(|(s, d)| time(&(s.0, s.1)) / time(d))
+                        .map(|(s, &d)| time((s.0, s.1)) / time(d))
                         .collect();
                     median_by(&ratios, |r| *r).copied().unwrap_or(f64::NAN)
                 };
@@ -1005,8 +1002,8 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
                     "{:<16} {:<11} {:.2}x the decode-only wall time, {:.2}x its CPU time, medians of the runs beside a floor run (target <= 1.3x)",
                     "",
                     "",
-                    ratio(|run| run.0),
-                    ratio(|run| run.1)
+                    ratio(|(wall, _)| wall),
+                    ratio(|(_, cpu)| cpu)
                 );
             }
             if *name == "7scenes-1000" && a.stride == 1 && *row == Solver::InOrder.name() {
