@@ -70,7 +70,9 @@ pub fn evaluate(sets: &[Vec<u64>], co: &CoObservation, db: &[usize], mu: f32) ->
         })
         .collect();
 
-    let all = distinct(sets.iter().map(Vec::as_slice));
+    // The union of all sets is the co-observation count's own: its
+    // inverted index numbers every distinct voxel.
+    let all = co.distinct_keys();
     let kept = distinct(db.iter().map(|&b| sets[b].as_slice()));
     Metrics {
         size,
