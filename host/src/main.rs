@@ -514,7 +514,13 @@ fn select(a: SelectArgs) -> Result<(), Error> {
     let seq = open_sequence(&a.seq)?;
     let params = solver_params(&a.params)?;
     let prep = pipeline::prepare(&seq, voxel_config(&a.seq), a.params.quiet)?;
-    let mut o = pipeline::solve(&seq, &prep, a.solver, a.mu, &params, a.params.quiet)?;
+    // The top view's map and trajectory do not depend on the solver: they
+    // are projected on the other thread while it solves.
+    let (solved, mut view) = rayon::join(
+        || pipeline::solve(&seq, &prep, a.solver, a.mu, &params, a.params.quiet),
+        || plot::project(&seq, &prep.sets.sets, prep.sets.grid),
+    );
+    let mut o = solved?;
     if let Some(test) = &a.params.test {
         let tseq = open_test(test, &a.seq)?;
         let tsets = pipeline::prepare_test(&tseq, &prep, a.params.quiet)?;
@@ -531,18 +537,19 @@ fn select(a: SelectArgs) -> Result<(), Error> {
     if let Some(mb) = peak_rss_mb() {
         json["peak_rss_mb"] = mb.into();
     }
-    output::write_database_dir(&a.out, &rows, &timestamps, &o.labels, &json)?;
+    view.database.clone_from(&o.database);
+    // The picture is drawn and encoded while the tables are written.
+    std::fs::create_dir_all(&a.out)?;
+    let (written, drawn) = rayon::join(
+        || output::write_database_dir(&a.out, &rows, &timestamps, &o.labels, &json),
+        || view.render().write_png(&a.out.join("topview.png")),
+    );
+    written?;
+    drawn?;
     let dataset = match &a.dataset {
         Some(dir) => Some((dir, dataset::write(dir, &seq, &o.labels)?)),
         None => None,
     };
-    plot::topview(
-        &a.out.join("topview.png"),
-        &seq,
-        &prep.sets.sets,
-        prep.sets.grid,
-        &o.database,
-    )?;
     if a.params.json {
         println!("{}", serde_json::to_string_pretty(&json)?);
     } else {
