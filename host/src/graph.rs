@@ -554,20 +554,24 @@ impl CoObservation {
         placedb::voxel::iou(self.sizes[i], self.sizes[j], common)
     }
 
-    /// The overlap graph `G(mu)`: edge `i–j` iff `IoU > mu` (strict). For
+    /// The frames after `i` that overlap it at `mu`, ascending: its edges
+    /// to later frames in `G(mu)`. An edge is `IoU > mu` (strict); for
     /// `mu < 0` pairs sharing no voxel still get no edge (IoU 0 is not an
     /// overlap); NaN gives no edges.
+    pub fn later_overlaps(&self, i: usize, mu: f32) -> impl Iterator<Item = usize> + '_ {
+        self.row(i)
+            .iter()
+            .filter(move |&&(j, c)| self.pair_iou(i, j as usize, c) > mu)
+            .map(|&(j, _)| j as usize)
+    }
+
+    /// The overlap graph `G(mu)`: edge `i–j` iff `IoU > mu` (see
+    /// [`Self::later_overlaps`]).
     pub fn graph(&self, mu: f32) -> OverlapGraph {
         let n = self.len();
         let upper: Vec<Vec<u32>> = (0..n)
             .into_par_iter()
-            .map(|i| {
-                self.row(i)
-                    .iter()
-                    .filter(|&&(j, c)| self.pair_iou(i, j as usize, c) > mu)
-                    .map(|&(j, _)| j)
-                    .collect()
-            })
+            .map(|i| self.later_overlaps(i, mu).map(|j| j as u32).collect())
             .collect();
         let mut adj: Vec<Vec<u32>> = vec![Vec::new(); n];
         // Rows in ascending order: every list receives its lower neighbours

@@ -226,7 +226,9 @@ pub fn solve(
     let mut online = None;
     let graph = || prep.co.graph(mu);
     let database = match solver {
-        Solver::InOrder => solve::in_order(&graph()),
+        // The scan needs each frame's later overlaps only: the rows of the
+        // co-observation counts, without the graph.
+        Solver::InOrder => solve::in_order_by(n, |v| prep.co.later_overlaps(v, mu)),
         Solver::Greedy => solve::greedy(&graph()),
         Solver::Exact => {
             let r = solve::exact(&graph(), params.time_limit);

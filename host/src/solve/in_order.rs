@@ -18,14 +18,30 @@ use crate::graph::OverlapGraph;
 
 /// Frames taken by a scan in sequence order (ascending).
 pub fn in_order(g: &OverlapGraph) -> Vec<usize> {
-    let mut dominated = vec![false; g.n];
+    in_order_by(g.n, |v| {
+        let adj = g.neighbours(v);
+        adj[adj.partition_point(|&u| u as usize <= v)..]
+            .iter()
+            .map(|&u| u as usize)
+    })
+}
+
+/// [`in_order`] on frames `0..n` given only each frame's later neighbours
+/// (`later(v)`, all above `v`): when the scan reaches a frame, its earlier
+/// neighbours are decided already, so marking them would change nothing.
+/// `select` runs it on the co-observation rows, which hold exactly those,
+/// without building the graph.
+///
+/// # Panics
+/// When `later` yields a frame `>= n`.
+pub fn in_order_by<I: Iterator<Item = usize>>(n: usize, later: impl Fn(usize) -> I) -> Vec<usize> {
+    let mut dominated = vec![false; n];
     let mut taken = Vec::new();
-    for v in 0..g.n {
+    for v in 0..n {
         if !dominated[v] {
             taken.push(v);
-            dominated[v] = true;
-            for &u in &g.adj[v] {
-                dominated[u as usize] = true;
+            for u in later(v) {
+                dominated[u] = true;
             }
         }
     }
@@ -35,6 +51,30 @@ pub fn in_order(g: &OverlapGraph) -> Vec<usize> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::graph::CoObservation;
+    use crate::rng::SplitMix64;
+
+    #[test]
+    fn on_co_observation_rows_it_takes_what_it_takes_on_the_graph() {
+        let mut rng = SplitMix64::new(3);
+        for _ in 0..200 {
+            let n = rng.below(40) as usize;
+            // Frames along a line of voxels, of random lengths and steps:
+            // neighbours share voxels, some pairs overlap above mu.
+            let mut start = 0u64;
+            let sets: Vec<Vec<u64>> = (0..n)
+                .map(|_| {
+                    start += rng.below(6);
+                    (start..start + rng.below(12)).collect()
+                })
+                .collect();
+            let co = CoObservation::new(&sets, None);
+            for mu in [0.0, 0.3, 0.6] {
+                let by_rows = in_order_by(n, |v| co.later_overlaps(v, mu));
+                assert_eq!(by_rows, in_order(&co.graph(mu)), "{sets:?} at {mu}");
+            }
+        }
+    }
 
     #[test]
     fn path_takes_every_other_pair() {

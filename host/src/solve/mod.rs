@@ -12,5 +12,5 @@ pub mod labels;
 pub use baselines::{cube, distance, every_nth};
 pub use exact::{exact, ExactResult};
 pub use greedy::greedy;
-pub use in_order::in_order;
+pub use in_order::{in_order, in_order_by};
 pub use labels::{is_dominating, labels};
