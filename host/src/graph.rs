@@ -569,20 +569,86 @@ impl CoObservation {
     /// [`Self::later_overlaps`]).
     pub fn graph(&self, mu: f32) -> OverlapGraph {
         let n = self.len();
-        let upper: Vec<Vec<u32>> = (0..n)
+        // The later overlaps in parallel, a run of rows at a time: per row
+        // its count, and the rows' lists one after the other.
+        let runs: Vec<(Vec<usize>, Vec<u32>)> = (0..n.div_ceil(self.run))
             .into_par_iter()
-            .map(|i| self.later_overlaps(i, mu).map(|j| j as u32).collect())
+            .map(|r| {
+                let (mut counts, mut items) = (Vec::new(), Vec::new());
+                for i in r * self.run..((r + 1) * self.run).min(n) {
+                    let before = items.len();
+                    items.extend(self.later_overlaps(i, mu).map(|j| j as u32));
+                    counts.push(items.len() - before);
+                }
+                (counts, items)
+            })
             .collect();
-        let mut adj: Vec<Vec<u32>> = vec![Vec::new(); n];
-        // Rows in ascending order: every list receives its lower neighbours
-        // (ascending) before its own upper ones (ascending), so it stays sorted.
-        for (i, up) in upper.into_iter().enumerate() {
-            for &j in &up {
-                adj[j as usize].push(i as u32);
+        let mut later = Adjacency {
+            starts: vec![0],
+            items: Vec::with_capacity(runs.iter().map(|(_, items)| items.len()).sum()),
+        };
+        for (counts, items) in runs {
+            for c in counts {
+                later.starts.push(later.starts[later.starts.len() - 1] + c);
             }
-            adj[i].extend_from_slice(&up);
+            later.items.extend_from_slice(&items);
         }
-        OverlapGraph { n, mu, adj }
+        OverlapGraph {
+            n,
+            mu,
+            adj: later.symmetric(),
+        }
+    }
+}
+
+/// Lists of vertices in one allocation: vertex `v`'s are
+/// `items[starts[v]..starts[v + 1]]`.
+#[derive(Debug, Clone, PartialEq)]
+struct Adjacency {
+    starts: Vec<usize>,
+    items: Vec<u32>,
+}
+
+impl Adjacency {
+    fn of(&self, v: usize) -> &[u32] {
+        &self.items[self.starts[v]..self.starts[v + 1]]
+    }
+
+    /// The undirected graph whose edges are `v`'s lists here, each holding
+    /// later vertices only, ascending: every list then gets its earlier
+    /// neighbours (ascending) and its own.
+    ///
+    /// # Panics
+    /// When a list holds a vertex not after its own or past the last.
+    fn symmetric(&self) -> Adjacency {
+        let n = self.starts.len() - 1;
+        let mut degree = vec![0usize; n];
+        for v in 0..n {
+            degree[v] += self.of(v).len();
+            for &u in self.of(v) {
+                assert!((v + 1..n).contains(&(u as usize)), "edge {v}-{u}");
+                degree[u as usize] += 1;
+            }
+        }
+        let mut starts = Vec::with_capacity(n + 1);
+        starts.push(0);
+        for d in degree {
+            starts.push(starts[starts.len() - 1] + d);
+        }
+        let mut items = vec![0u32; starts[n]];
+        // Where each list's next vertex goes. In ascending order of `v`,
+        // a list receives its earlier neighbours before its own later ones,
+        // so it stays sorted.
+        let mut next = starts[..n].to_vec();
+        for v in 0..n {
+            let later = self.of(v);
+            for &u in later {
+                items[next[u as usize]] = v as u32;
+                next[u as usize] += 1;
+            }
+            items[next[v]..next[v] + later.len()].copy_from_slice(later);
+        }
+        Adjacency { starts, items }
     }
 }
 
@@ -594,8 +660,9 @@ pub struct OverlapGraph {
     /// The IoU threshold it was built with; NaN for graphs built from edges.
     pub mu: f32,
     /// Sorted, duplicate-free neighbours of each vertex, without the vertex
-    /// itself; symmetric.
-    pub adj: Vec<Vec<u32>>,
+    /// itself; symmetric. One allocation, not one per vertex: a building's
+    /// graph has millions of edges.
+    adj: Adjacency,
 }
 
 impl OverlapGraph {
@@ -605,38 +672,46 @@ impl OverlapGraph {
     /// # Panics
     /// When an endpoint is `>= n`.
     pub fn from_edges(n: usize, edges: &[(usize, usize)]) -> OverlapGraph {
-        let mut adj: Vec<Vec<u32>> = vec![Vec::new(); n];
-        for &(a, b) in edges {
-            assert!(a < n && b < n, "edge ({a}, {b}) outside 0..{n}");
-            if a != b {
-                adj[a].push(b as u32);
-                adj[b].push(a as u32);
-            }
+        let mut pairs: Vec<(u32, u32)> = edges
+            .iter()
+            .filter(|&&(a, b)| {
+                assert!(a < n && b < n, "edge ({a}, {b}) outside 0..{n}");
+                a != b
+            })
+            .map(|&(a, b)| (a.min(b) as u32, a.max(b) as u32))
+            .collect();
+        pairs.sort_unstable();
+        pairs.dedup();
+        let mut later = Adjacency {
+            starts: vec![0; n + 1],
+            items: pairs.iter().map(|&(_, b)| b).collect(),
+        };
+        for &(a, _) in &pairs {
+            later.starts[a as usize + 1] += 1;
         }
-        for l in &mut adj {
-            l.sort_unstable();
-            l.dedup();
+        for v in 0..n {
+            later.starts[v + 1] += later.starts[v];
         }
         OverlapGraph {
             n,
             mu: f32::NAN,
-            adj,
+            adj: later.symmetric(),
         }
     }
 
     /// Neighbours of `v` (not including `v`), ascending.
     pub fn neighbours(&self, v: usize) -> &[u32] {
-        &self.adj[v]
+        self.adj.of(v)
     }
 
     /// Whether `a` and `b` are adjacent.
     pub fn has_edge(&self, a: usize, b: usize) -> bool {
-        self.adj[a].binary_search(&(b as u32)).is_ok()
+        self.neighbours(a).binary_search(&(b as u32)).is_ok()
     }
 
     /// Number of edges.
     pub fn edge_count(&self) -> usize {
-        self.adj.iter().map(Vec::len).sum::<usize>() / 2
+        self.adj.items.len() / 2
     }
 }
 
@@ -664,12 +739,24 @@ mod tests {
         assert_eq!(co.iou(2, 3), 0.0);
         assert_eq!(co.iou(3, 3), 0.0);
         assert_eq!(co.distinct_keys(), 6);
+        let lists = |g: &OverlapGraph| {
+            (0..g.n)
+                .map(|v| g.neighbours(v).to_vec())
+                .collect::<Vec<_>>()
+        };
         let g = co.graph(0.4);
-        assert_eq!(g.adj, vec![vec![4], vec![], vec![], vec![], vec![0]]);
+        assert_eq!(lists(&g), vec![vec![4], vec![], vec![], vec![], vec![0]]);
         let g = co.graph(0.3);
         assert_eq!(
-            g.adj,
+            lists(&g),
             vec![vec![1, 4], vec![0, 4], vec![], vec![], vec![0, 1]]
+        );
+        assert_eq!(
+            g,
+            OverlapGraph {
+                mu: 0.3,
+                ..OverlapGraph::from_edges(5, &[(4, 1), (0, 4), (1, 0), (0, 1)])
+            }
         );
     }
 

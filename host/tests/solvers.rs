@@ -45,7 +45,7 @@ fn trajectory_graph(rng: &mut Rng, n: usize, window: usize) -> OverlapGraph {
 fn brute_force_minimum(g: &OverlapGraph) -> usize {
     assert!(g.n <= 20);
     let closed: Vec<u32> = (0..g.n)
-        .map(|v| g.adj[v].iter().fold(1u32 << v, |m, &u| m | 1 << u))
+        .map(|v| g.neighbours(v).iter().fold(1u32 << v, |m, &u| m | 1 << u))
         .collect();
     let full = (1u32 << g.n) - 1;
     (0u32..=full)
@@ -249,7 +249,7 @@ fn check_co_observation(sets: &[Vec<u64>]) {
                 .filter(|&j| j != i && co.iou(i, j) > mu)
                 .map(|j| j as u32)
                 .collect();
-            assert_eq!(g.adj[i], want);
+            assert_eq!(g.neighbours(i), want);
         }
     }
 }

@@ -121,7 +121,7 @@ impl Cover {
     fn from_graph(g: &OverlapGraph) -> Cover {
         let rows: Vec<Vec<u32>> = (0..g.n)
             .map(|v| {
-                let mut r = g.adj[v].clone();
+                let mut r = g.neighbours(v).to_vec();
                 let at = r.partition_point(|&u| (u as usize) < v);
                 r.insert(at, v as u32);
                 r

@@ -33,7 +33,7 @@ impl Incidence for OverlapGraph {
     }
 
     fn rows_of(&self, c: usize) -> impl Iterator<Item = usize> + '_ {
-        std::iter::once(c).chain(self.adj[c].iter().map(|&u| u as usize))
+        std::iter::once(c).chain(self.neighbours(c).iter().map(|&u| u as usize))
     }
 
     fn cols_of(&self, r: usize) -> impl Iterator<Item = usize> + '_ {

@@ -57,7 +57,7 @@ pub fn is_dominating(g: &OverlapGraph, db: &[usize]) -> bool {
     let mut dominated = vec![false; g.n];
     for &b in db {
         dominated[b] = true;
-        for &u in &g.adj[b] {
+        for &u in g.neighbours(b) {
             dominated[u as usize] = true;
         }
     }
