@@ -214,18 +214,20 @@ fn per_frame_mut<'a>(mut buf: &'a mut [u32], frame_starts: &[usize]) -> Vec<&'a 
 }
 
 /// The bounding box of all keys as a dense grid of cells.
-struct BoxCells {
+pub(crate) struct BoxCells {
     min: [u64; 3],
     dims: [u64; 3],
-    count: usize,
+    /// Cells in the box.
+    pub(crate) count: usize,
 }
 
 impl BoxCells {
     const SHIFT: [u32; 3] = [42, 21, 0];
     const MASK: u64 = (1 << 21) - 1;
 
-    /// The box, when it has at most `total + 65536` cells.
-    fn of(sets: &[Vec<u64>], total: usize) -> Option<BoxCells> {
+    /// The box of `sets`, holding `total` keys, when it has at most
+    /// `total + 65536` cells.
+    pub(crate) fn of<S: AsRef<[u64]> + Sync>(sets: &[S], total: usize) -> Option<BoxCells> {
         let axis = |k: u64, a: usize| (k >> Self::SHIFT[a]) & Self::MASK;
         // Per axis minimum and maximum, and the OR of all keys (bit 63 must be clear).
         let empty = ([u64::MAX; 3], [0u64; 3], 0u64);
@@ -233,7 +235,7 @@ impl BoxCells {
             .par_iter()
             .map(|s| {
                 let (mut lo, mut hi, mut or) = empty;
-                for &k in s {
+                for &k in s.as_ref() {
                     for a in 0..3 {
                         lo[a] = lo[a].min(axis(k, a));
                         hi[a] = hi[a].max(axis(k, a));
@@ -265,9 +267,17 @@ impl BoxCells {
     }
 
     /// Cell of key `k`: lexicographic in (x, y, z) like the packed keys.
-    fn cell(&self, k: u64) -> u32 {
+    pub(crate) fn cell(&self, k: u64) -> u32 {
         let c = |a: usize| ((k >> Self::SHIFT[a]) & Self::MASK) - self.min[a];
         ((c(0) * self.dims[1] + c(1)) * self.dims[2] + c(2)) as u32
+    }
+
+    /// The key of cell `cell`: [`Self::cell`] undone.
+    pub(crate) fn key(&self, cell: u32) -> u64 {
+        let [_, dy, dz] = self.dims;
+        let cell = u64::from(cell);
+        let c = [cell / (dy * dz), cell / dz % dy, cell % dz];
+        (0..3).fold(0, |k, a| k | (c[a] + self.min[a]) << Self::SHIFT[a])
     }
 }
 
@@ -583,20 +593,21 @@ impl CoObservation {
                 (counts, items)
             })
             .collect();
-        let mut later = Adjacency {
-            starts: vec![0],
-            items: Vec::with_capacity(runs.iter().map(|(_, items)| items.len()).sum()),
+        // Read where they are: a flat copy would add a third of the
+        // graph's memory to its peak.
+        let later = || {
+            runs.iter().flat_map(|(counts, items)| {
+                let mut start = 0;
+                counts.iter().map(move |&c| {
+                    start += c;
+                    &items[start - c..start]
+                })
+            })
         };
-        for (counts, items) in runs {
-            for c in counts {
-                later.starts.push(later.starts[later.starts.len() - 1] + c);
-            }
-            later.items.extend_from_slice(&items);
-        }
         OverlapGraph {
             n,
             mu,
-            adj: later.symmetric(),
+            adj: Adjacency::symmetric(n, later),
         }
     }
 }
@@ -614,22 +625,26 @@ impl Adjacency {
         &self.items[self.starts[v]..self.starts[v + 1]]
     }
 
-    /// The undirected graph whose edges are `v`'s lists here, each holding
-    /// later vertices only, ascending: every list then gets its earlier
-    /// neighbours (ascending) and its own.
+    /// The undirected graph on `n` vertices whose edges are the lists
+    /// `later()` yields, vertex after vertex, each holding later vertices
+    /// only, ascending (read twice: to count, then to fill). Every vertex's
+    /// list gets its earlier neighbours (ascending), then its own.
     ///
     /// # Panics
-    /// When a list holds a vertex not after its own or past the last.
-    fn symmetric(&self) -> Adjacency {
-        let n = self.starts.len() - 1;
+    /// When `later()` yields other than `n` lists, or a list holds a vertex
+    /// not after its own or past the last.
+    fn symmetric<'a, I: Iterator<Item = &'a [u32]>>(n: usize, later: impl Fn() -> I) -> Adjacency {
         let mut degree = vec![0usize; n];
-        for v in 0..n {
-            degree[v] += self.of(v).len();
-            for &u in self.of(v) {
+        let mut lists = 0;
+        for (v, list) in later().enumerate() {
+            degree[v] += list.len();
+            for &u in list {
                 assert!((v + 1..n).contains(&(u as usize)), "edge {v}-{u}");
                 degree[u as usize] += 1;
             }
+            lists += 1;
         }
+        assert_eq!(lists, n, "lists of {lists} vertices for {n}");
         let mut starts = Vec::with_capacity(n + 1);
         starts.push(0);
         for d in degree {
@@ -640,8 +655,7 @@ impl Adjacency {
         // a list receives its earlier neighbours before its own later ones,
         // so it stays sorted.
         let mut next = starts[..n].to_vec();
-        for v in 0..n {
-            let later = self.of(v);
+        for (v, later) in later().enumerate() {
             for &u in later {
                 items[next[u as usize]] = v as u32;
                 next[u as usize] += 1;
@@ -695,7 +709,7 @@ impl OverlapGraph {
         OverlapGraph {
             n,
             mu: f32::NAN,
-            adj: later.symmetric(),
+            adj: Adjacency::symmetric(n, || (0..n).map(|v| later.of(v))),
         }
     }
 

@@ -7,7 +7,7 @@
 //!   uncovered), `spatial_coverage` is 1 when no frame has a voxel, and
 //!   `reduction` is 0 for an empty database.
 
-use crate::graph::{CoObservation, KeyMap};
+use crate::graph::{BoxCells, CoObservation, KeyMap};
 use rayon::prelude::*;
 
 /// Coverage below this is "poorly covered" (the paper's recall criterion).
@@ -73,7 +73,7 @@ pub fn evaluate(sets: &[Vec<u64>], co: &CoObservation, db: &[usize], mu: f32) ->
     // The union of all sets is the co-observation count's own: its
     // inverted index numbers every distinct voxel.
     let all = co.distinct_keys();
-    let kept = distinct(db.iter().map(|&b| sets[b].as_slice()));
+    let kept = union(&db.iter().map(|&b| sets[b].as_slice()).collect::<Vec<_>>()).len();
     Metrics {
         size,
         reduction: if size == 0 {
@@ -142,16 +142,32 @@ pub fn oracle_recall(test_sets: &[Vec<u64>], db_sets: &[&[u64]], threshold: f64)
     hits as f64 / test_sets.len() as f64
 }
 
-/// Number of distinct keys over some ascending sets.
-fn distinct<'a>(sets: impl Iterator<Item = &'a [u64]>) -> usize {
-    union(sets).len()
-}
-
-/// The distinct keys of some sets, ascending.
-pub(crate) fn union<'a>(sets: impl Iterator<Item = &'a [u64]>) -> Vec<u64> {
-    let mut all: Vec<u64> = sets.flatten().copied().collect();
-    all.par_sort_unstable();
-    all.dedup();
+/// The distinct keys of some sets, ascending. Where the keys' bounding
+/// box has few cells (a scan's, mostly), each key marks its cell in a
+/// bitmap, a bit a cell, and the marked cells are read in order: no copy of
+/// every key, whose sort also took most of the time.
+pub(crate) fn union<S: AsRef<[u64]> + Sync>(sets: &[S]) -> Vec<u64> {
+    let keys = || sets.iter().flat_map(|s| s.as_ref().iter().copied());
+    let total = sets.iter().map(|s| s.as_ref().len()).sum();
+    let Some(cells) = BoxCells::of(sets, total) else {
+        let mut all: Vec<u64> = keys().collect();
+        all.par_sort_unstable();
+        all.dedup();
+        return all;
+    };
+    let mut marked = vec![0u64; cells.count.div_ceil(64)];
+    for k in keys() {
+        let cell = cells.cell(k);
+        marked[cell as usize / 64] |= 1 << (cell % 64);
+    }
+    let mut all = Vec::new();
+    for (w, &word) in marked.iter().enumerate() {
+        let mut bits = word;
+        while bits != 0 {
+            all.push(cells.key(64 * w as u32 + bits.trailing_zeros()));
+            bits &= bits - 1;
+        }
+    }
     all
 }
 
@@ -184,6 +200,37 @@ mod tests {
         assert_eq!(m.spatial_coverage, 1.0);
         assert_eq!(m.frames_coverage_min, 0.5);
         assert_eq!(m.frames_coverage_below_0_3, 0.0);
+    }
+
+    #[test]
+    fn union_is_the_distinct_keys_ascending_in_a_box_or_not() {
+        let mut rng = crate::rng::SplitMix64::new(5);
+        let key = |x: u64, y: u64, z: u64| x << 42 | y << 21 | z;
+        for round in 0..200 {
+            // Keys in a small box (a bitmap), or with one far away (a box
+            // too large: sorted), or with a word that is no key.
+            let base = [0; 3].map(|_: u64| rng.below(1 << 20));
+            let mut sets: Vec<Vec<u64>> = (0..rng.below(6))
+                .map(|_| {
+                    let mut s: Vec<u64> = (0..rng.below(30))
+                        .map(|_| {
+                            let [x, y, z] = base.map(|b| b + rng.below(5));
+                            key(x, y, z)
+                        })
+                        .collect();
+                    s.sort_unstable();
+                    s.dedup();
+                    s
+                })
+                .collect();
+            match round % 3 {
+                1 => sets.push(vec![key(base[0] + 100_000, base[1], base[2])]),
+                2 => sets.push(vec![u64::MAX]),
+                _ => {}
+            }
+            let want: std::collections::BTreeSet<u64> = sets.iter().flatten().copied().collect();
+            assert_eq!(union(&sets), want.into_iter().collect::<Vec<_>>());
+        }
     }
 
     #[test]
