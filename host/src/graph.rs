@@ -14,6 +14,7 @@
 //! IoU uses the core's [`placedb::voxel::iou`], so host and device compare
 //! the very same `f32` against `mu`.
 
+use crate::key_cells::BoxCells;
 use indicatif::ProgressBar;
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -211,74 +212,6 @@ fn per_frame_mut<'a>(mut buf: &'a mut [u32], frame_starts: &[usize]) -> Vec<&'a 
         buf = tail;
     }
     out
-}
-
-/// The bounding box of all keys as a dense grid of cells.
-pub(crate) struct BoxCells {
-    min: [u64; 3],
-    dims: [u64; 3],
-    /// Cells in the box.
-    pub(crate) count: usize,
-}
-
-impl BoxCells {
-    const SHIFT: [u32; 3] = [42, 21, 0];
-    const MASK: u64 = (1 << 21) - 1;
-
-    /// The box of `sets`, holding `total` keys, when it has at most
-    /// `total + 65536` cells.
-    pub(crate) fn of<S: AsRef<[u64]> + Sync>(sets: &[S], total: usize) -> Option<BoxCells> {
-        let axis = |k: u64, a: usize| (k >> Self::SHIFT[a]) & Self::MASK;
-        // Per axis minimum and maximum, and the OR of all keys (bit 63 must be clear).
-        let empty = ([u64::MAX; 3], [0u64; 3], 0u64);
-        let (lo, hi, or) = sets
-            .par_iter()
-            .map(|s| {
-                let (mut lo, mut hi, mut or) = empty;
-                for &k in s.as_ref() {
-                    for a in 0..3 {
-                        lo[a] = lo[a].min(axis(k, a));
-                        hi[a] = hi[a].max(axis(k, a));
-                    }
-                    or |= k;
-                }
-                (lo, hi, or)
-            })
-            .reduce(
-                || empty,
-                |(l1, h1, o1), (l2, h2, o2)| {
-                    (
-                        [0, 1, 2].map(|a| l1[a].min(l2[a])),
-                        [0, 1, 2].map(|a| h1[a].max(h2[a])),
-                        o1 | o2,
-                    )
-                },
-            );
-        if total == 0 || or >> 63 != 0 {
-            return None;
-        }
-        let dims = [0, 1, 2].map(|a| hi[a] - lo[a] + 1);
-        let count = dims[0] as u128 * dims[1] as u128 * dims[2] as u128;
-        (count <= total as u128 + 65536 && count < u32::MAX as u128).then_some(BoxCells {
-            min: lo,
-            dims,
-            count: count as usize,
-        })
-    }
-
-    /// Cell of key `k`: lexicographic in (x, y, z) like the packed keys.
-    pub(crate) fn cell(&self, k: u64) -> u32 {
-        let c = |a: usize| ((k >> Self::SHIFT[a]) & Self::MASK) - self.min[a];
-        ((c(0) * self.dims[1] + c(1)) * self.dims[2] + c(2)) as u32
-    }
-
-    /// The key of cell `cell`: [`Self::cell`] undone.
-    pub(crate) fn key(&self, cell: u32) -> u64 {
-        let [_, dy, dz] = self.dims;
-        let cell = u64::from(cell);
-        let c = [cell / (dy * dz), cell / dz % dy, cell % dz];
-        (0..3).fold(0, |k, a| k | (c[a] + self.min[a]) << Self::SHIFT[a])
-    }
 }
 
 /// Per-thread state of the counting walk over a run of consecutive frames.

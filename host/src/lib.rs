@@ -10,6 +10,7 @@ pub mod fault;
 pub mod foreground;
 pub mod frame_keys;
 pub mod graph;
+pub(crate) mod key_cells;
 pub mod link;
 pub mod metrics;
 pub mod online;

@@ -7,7 +7,8 @@
 //!   uncovered), `spatial_coverage` is 1 when no frame has a voxel, and
 //!   `reduction` is 0 for an empty database.
 
-use crate::graph::{BoxCells, CoObservation, KeyMap};
+use crate::graph::{CoObservation, KeyMap};
+use crate::key_cells::BoxCells;
 use rayon::prelude::*;
 
 /// Coverage below this is "poorly covered" (the paper's recall criterion).
@@ -142,10 +143,9 @@ pub fn oracle_recall(test_sets: &[Vec<u64>], db_sets: &[&[u64]], threshold: f64)
     hits as f64 / test_sets.len() as f64
 }
 
-/// The distinct keys of some sets, ascending. Where the keys' bounding
-/// box has few cells (a scan's, mostly), each key marks its cell in a
-/// bitmap, a bit a cell, and the marked cells are read in order: no copy of
-/// every key, whose sort also took most of the time.
+/// The distinct keys of some sets, ascending: through a bitmap of the keys'
+/// bounding box where it has few cells (a scan's, mostly), with no copy of
+/// every key, whose sort also took most of the time; else sorted.
 pub(crate) fn union<S: AsRef<[u64]> + Sync>(sets: &[S]) -> Vec<u64> {
     let keys = || sets.iter().flat_map(|s| s.as_ref().iter().copied());
     let total = sets.iter().map(|s| s.as_ref().len()).sum();
@@ -155,19 +155,9 @@ pub(crate) fn union<S: AsRef<[u64]> + Sync>(sets: &[S]) -> Vec<u64> {
         all.dedup();
         return all;
     };
-    let mut marked = vec![0u64; cells.count.div_ceil(64)];
-    for k in keys() {
-        let cell = cells.cell(k);
-        marked[cell as usize / 64] |= 1 << (cell % 64);
-    }
-    let mut all = Vec::new();
-    for (w, &word) in marked.iter().enumerate() {
-        let mut bits = word;
-        while bits != 0 {
-            all.push(cells.key(64 * w as u32 + bits.trailing_zeros()));
-            bits &= bits - 1;
-        }
-    }
+    let (mut marked, mut all) = (Vec::new(), Vec::new());
+    cells.mark(keys(), &mut marked);
+    cells.drain_marked(&mut marked, &mut all);
     all
 }
 

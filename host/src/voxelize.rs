@@ -4,6 +4,7 @@
 
 use crate::error::ReadError;
 use crate::frame_keys::{frame_keys, VectorUnit};
+use crate::key_cells::{axes, BoxCells};
 use crate::sequence::{DepthImage, Sequence};
 use indicatif::ProgressBar;
 use placedb::{DepthRange, FrameProjector, VoxelGrid};
@@ -174,43 +175,19 @@ const BITMAP_CELLS: u64 = 1 << 21;
 
 /// Sorts packed voxel keys ascending and drops repeats. A frame's keys lie
 /// in a small box of the grid (a few metres of 0.3 m voxels), so instead of
-/// sorting, each key sets its bit at its place in the box, x-major like the
-/// packing; reading the set bits in order gives the keys in order. `bitmap`
-/// is scratch, all zero between calls. Boxes over [`BITMAP_CELLS`] are
-/// sorted.
+/// sorting, they mark their cells of the box in a bitmap ([`BoxCells`]).
+/// `bitmap` is scratch, all zero between calls. Boxes over
+/// [`BITMAP_CELLS`] are sorted.
 fn sort_unique(keys: &mut Vec<u64>, bitmap: &mut Vec<u64>) {
     let (lo, hi) = key_box(keys);
-    let [ex, ey, ez] = [0, 1, 2].map(|a| hi[a].wrapping_sub(lo[a]).wrapping_add(1));
-    let cells = ex.checked_mul(ey).and_then(|c| c.checked_mul(ez));
-    let Some(cells) = cells.filter(|&c| !keys.is_empty() && c <= BITMAP_CELLS) else {
+    let Some(cells) = BoxCells::spanning(lo, hi, BITMAP_CELLS) else {
         keys.sort_unstable();
         keys.dedup();
         return;
     };
-    bitmap.resize(cells.div_ceil(64) as usize, 0);
-    for &k in keys.iter() {
-        let [x, y, z] = axes(k);
-        let cell = ((x - lo[0]) * ey + (y - lo[1])) * ez + (z - lo[2]);
-        bitmap[(cell / 64) as usize] |= 1 << (cell % 64);
-    }
+    cells.mark(keys.iter().copied(), bitmap);
     keys.clear();
-    for (w, word) in bitmap.iter_mut().enumerate() {
-        let mut bits = std::mem::take(word);
-        while bits != 0 {
-            let cell = w as u64 * 64 + u64::from(bits.trailing_zeros());
-            bits &= bits - 1;
-            let (z, yx) = (cell % ez, cell / ez);
-            let (y, x) = (yx % ey, yx / ey);
-            keys.push((x + lo[0]) << 42 | (y + lo[1]) << 21 | (z + lo[2]));
-        }
-    }
-}
-
-/// The three 21-bit coordinates of a packed key, x first.
-#[inline(always)]
-fn axes(k: u64) -> [u64; 3] {
-    const MASK: u64 = (1 << 21) - 1;
-    [k >> 42, (k >> 21) & MASK, k & MASK]
+    cells.drain_marked(bitmap, keys);
 }
 
 /// The smallest and the largest coordinate of `keys` on each axis (`lo`
