@@ -538,7 +538,8 @@ fn select(a: SelectArgs) -> Result<(), Error> {
         json["peak_rss_mb"] = mb.into();
     }
     view.database.clone_from(&o.database);
-    // The picture is drawn and encoded while the tables are written.
+    // The picture is drawn and encoded while the tables are written, into
+    // the directory both need, made first.
     std::fs::create_dir_all(&a.out)?;
     let (written, drawn) = rayon::join(
         || output::write_database_dir(&a.out, &rows, &timestamps, &o.labels, &json),
