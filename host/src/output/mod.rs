@@ -2,6 +2,9 @@
 //! `metrics.json` and `topview.png`. Scripts read these: the column sets and
 //! key names are stable.
 
+pub mod dataset;
+pub mod topview;
+
 use crate::sequence::Sequence;
 use std::fmt::Write as _;
 use std::io;

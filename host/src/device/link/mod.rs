@@ -14,6 +14,8 @@
 //! stream never deadlocks against a device that is itself blocked writing
 //! replies (the emulated UART moves only about 10 KB/s into the firmware).
 
+pub mod fault;
+
 use placedb::protocol::{
     encode, DeviceMessage, FrameDecoder, HostFrame, HostMessage, ProtocolError, Push, MAX_FRAME_LEN,
 };

@@ -2,6 +2,9 @@
 //! projector: the offline yardstick sees exactly the voxel sets the device
 //! would see at the same stride.
 
+pub mod frame_keys;
+pub(crate) mod key_cells;
+
 use crate::error::ReadError;
 use crate::frame_keys::{frame_keys, VectorUnit};
 use crate::key_cells::{axes, BoxCells};
