@@ -33,7 +33,7 @@ pub mod profile;
 pub mod protocol;
 pub mod select;
 pub mod sketch;
-pub mod store;
+pub mod key_pool;
 pub mod voxel;
 
 pub use camera::{CameraError, DepthRange, FrameProjector, Intrinsics, Pose};
@@ -42,3 +42,7 @@ pub use select::{
     DbRecord, Decision, FrameDecision, SelectError, Selector, SelectorConfig, Status,
 };
 pub use voxel::{FrameVoxels, VoxelGrid, VoxelKey};
+
+/// The key pool's former path.
+#[doc(hidden)]
+pub use key_pool as store;

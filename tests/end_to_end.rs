@@ -103,7 +103,7 @@ fn firmware_fits_its_budget() {
         data <= 1024,
         "{data} B of .data: the device static is not all zero, so it is stored in flash too \
          (usually a new `Option<T>` field whose T has a niche: its None is a non-zero byte; \
-         use a plain flag beside T, as `RingEntry` in src/select.rs does)"
+         use a plain flag beside T, as `RingEntry` in src/select/mod.rs does)"
     );
     assert!(flash <= FLASH_BUDGET && ram <= RAM_BUDGET);
     assert!(

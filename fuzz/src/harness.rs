@@ -23,7 +23,7 @@ use placedb::protocol::{
     DepthRows, DeviceMessage, ErrorKind, ExportRecord, Feed, FrameDecoder, HostFrame, HostMessage,
     Phase, ProtocolError, RecordKind, Status, MAX_FRAME_LEN, PROTOCOL_VERSION,
 };
-use placedb::store::Aabb;
+use placedb::key_pool::Aabb;
 
 /// The device under test: far smaller than the profiles, so that an input
 /// runs fast and every capacity (frame voxels, pool, database, window,

@@ -9,7 +9,7 @@ use indicatif::ProgressBar;
 use placedb::frame::{FrameError, FrameIngest};
 use placedb::profile::{Ram1M, Ram256K, Ram512K};
 use placedb::select::{DbSnapshot, FrameStore};
-use placedb::store::{key_of, merge_count};
+use placedb::key_pool::{key_of, merge_count};
 use placedb::{
     DbRecord, Decision, FrameMeta, ScanConfig, SelectError, Selector, SelectorConfig, Status,
 };

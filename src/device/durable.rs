@@ -15,7 +15,7 @@ use crate::persist::{Journal, Record};
 use crate::protocol::{DecisionKind, DeviceMessage};
 use crate::select::{DbSnapshot, FrameStore};
 use crate::sketch::Sketch;
-use crate::store::{key_of, Aabb};
+use crate::key_pool::{key_of, Aabb};
 
 use super::reply::Out;
 

@@ -11,7 +11,7 @@
 use super::keys::MAX_KEY_CHUNKS;
 use crate::frame::FrameMeta;
 use crate::protocol::{Config, DecisionKind};
-use crate::store::Aabb;
+use crate::key_pool::Aabb;
 
 /// Most decisions one [`Record::Decisions`] holds.
 pub const DECISION_BATCH: usize = 16;
