@@ -1,8 +1,15 @@
 //! placedb host tools: sequence readers, the offline yardstick (exact overlap
-//! graph, dominating-set solvers, baselines, metrics), replay of the core, and
-//! the `placedb` command line built on them.
+//! graph, dominating-set solvers, baselines, metrics), replay of the core, the
+//! device client, and the `placedb` command line built on them.
+//!
+//! The folders are the jobs, and imports go one way, from the command line
+//! down: [`cli`] (one file per subcommand) → [`device`] (session, scan and
+//! export → client → link and emulators), [`pipeline`] (voxelize → yardstick
+//! or replay) and [`bench`] → [`output`] (the one writer of a run's files),
+//! [`read`] and [`synth`] (sequences in) → [`sequence`].
 
 pub mod bench;
+pub mod cli;
 pub mod device;
 pub mod error;
 pub mod output;
@@ -16,18 +23,9 @@ pub mod synth;
 pub mod voxelize;
 pub mod yardstick;
 
+mod compat;
+
+pub use compat::*;
 pub use error::ReadError;
 pub use sequence::{CameraModel, ColorImage, DepthImage, DepthSource, Format, FrameInfo, Sequence};
 pub use voxelize::{voxelize, voxelize_on, GridOrigin, VoxelConfig, VoxelSets};
-
-// The paths of the flat layout, for code written against them.
-pub use bench::{db_scaling as dbscale, pixel_cost as pixelcost};
-pub use device::emulator::{foreground, rp2040};
-pub use device::link::{self as link, fault};
-pub use device::scan as device_cli;
-pub use device::session;
-pub use output::{dataset, topview as plot};
-pub use replay as online;
-pub(crate) use voxelize::key_cells;
-pub use voxelize::frame_keys;
-pub use yardstick::{graph, metrics, solve};

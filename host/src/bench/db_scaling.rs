@@ -9,8 +9,8 @@
 //! all live in flash, so both counts include reading every nearby stored
 //! frame back: the worst case for the bigger database.
 
-use crate::device_cli;
-use crate::online::sampled_rows;
+use crate::device::scan;
+use crate::replay::sampled_rows;
 use crate::row_chunks::{row_chunks, RowChunk};
 use crate::synth::{self, SynthConfig};
 use crate::VoxelConfig;
@@ -77,14 +77,14 @@ impl Building {
             rooms: (frames / 500).max(2),
         });
         let scan =
-            device_cli::scan_config(&seq, &VoxelConfig::default()).map_err(|e| e.to_string())?;
+            scan::scan_config(&seq, &VoxelConfig::default()).map_err(|e| e.to_string())?;
         let window = placedb::profile::by_name("ram256k").map_or(16, |p| p.window as u16);
         let sel = SelectorConfig {
             mu: MU,
             window,
             sketch_margin: 0.05,
         };
-        let cfg = device_cli::device_config(&scan, &sel).map_err(|e| e.to_string())?;
+        let cfg = scan::device_config(&scan, &sel).map_err(|e| e.to_string())?;
         Ok(Building { seq, cfg })
     }
 

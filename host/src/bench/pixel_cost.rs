@@ -11,8 +11,10 @@
 //!
 //! [`FrameCost::core`]: placedb::protocol::FrameCost::core
 
-use crate::device_cli::{self, DeviceError, StreamOptions};
-use crate::link::{Client, Link};
+use crate::device::error::DeviceError;
+use crate::device::scan::{self, StreamOptions};
+use crate::device::client::Client;
+use crate::device::link::Link;
 use crate::{Sequence, VoxelConfig};
 use placedb::SelectorConfig;
 
@@ -104,10 +106,10 @@ pub fn measure<L: Link>(
             stride: run.stride,
             ..*vcfg
         };
-        let scan = device_cli::scan_config(seq, &vcfg)?;
-        let cfg = device_cli::device_config(&scan, &sel)?;
+        let scan = scan::scan_config(seq, &vcfg)?;
+        let cfg = scan::device_config(&scan, &sel)?;
         let report =
-            device_cli::stream(client, seq, &cfg, profile, &StreamOptions::default(), None)?;
+            scan::stream(client, seq, &cfg, profile, &StreamOptions::default(), None)?;
         let st = &report.status;
         if st.cost.clock_hz == 0 || st.cost.frames == 0 {
             return Err(DeviceError::Input(

@@ -1,64 +1,40 @@
-//! Talking to a device: `placedb stream` (send a recorded sequence), `placedb
-//! export` (pull the database and labels, resumable, checked by count and
-//! CRC) and `placedb device --qemu` (start the emulated board).
+//! Streaming a scan to a device: the options ([`StreamOptions`], and
+//! [`Recovery`] for a lossy link), the scan and Hello configuration of a
+//! sequence, one depth frame in memory ([`DepthFrame`]), what a scan has sent
+//! and been told ([`ScanState`], which the public
+//! [`Session`](crate::device::session::Session) drives too), and [`stream`],
+//! which sends a recorded sequence (`placedb stream`).
 //!
 //! The device is the core's [`placedb::device::Device`], on a board or
 //! in-process (`local:PROFILE`); what it selects is what `placedb select
-//! --solver online` computes with the same profile and configuration, and the
-//! exported files are written by the same writers ([`crate::output`]), so they
-//! are byte-identical.
+//! --solver online` computes with the same profile and configuration.
 //!
 //! Over a lossy link ([`StreamOptions::retries`] > 0, e.g. `placedb stream
 //! --drop-chance 0.05 --corrupt-chance 0.05`, which wraps the link in a
-//! [`crate::fault::FaultInjector`]) the host goes stop-and-wait and retransmits
-//! a message with the same sequence number when its reply is late or says the
-//! frame was damaged ([`exchange`]); the device answers a repeat without
-//! applying it twice. Export batches are checked by count and CRC and asked
-//! again, shorter, when they fail.
+//! [`crate::device::link::fault::FaultInjector`]) the host goes stop-and-wait
+//! and retransmits a message with the same sequence number when its reply is
+//! late or says the frame was damaged
+//! ([`exchange`](crate::device::client::exchange)); the device answers a
+//! repeat without applying it twice.
 
-use crate::fault::{FaultConfig, FaultInjector};
-use crate::link::{self, Client, Link, QemuOptions, Received};
-use crate::output;
+use crate::device::client::{ask_status, check_profile, send_and_wait, Client, Received, Wait};
+use crate::device::error::DeviceError;
+use crate::device::export::ExportOptions;
+use crate::device::link::fault::FaultConfig;
+use crate::device::link::Link;
+use crate::replay::sampled_rows_of;
+use crate::row_chunks::row_chunks;
 use crate::sequence::Sequence;
-use crate::session::{DepthFrame, ScanState};
 use crate::voxelize::{self, GridOrigin, VoxelConfig};
 use indicatif::ProgressBar;
-use placedb::profile::{Capacities, PROFILES};
 use placedb::protocol::{
-    encode, export_crc, CapacitySlot, Config, DecisionKind, DeviceMessage, ErrorKind, ExportRecord,
-    Feed, FrameDecoder, HostMessage, RecordKind, Status, MAX_FRAME_LEN,
+    depth_rows_per_message, encode, CapacitySlot, Config, DecisionKind, DeviceMessage, ErrorKind,
+    HostFrame, HostMessage, Phase, Status, MAX_FRAME_LEN,
 };
-use placedb::{DbRecord, ScanConfig, SelectorConfig, VoxelGrid};
+use placedb::{Intrinsics, Pose, ScanConfig, SelectorConfig, VoxelGrid};
+use std::collections::VecDeque;
 use std::io;
-use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
-
-/// Why talking to a device failed.
-#[derive(Debug, thiserror::Error)]
-pub enum DeviceError {
-    /// The link failed or timed out.
-    #[error("link: {0}")]
-    Io(#[from] io::Error),
-    /// The device refused a message with a typed error.
-    #[error("the device refused {what} (seq {seq}): {kind}")]
-    Refused {
-        /// Which message.
-        what: String,
-        /// Its sequence number.
-        seq: u32,
-        /// The device's reason.
-        kind: ErrorKind,
-    },
-    /// The conversation went wrong (damaged or unexpected replies).
-    #[error("protocol: {0}")]
-    Protocol(String),
-    /// The device runs another capacity profile than asked for.
-    #[error("{0}")]
-    Profile(String),
-    /// Bad input on the host side (sequence, options, files).
-    #[error("{0}")]
-    Input(String),
-}
 
 /// How to stream.
 #[derive(Debug, Clone)]
@@ -87,6 +63,20 @@ pub struct StreamOptions {
     /// With `retries > 0`: how long to wait for a terminal reply before
     /// sending the message again.
     pub resend_after: Duration,
+}
+
+impl StreamOptions {
+    /// How a message of the scan's set-up waits for its reply: once, or
+    /// stop-and-wait with retransmission when `retries > 0`.
+    pub fn wait(&self) -> Wait {
+        match self.retries {
+            0 => Wait::Once(self.reply_timeout),
+            retries => Wait::Resend {
+                after: self.resend_after,
+                retries,
+            },
+        }
+    }
 }
 
 impl Default for StreamOptions {
@@ -140,6 +130,7 @@ impl StreamReport {
     }
 }
 
+
 /// The scan configuration `placedb select` uses for `seq` and `vcfg`: the
 /// same intrinsics, depth scale, range, stride and grid.
 pub fn scan_config(seq: &Sequence, vcfg: &VoxelConfig) -> Result<ScanConfig, DeviceError> {
@@ -175,162 +166,6 @@ pub fn device_config(scan: &ScanConfig, sel: &SelectorConfig) -> Result<Config, 
     Ok(cfg)
 }
 
-/// The profile whose capacities the device reports, if any.
-pub fn device_profile(st: &Status) -> Option<&'static Capacities> {
-    PROFILES.iter().find(|p| {
-        st.capacity(CapacitySlot::Database).limit as usize == p.database_frames
-            && st.capacity(CapacitySlot::Pool).limit as usize == p.pool_words
-            && st.capacity(CapacitySlot::Window).limit as usize == p.window
-            && st.capacity(CapacitySlot::FrameVoxels).limit as usize
-                == p.frame_voxel_slots - p.frame_voxel_slots / 4
-    })
-}
-
-pub(crate) fn check_profile(st: &Status, profile: &str) -> Result<(), DeviceError> {
-    match device_profile(st) {
-        Some(p) if p.name == profile => Ok(()),
-        Some(p) => Err(DeviceError::Profile(format!(
-            "the device runs profile {} but --profile {profile} was given: \
-             the results would not match `placedb select --profile {profile}`",
-            p.name
-        ))),
-        None => Err(DeviceError::Profile(format!(
-            "the device's capacities (database {}, pool {}, window {}) match no profile",
-            st.capacity(CapacitySlot::Database).limit,
-            st.capacity(CapacitySlot::Pool).limit,
-            st.capacity(CapacitySlot::Window).limit
-        ))),
-    }
-}
-
-/// Sends one message and waits for its terminal reply (other messages before
-/// it are returned too).
-fn request<L: Link>(
-    client: &mut Client<L>,
-    msg: HostMessage<'_>,
-    what: &str,
-    timeout: Duration,
-) -> Result<Vec<Received>, DeviceError> {
-    let (seq, replies) = client.request(msg, timeout)?;
-    match replies.last() {
-        Some(Received::Message(DeviceMessage::Error { kind, .. })) => Err(DeviceError::Refused {
-            what: what.to_string(),
-            seq,
-            kind: *kind,
-        }),
-        _ => Ok(replies),
-    }
-}
-
-/// The device's status.
-pub fn status<L: Link>(client: &mut Client<L>, timeout: Duration) -> Result<Status, DeviceError> {
-    let replies = request(client, HostMessage::StatusRequest, "StatusRequest", timeout)?;
-    match replies.last() {
-        Some(Received::Message(DeviceMessage::Status(s))) => Ok(*s),
-        other => Err(DeviceError::Protocol(format!(
-            "expected a Status, got {other:?}"
-        ))),
-    }
-}
-
-/// Sends `msg` and waits for its terminal reply, stop-and-wait: when none
-/// comes within `resend_after`, or an error says a frame was damaged on the
-/// way ([`ErrorKind::is_damage`]), the link is resynchronised and the same
-/// message is sent again with the same sequence number, at most `retries`
-/// times. Returns what arrived for it (decisions, logs, the terminal reply
-/// last; replies to other sequence numbers are dropped) and the number of
-/// retransmissions. A refusal (any other error) is returned as
-/// [`DeviceError::Refused`].
-pub fn exchange<L: Link>(
-    client: &mut Client<L>,
-    msg: HostMessage<'_>,
-    what: &str,
-    resend_after: Duration,
-    retries: usize,
-) -> Result<(Vec<Received>, u64), DeviceError> {
-    let seq = client.take_seq();
-    let mut got = Vec::new();
-    for attempt in 0..=retries {
-        if attempt > 0 {
-            client.resync()?;
-        }
-        client.send_as(seq, msg)?;
-        let deadline = Instant::now() + resend_after;
-        loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            let item = match client.recv(left) {
-                Ok(item) => item,
-                Err(e) if e.kind() == io::ErrorKind::TimedOut => break,
-                Err(e) => return Err(e.into()),
-            };
-            match &item {
-                // Under stop-and-wait a damaged frame is ours (or a harmless
-                // repeat): send again at once.
-                Received::Message(DeviceMessage::Error { kind, .. }) if kind.is_damage() => break,
-                Received::Message(DeviceMessage::Error { seq: Some(s), kind }) if *s == seq => {
-                    return Err(DeviceError::Refused {
-                        what: what.to_string(),
-                        seq,
-                        kind: *kind,
-                    })
-                }
-                _ => {}
-            }
-            match item.terminal_seq() {
-                Some(s) if s == seq => {
-                    got.push(item);
-                    return Ok((got, attempt as u64));
-                }
-                // A late reply to an earlier message.
-                Some(_) => {}
-                None => got.push(item),
-            }
-        }
-    }
-    Err(DeviceError::Protocol(format!(
-        "no reply to {what} (seq {seq}) after {retries} retransmissions, {resend_after:?} apart"
-    )))
-}
-
-/// One message of a stream's set-up, with or without retransmission.
-pub(crate) fn call<L: Link>(
-    client: &mut Client<L>,
-    msg: HostMessage<'_>,
-    what: &str,
-    opts: &StreamOptions,
-    resent: &mut u64,
-) -> Result<Vec<Received>, DeviceError> {
-    if opts.retries == 0 {
-        return request(client, msg, what, opts.reply_timeout);
-    }
-    let (replies, n) = exchange(client, msg, what, opts.resend_after, opts.retries)?;
-    *resent += n;
-    Ok(replies)
-}
-
-/// A StatusRequest through [`call`].
-pub(crate) fn call_status<L: Link>(
-    client: &mut Client<L>,
-    opts: &StreamOptions,
-    resent: &mut u64,
-) -> Result<Status, DeviceError> {
-    status_of(&call(
-        client,
-        HostMessage::StatusRequest,
-        "StatusRequest",
-        opts,
-        resent,
-    )?)
-}
-
-fn status_of(replies: &[Received]) -> Result<Status, DeviceError> {
-    match replies.last() {
-        Some(Received::Message(DeviceMessage::Status(s))) => Ok(*s),
-        other => Err(DeviceError::Protocol(format!(
-            "expected a Status, got {other:?}"
-        ))),
-    }
-}
 
 /// One line about the device's state, for a live status display.
 pub fn status_line(st: &Status) -> String {
@@ -359,11 +194,12 @@ pub fn status_line(st: &Status) -> String {
     s
 }
 
+
 /// Streams `seq` to the device behind `client`: (Reset,) Hello with `cfg`,
 /// every frame as FrameBegin, DepthRows, FrameEnd (and a StatusRequest for
 /// the live line), then Finish. The device must run capacity profile
 /// `profile`. The frames go through the client API's code
-/// ([`crate::session`]), as a robot's would.
+/// ([`ScanState`], what [`crate::device::session::Session`] runs), as a robot's would.
 pub fn stream<L: Link>(
     client: &mut Client<L>,
     seq: &Sequence,
@@ -396,7 +232,7 @@ pub fn stream<L: Link>(
     }
     scan.drain(client)?;
     let wall = started.elapsed();
-    let status = call_status(client, opts, &mut scan.retransmissions)?;
+    let status = scan.call_status(client)?;
     Ok(StreamReport {
         frames: log_full_at.unwrap_or(n) - first,
         log_full_at,
@@ -454,328 +290,6 @@ fn send_frames<L: Link>(
     Ok(())
 }
 
-/// How to export.
-#[derive(Debug, Clone)]
-pub struct ExportOptions {
-    /// Most records per ExportRequest; each batch is checked by count and
-    /// CRC. After a failed batch the next one is half as long (down to 1
-    /// record), after a good one a record longer (up to this).
-    pub batch: u32,
-    /// Failed attempts in a row (a batch re-requested from its first record,
-    /// a status request sent again) before giving up.
-    pub retries: usize,
-    /// Longest wait for one reply (the next record or the batch's end).
-    pub reply_timeout: Duration,
-}
-
-impl Default for ExportOptions {
-    fn default() -> Self {
-        ExportOptions {
-            batch: 256,
-            retries: 5,
-            reply_timeout: Duration::from_secs(30),
-        }
-    }
-}
-
-/// Every record of the device's export, checked.
-#[derive(Debug, Clone)]
-pub struct Export {
-    /// The records, numbered from 0.
-    pub records: Vec<ExportRecord>,
-    /// The device's status when the export ended.
-    pub status: Status,
-    /// Batches that had to be retried.
-    pub retried: usize,
-}
-
-/// One batch: records `from..from+max`, checked by count and CRC.
-fn export_batch<L: Link>(
-    client: &mut Client<L>,
-    from: u32,
-    max: u32,
-    timeout: Duration,
-) -> Result<Vec<ExportRecord>, DeviceError> {
-    let seq = client.send(HostMessage::ExportRequest {
-        from_record: from,
-        max_records: max,
-    })?;
-    let mut got: Vec<ExportRecord> = Vec::new();
-    let mut damaged = false;
-    loop {
-        match client.recv(timeout)? {
-            Received::Message(DeviceMessage::ExportRecord(r)) => got.push(r),
-            Received::Damaged(_) => damaged = true,
-            Received::Message(DeviceMessage::ExportEnd {
-                seq: s,
-                from_record,
-                count,
-                crc32,
-            }) if s == seq => {
-                let numbered = got
-                    .iter()
-                    .enumerate()
-                    .all(|(k, r)| r.record == from + k as u32);
-                if damaged || from_record != from || count as usize != got.len() || !numbered {
-                    return Err(DeviceError::Protocol(format!(
-                        "export batch from {from}: {} records received, {count} sent",
-                        got.len()
-                    )));
-                }
-                if crc32 != export_crc(&got) {
-                    return Err(DeviceError::Protocol(format!(
-                        "export batch from {from}: CRC mismatch"
-                    )));
-                }
-                return Ok(got);
-            }
-            // The request (or a record) was damaged on the way: ask again.
-            Received::Message(DeviceMessage::Error { kind, .. }) if kind.is_damage() => {
-                return Err(DeviceError::Protocol(format!(
-                    "export batch from {from}: the request was damaged ({kind})"
-                )));
-            }
-            Received::Message(DeviceMessage::Error { seq: s, kind }) if s == Some(seq) => {
-                return Err(DeviceError::Refused {
-                    what: format!("ExportRequest from {from}"),
-                    seq,
-                    kind,
-                })
-            }
-            // Anything else (a reply to an earlier request, a log) is not ours.
-            _ => {}
-        }
-    }
-}
-
-/// Pulls every record from the device, in checked batches, starting after
-/// the records in `have` (a resumed export). `saved` is called with each
-/// checked batch (to persist it).
-pub fn export<L: Link>(
-    client: &mut Client<L>,
-    mut have: Vec<ExportRecord>,
-    opts: &ExportOptions,
-    progress: Option<&ProgressBar>,
-    saved: &mut dyn FnMut(&[ExportRecord]) -> io::Result<()>,
-) -> Result<Export, DeviceError> {
-    let timeout = opts.reply_timeout;
-    let retries = opts.retries.max(1);
-    client.resync()?;
-    let ask_status = |client: &mut Client<L>| {
-        exchange(
-            client,
-            HostMessage::StatusRequest,
-            "StatusRequest",
-            timeout,
-            retries,
-        )
-        .and_then(|(replies, _)| status_of(&replies))
-    };
-    let first = ask_status(client)?;
-    let total = first.export_records() as usize;
-    if have.len() > total {
-        return Err(DeviceError::Input(format!(
-            "resuming from record {} but the device holds {total}",
-            have.len()
-        )));
-    }
-    if let Some(p) = progress {
-        p.set_length(total as u64);
-        p.set_position(have.len() as u64);
-    }
-    let mut retried = 0;
-    let mut failed_in_a_row = 0;
-    let mut batch_len = opts.batch.max(1);
-    while have.len() < total {
-        let from = have.len() as u32;
-        match export_batch(client, from, batch_len, timeout) {
-            Ok(batch) if !batch.is_empty() => {
-                failed_in_a_row = 0;
-                batch_len = batch_len.saturating_add(1).min(opts.batch.max(1));
-                saved(&batch)?;
-                have.extend(batch);
-                if let Some(p) = progress {
-                    p.set_position(have.len() as u64);
-                }
-            }
-            Ok(_) => {
-                return Err(DeviceError::Protocol(format!(
-                    "the device sent no record from {from} of {total}"
-                )))
-            }
-            Err(e @ DeviceError::Refused { .. }) => return Err(e),
-            Err(e) if failed_in_a_row < opts.retries => {
-                retried += 1;
-                failed_in_a_row += 1;
-                batch_len = (batch_len / 2).max(1);
-                if let Some(p) = progress {
-                    p.println(format!("retrying from record {from}: {e}"));
-                }
-                // Let a broken reply finish, then resynchronise.
-                while client.recv(Duration::from_millis(200).min(timeout)).is_ok() {}
-                client.resync()?;
-            }
-            Err(e) => return Err(e),
-        }
-    }
-    let last = ask_status(client)?;
-    if last.export_records() as usize != have.len()
-        || (last.frames_seen, last.database_size) != (first.frames_seen, first.database_size)
-    {
-        return Err(DeviceError::Protocol(
-            "the device's state changed during the export".into(),
-        ));
-    }
-    check_records(&have, last.database_size as usize)?;
-    Ok(Export {
-        records: have,
-        status: last,
-        retried,
-    })
-}
-
-/// Checks the layout: database records in strictly increasing frame order,
-/// then one label per frame 0, 1, 2, ...
-fn check_records(records: &[ExportRecord], database: usize) -> Result<(), DeviceError> {
-    let bad = |what: &str| Err(DeviceError::Protocol(format!("export: {what}")));
-    let (db, labels) = records.split_at(database.min(records.len()));
-    if db.len() != database {
-        return bad("fewer records than database frames");
-    }
-    let mut last = None;
-    for r in db {
-        if !matches!(r.kind, RecordKind::Database { .. }) || last.is_some_and(|l| r.frame <= l) {
-            return bad("database records out of order");
-        }
-        last = Some(r.frame);
-    }
-    for (j, r) in labels.iter().enumerate() {
-        if !matches!(r.kind, RecordKind::Label { .. }) || r.frame as usize != j {
-            return bad("label records out of order");
-        }
-    }
-    Ok(())
-}
-
-impl Export {
-    /// The database records as the core's [`DbRecord`]s (voxel counts are not
-    /// exported: 0).
-    pub fn database(&self) -> Vec<DbRecord> {
-        self.records
-            .iter()
-            .filter_map(|r| match r.kind {
-                RecordKind::Database { pose } => Some(DbRecord {
-                    index: r.frame,
-                    timestamp: r.timestamp,
-                    pose,
-                    voxels: 0,
-                }),
-                RecordKind::Label { .. } => None,
-            })
-            .collect()
-    }
-
-    /// Timestamps and class labels of every labelled frame.
-    pub fn labels(&self) -> (Vec<f64>, Vec<usize>) {
-        self.records
-            .iter()
-            .filter_map(|r| match r.kind {
-                RecordKind::Label { class } => Some((r.timestamp, class as usize)),
-                RecordKind::Database { .. } => None,
-            })
-            .unzip()
-    }
-
-    /// The text of `database.csv` and `labels.csv`.
-    pub fn csv(&self) -> (String, String) {
-        let (timestamps, labels) = self.labels();
-        (
-            output::database_csv(&output::rows_from_records(&self.database())),
-            output::labels_csv(&timestamps, &labels),
-        )
-    }
-
-    /// `metrics.json` of an export: what the device knows (the metrics that
-    /// need the sequence's voxel sets are computed by `placedb select`).
-    pub fn metrics(&self) -> serde_json::Value {
-        let st = &self.status;
-        let size = st.database_size;
-        let frames = st.capacity(CapacitySlot::Labels).used;
-        let mut m = serde_json::json!({
-            "solver": "online",
-            "source": "device",
-            "size": size,
-            "frames": frames,
-            "reduction": if size > 0 { f64::from(frames) / f64::from(size) } else { 0.0 },
-            "profile": device_profile(st).map(|p| p.name),
-            "frames_seen": st.frames_seen,
-            "sketched_frames": st.sketched_frames,
-            "truncated_frames": st.truncated_frames,
-            "uncovered_by_capacity": st.uncovered_frames,
-            "labels_dropped": st.labels_dropped,
-            "degradation_flags": st.degradation,
-            "pool_peak_words": st.capacity(CapacitySlot::Pool).peak,
-            "frame_voxels_peak": st.capacity(CapacitySlot::FrameVoxels).peak,
-            "export_records": self.records.len(),
-            "resident_peak": st.capacity(CapacitySlot::Resident).peak,
-            "flash_bytes_used": st.capacity(CapacitySlot::Flash).used,
-            "flash_bytes_limit": st.capacity(CapacitySlot::Flash).limit,
-        });
-        if st.cost.clock_hz > 0 && st.cost.frames > 0 {
-            m["device_ticks_per_frame"] = (st.cost.total as f64 / f64::from(st.cost.frames)).into();
-            m["device_clock_hz"] = st.cost.clock_hz.into();
-        }
-        m
-    }
-}
-
-/// Name of the file holding the checked batches of an unfinished export.
-pub const PARTIAL_EXPORT: &str = ".export-partial";
-
-/// The records of an unfinished export in `dir` and the status it began
-/// with: COBS frames of a `Status` then `ExportRecord`s, as the device sent
-/// them (so timestamps and poses survive bit for bit).
-pub fn read_partial(dir: &Path) -> Result<(Status, Vec<ExportRecord>), DeviceError> {
-    let path = dir.join(PARTIAL_EXPORT);
-    let bytes = std::fs::read(&path).map_err(|e| {
-        DeviceError::Input(format!("no unfinished export in {}: {e}", path.display()))
-    })?;
-    let mut decoder = Box::new(FrameDecoder::<MAX_FRAME_LEN>::new());
-    let mut rest: &[u8] = &bytes;
-    let (mut status, mut records) = (None, Vec::new());
-    while let Feed::Frame { result, remaining } = decoder.feed::<DeviceMessage>(rest) {
-        match result {
-            Ok(DeviceMessage::Status(s)) if status.is_none() => status = Some(s),
-            Ok(DeviceMessage::ExportRecord(r)) if status.is_some() => records.push(r),
-            // A torn last write: keep what was whole.
-            _ => break,
-        }
-        rest = remaining;
-    }
-    let status = status
-        .ok_or_else(|| DeviceError::Input(format!("{} holds no export header", path.display())))?;
-    Ok((status, records))
-}
-
-fn append_frames(path: &Path, msgs: &[DeviceMessage<'_>]) -> io::Result<()> {
-    use std::io::Write;
-    let mut file = std::fs::OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(path)?;
-    let mut buf = vec![0u8; MAX_FRAME_LEN];
-    for m in msgs {
-        let frame = encode(m, &mut buf).map_err(io::Error::other)?;
-        file.write_all(frame)?;
-    }
-    file.sync_data()
-}
-
-/// Opens the link `port` for the device subcommands.
-pub fn connect(port: &str) -> Result<Client<Box<dyn Link>>, DeviceError> {
-    let link = link::open(port, Duration::from_secs(10))?;
-    Ok(Client::new(link))
-}
 
 /// Fault injection and recovery for `placedb stream`.
 #[derive(Debug, Clone, Copy)]
@@ -836,322 +350,322 @@ impl Recovery {
     }
 }
 
-/// `placedb stream`: streams `seq` (configured by `vcfg` and `sel`, as
-/// `placedb select` is) to the device on `port`, which must run `profile`;
-/// prints a summary, and exports into `out` if given. `recovery` injects
-/// faults into the link and sets the retransmission policy.
-#[allow(clippy::too_many_arguments)]
-pub fn stream_cmd(
-    port: &str,
-    seq: &Sequence,
-    vcfg: &VoxelConfig,
-    sel: SelectorConfig,
-    profile: &str,
-    out: Option<&Path>,
-    quiet: bool,
-    recovery: &Recovery,
-) -> Result<StreamReport, DeviceError> {
-    recovery.faults.validate().map_err(DeviceError::Input)?;
-    if placedb::profile::by_name(profile).is_none() {
-        return Err(DeviceError::Input(format!(
-            "unknown --profile {profile:?}; see `placedb budget`"
-        )));
-    }
-    let scan = scan_config(seq, vcfg)?;
-    let sel = SelectorConfig {
-        window: sel.window.max(1),
-        ..sel
-    };
-    let cfg = device_config(&scan, &sel)?;
-    let link = link::open(port, Duration::from_secs(10))?;
-    let mut client = Client::new(FaultInjector::new(link, recovery.faults));
-    let pb = (!quiet).then(|| {
-        let pb = ProgressBar::new(seq.frames.len() as u64);
-        if let Ok(style) = indicatif::ProgressStyle::with_template(
-            "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} frames {msg}",
-        ) {
-            pb.set_style(style);
+
+/// One depth frame held in memory, as a camera driver delivers it.
+#[derive(Debug, Clone, Copy)]
+pub struct DepthFrame<'a> {
+    /// Seconds (any epoch; exported as given).
+    pub timestamp: f64,
+    /// Camera-to-world pose of the depth camera's optical frame.
+    pub pose: Pose,
+    /// The camera; must be the configured one (a scan has one camera).
+    pub intrinsics: Intrinsics,
+    /// `width * height` depth values, row after row, in the configured
+    /// depth scale's units (0 = no measurement).
+    pub depth: &'a [u16],
+}
+
+/// What a scan has sent and been told: messages in flight, decisions, the
+/// last status, counters. Works on a client it is handed, so that a
+/// [`Session`](crate::device::session::Session) (owning its client) and
+/// [`stream`] (borrowing one) run the very same code.
+pub(crate) struct ScanState {
+    pub(crate) opts: StreamOptions,
+    outstanding: VecDeque<(u32, String)>,
+    /// The configuration sent in the Hello.
+    cfg: Option<Config>,
+    /// Strided rows per DepthRows message.
+    rows_per_msg: u16,
+    pub(crate) next_frame: u32,
+    pub(crate) decisions: Vec<Option<DecisionKind>>,
+    pub(crate) new_decisions: Vec<(u32, DecisionKind)>,
+    pub(crate) status: Option<Status>,
+    pub(crate) bytes: u64,
+    pub(crate) messages: u64,
+    pub(crate) retransmissions: u64,
+    /// When the Hello was sent.
+    pub(crate) started: Option<Instant>,
+    tx: Vec<u8>,
+}
+
+impl ScanState {
+    pub(crate) fn new(opts: StreamOptions) -> Self {
+        ScanState {
+            opts,
+            outstanding: VecDeque::new(),
+            cfg: None,
+            rows_per_msg: 1,
+            next_frame: 0,
+            decisions: Vec::new(),
+            new_decisions: Vec::new(),
+            status: None,
+            bytes: 0,
+            messages: 0,
+            retransmissions: 0,
+            started: None,
+            tx: vec![0u8; MAX_FRAME_LEN],
         }
-        pb
-    });
-    let report = stream(
-        &mut client,
-        seq,
-        &cfg,
-        profile,
-        &recovery.stream_options(),
-        pb.as_ref(),
-    )?;
-    if let Some(pb) = &pb {
-        pb.finish_and_clear();
     }
-    let st = &report.status;
-    println!(
-        "{}: {} frames -> {} database frames on the device ({} profile, mu {}, window {}, stride {})",
-        seq.name,
-        report.frames,
-        st.database_size,
-        profile,
-        sel.mu,
-        sel.window,
-        scan.stride
-    );
-    println!(
-        "  link: {:.1} s, {:.2} frames/s, {} messages, {:.1} KB sent ({:.1} KB/s)",
-        report.wall.as_secs_f64(),
-        report.fps(),
-        report.messages,
-        report.bytes_sent as f64 / 1e3,
-        report.bytes_sent as f64 / 1e3 / report.wall.as_secs_f64().max(1e-9)
-    );
-    if let Some(t) = report.ticks_per_frame() {
-        println!(
-            "  device: {:.3} M clock ticks per frame (max {:.3} M) at {} Hz: {:.2} ms of device time per frame \
-             (the QEMU board counts instructions under -icount shift=0)",
-            t / 1e6,
-            f64::from(st.cost.max) / 1e6,
-            st.cost.clock_hz,
-            1e3 * t / f64::from(st.cost.clock_hz)
-        );
-    }
-    if st.degradation & placedb::protocol::degradation::STORAGE_FAILED != 0 {
-        println!(
-            "  WARNING: the device's flash failed a write: only {} records of this scan are \
-             durable; a power cut now would lose the rest (export it now)",
-            st.stored_records
-        );
-    }
-    if st.degradation & placedb::protocol::degradation::TAIL_DROPPED != 0 {
-        println!(
-            "  WARNING: at boot the device found records in its flash log that no scan can \
-             hold (damaged flash) and dropped them with everything after them; the scan went \
-             on from the last good record"
-        );
-    }
-    if let Some(k) = report.log_full_at {
-        println!(
-            "  the device's flash log is full: frames {k}..{} were not scanned; the scan \
-             was finished with frames 0..{k} (Reset the device, or give it more flash, \
-             for a longer scan)",
-            seq.frames.len()
-        );
-    }
-    if recovery.faults.is_active() {
-        let f = client.link().stats();
-        let lost = report.decisions.iter().filter(|d| d.is_none()).count();
-        println!(
-            "  faults (seed {}): host->device {} of {} frames dropped, {} corrupted; \
-             device->host {} of {} dropped, {} corrupted; {} retransmissions; \
-             {lost} decisions lost on the way (the export has them)",
-            recovery.faults.seed,
-            f.sent_dropped,
-            f.sent,
-            f.sent_corrupted,
-            f.received_dropped,
-            f.received,
-            f.received_corrupted,
-            report.retransmissions
-        );
-    }
-    println!("  {}", status_line(st));
-    match out {
-        Some(dir) => {
-            export_to_with(&mut client, dir, None, quiet, &recovery.export_options())?;
+
+    /// Status check, (Reset,) Hello: see [`Session::start`]. `frames`: how
+    /// many frames the host has (a resumed scan must not be past them).
+    pub(crate) fn begin<L: Link>(
+        &mut self,
+        client: &mut Client<L>,
+        cfg: &Config,
+        profile: Option<&str>,
+        frames: Option<usize>,
+    ) -> Result<Status, DeviceError> {
+        let opts = self.opts.clone();
+        client.resync()?;
+        let st = self.call_status(client)?;
+        if let Some(profile) = profile {
+            check_profile(&st, profile)?;
         }
-        None => println!("  pull the result with: placedb export --port {port} -o DIR"),
-    }
-    Ok(report)
-}
-
-/// `placedb export`: pulls every record from the device on `port` and
-/// writes `database.csv`, `labels.csv` and `metrics.json` to `out`.
-/// `from = Some(k)` resumes an interrupted export of the same device state
-/// from record `k` (the checked records before it are kept in `out`).
-pub fn export_cmd(
-    port: &str,
-    out: &Path,
-    from: Option<u32>,
-    quiet: bool,
-) -> Result<Export, DeviceError> {
-    let mut client = connect(port)?;
-    export_to(&mut client, out, from, quiet)
-}
-
-/// [`export_cmd`] over an open link.
-pub fn export_to<L: Link>(
-    client: &mut Client<L>,
-    out: &Path,
-    from: Option<u32>,
-    quiet: bool,
-) -> Result<Export, DeviceError> {
-    export_to_with(client, out, from, quiet, &ExportOptions::default())
-}
-
-/// [`export_to`] with `opts`.
-pub fn export_to_with<L: Link>(
-    client: &mut Client<L>,
-    out: &Path,
-    from: Option<u32>,
-    quiet: bool,
-    opts: &ExportOptions,
-) -> Result<Export, DeviceError> {
-    std::fs::create_dir_all(out)?;
-    let partial = out.join(PARTIAL_EXPORT);
-    let timeout = opts.reply_timeout;
-    client.resync()?;
-    let (replies, _) = exchange(
-        client,
-        HostMessage::StatusRequest,
-        "StatusRequest",
-        timeout,
-        opts.retries.max(1),
-    )?;
-    let now = status_of(&replies)?;
-    let have = match from {
-        Some(k) => {
-            let (was, mut records) = read_partial(out)?;
-            if (was.frames_seen, was.database_size, was.export_records())
-                != (now.frames_seen, now.database_size, now.export_records())
-            {
+        self.next_frame = 0;
+        if opts.resume {
+            if st.phase == Phase::InFrame {
                 return Err(DeviceError::Input(
-                    "the device's state changed since the interrupted export: export from 0".into(),
+                    "the device has a frame open: restart it (it resumes from flash) or stream without --resume"
+                        .into(),
                 ));
             }
-            if records.len() < k as usize {
+            let seen = st.frames_seen as usize;
+            if let Some(n) = frames.filter(|&n| seen > n) {
                 return Err(DeviceError::Input(format!(
-                    "--from {k}: only {} checked records were saved",
-                    records.len()
+                    "the device has seen {seen} frames, the sequence has {n}: not this sequence?"
                 )));
             }
-            records.truncate(k as usize);
-            records
+            self.next_frame = st.frames_seen;
+        } else if opts.reset {
+            self.call(client, HostMessage::Reset, "Reset")?;
         }
-        None => Vec::new(),
-    };
-    // Rewrite the partial file with exactly what is kept.
-    let _ = std::fs::remove_file(&partial);
-    let mut head = vec![DeviceMessage::Status(now)];
-    head.extend(have.iter().map(|r| DeviceMessage::ExportRecord(*r)));
-    append_frames(&partial, &head)?;
-    let pb = (!quiet).then(|| ProgressBar::new(0));
-    let export = export(client, have, opts, pb.as_ref(), &mut |batch| {
-        let msgs: Vec<_> = batch
-            .iter()
-            .map(|r| DeviceMessage::ExportRecord(*r))
-            .collect();
-        append_frames(&partial, &msgs)
-    })
-    .map_err(|e| match e {
-        DeviceError::Io(io) => DeviceError::Io(io::Error::new(
-            io.kind(),
-            format!("{io}; resume with --from N (checked records are saved)"),
-        )),
-        other => other,
-    })?;
-    if let Some(pb) = &pb {
-        pb.finish_and_clear();
+        self.started = Some(Instant::now());
+        self.call(client, HostMessage::Hello(*cfg), "Hello")?;
+        let fit = depth_rows_per_message(cfg.width_sent());
+        self.rows_per_msg = match opts.rows_per_message {
+            0 => fit,
+            r => r.min(fit),
+        }
+        .max(1);
+        self.cfg = Some(*cfg);
+        Ok(st)
     }
-    let (db_csv, labels_csv) = export.csv();
-    std::fs::write(out.join("database.csv"), db_csv)?;
-    std::fs::write(out.join("labels.csv"), labels_csv)?;
-    let json = serde_json::to_string_pretty(&export.metrics()).map_err(io::Error::other)?;
-    std::fs::write(out.join("metrics.json"), json + "\n")?;
-    std::fs::remove_file(&partial)?;
-    if !quiet {
-        println!(
-            "exported {} records ({} database frames, {} labels), checked by count and CRC{}; wrote {}/{{database.csv,labels.csv,metrics.json}}",
-            export.records.len(),
-            export.status.database_size,
-            export.status.capacity(CapacitySlot::Labels).used,
-            if export.retried > 0 {
-                format!(" ({} batches retried)", export.retried)
-            } else {
-                String::new()
-            },
-            out.display()
-        );
-    }
-    Ok(export)
-}
 
-/// `placedb device --qemu`: boots the emulated board with UART0 listening on
-/// `tcp:127.0.0.1:PORT` (0: a free port) and waits until QEMU exits. Ctrl-C,
-/// SIGTERM or SIGHUP stop QEMU first, and on Linux QEMU is killed if placedb
-/// dies any other way ([`crate::foreground`]). `icount` makes instruction
-/// counting exact.
-pub fn qemu_device_cmd(
-    firmware: Option<PathBuf>,
-    port: u16,
-    icount: bool,
-    flash: Option<PathBuf>,
-) -> Result<(), DeviceError> {
-    let firmware = firmware.unwrap_or_else(link::default_firmware);
-    if !firmware.is_file() {
-        return Err(DeviceError::Input(format!(
-            "firmware {} not found: build it with `{}` (or pass --firmware ELF)",
-            firmware.display(),
-            link::FIRMWARE_BUILD
-        )));
-    }
-    let port = match port {
-        0 => std::net::TcpListener::bind(("127.0.0.1", 0))?
-            .local_addr()?
-            .port(),
-        p => p,
-    };
-    if let Some(f) = &flash {
-        link::prepare_flash_file(f)?;
-    }
-    let mut options = QemuOptions {
-        flash,
-        ..QemuOptions::default()
-    };
-    if icount {
-        options.extra_args = vec!["-icount".into(), "shift=0".into()];
-    }
-    let mut command = link::qemu_command(
-        &firmware,
-        &options,
-        &format!("tcp:127.0.0.1:{port},server,nowait"),
-    );
-    // QEMU ends with placedb, whatever stops it (host/src/foreground.rs).
-    let mut child = crate::foreground::spawn(&mut command).map_err(|e| {
-        DeviceError::Io(io::Error::new(
-            e.kind(),
-            format!(
-                "cannot start {} (apt-get install qemu-system-arm): {e}",
-                options.program.display()
-            ),
-        ))
-    })?;
-    println!("emulated board (mps2-an386, profile ram512k) on port tcp:127.0.0.1:{port}");
-    println!("  e.g. placedb stream --port tcp:127.0.0.1:{port} --demo --stride 8 --max-frames 30");
-    println!("       placedb export --port tcp:127.0.0.1:{port} -o out");
-    match &options.flash {
-        Some(f) => println!(
-            "  flash kept in {}: after a restart, `placedb stream --resume` goes on with the scan",
-            f.display()
-        ),
-        None => println!("  no --flash file: the board starts empty every time"),
-    }
-    println!("  Ctrl-C (or SIGTERM, SIGHUP) stops it, QEMU with it");
-    match crate::foreground::wait(&mut child)? {
-        crate::foreground::Ended::Exited(status) if status.success() => Ok(()),
-        crate::foreground::Ended::Exited(status) => Err(DeviceError::Io(io::Error::other(
-            format!("QEMU exited: {status}"),
-        ))),
-        crate::foreground::Ended::Stopped(signal) => {
-            println!("stopped (signal {signal}): QEMU ended");
-            Ok(())
+    /// Sends one frame: see [`Session::push_frame`].
+    pub(crate) fn push<L: Link>(
+        &mut self,
+        client: &mut Client<L>,
+        f: &DepthFrame<'_>,
+    ) -> Result<u32, DeviceError> {
+        let cfg = self
+            .cfg
+            .ok_or_else(|| DeviceError::Input("push_frame before configure".into()))?;
+        let frame = self.next_frame;
+        if f.intrinsics != cfg.intrinsics {
+            return Err(DeviceError::Input(format!(
+                "frame {frame}: intrinsics {:?} differ from the scan's {:?} (one camera per scan)",
+                f.intrinsics, cfg.intrinsics
+            )));
         }
+        let (w, h) = (f.intrinsics.width, f.intrinsics.height);
+        if f.depth.len() != usize::from(w) * usize::from(h) {
+            return Err(DeviceError::Input(format!(
+                "frame {frame}: {} depth values for a {w}x{h} image",
+                f.depth.len()
+            )));
+        }
+        let (sampled, rows) = sampled_rows_of(f.depth, w, cfg.stride);
+        let width = usize::from(cfg.width_sent());
+        if sampled != width {
+            return Err(DeviceError::Input(format!(
+                "frame {frame}: {sampled} sampled columns, the configuration says {width}"
+            )));
+        }
+        self.send(
+            client,
+            HostMessage::FrameBegin {
+                frame,
+                timestamp: f.timestamp,
+                pose: f.pose,
+            },
+            || format!("FrameBegin {frame}"),
+        )?;
+        for chunk in row_chunks(width, &rows, usize::from(self.rows_per_msg)) {
+            let first_row = chunk.first_row;
+            self.send(client, chunk.message(frame), || {
+                format!("DepthRows {frame}:{first_row}")
+            })?;
+        }
+        self.send(client, HostMessage::FrameEnd { frame }, || {
+            format!("FrameEnd {frame}")
+        })?;
+        self.next_frame = frame + 1;
+        Ok(frame)
+    }
+
+    /// See [`Session::abandon_open_frame`].
+    pub(crate) fn abandon_open_frame<L: Link>(
+        &mut self,
+        client: &mut Client<L>,
+    ) -> Result<u32, DeviceError> {
+        // What was in flight was refused or answered: the device said why.
+        self.outstanding.clear();
+        let st = self.call_status(client)?;
+        let frame = st.frames_seen;
+        if st.phase == Phase::InFrame {
+            self.call(client, HostMessage::FrameAbort { frame }, "FrameAbort")?;
+        }
+        self.next_frame = frame;
+        Ok(frame)
+    }
+
+    /// Sends `msg`: pipelined (at most `in_flight` unanswered), or
+    /// stop-and-wait with retransmission when `retries > 0`.
+    pub(crate) fn send<L: Link>(
+        &mut self,
+        client: &mut Client<L>,
+        msg: HostMessage<'_>,
+        what: impl FnOnce() -> String,
+    ) -> Result<(), DeviceError> {
+        while self.outstanding.len() >= self.opts.in_flight.max(1) {
+            self.pump(client)?;
+        }
+        self.bytes += encode(&HostFrame { seq: 0, msg }, &mut self.tx)
+            .map(|f| f.len() as u64)
+            .unwrap_or(0);
+        self.messages += 1;
+        if self.opts.retries > 0 {
+            let what = what();
+            let (replies, resent) = send_and_wait(client, msg, &what, self.opts.wait())?;
+            self.retransmissions += resent;
+            for item in &replies {
+                self.note(item);
+            }
+            return Ok(());
+        }
+        let seq = client.send(msg)?;
+        self.outstanding.push_back((seq, what()));
+        Ok(())
+    }
+
+    /// One message of the scan's set-up, waited for as the options say
+    /// ([`StreamOptions::wait`]).
+    pub(crate) fn call<L: Link>(
+        &mut self,
+        client: &mut Client<L>,
+        msg: HostMessage<'_>,
+        what: &str,
+    ) -> Result<Vec<Received>, DeviceError> {
+        let (replies, resent) = send_and_wait(client, msg, what, self.opts.wait())?;
+        self.retransmissions += resent;
+        Ok(replies)
+    }
+
+    /// The device's status through [`ScanState::call`].
+    pub(crate) fn call_status<L: Link>(
+        &mut self,
+        client: &mut Client<L>,
+    ) -> Result<Status, DeviceError> {
+        let (status, resent) = ask_status(client, self.opts.wait())?;
+        self.retransmissions += resent;
+        Ok(status)
+    }
+
+    /// Keeps the final decisions and the last status.
+    fn note(&mut self, item: &Received) {
+        match item {
+            Received::Message(DeviceMessage::Decision { frame, kind })
+                if *kind != DecisionKind::Pending =>
+            {
+                // Only frames this scan sent: a frame index is never
+                // trusted to size a buffer.
+                let i = *frame as usize;
+                if *frame < self.next_frame || i < self.decisions.len() {
+                    if self.decisions.len() <= i {
+                        self.decisions.resize(i + 1, None);
+                    }
+                    self.decisions[i] = Some(*kind);
+                    self.new_decisions.push((*frame, *kind));
+                }
+            }
+            Received::Message(DeviceMessage::Status(s)) => self.status = Some(*s),
+            _ => {}
+        }
+    }
+
+    /// Handles replies until the oldest outstanding message is answered.
+    fn pump<L: Link>(&mut self, client: &mut Client<L>) -> Result<(), DeviceError> {
+        let Some((want, what)) = self.outstanding.front().cloned() else {
+            return Ok(());
+        };
+        loop {
+            let item = client.recv(self.opts.reply_timeout).map_err(|e| {
+                DeviceError::Io(io::Error::new(
+                    e.kind(),
+                    format!("waiting for the reply to {what}: {e}"),
+                ))
+            })?;
+            self.note(&item);
+            match &item {
+                Received::Message(DeviceMessage::Error { seq, kind }) => {
+                    return Err(DeviceError::Refused {
+                        what,
+                        seq: seq.unwrap_or(want),
+                        kind: *kind,
+                    })
+                }
+                Received::Damaged(e) => {
+                    return Err(DeviceError::Protocol(format!(
+                        "damaged reply while waiting for {what}: {e}"
+                    )))
+                }
+                _ => {}
+            }
+            match item.terminal_seq() {
+                Some(s) if s == want => {
+                    self.outstanding.pop_front();
+                    return Ok(());
+                }
+                Some(s) => {
+                    return Err(DeviceError::Protocol(format!(
+                        "reply to seq {s} while waiting for seq {want} ({what})"
+                    )))
+                }
+                None => {}
+            }
+        }
+    }
+
+    /// Waits for every outstanding reply.
+    pub(crate) fn drain<L: Link>(&mut self, client: &mut Client<L>) -> Result<(), DeviceError> {
+        while !self.outstanding.is_empty() {
+            self.pump(client)?;
+        }
+        Ok(())
+    }
+
+    /// Whether a push failed because the device's flash log is full.
+    pub(crate) fn is_log_full(e: &DeviceError) -> bool {
+        matches!(
+            e,
+            DeviceError::Refused {
+                kind: ErrorKind::StorageFull,
+                ..
+            }
+        )
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::link::LocalLink;
+    use crate::device::client::status;
+    use crate::device::export::{append_frames, export_to, read_partial, PARTIAL_EXPORT};
+    use crate::device::link::LocalLink;
+    use crate::output;
     use crate::synth::{self, SynthConfig};
+    use placedb::protocol::{DeviceMessage, ErrorKind};
 
     fn demo(frames: usize) -> Sequence {
         let mut seq = synth::sequence(&SynthConfig::demo());
@@ -1184,7 +698,7 @@ mod tests {
             ..StreamOptions::default()
         };
         let report = stream(&mut client, &seq, &cfg, "ram256k", &opts, None).unwrap();
-        let run = crate::online::replay(&seq, "ram256k", scan, sel, 8, None).unwrap();
+        let run = crate::replay::replay(&seq, "ram256k", scan, sel, 8, None).unwrap();
         let finals: Vec<_> = report
             .decisions
             .iter()

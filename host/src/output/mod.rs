@@ -3,6 +3,7 @@
 //! key names are stable.
 
 pub mod dataset;
+pub mod metrics_json;
 pub mod topview;
 
 use crate::sequence::Sequence;
@@ -78,7 +79,6 @@ pub fn write_database_dir(
     std::fs::create_dir_all(dir)?;
     std::fs::write(dir.join("database.csv"), database_csv(rows))?;
     std::fs::write(dir.join("labels.csv"), labels_csv(timestamps, labels))?;
-    let json = serde_json::to_string_pretty(metrics).map_err(io::Error::other)?;
-    std::fs::write(dir.join("metrics.json"), json + "\n")?;
+    std::fs::write(dir.join("metrics.json"), metrics_json::text(metrics)?)?;
     Ok(())
 }

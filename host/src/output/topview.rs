@@ -402,7 +402,7 @@ pub fn project(seq: &Sequence, sets: &[Vec<u64>], grid: placedb::VoxelGrid) -> T
     let proj = Projection::new(vertical_axis(down));
     let (i, j) = proj.axes();
 
-    let union = crate::metrics::union(sets);
+    let union = crate::yardstick::metrics::union(sets);
     let mut counts: HashMap<(i32, i32), u32> = HashMap::new();
     for key in union.into_iter().filter_map(placedb::VoxelKey::from_bits) {
         let (x, y, z) = key.coords();

@@ -12,7 +12,7 @@
 
 use super::unfilter;
 use crate::error::ReadError;
-use crate::frame_keys::VectorUnit;
+use crate::voxelize::frame_keys::VectorUnit;
 use crate::sequence::{DepthImage, DepthSource};
 use std::cell::RefCell;
 use std::path::{Path, PathBuf};

@@ -6,8 +6,8 @@ pub mod frame_keys;
 pub(crate) mod key_cells;
 
 use crate::error::ReadError;
-use crate::frame_keys::{frame_keys, VectorUnit};
-use crate::key_cells::{axes, BoxCells};
+use crate::voxelize::frame_keys::{frame_keys, VectorUnit};
+use crate::voxelize::key_cells::{axes, BoxCells};
 use crate::sequence::{DepthImage, Sequence};
 use indicatif::ProgressBar;
 use placedb::{DepthRange, FrameProjector, VoxelGrid};

@@ -14,7 +14,7 @@
 //! IoU uses the core's [`placedb::voxel::iou`], so host and device compare
 //! the very same `f32` against `mu`.
 
-use crate::key_cells::BoxCells;
+use crate::voxelize::key_cells::BoxCells;
 use indicatif::ProgressBar;
 use rayon::prelude::*;
 use std::collections::HashMap;

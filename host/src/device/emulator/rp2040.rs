@@ -11,7 +11,8 @@
 //! Needs Node (20 or later) and the harness's packages:
 //! `cd boards/rp-pico/emulator && npm ci`.
 
-use crate::link::{Link, TcpLink};
+use crate::device::error::DeviceError;
+use crate::device::link::{Link, TcpLink};
 use std::io::{self, BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
@@ -52,13 +53,13 @@ pub fn default_firmware() -> PathBuf {
 pub const FIRMWARE_BUILD: &str = "cd boards/rp-pico && cargo build --release";
 
 /// The Pico firmware, built (or brought up to date) first unless
-/// `PLACEDB_RP2040_FIRMWARE` names one, as [`crate::link::built_firmware`]
+/// `PLACEDB_RP2040_FIRMWARE` names one, as [`super::qemu::built_firmware`]
 /// does for the QEMU board. Built once per process.
 pub fn built_firmware() -> Result<PathBuf, String> {
     static BUILT: std::sync::OnceLock<Result<PathBuf, String>> = std::sync::OnceLock::new();
     BUILT
         .get_or_init(|| {
-            crate::link::build_board(
+            super::build_board(
                 "rp-pico",
                 default_firmware(),
                 std::env::var_os("PLACEDB_RP2040_FIRMWARE").is_none(),
@@ -370,13 +371,12 @@ fn collect_lines(
 
 /// `placedb device --rp2040`: runs the emulated Pico in the foreground
 /// (its TCP port printed), until Ctrl-C, SIGTERM or SIGHUP, which stop the
-/// emulator first ([`crate::foreground`]).
+/// emulator first ([`super::foreground`]).
 pub fn device_cmd(
     firmware: Option<PathBuf>,
     port: u16,
     flash: Option<PathBuf>,
-) -> Result<(), crate::device_cli::DeviceError> {
-    use crate::device_cli::DeviceError;
+) -> Result<(), DeviceError> {
     let firmware = firmware.unwrap_or_else(default_firmware);
     let options = Rp2040Options {
         flash: flash.clone(),
@@ -396,19 +396,10 @@ pub fn device_cmd(
         None => println!("  no --flash file: the board starts with an erased flash every time"),
     }
     println!("  Ctrl-C (or SIGTERM, SIGHUP) stops it, the emulator with it");
-    // The emulator ends with placedb, whatever stops it (crate::foreground).
-    let mut child = crate::foreground::spawn(&mut harness_command(&firmware, &options))
+    // The emulator ends with placedb, whatever stops it (foreground.rs).
+    let mut child = super::foreground::spawn(&mut harness_command(&firmware, &options))
         .map_err(|e| DeviceError::Input(format!("cannot start node (Node 20 or later): {e}")))?;
-    match crate::foreground::wait(&mut child)? {
-        crate::foreground::Ended::Exited(status) if status.success() => Ok(()),
-        crate::foreground::Ended::Exited(status) => Err(DeviceError::Io(io::Error::other(
-            format!("the RP2040 emulator exited: {status}"),
-        ))),
-        crate::foreground::Ended::Stopped(signal) => {
-            println!("stopped (signal {signal}): the emulator ended");
-            Ok(())
-        }
-    }
+    super::wait_in_foreground(&mut child, "the RP2040 emulator", "the emulator")
 }
 
 #[cfg(test)]

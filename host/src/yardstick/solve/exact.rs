@@ -24,7 +24,7 @@
 
 use super::greedy::{greedy, greedy_cover, Incidence};
 use super::labels::is_dominating;
-use crate::graph::OverlapGraph;
+use crate::yardstick::graph::OverlapGraph;
 use highs::{HighsModelStatus, HighsSolutionStatus, RowProblem, Sense};
 use rayon::prelude::*;
 use std::sync::Mutex;

@@ -6,7 +6,7 @@
 //! frames and `m` edges. The same routine solves the set-cover form the exact
 //! solver reduces to (`greedy_cover`).
 
-use crate::graph::OverlapGraph;
+use crate::yardstick::graph::OverlapGraph;
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 

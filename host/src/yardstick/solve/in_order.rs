@@ -14,7 +14,7 @@
 //! ones (a few frames) at 20–300 frames. This function is the well-defined
 //! sequence-order version the definition describes.
 
-use crate::graph::OverlapGraph;
+use crate::yardstick::graph::OverlapGraph;
 
 /// Frames taken by a scan in sequence order (ascending).
 pub fn in_order(g: &OverlapGraph) -> Vec<usize> {
@@ -51,7 +51,7 @@ pub fn in_order_by<I: Iterator<Item = usize>>(n: usize, later: impl Fn(usize) ->
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::graph::CoObservation;
+    use crate::yardstick::graph::CoObservation;
     use crate::rng::SplitMix64;
 
     #[test]

@@ -7,7 +7,7 @@
 //! gets the lowest-index database frame: every IoU is 0 and the tie rule
 //! applies. Callers that care can detect it with `co.iou(f, label) == 0`.
 
-use crate::graph::{CoObservation, OverlapGraph};
+use crate::yardstick::graph::{CoObservation, OverlapGraph};
 
 /// Label of every frame: itself if in `db`, else its best-IoU frame of `db`.
 ///

@@ -668,7 +668,7 @@ fn exact_locals(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::frame_keys::VectorUnit;
+    use crate::voxelize::frame_keys::VectorUnit;
     use crate::rng::SplitMix64;
     use placedb::{DepthRange, FrameProjector, Intrinsics, Pose, VoxelGrid};
 
