@@ -20,6 +20,8 @@ pub mod rng;
 pub mod row_chunks;
 pub mod sequence;
 pub mod synth;
+#[cfg(any(test, feature = "testing"))]
+pub mod testing;
 pub mod voxelize;
 pub mod yardstick;
 

@@ -254,10 +254,7 @@ impl Export {
     /// The text of `database.csv` and `labels.csv`.
     pub fn csv(&self) -> (String, String) {
         let (timestamps, labels) = self.labels();
-        (
-            output::database_csv(&output::rows_from_records(&self.database())),
-            output::labels_csv(&timestamps, &labels),
-        )
+        output::run_csv(&self.database(), &timestamps, &labels)
     }
 
     /// `metrics.json` of an export: what the device knows (the metrics that

@@ -664,26 +664,12 @@ mod tests {
     use crate::device::export::{append_frames, export_to, read_partial, PARTIAL_EXPORT};
     use crate::device::link::LocalLink;
     use crate::output;
-    use crate::synth::{self, SynthConfig};
+    use crate::testing::{demo, selector, voxel_config};
     use placedb::protocol::{DeviceMessage, ErrorKind};
 
-    fn demo(frames: usize) -> Sequence {
-        let mut seq = synth::sequence(&SynthConfig::demo());
-        seq.frames.truncate(frames);
-        seq
-    }
-
     fn setup(seq: &Sequence, window: u16) -> (ScanConfig, SelectorConfig, Config) {
-        let vcfg = VoxelConfig {
-            stride: 8,
-            ..VoxelConfig::default()
-        };
-        let scan = scan_config(seq, &vcfg).unwrap();
-        let sel = SelectorConfig {
-            mu: 0.3,
-            window,
-            sketch_margin: 0.05,
-        };
+        let scan = scan_config(seq, &voxel_config(8)).unwrap();
+        let sel = selector(window);
         let cfg = device_config(&scan, &sel).unwrap();
         (scan, sel, cfg)
     }
@@ -711,10 +697,7 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
         let full = export_to(&mut client, &dir, None, true).unwrap();
         let timestamps: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
-        let want = (
-            output::database_csv(&output::rows_from_records(&run.database)),
-            output::labels_csv(&timestamps, &run.labels),
-        );
+        let want = output::run_csv(&run.database, &timestamps, &run.labels);
         assert_eq!(full.csv(), want);
         assert_eq!(
             std::fs::read_to_string(dir.join("database.csv")).unwrap(),

@@ -1,6 +1,8 @@
 //! The database directory (DESIGN section 6): `database.csv`, `labels.csv`,
-//! `metrics.json` and `topview.png`. Scripts read these: the column sets and
-//! key names are stable.
+//! `metrics.json` ([`metrics_json`]) and `topview.png` ([`topview`]), and the
+//! training dataset ([`dataset`]). The one writer of each: `placedb select`,
+//! `placedb export` and the tests all go through it. Scripts read these: the
+//! column sets and key names are stable.
 
 pub mod dataset;
 pub mod metrics_json;
@@ -66,6 +68,20 @@ pub fn labels_csv(timestamps: &[f64], labels: &[usize]) -> String {
         let _ = writeln!(s, "{i},{ts:.6},{l}");
     }
     s
+}
+
+/// The text of `database.csv` and `labels.csv` of a run that kept the
+/// device's records (the online replay, a device's export): the one place
+/// both are built from them.
+pub fn run_csv(
+    database: &[placedb::DbRecord],
+    timestamps: &[f64],
+    labels: &[usize],
+) -> (String, String) {
+    (
+        database_csv(&rows_from_records(database)),
+        labels_csv(timestamps, labels),
+    )
 }
 
 /// Writes the database directory; `metrics` must be a flat JSON object.
