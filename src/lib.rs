@@ -28,12 +28,12 @@ extern crate std;
 pub mod camera;
 pub mod device;
 pub mod frame;
+pub mod key_pool;
 pub mod persist;
 pub mod profile;
 pub mod protocol;
 pub mod select;
 pub mod sketch;
-pub mod key_pool;
 pub mod voxel;
 
 pub use camera::{CameraError, DepthRange, FrameProjector, Intrinsics, Pose};

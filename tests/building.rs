@@ -14,9 +14,9 @@ use placedb_host::device::client::Client;
 use placedb_host::device::link::LocalLink;
 use placedb_host::device::scan::{device_config, scan_config, DepthFrame, StreamOptions};
 use placedb_host::device::session::Session;
-use placedb_host::yardstick::metrics;
 use placedb_host::pipeline::{self, Prepared, Solver, SolverParams};
 use placedb_host::synth::{self, SynthConfig};
+use placedb_host::yardstick::metrics;
 use placedb_host::{Sequence, VoxelConfig};
 
 fn building(frames: usize, rooms: usize, seed: u64) -> Sequence {

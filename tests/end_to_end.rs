@@ -23,8 +23,8 @@ use placedb_host::fault::damaged_frame;
 use placedb_host::link::{Client, Qemu, QemuOptions, Received};
 use placedb_host::read::{self, ReadOptions};
 use placedb_host::synth::{self, SynthConfig};
-use placedb_host::{GridOrigin, Sequence, VoxelConfig};
 use placedb_host::testing::qemu_firmware as firmware;
+use placedb_host::{GridOrigin, Sequence, VoxelConfig};
 use std::path::Path;
 use std::time::{Duration, Instant};
 

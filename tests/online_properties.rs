@@ -36,9 +36,9 @@
 //! Degraded mode (tiny capacities): a, c, d, e and the consistency of the
 //! counters, flags and decisions; never a panic.
 
+use placedb::key_pool::Aabb;
 use placedb::select::flags;
 use placedb::sketch::Sketch;
-use placedb::key_pool::Aabb;
 use placedb::voxel::{intersection_size, iou};
 use placedb::{
     DbRecord, Decision, DepthRange, FrameDecision, FrameMeta, FrameProjector, Intrinsics, Pose,

@@ -25,9 +25,9 @@ use placedb_host::fault::{FaultConfig, FaultInjector};
 use placedb_host::link::{Client, Link};
 use placedb_host::pixelcost;
 use placedb_host::rp2040::{Rp2040, Rp2040Options};
-use placedb_host::{Sequence, VoxelConfig};
 use placedb_host::testing::rp2040_firmware as firmware;
 use placedb_host::testing::{selector as sel, voxel_config as stride};
+use placedb_host::{Sequence, VoxelConfig};
 use std::path::Path;
 use std::time::{Duration, Instant};
 

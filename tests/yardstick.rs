@@ -5,8 +5,8 @@
 use placedb_host::pipeline::{self, Outcome, Prepared, Solver, SolverParams};
 use placedb_host::read::{self, ReadOptions};
 use placedb_host::synth::{self, SynthConfig};
-use placedb_host::{GridOrigin, Sequence, VoxelConfig};
 use placedb_host::testing::data;
+use placedb_host::{GridOrigin, Sequence, VoxelConfig};
 use std::sync::OnceLock;
 
 fn open(name: &str) -> Sequence {

@@ -26,11 +26,11 @@ pub use crate::yardstick::{graph, metrics, solve};
 #[doc(hidden)]
 pub mod link {
     pub use crate::device::client::{Client, Received};
+    pub use crate::device::emulator::build_board;
     pub use crate::device::emulator::qemu::{
         built_firmware, default_firmware, prepare_flash_file, qemu_command, Qemu, QemuOptions,
         FIRMWARE_BUILD, FLASH_FILE_SIZE,
     };
-    pub use crate::device::emulator::build_board;
     pub use crate::device::link::*;
 }
 

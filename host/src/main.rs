@@ -6,6 +6,7 @@
 //! arguments and printing are in `placedb_host::cli` (host/src/cli/).
 
 use clap::{Parser, Subcommand};
+use placedb_host::cli;
 use placedb_host::cli::bench::BenchArgs;
 use placedb_host::cli::compare::CompareArgs;
 use placedb_host::cli::device::DeviceArgs;
@@ -13,7 +14,6 @@ use placedb_host::cli::export::ExportArgs;
 use placedb_host::cli::select::SelectArgs;
 use placedb_host::cli::stream::StreamArgs;
 use placedb_host::cli::synth::SynthArgs;
-use placedb_host::cli;
 use std::process::ExitCode;
 
 #[derive(Parser)]

@@ -7,9 +7,9 @@ use crate::sequence::{DepthImage, Sequence};
 use crate::voxelize::{VoxelSets, VoxelizeError};
 use indicatif::ProgressBar;
 use placedb::frame::{FrameError, FrameIngest};
+use placedb::key_pool::{key_of, merge_count};
 use placedb::profile::{Ram1M, Ram256K, Ram512K};
 use placedb::select::{DbSnapshot, FrameStore};
-use placedb::key_pool::{key_of, merge_count};
 use placedb::{
     DbRecord, Decision, FrameMeta, ScanConfig, SelectError, Selector, SelectorConfig, Status,
 };

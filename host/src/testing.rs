@@ -86,8 +86,8 @@ pub fn replay_csv(
     sel: SelectorConfig,
 ) -> (String, String) {
     let scan = scan_config(seq, vcfg).unwrap_or_else(|e| panic!("scan config: {e}"));
-    let run = replay::replay(seq, profile, scan, sel, 8, None)
-        .unwrap_or_else(|e| panic!("replay: {e}"));
+    let run =
+        replay::replay(seq, profile, scan, sel, 8, None).unwrap_or_else(|e| panic!("replay: {e}"));
     let timestamps: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
     output::run_csv(&run.database, &timestamps, &run.labels)
 }

@@ -28,8 +28,8 @@
 
 use crate::camera::Pose;
 use crate::frame::{FrameError, FrameIngest, FrameMeta, ScanConfig};
-use crate::sketch::Sketch;
 use crate::key_pool::{Aabb, KeyPool, KeyRun};
+use crate::sketch::Sketch;
 use crate::voxel::iou;
 
 pub mod database;

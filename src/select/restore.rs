@@ -7,8 +7,8 @@
 use super::database::{entry_of, NOWHERE};
 use super::{flags, Decision, Selector};
 use crate::frame::FrameMeta;
-use crate::sketch::Sketch;
 use crate::key_pool::Aabb;
+use crate::sketch::Sketch;
 
 /// A database frame as a durable store keeps it: what comparing new frames
 /// with it by sketch, and exporting it, needs.

@@ -76,8 +76,7 @@ impl Building {
             seed: 1,
             rooms: (frames / 500).max(2),
         });
-        let scan =
-            scan::scan_config(&seq, &VoxelConfig::default()).map_err(|e| e.to_string())?;
+        let scan = scan::scan_config(&seq, &VoxelConfig::default()).map_err(|e| e.to_string())?;
         let window = placedb::profile::by_name("ram256k").map_or(16, |p| p.window as u16);
         let sel = SelectorConfig {
             mu: MU,

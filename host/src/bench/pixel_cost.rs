@@ -11,10 +11,10 @@
 //!
 //! [`FrameCost::core`]: placedb::protocol::FrameCost::core
 
-use crate::device::error::DeviceError;
-use crate::device::scan::{self, StreamOptions};
 use crate::device::client::Client;
+use crate::device::error::DeviceError;
 use crate::device::link::Link;
+use crate::device::scan::{self, StreamOptions};
 use crate::{Sequence, VoxelConfig};
 use placedb::SelectorConfig;
 
@@ -108,8 +108,7 @@ pub fn measure<L: Link>(
         };
         let scan = scan::scan_config(seq, &vcfg)?;
         let cfg = scan::device_config(&scan, &sel)?;
-        let report =
-            scan::stream(client, seq, &cfg, profile, &StreamOptions::default(), None)?;
+        let report = scan::stream(client, seq, &cfg, profile, &StreamOptions::default(), None)?;
         let st = &report.status;
         if st.cost.clock_hz == 0 || st.cost.frames == 0 {
             return Err(DeviceError::Input(

@@ -6,7 +6,9 @@ use crate::device::client::Client;
 use crate::device::error::DeviceError;
 use crate::device::export;
 use crate::device::link::{self, fault::FaultConfig, fault::FaultInjector};
-use crate::device::scan::{device_config, scan_config, status_line, stream, Recovery, StreamReport};
+use crate::device::scan::{
+    device_config, scan_config, status_line, stream, Recovery, StreamReport,
+};
 use crate::error::CommandError as Error;
 use crate::pipeline::SolverParams;
 use crate::sequence::Sequence;

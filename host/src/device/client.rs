@@ -348,13 +348,12 @@ pub fn connect(port: &str) -> Result<Client<Box<dyn Link>>, DeviceError> {
     Ok(Client::new(link))
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::device::link::open;
-    use std::io::{Read, Write};
     use placedb::protocol::{ErrorKind, Feed, Phase, Status};
+    use std::io::{Read, Write};
     use std::net::TcpListener;
     use std::thread::{self, JoinHandle};
 

@@ -11,8 +11,8 @@ use crate::device::link::Link;
 use crate::output::{self, metrics_json};
 use indicatif::ProgressBar;
 use placedb::protocol::{
-    encode, export_crc, CapacitySlot, DeviceMessage, ExportRecord, Feed, FrameDecoder,
-    HostMessage, RecordKind, Status, MAX_FRAME_LEN,
+    encode, export_crc, CapacitySlot, DeviceMessage, ExportRecord, Feed, FrameDecoder, HostMessage,
+    RecordKind, Status, MAX_FRAME_LEN,
 };
 use placedb::DbRecord;
 use std::io;

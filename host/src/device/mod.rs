@@ -2,14 +2,15 @@
 //! ([`link`]), the emulated boards ([`emulator`]), the protocol client with
 //! the one send-and-wait ([`client`]), streaming a scan ([`scan`]), pulling
 //! its results ([`export`]), and the public [`session`] a robot program
-//! calls. A module imports only those before it (and [`error`]).
+//! calls. Imports go one way, from the top: session → scan → export →
+//! client → link, emulator → link, and every one may name [`error`].
 
-pub mod error;
-pub mod link;
-pub mod emulator;
 pub mod client;
-pub mod scan;
+pub mod emulator;
+pub mod error;
 pub mod export;
+pub mod link;
+pub mod scan;
 pub mod session;
 
 pub use error::DeviceError;

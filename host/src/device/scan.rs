@@ -130,7 +130,6 @@ impl StreamReport {
     }
 }
 
-
 /// The scan configuration `placedb select` uses for `seq` and `vcfg`: the
 /// same intrinsics, depth scale, range, stride and grid.
 pub fn scan_config(seq: &Sequence, vcfg: &VoxelConfig) -> Result<ScanConfig, DeviceError> {
@@ -166,7 +165,6 @@ pub fn device_config(scan: &ScanConfig, sel: &SelectorConfig) -> Result<Config, 
     Ok(cfg)
 }
 
-
 /// One line about the device's state, for a live status display.
 pub fn status_line(st: &Status) -> String {
     let c = |slot| {
@@ -193,7 +191,6 @@ pub fn status_line(st: &Status) -> String {
     }
     s
 }
-
 
 /// Streams `seq` to the device behind `client`: (Reset,) Hello with `cfg`,
 /// every frame as FrameBegin, DepthRows, FrameEnd (and a StatusRequest for
@@ -290,7 +287,6 @@ fn send_frames<L: Link>(
     Ok(())
 }
 
-
 /// Fault injection and recovery for `placedb stream`.
 #[derive(Debug, Clone, Copy)]
 pub struct Recovery {
@@ -349,7 +345,6 @@ impl Recovery {
         }
     }
 }
-
 
 /// One depth frame held in memory, as a camera driver delivers it.
 #[derive(Debug, Clone, Copy)]

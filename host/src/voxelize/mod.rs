@@ -6,9 +6,9 @@ pub mod frame_keys;
 pub(crate) mod key_cells;
 
 use crate::error::ReadError;
+use crate::sequence::{DepthImage, Sequence};
 use crate::voxelize::frame_keys::{frame_keys, VectorUnit};
 use crate::voxelize::key_cells::{axes, BoxCells};
-use crate::sequence::{DepthImage, Sequence};
 use indicatif::ProgressBar;
 use placedb::{DepthRange, FrameProjector, VoxelGrid};
 use rayon::prelude::*;

@@ -7,8 +7,8 @@
 //!   uncovered), `spatial_coverage` is 1 when no frame has a voxel, and
 //!   `reduction` is 0 for an empty database.
 
-use crate::yardstick::graph::{CoObservation, KeyMap};
 use crate::voxelize::key_cells::BoxCells;
+use crate::yardstick::graph::{CoObservation, KeyMap};
 use rayon::prelude::*;
 
 /// Coverage below this is "poorly covered" (the paper's recall criterion).

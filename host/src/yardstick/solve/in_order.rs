@@ -51,8 +51,8 @@ pub fn in_order_by<I: Iterator<Item = usize>>(n: usize, later: impl Fn(usize) ->
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::yardstick::graph::CoObservation;
     use crate::rng::SplitMix64;
+    use crate::yardstick::graph::CoObservation;
 
     #[test]
     fn on_co_observation_rows_it_takes_what_it_takes_on_the_graph() {

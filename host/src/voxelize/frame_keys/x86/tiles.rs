@@ -668,8 +668,8 @@ fn exact_locals(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::voxelize::frame_keys::VectorUnit;
     use crate::rng::SplitMix64;
+    use crate::voxelize::frame_keys::VectorUnit;
     use placedb::{DepthRange, FrameProjector, Intrinsics, Pose, VoxelGrid};
 
     /// A 640x480 frame of a tilted plane seen from a random pose, raws in
