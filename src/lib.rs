@@ -70,12 +70,12 @@ extern crate std;
 pub mod camera;
 pub mod device;
 pub mod frame;
+pub mod key_pool;
 pub mod persist;
 pub mod profile;
 pub mod protocol;
 pub mod select;
 pub mod sketch;
-pub mod store;
 pub mod voxel;
 
 pub use camera::{CameraError, DepthRange, FrameProjector, Intrinsics, Pose};
@@ -84,3 +84,7 @@ pub use select::{
     DbRecord, Decision, FrameDecision, SelectError, Selector, SelectorConfig, Status,
 };
 pub use voxel::{FrameVoxels, VoxelGrid, VoxelKey};
+
+/// The key pool's former path.
+#[doc(hidden)]
+pub use key_pool as store;

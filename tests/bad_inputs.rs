@@ -31,7 +31,7 @@
 //! contents of the same scan streamed without a single bad input. A device
 //! restored from the flash after each group exports what the live one does.
 //!
-//! Other tests check some of these piecemeal (src/device.rs
+//! Other tests check some of these piecemeal (src/device/tests.rs
 //! `refused_messages_change_nothing`, src/protocol/tests.rs,
 //! tests/capacities.rs, tests/end_to_end.rs); this file is the one readable
 //! list of every case.

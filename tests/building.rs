@@ -10,11 +10,13 @@
 
 use placedb::protocol::{degradation, CapacitySlot, RecordKind, Status};
 use placedb::SelectorConfig;
-use placedb_host::device_cli::{self, ExportOptions, StreamOptions};
-use placedb_host::link::{Client, LocalLink};
-use placedb_host::metrics;
+use placedb_host::device::client::Client;
+use placedb_host::device::link::LocalLink;
+use placedb_host::device::scan::{device_config, scan_config, DepthFrame, StreamOptions};
+use placedb_host::device::session::Session;
 use placedb_host::pipeline::{self, Prepared, Solver, SolverParams};
 use placedb_host::synth::{self, SynthConfig};
+use placedb_host::yardstick::metrics;
 use placedb_host::{Sequence, VoxelConfig};
 
 fn building(frames: usize, rooms: usize, seed: u64) -> Sequence {
@@ -34,51 +36,59 @@ struct DeviceRun {
     labels: usize,
 }
 
-/// Streams `seq` to an in-process device of `profile` (window: the profile's)
-/// and exports it.
-fn device_run(seq: &Sequence, profile: &str, mu: f32) -> DeviceRun {
-    let scan = device_cli::scan_config(seq, &VoxelConfig::default()).expect("scan config");
-    let window = placedb::profile::by_name(profile).expect("profile").window as u16;
-    let sel = SelectorConfig {
-        mu,
-        window,
-        sketch_margin: SolverParams::default().sketch_margin,
-    };
-    let cfg = device_cli::device_config(&scan, &sel).expect("device config");
-    let mut client = Client::new(LocalLink::start(profile).expect("local device"));
-    let report = device_cli::stream(
-        &mut client,
-        seq,
-        &cfg,
-        profile,
-        &StreamOptions::default(),
-        None,
-    )
-    .expect("streams");
-    let export = device_cli::export(
-        &mut client,
-        Vec::new(),
-        &ExportOptions::default(),
-        None,
-        &mut |_| Ok(()),
-    )
-    .expect("exports");
-    let database = export
-        .records
+/// Streams `seq` at once to one in-process device per `(profile, mu)` of
+/// `runs` (window: the profile's) and exports each. Every frame is rendered
+/// once and pushed to every device in turn (each runs on its own thread), so
+/// that nine streams of the 20,000-frame building cost one rendering, not
+/// nine.
+fn device_runs(seq: &Sequence, runs: &[(&str, f32)]) -> Vec<DeviceRun> {
+    let scan = scan_config(seq, &VoxelConfig::default()).expect("scan config");
+    let mut sessions: Vec<_> = runs
         .iter()
-        .filter(|r| matches!(r.kind, RecordKind::Database { .. }))
-        .map(|r| r.frame as usize)
+        .map(|&(profile, mu)| {
+            let window = placedb::profile::by_name(profile).expect("profile").window as u16;
+            let sel = SelectorConfig {
+                mu,
+                window,
+                sketch_margin: SolverParams::default().sketch_margin,
+            };
+            let cfg = device_config(&scan, &sel).expect("device config");
+            let link = LocalLink::start(profile).expect("local device");
+            let mut session = Session::new(Client::new(link), StreamOptions::default());
+            session.start(&cfg, Some(profile)).expect("starts");
+            session
+        })
         .collect();
-    let labels = export
-        .records
-        .iter()
-        .filter(|r| matches!(r.kind, RecordKind::Label { .. }))
-        .count();
-    DeviceRun {
-        status: report.status,
-        database,
-        labels,
+    for (i, frame) in seq.frames.iter().enumerate() {
+        let img = seq.depth(i).expect("renders");
+        let depth = DepthFrame {
+            timestamp: frame.timestamp,
+            pose: frame.pose().expect("pose"),
+            intrinsics: scan.intrinsics,
+            depth: &img.data,
+        };
+        for session in &mut sessions {
+            session.push_frame(&depth).expect("streams");
+        }
     }
+    sessions
+        .iter_mut()
+        .map(|session| {
+            let status = session.finish().expect("finishes");
+            let export = session.export().expect("exports");
+            let database = export.database().iter().map(|r| r.index as usize).collect();
+            let labels = export
+                .records
+                .iter()
+                .filter(|r| matches!(r.kind, RecordKind::Label { .. }))
+                .count();
+            DeviceRun {
+                status,
+                database,
+                labels,
+            }
+        })
+        .collect()
 }
 
 fn size(seq: &Sequence, prep: &Prepared, solver: Solver, mu: f32) -> usize {
@@ -88,47 +98,56 @@ fn size(seq: &Sequence, prep: &Prepared, solver: Solver, mu: f32) -> usize {
     o.database.len()
 }
 
-/// Streams `seq` on each profile at each mu and checks the targets; prints
-/// the device's row of the paper's Table 1.
+/// Streams `seq` on each profile at each mu (all at once) and checks the
+/// targets; prints the device's row of the paper's Table 1.
 fn check_building(name: &str, seq: &Sequence, profiles: &[&str], mus: &[f32]) {
     let prep = pipeline::prepare(seq, VoxelConfig::default(), true).expect("voxelizes");
     let (sets, co) = prep.eval();
     let n = seq.frames.len();
-    for &mu in mus {
-        let in_order = size(seq, &prep, Solver::InOrder, mu);
-        let greedy = size(seq, &prep, Solver::Greedy, mu);
-        for &profile in profiles {
-            let run = device_run(seq, profile, mu);
-            let st = &run.status;
-            let uncovered = metrics::evaluate(&sets.sets, co, &run.database, mu).uncovered;
-            let flash = st.capacity(CapacitySlot::Flash);
-            println!(
-                "{name} ({n} frames) mu {mu}: in-order {in_order}, greedy {greedy}, \
-                 {profile} {} (uncovered {uncovered}, by capacity {}, labels {}, \
-                 flash {} of {} KiB)",
-                run.database.len(),
-                st.uncovered_frames,
-                run.labels,
-                flash.used / 1024,
-                flash.limit / 1024
-            );
-            let what = format!("{name} mu {mu} on {profile}");
-            assert_eq!(st.frames_decided as usize, n, "{what}: every frame decided");
-            assert_eq!(st.uncovered_frames, 0, "{what}: frames left to capacity");
-            assert_eq!(st.degradation & degradation::DATABASE_FULL, 0, "{what}");
-            assert_eq!(st.labels_dropped, 0, "{what}: labels dropped");
-            assert_eq!(run.labels, n, "{what}: every label exported");
-            assert_eq!(uncovered, 0, "{what}: frames uncovered by the exact graph");
-            assert!(
-                run.database.len() <= in_order,
-                "{what}: larger than in-order"
-            );
-            assert!(
-                run.database.len() as f64 <= 1.15 * greedy as f64,
-                "{what}: {} > 1.15 x greedy {greedy}",
-                run.database.len()
-            );
-        }
+    let runs: Vec<(&str, f32)> = mus
+        .iter()
+        .flat_map(|&mu| profiles.iter().map(move |&profile| (profile, mu)))
+        .collect();
+    // The offline sizes once per mu, in the order of `mus`.
+    let offline: Vec<(usize, usize)> = mus
+        .iter()
+        .map(|&mu| {
+            let in_order = size(seq, &prep, Solver::InOrder, mu);
+            (in_order, size(seq, &prep, Solver::Greedy, mu))
+        })
+        .collect();
+    let device = device_runs(seq, &runs);
+    for (k, (&(profile, mu), run)) in runs.iter().zip(&device).enumerate() {
+        let (in_order, greedy) = offline[k / profiles.len()];
+        let st = &run.status;
+        let uncovered = metrics::evaluate(&sets.sets, co, &run.database, mu).uncovered;
+        let flash = st.capacity(CapacitySlot::Flash);
+        println!(
+            "{name} ({n} frames) mu {mu}: in-order {in_order}, greedy {greedy}, \
+             {profile} {} (uncovered {uncovered}, by capacity {}, labels {}, \
+             flash {} of {} KiB)",
+            run.database.len(),
+            st.uncovered_frames,
+            run.labels,
+            flash.used / 1024,
+            flash.limit / 1024
+        );
+        let what = format!("{name} mu {mu} on {profile}");
+        assert_eq!(st.frames_decided as usize, n, "{what}: every frame decided");
+        assert_eq!(st.uncovered_frames, 0, "{what}: frames left to capacity");
+        assert_eq!(st.degradation & degradation::DATABASE_FULL, 0, "{what}");
+        assert_eq!(st.labels_dropped, 0, "{what}: labels dropped");
+        assert_eq!(run.labels, n, "{what}: every label exported");
+        assert_eq!(uncovered, 0, "{what}: frames uncovered by the exact graph");
+        assert!(
+            run.database.len() <= in_order,
+            "{what}: larger than in-order"
+        );
+        assert!(
+            run.database.len() as f64 <= 1.15 * greedy as f64,
+            "{what}: {} > 1.15 x greedy {greedy}",
+            run.database.len()
+        );
     }
 }
 

@@ -1,5 +1,5 @@
 //! Deterministic tests of every capacity of a small custom `placedb::Selector`
-//! and of its documented degradation (src/select.rs, `flags`), and of refused
+//! and of its documented degradation (src/select/mod.rs, `flags`), and of refused
 //! inputs: each returns its typed error and changes nothing.
 //!
 //! Scenes are fronto-parallel walls seen by a camera with the identity

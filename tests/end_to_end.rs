@@ -23,8 +23,9 @@ use placedb_host::fault::damaged_frame;
 use placedb_host::link::{Client, Qemu, QemuOptions, Received};
 use placedb_host::read::{self, ReadOptions};
 use placedb_host::synth::{self, SynthConfig};
+use placedb_host::testing::qemu_firmware as firmware;
 use placedb_host::{GridOrigin, Sequence, VoxelConfig};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 const PROFILE: &str = "ram512k";
@@ -32,10 +33,6 @@ const PROFILE: &str = "ram512k";
 const FLASH_BUDGET: u64 = 4 << 20;
 const RAM_BUDGET: u64 = 512 << 10;
 const REPLY: Duration = Duration::from_secs(30);
-
-fn firmware() -> PathBuf {
-    placedb_host::link::built_firmware().unwrap_or_else(|e| panic!("{e}"))
-}
 
 fn boot(deadline: Duration) -> Client<Qemu> {
     let options = QemuOptions {
@@ -103,7 +100,7 @@ fn firmware_fits_its_budget() {
         data <= 1024,
         "{data} B of .data: the device static is not all zero, so it is stored in flash too \
          (usually a new `Option<T>` field whose T has a niche: its None is a non-zero byte; \
-         use a plain flag beside T, as `RingEntry` in src/select.rs does)"
+         use a plain flag beside T, as `RingEntry` in src/select/mod.rs does)"
     );
     assert!(flash <= FLASH_BUDGET && ram <= RAM_BUDGET);
     assert!(
@@ -159,7 +156,7 @@ fn real_and_synthetic_scans_match_the_host_replay() {
     let mut client = boot(Duration::from_secs(170));
 
     // (a) the first 24 frames of a real 7-Scenes sequence at stride 8 (9.6 KB a frame).
-    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/7scenes-1000");
+    let data = placedb_host::testing::data("7scenes-1000");
     let mut real = read::open(&data, &ReadOptions::default()).unwrap();
     real.frames.truncate(24);
     let vcfg = VoxelConfig {
@@ -232,7 +229,7 @@ fn real_and_synthetic_scans_match_the_host_replay() {
 fn a_valid_pixel_costs_at_most_100_instructions() {
     use placedb_host::pixelcost::{self, SELECTOR, STRIDES};
     let mut client = boot(Duration::from_secs(600));
-    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/7scenes-1000");
+    let data = placedb_host::testing::data("7scenes-1000");
     let mut real = read::open(&data, &ReadOptions::default()).unwrap();
     real.frames.truncate(3);
     let vcfg = VoxelConfig::default();

@@ -1,5 +1,5 @@
 //! Fault injection: frames dropped and corrupted in both directions of the
-//! link (`placedb_host::fault::FaultInjector`, seeded), recovered by
+//! link (`placedb_host::device::link::fault::FaultInjector`, seeded), recovered by
 //! retransmission (stop-and-wait, same sequence number; the device answers a
 //! repeat from its cache without applying it twice) and by re-requested
 //! export batches (checked by count and CRC). The exported database.csv and
@@ -14,45 +14,31 @@
 //! Run with `--nocapture` to see what was injected and how long recovery took.
 
 use placedb::SelectorConfig;
-use placedb_host::device_cli::{self, ExportOptions, StreamOptions};
-use placedb_host::fault::{FaultConfig, FaultInjector, FaultStats};
-use placedb_host::link::{Client, Link, LocalLink, Qemu, QemuOptions};
-use placedb_host::synth::{self, SynthConfig};
-use placedb_host::{online, output, Sequence, VoxelConfig};
+use placedb_host::device::client::Client;
+use placedb_host::device::emulator::qemu::{Qemu, QemuOptions};
+use placedb_host::device::export::{self, ExportOptions};
+use placedb_host::device::link::fault::{FaultConfig, FaultInjector, FaultStats};
+use placedb_host::device::link::{Link, LocalLink};
+use placedb_host::device::scan::{self, StreamOptions};
+use placedb_host::testing::{demo, qemu_firmware, replay_csv, selector, voxel_config};
+use placedb_host::{Sequence, VoxelConfig};
 use std::time::{Duration, Instant};
 
 const PROFILE: &str = "ram512k";
 
-fn demo(frames: usize) -> Sequence {
-    let mut seq = synth::sequence(&SynthConfig::demo());
-    seq.frames.truncate(frames);
-    seq
-}
-
-fn vcfg() -> VoxelConfig {
-    VoxelConfig {
-        stride: 8,
-        ..VoxelConfig::default()
-    }
-}
-
-fn sel() -> SelectorConfig {
-    SelectorConfig {
-        mu: 0.3,
-        window: 8,
-        sketch_margin: 0.05,
-    }
-}
-
 /// database.csv and labels.csv of the clean host replay of the core.
 fn host_replay(seq: &Sequence) -> (String, String) {
-    let scan = device_cli::scan_config(seq, &vcfg()).unwrap();
-    let run = online::replay(seq, PROFILE, scan, sel(), 8, None).unwrap();
-    let timestamps: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
-    (
-        output::database_csv(&output::rows_from_records(&run.database)),
-        output::labels_csv(&timestamps, &run.labels),
-    )
+    replay_csv(PROFILE, seq, &vcfg(), sel())
+}
+
+/// The stride of these tests.
+fn vcfg() -> VoxelConfig {
+    voxel_config(8)
+}
+
+/// Their selector: a window of 8.
+fn sel() -> SelectorConfig {
+    selector(8)
 }
 
 /// What one faulty run did.
@@ -72,20 +58,20 @@ fn stream_and_export<L: Link>(
     seq: &Sequence,
     resend_after: Duration,
 ) -> Run {
-    let scan = device_cli::scan_config(seq, &vcfg()).unwrap();
-    let cfg = device_cli::device_config(&scan, &sel()).unwrap();
+    let scan = scan::scan_config(seq, &vcfg()).unwrap();
+    let cfg = scan::device_config(&scan, &sel()).unwrap();
     let opts = StreamOptions {
         retries: 40,
         resend_after,
         ..StreamOptions::default()
     };
     let t = Instant::now();
-    let report = device_cli::stream(client, seq, &cfg, PROFILE, &opts, None)
+    let report = scan::stream(client, seq, &cfg, PROFILE, &opts, None)
         .unwrap_or_else(|e| panic!("stream failed under faults: {e}"));
     let stream_s = t.elapsed().as_secs_f64();
     assert_eq!(report.status.frames_seen as usize, seq.frames.len());
     let t = Instant::now();
-    let export = device_cli::export(
+    let export = export::export(
         client,
         Vec::new(),
         &ExportOptions {
@@ -182,7 +168,7 @@ fn faults_in_one_direction_only_are_recovered_too() {
 #[test]
 fn the_emulated_board_recovers_from_5_percent_faults() {
     let started = Instant::now();
-    let firmware = placedb_host::link::built_firmware().unwrap_or_else(|e| panic!("{e}"));
+    let firmware = qemu_firmware();
     let options = QemuOptions {
         extra_args: vec!["-icount".into(), "shift=0".into()],
         deadline: Duration::from_secs(150),

@@ -20,7 +20,7 @@
 //!    label is the best-IoU earlier database frame;
 //! g. in exact mode the database is a dominating set of G(mu) for any window;
 //! h. in exact mode the whole decision stream (including `Pending`) equals a
-//!    plain reference model of the rule documented in src/select.rs, run on
+//!    plain reference model of the rule documented in src/select/mod.rs, run on
 //!    the exact sets: a frame is covered once a database frame overlaps it
 //!    (label: best IoU, ties lowest index); an uncovered oldest frame makes
 //!    the selector take, among itself and the open window frames overlapping
@@ -36,9 +36,9 @@
 //! Degraded mode (tiny capacities): a, c, d, e and the consistency of the
 //! counters, flags and decisions; never a panic.
 
+use placedb::key_pool::Aabb;
 use placedb::select::flags;
 use placedb::sketch::Sketch;
-use placedb::store::Aabb;
 use placedb::voxel::{intersection_size, iou};
 use placedb::{
     DbRecord, Decision, DepthRange, FrameDecision, FrameMeta, FrameProjector, Intrinsics, Pose,

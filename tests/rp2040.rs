@@ -24,10 +24,11 @@ use placedb_host::device_cli::{self, ExportOptions, StreamOptions, StreamReport}
 use placedb_host::fault::{FaultConfig, FaultInjector};
 use placedb_host::link::{Client, Link};
 use placedb_host::pixelcost;
-use placedb_host::read::{self, ReadOptions};
-use placedb_host::rp2040::{self, Rp2040, Rp2040Options};
+use placedb_host::rp2040::{Rp2040, Rp2040Options};
+use placedb_host::testing::rp2040_firmware as firmware;
+use placedb_host::testing::{selector as sel, voxel_config as stride};
 use placedb_host::{Sequence, VoxelConfig};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 const PROFILE: &str = "ram256k";
@@ -35,10 +36,6 @@ const PROFILE: &str = "ram256k";
 /// is the RP2040 timer (1 MHz): cycles per timer tick.
 const CYCLES_PER_TICK: f64 = 125.0;
 const REPLY: Duration = Duration::from_secs(60);
-
-fn firmware() -> PathBuf {
-    rp2040::built_firmware().unwrap_or_else(|e| panic!("{e}"))
-}
 
 fn boot(flash: Option<&Path>, deadline: Duration) -> Rp2040 {
     let options = Rp2040Options {
@@ -50,25 +47,7 @@ fn boot(flash: Option<&Path>, deadline: Duration) -> Rp2040 {
 }
 
 fn seven_scenes(frames: usize) -> Sequence {
-    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/7scenes-1000");
-    let mut seq = read::open(&data, &ReadOptions::default()).unwrap();
-    seq.frames.truncate(frames);
-    seq
-}
-
-fn stride(stride: u16) -> VoxelConfig {
-    VoxelConfig {
-        stride,
-        ..VoxelConfig::default()
-    }
-}
-
-fn sel(window: u16) -> SelectorConfig {
-    SelectorConfig {
-        mu: 0.3,
-        window,
-        sketch_margin: 0.05,
-    }
+    placedb_host::testing::sample("7scenes-1000", frames)
 }
 
 fn export_csv<L: Link>(client: &mut Client<L>, opts: &ExportOptions) -> (String, String) {

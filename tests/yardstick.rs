@@ -5,21 +5,9 @@
 use placedb_host::pipeline::{self, Outcome, Prepared, Solver, SolverParams};
 use placedb_host::read::{self, ReadOptions};
 use placedb_host::synth::{self, SynthConfig};
+use placedb_host::testing::data;
 use placedb_host::{GridOrigin, Sequence, VoxelConfig};
-use std::path::PathBuf;
 use std::sync::OnceLock;
-
-fn data(name: &str) -> PathBuf {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data")
-        .join(name);
-    assert!(
-        p.is_dir(),
-        "sample {} is missing: tests read ../shared/data",
-        p.display()
-    );
-    p
-}
 
 fn open(name: &str) -> Sequence {
     read::open(&data(name), &ReadOptions::default()).expect("sample reads")

@@ -15,6 +15,7 @@ use placedb::camera::{DepthRange, Intrinsics, Pose};
 use placedb::device::harness::{check_export, decode_reply, terminal};
 use placedb::device::Device;
 use placedb::frame::FrameMeta;
+use placedb::key_pool::Aabb;
 use placedb::persist::record::{KeyChunks, DECISION_BATCH};
 use placedb::persist::sim::SimFlash;
 use placedb::persist::{Log, Record};
@@ -23,7 +24,6 @@ use placedb::protocol::{
     DepthRows, DeviceMessage, ErrorKind, ExportRecord, Feed, FrameDecoder, HostFrame, HostMessage,
     Phase, ProtocolError, RecordKind, Status, MAX_FRAME_LEN, PROTOCOL_VERSION,
 };
-use placedb::store::Aabb;
 
 /// The device under test: far smaller than the profiles, so that an input
 /// runs fast and every capacity (frame voxels, pool, database, window,

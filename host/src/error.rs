@@ -3,6 +3,10 @@
 
 use std::path::PathBuf;
 
+/// Why a `placedb` command failed: any error, printed as
+/// `placedb: error: {error}`.
+pub type CommandError = Box<dyn std::error::Error>;
+
 /// Why a sequence could not be read.
 #[derive(Debug, thiserror::Error)]
 pub enum ReadError {

@@ -1,33 +1,33 @@
 //! placedb host tools: sequence readers, the offline yardstick (exact overlap
-//! graph, dominating-set solvers, baselines, metrics), replay of the core, and
-//! the `placedb` command line built on them.
+//! graph, dominating-set solvers, baselines, metrics), replay of the core, the
+//! device client, and the `placedb` command line built on them.
+//!
+//! The folders are the jobs, and imports go one way, from the command line
+//! down: [`cli`] (one file per subcommand) → [`device`] (session, scan and
+//! export → client → link and emulators), [`pipeline`] (voxelize → yardstick
+//! or replay) and [`bench`] → [`output`] (the one writer of a run's files),
+//! [`read`] and [`synth`] (sequences in) → [`sequence`].
 
-pub mod dataset;
-pub mod dbscale;
-pub mod device_cli;
+pub mod bench;
+pub mod cli;
+pub mod device;
 pub mod error;
-pub mod fault;
-pub mod foreground;
-pub mod frame_keys;
-pub mod graph;
-pub(crate) mod key_cells;
-pub mod link;
-pub mod metrics;
-pub mod online;
 pub mod output;
 pub mod pipeline;
-pub mod pixelcost;
-pub mod plot;
 pub mod read;
+pub mod replay;
 pub mod rng;
 pub mod row_chunks;
-pub mod rp2040;
 pub mod sequence;
-pub mod session;
-pub mod solve;
 pub mod synth;
+#[cfg(any(test, feature = "testing"))]
+pub mod testing;
 pub mod voxelize;
+pub mod yardstick;
 
+mod compat;
+
+pub use compat::*;
 pub use error::ReadError;
 pub use sequence::{CameraModel, ColorImage, DepthImage, DepthSource, Format, FrameInfo, Sequence};
 pub use voxelize::{voxelize, voxelize_on, GridOrigin, VoxelConfig, VoxelSets};

@@ -2,12 +2,12 @@
 //! then any solver, labels and metrics. `select`, `compare` and `bench` all
 //! go through here, so they time and score the same way.
 
-use crate::graph::CoObservation;
-use crate::metrics::{self, Metrics};
-use crate::online::{self, OnlineRun, ReplayError};
+use crate::replay::{self as online, OnlineRun, ReplayError};
 use crate::sequence::Sequence;
-use crate::solve;
 use crate::voxelize::{voxelize, voxelize_on, VoxelConfig, VoxelSets, VoxelizeError};
+use crate::yardstick::graph::CoObservation;
+use crate::yardstick::metrics::{self, Metrics};
+use crate::yardstick::solve;
 use indicatif::{ProgressBar, ProgressStyle};
 use placedb::{ScanConfig, SelectorConfig};
 use std::time::{Duration, Instant};

@@ -30,7 +30,7 @@ impl RowChunk {
 }
 
 /// `values`, one frame's sampled rows of `width` values each (as
-/// [`crate::online::sampled_rows`] gives them), in chunks of
+/// [`crate::replay::sampled_rows`] gives them), in chunks of
 /// `rows_per_message` rows (the last one may hold fewer).
 pub fn row_chunks(
     width: usize,

@@ -7,14 +7,10 @@
 
 use placedb::SelectorConfig;
 use placedb_host::voxelize::{voxelize, VoxelConfig};
-use placedb_host::{device_cli, online, read, Sequence};
-use std::path::Path;
+use placedb_host::{device_cli, online, Sequence};
 
 fn seven_scenes(frames: usize) -> Sequence {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/7scenes-1000");
-    let mut seq = read::open(&dir, &read::ReadOptions::default()).unwrap();
-    seq.frames.truncate(frames);
-    seq
+    placedb_host::testing::sample("7scenes-1000", frames)
 }
 
 /// Both replays of `seq`; asserts they agree and returns how many frames

@@ -9,14 +9,10 @@
 use placedb::protocol::{DeviceMessage, ErrorKind, HostMessage, Phase, MAX_FRAME_LEN};
 use placedb_host::fault::damaged_frame;
 use placedb_host::link::{Client, Qemu, Received};
-use std::path::PathBuf;
+use placedb_host::testing::qemu_firmware as firmware;
 use std::time::Duration;
 
 const REPLY_TIMEOUT: Duration = Duration::from_secs(5);
-
-fn firmware() -> PathBuf {
-    placedb_host::link::built_firmware().unwrap_or_else(|e| panic!("{e}"))
-}
 
 fn expect_status(replies: &[Received], seq: u32) {
     match replies {

@@ -1,4 +1,4 @@
-//! The device client API (`placedb_host::session`): frames pushed from
+//! The device client API (`placedb_host::device::session`): frames pushed from
 //! memory reach the device (in-process `local:` device, no hardware) and
 //! give the decisions, database and labels of the host replay of the core
 //! (`placedb select --solver online`), with and without retransmission;
@@ -6,40 +6,31 @@
 
 use placedb::protocol::DecisionKind;
 use placedb::{Decision, SelectorConfig};
-use placedb_host::device_cli::{self, DeviceError, StreamOptions};
-use placedb_host::session::{DepthFrame, Session};
-use placedb_host::synth::{self, SynthConfig};
-use placedb_host::{online, output, Sequence, VoxelConfig};
+use placedb_host::device::error::DeviceError;
+use placedb_host::device::link::Link;
+use placedb_host::device::scan::{scan_config, StreamOptions};
+use placedb_host::device::session::{DepthFrame, Session};
+use placedb_host::testing::{demo, selector, voxel_config};
+use placedb_host::{output, replay, Sequence, VoxelConfig};
 
 const PROFILE: &str = "ram256k";
 
-type LocalSession = Session<Box<dyn placedb_host::link::Link>>;
+type LocalSession = Session<Box<dyn Link>>;
 
-fn demo(frames: usize) -> Sequence {
-    let mut seq = synth::sequence(&SynthConfig::demo());
-    seq.frames.truncate(frames);
-    seq
-}
-
+/// The selector of these tests: a window of 6.
 fn sel() -> SelectorConfig {
-    SelectorConfig {
-        mu: 0.3,
-        window: 6,
-        sketch_margin: 0.05,
-    }
+    selector(6)
 }
 
+/// Their stride.
 fn vcfg() -> VoxelConfig {
-    VoxelConfig {
-        stride: 8,
-        ..VoxelConfig::default()
-    }
+    voxel_config(8)
 }
 
 /// Pushes every frame of `seq` from memory; returns the decisions taken
 /// along the way and the session.
 fn push_all(seq: &Sequence, opts: StreamOptions) -> (LocalSession, Vec<(u32, DecisionKind)>) {
-    let scan = device_cli::scan_config(seq, &vcfg()).unwrap();
+    let scan = scan_config(seq, &vcfg()).unwrap();
     let mut session = Session::open(&format!("local:{PROFILE}"), opts).unwrap();
     session.configure(&scan, &sel()).unwrap();
     let mut seen = Vec::new();
@@ -64,8 +55,8 @@ fn push_all(seq: &Sequence, opts: StreamOptions) -> (LocalSession, Vec<(u32, Dec
 #[test]
 fn frames_from_memory_give_the_replay_of_the_core() {
     let seq = demo(30);
-    let scan = device_cli::scan_config(&seq, &vcfg()).unwrap();
-    let run = online::replay(&seq, PROFILE, scan, sel(), 8, None).unwrap();
+    let scan = scan_config(&seq, &vcfg()).unwrap();
+    let run = replay::replay(&seq, PROFILE, scan, sel(), 8, None).unwrap();
     for opts in [
         StreamOptions::default(),
         StreamOptions {
@@ -90,10 +81,7 @@ fn frames_from_memory_give_the_replay_of_the_core() {
         let export = session.export().unwrap();
         assert_eq!(
             export.csv(),
-            (
-                output::database_csv(&output::rows_from_records(&run.database)),
-                output::labels_csv(&timestamps, &run.labels),
-            )
+            output::run_csv(&run.database, &timestamps, &run.labels)
         );
     }
 }
@@ -101,7 +89,7 @@ fn frames_from_memory_give_the_replay_of_the_core() {
 #[test]
 fn misuse_is_a_typed_error_and_changes_nothing() {
     let seq = demo(3);
-    let scan = device_cli::scan_config(&seq, &vcfg()).unwrap();
+    let scan = scan_config(&seq, &vcfg()).unwrap();
     let mut session = Session::open(&format!("local:{PROFILE}"), StreamOptions::default()).unwrap();
     let depth = seq.depth(0).unwrap().data;
     let frame = DepthFrame {

@@ -8,6 +8,7 @@
 //! Without a journal that keeps records ([`crate::persist::NoJournal`]),
 //! decisions go out at once and no label is kept (`labels_dropped`).
 
+use crate::key_pool::{key_of, Aabb};
 use crate::persist::keys::{self, MAX_KEY_CHUNKS};
 use crate::persist::log::MAX_PAYLOAD;
 use crate::persist::record::{KeyChunks, DECISION_BATCH, DECISION_LEN};
@@ -15,7 +16,6 @@ use crate::persist::{Journal, Record};
 use crate::protocol::{DecisionKind, DeviceMessage};
 use crate::select::{DbSnapshot, FrameStore};
 use crate::sketch::Sketch;
-use crate::store::{key_of, Aabb};
 
 use super::reply::Out;
 

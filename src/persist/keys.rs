@@ -1,5 +1,5 @@
 //! Exact voxel keys of a database frame in the log: the key pool's relative
-//! 32-bit words (see [`crate::store`]), ascending, as LEB128 varints of the
+//! 32-bit words (see [`crate::key_pool`]), ascending, as LEB128 varints of the
 //! difference to the previous word, in chunks of at most [`KEY_CHUNK_BYTES`]
 //! (each chunk starts again from 0, so it decodes alone).
 //!

@@ -10,8 +10,8 @@
 
 use super::keys::MAX_KEY_CHUNKS;
 use crate::frame::FrameMeta;
+use crate::key_pool::Aabb;
 use crate::protocol::{Config, DecisionKind};
-use crate::store::Aabb;
 
 /// Most decisions one [`Record::Decisions`] holds.
 pub const DECISION_BATCH: usize = 16;

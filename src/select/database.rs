@@ -3,8 +3,9 @@
 //!
 //! A building-sized scan has hundreds of database frames, and a full frame
 //! (pose, box, sketch, exact keys) is hundreds of bytes: too many for the
-//! RAM of a small board. RAM keeps instead, per database frame, 16 bytes:
-//! its index, voxel count, a coarse box and where the store put it. The box
+//! RAM of a small board. RAM keeps instead, per database frame, a 24-byte
+//! [`DbEntry`]: its index, voxel count, a coarse box, where the store put it
+//! and whether the store holds its exact keys. The box
 //! is what makes this an index: a new frame is compared only with the
 //! database frames whose box touches its own, and those few are loaded from
 //! the store, so the cost of a frame grows with the database frames *near*
@@ -13,7 +14,7 @@
 //! Entries are kept sorted by frame index, so the export walks them in frame
 //! order without sorting, and a frame is found by binary search.
 
-use crate::store::Aabb;
+use crate::key_pool::Aabb;
 use crate::voxel::VoxelKey;
 
 use super::DbSnapshot;

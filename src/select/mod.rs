@@ -28,8 +28,8 @@
 
 use crate::camera::Pose;
 use crate::frame::{FrameError, FrameIngest, FrameMeta, ScanConfig};
+use crate::key_pool::{Aabb, KeyPool, KeyRun};
 use crate::sketch::Sketch;
-use crate::store::{Aabb, KeyPool, KeyRun};
 use crate::voxel::iou;
 
 pub mod database;

@@ -1,14 +1,14 @@
 //! Rebuilding a selector from durable records after a restart: the
 //! database frames (back in the index, read from the store when a frame
-//! near them needs them; their exact keys are not kept in flash) and the
-//! final decisions, in order. The scan then goes on with the first
-//! undecided frame.
+//! near them needs them, compared exactly where the key budget let the
+//! store keep their keys, else by sketch) and the final decisions, in
+//! order. The scan then goes on with the first undecided frame.
 
 use super::database::{entry_of, NOWHERE};
 use super::{flags, Decision, Selector};
 use crate::frame::FrameMeta;
+use crate::key_pool::Aabb;
 use crate::sketch::Sketch;
-use crate::store::Aabb;
 
 /// A database frame as a durable store keeps it: what comparing new frames
 /// with it by sketch, and exporting it, needs.

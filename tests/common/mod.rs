@@ -5,35 +5,23 @@
 
 use placedb::protocol::Phase;
 use placedb::protocol::{degradation, CapacitySlot, DecisionKind, DeviceMessage, HostMessage};
-use placedb::SelectorConfig;
-use placedb_host::device_cli::{self, ExportOptions, StreamOptions};
-use placedb_host::link::{Client, Link, Received};
-use placedb_host::synth::{self, SynthConfig};
-use placedb_host::{online, output, Sequence, VoxelConfig};
+use placedb_host::device::client::{self, Client, Received};
+use placedb_host::device::export::{self, Export, ExportOptions};
+use placedb_host::device::link::Link;
+use placedb_host::device::scan::{self, StreamOptions};
+pub use placedb_host::testing::demo;
+use placedb_host::testing::{selector, voxel_config};
 use std::path::Path;
 use std::time::Duration;
 
 /// database.csv and labels.csv of `placedb select --solver online --profile
 /// PROFILE`: the host replay of the core with the same profile and
 /// configuration.
-pub fn host_replay(
-    profile: &str,
-    seq: &Sequence,
-    vcfg: &VoxelConfig,
-    sel: SelectorConfig,
-) -> (String, String) {
-    let scan = device_cli::scan_config(seq, vcfg).unwrap();
-    let run = online::replay(seq, profile, scan, sel, 8, None).unwrap();
-    let timestamps: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
-    (
-        output::database_csv(&output::rows_from_records(&run.database)),
-        output::labels_csv(&timestamps, &run.labels),
-    )
-}
+pub use placedb_host::testing::replay_csv as host_replay;
 
 /// Every record the device holds, with the default export options.
-pub fn export_all<L: Link>(client: &mut Client<L>) -> device_cli::Export {
-    device_cli::export(
+pub fn export_all<L: Link>(client: &mut Client<L>) -> Export {
+    export::export(
         client,
         Vec::new(),
         &ExportOptions::default(),
@@ -41,13 +29,6 @@ pub fn export_all<L: Link>(client: &mut Client<L>) -> device_cli::Export {
         &mut |_| Ok(()),
     )
     .unwrap()
-}
-
-/// The first `frames` frames of the synthetic office scan.
-pub fn demo(frames: usize) -> Sequence {
-    let mut seq = synth::sequence(&SynthConfig::demo());
-    seq.frames.truncate(frames);
-    seq
 }
 
 /// An emulated board whose flash is a file.
@@ -81,17 +62,10 @@ pub fn killed_mid_scan_restores_and_resumes<B: Board>(frames: usize) -> Client<B
     let flash = dir.join("flash.bin");
     let _ = std::fs::remove_file(&flash);
     let all = demo(frames);
-    let vcfg = VoxelConfig {
-        stride: 8,
-        ..VoxelConfig::default()
-    };
-    let sel = SelectorConfig {
-        mu: 0.3,
-        window: 8,
-        sketch_margin: 0.05,
-    };
-    let scan = device_cli::scan_config(&all, &vcfg).unwrap();
-    let cfg = device_cli::device_config(&scan, &sel).unwrap();
+    let vcfg = voxel_config(8);
+    let sel = selector(8);
+    let scan = scan::scan_config(&all, &vcfg).unwrap();
+    let cfg = scan::device_config(&scan, &sel).unwrap();
 
     // First power-on: 30 frames without Finish, then half of frame 30, then
     // the cut.
@@ -100,7 +74,7 @@ pub fn killed_mid_scan_restores_and_resumes<B: Board>(frames: usize) -> Client<B
         finish: false,
         ..StreamOptions::default()
     };
-    let report = device_cli::stream(&mut client, &demo(30), &cfg, B::PROFILE, &opts, None)
+    let report = scan::stream(&mut client, &demo(30), &cfg, B::PROFILE, &opts, None)
         .unwrap_or_else(|e| panic!("stream of the first 30 frames failed: {e}"));
     let acknowledged: Vec<(u32, DecisionKind)> = report
         .decisions
@@ -135,7 +109,7 @@ pub fn killed_mid_scan_restores_and_resumes<B: Board>(frames: usize) -> Client<B
 
     // Second power-on on the same flash.
     let (mut client, console) = B::boot(&flash);
-    let st = device_cli::status(&mut client, B::REPLY).unwrap();
+    let st = client::status(&mut client, B::REPLY).unwrap();
     assert_eq!(st.phase, Phase::Ready, "{console}");
     assert_eq!(st.frames_seen, durable);
     assert_eq!(st.frames_decided, durable);
@@ -153,7 +127,7 @@ pub fn killed_mid_scan_restores_and_resumes<B: Board>(frames: usize) -> Client<B
         resume: true,
         ..StreamOptions::default()
     };
-    let report2 = device_cli::stream(&mut client, &all, &cfg, B::PROFILE, &resume, None)
+    let report2 = scan::stream(&mut client, &all, &cfg, B::PROFILE, &resume, None)
         .unwrap_or_else(|e| panic!("the resumed stream failed: {e}"));
     assert_eq!(report2.frames, frames - st.frames_seen as usize);
     assert_eq!(report2.status.phase, Phase::Finished);

@@ -12,8 +12,8 @@
 
 use super::unfilter;
 use crate::error::ReadError;
-use crate::frame_keys::VectorUnit;
 use crate::sequence::{DepthImage, DepthSource};
+use crate::voxelize::frame_keys::VectorUnit;
 use std::cell::RefCell;
 use std::path::{Path, PathBuf};
 

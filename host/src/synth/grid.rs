@@ -8,7 +8,7 @@
 //! can meet a given convex region, so that each ray of the bundle is tested
 //! against that short list only (see `render`).
 
-use super::scene::SceneBox;
+use super::scene_box::SceneBox;
 
 /// Stand-in for a zero direction component: keeps every slab product finite
 /// or infinite, never `0 * inf = NaN`.

@@ -19,6 +19,7 @@ mod grid;
 pub mod path;
 pub mod render;
 pub mod scene;
+pub mod scene_box;
 pub mod shade;
 pub mod tum_writer;
 

@@ -14,6 +14,7 @@
 //! Every surface is an axis-aligned box.
 
 use super::grid::Grid;
+pub use super::scene_box::{Material, SceneBox};
 use super::SynthConfig;
 use crate::rng::SplitMix64;
 
@@ -39,42 +40,6 @@ pub const LOBBY: f64 = 2.0;
 pub const DOOR: (f64, f64) = (0.9, 2.1);
 /// Grid cell edge for ray casting, metres.
 const CELL: f64 = 0.5;
-
-/// What a box is, for pictures and debugging.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Material {
-    /// The floor slab.
-    Floor,
-    /// The ceiling slab.
-    Ceiling,
-    /// Walls, lintels and partitions.
-    Wall,
-    /// Open door leaves.
-    Door,
-    /// Desk tops and panels.
-    Desk,
-    /// Office chairs.
-    Chair,
-    /// Cabinets and shelves.
-    Cabinet,
-    /// Monitors, whiteboards and notice boards.
-    Screen,
-    /// Ceiling lights.
-    Light,
-    /// Plants, benches and other odds and ends.
-    Decor,
-}
-
-/// An axis-aligned box of the scene.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SceneBox {
-    /// Minimum corner, metres.
-    pub min: [f64; 3],
-    /// Maximum corner, metres.
-    pub max: [f64; 3],
-    /// What it is.
-    pub material: Material,
-}
 
 /// One room off the corridor.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -1,0 +1,224 @@
+//! `placedb bench`'s timing table: select's wall time, time split and peak
+//! memory on the synthetic scan and the recorded samples, each run in a
+//! child process, beside a floor that only decodes the depth images.
+
+use super::BenchOptions;
+use crate::error::CommandError as Error;
+use crate::output::metrics_json;
+use crate::pipeline::Solver;
+use crate::read::{self, ReadOptions};
+use crate::voxelize;
+use std::path::Path;
+use std::time::Instant;
+
+/// The paper's reference code on this machine, 7scenes-1000 at stride 1
+/// (figures from the issue that set the target): seconds and peak MB.
+const PAPER_7SCENES: (f64, f64) = (51.0, 400.0);
+
+/// The timing table: every solver of `a.solvers` on each input, `a.repeat`
+/// rounds, printed with the ratios to the decode-only floor.
+pub fn table(a: &BenchOptions) -> Result<(), Error> {
+    let exe = std::env::current_exe()?;
+    let out = std::env::temp_dir().join(format!("placedb-bench-{}", std::process::id()));
+    let mut inputs: Vec<(String, Vec<String>)> = vec![(
+        format!("synthetic-{}", a.synthetic_frames),
+        vec![
+            "--demo".into(),
+            "--demo-frames".into(),
+            a.synthetic_frames.to_string(),
+        ],
+    )];
+    for name in ["7scenes-1000", "vprdb-test-db"] {
+        let p = a.data.join(name);
+        if p.is_dir() {
+            inputs.push((name.into(), vec![p.display().to_string()]));
+        } else {
+            eprintln!("placedb bench: {} not found, skipped", p.display());
+        }
+    }
+    println!(
+        "{:<16} {:<11} {:>6} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
+        "sequence",
+        "solver",
+        "frames",
+        "wall_s",
+        "cpu_s",
+        "total_s",
+        "read*",
+        "voxel*",
+        "vox_wall",
+        "graph_s",
+        "solve_s",
+        "peak_MB"
+    );
+    // Runs `placedb ARGS` in a child: its wall time from spawn to exit, its
+    // CPU time (user and system, all threads), and the JSON it printed.
+    let run = |args: &[String]| -> Result<(f64, f64, serde_json::Value), Error> {
+        let (t, cpu) = (Instant::now(), children_cpu_s());
+        let child = std::process::Command::new(&exe).args(args).output()?;
+        let (wall, cpu) = (t.elapsed().as_secs_f64(), children_cpu_s() - cpu);
+        if !child.status.success() {
+            let err = String::from_utf8_lossy(&child.stderr);
+            return Err(format!("placedb {}: {err}", args.join(" ")).into());
+        }
+        Ok((wall, cpu, serde_json::from_slice(&child.stdout)?))
+    };
+    // The item of median `key` (the upper one of an even count).
+    fn median_by<T>(items: &[T], key: impl Fn(&T) -> f64) -> Option<&T> {
+        let mut sorted: Vec<&T> = items.iter().collect();
+        sorted.sort_by(|x, y| key(x).total_cmp(&key(y)));
+        sorted.get(sorted.len() / 2).copied()
+    }
+    for (name, args) in &inputs {
+        // Row 0 is the floor (decoding every depth image and nothing else),
+        // where the input is a recorded sequence; then one row a solver.
+        let mut rows: Vec<(&str, Vec<String>)> = Vec::new();
+        if let Some(path) = args.first().filter(|p| !p.starts_with("--")) {
+            rows.push((
+                "decode-only",
+                vec!["bench".into(), "--decode-only".into(), path.clone()],
+            ));
+        }
+        let has_floor = !rows.is_empty();
+        for solver in &a.solvers {
+            let mut select: Vec<String> = vec!["select".into()];
+            select.extend(args.iter().cloned());
+            select.extend(
+                ["--solver", solver.name(), "--stride", &a.stride.to_string()].map(String::from),
+            );
+            select.extend(["--json", "-q", "-o"].map(String::from));
+            select.push(out.display().to_string());
+            rows.push((solver.name(), select));
+        }
+        // Rounds of every row in turn; each round starts one row later, so
+        // that no row always runs first. With a floor, every run of a
+        // solver's row is paired with a run of the floor right beside it
+        // (before it in even rounds, after it in odd ones): a machine's
+        // speed can drift (10-15 % on ours within a bench), which a ratio
+        // to a run a few rows away would count as the solver's cost.
+        let mut runs: Vec<Vec<(f64, f64, serde_json::Value)>> = vec![Vec::new(); rows.len()];
+        // Per row, the floor's runs beside its runs.
+        let mut beside: Vec<Vec<(f64, f64)>> = vec![Vec::new(); rows.len()];
+        let first = usize::from(has_floor);
+        let solver_rows = rows.len() - first;
+        // One untimed run first, so that every timed one finds the
+        // sequence's files in the page cache: a cold first run (0.63 s on
+        // 7scenes-1000 against 0.25 s) became the floor's median at
+        // `--repeat 2`.
+        if let Some((_, warm_up)) = rows.first() {
+            run(warm_up)?;
+        }
+        for round in 0..a.repeat as usize {
+            for i in 0..solver_rows {
+                let r = first + (i + round) % solver_rows;
+                if !has_floor {
+                    runs[r].push(run(&rows[r].1)?);
+                    continue;
+                }
+                let (floor, solver) = if round % 2 == 0 {
+                    let floor = run(&rows[0].1)?;
+                    (floor, run(&rows[r].1)?)
+                } else {
+                    let solver = run(&rows[r].1)?;
+                    (run(&rows[0].1)?, solver)
+                };
+                beside[r].push((floor.0, floor.1));
+                runs[0].push(floor);
+                runs[r].push(solver);
+            }
+        }
+        for (r, ((row, _), row_runs)) in rows.iter().zip(&runs).enumerate() {
+            // The run of median wall time, and its figures (`--repeat` is
+            // at least 1).
+            let Some((wall, cpu, m)) = median_by(row_runs, |run| run.0) else {
+                continue;
+            };
+            let f = |k: &str| m[k].as_f64().unwrap_or(f64::NAN);
+            println!(
+                "{:<16} {:<11} {:>6} {:>7.3} {:>7.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.1}",
+                name,
+                row,
+                f("frames"),
+                wall,
+                cpu,
+                f("total_s"),
+                f("read_cpu_s"),
+                f("voxelize_cpu_s"),
+                f("voxelize_s"),
+                f("graph_s"),
+                f("solve_s"),
+                f("peak_rss_mb")
+            );
+            if has_floor && r > 0 {
+                // Per run, against the floor's run beside it.
+                let ratio = |time: fn((f64, f64)) -> f64| {
+                    let ratios: Vec<f64> = row_runs
+                        .iter()
+                        .zip(&beside[r])
+                        .map(|(s, &d)| time((s.0, s.1)) / time(d))
+                        .collect();
+                    median_by(&ratios, |r| *r).copied().unwrap_or(f64::NAN)
+                };
+                println!(
+                    "{:<16} {:<11} {:.2}x the decode-only wall time, {:.2}x its CPU time, medians of the runs beside a floor run (target <= 1.3x)",
+                    "",
+                    "",
+                    ratio(|(wall, _)| wall),
+                    ratio(|(_, cpu)| cpu)
+                );
+            }
+            if *name == "7scenes-1000" && a.stride == 1 && *row == Solver::InOrder.name() {
+                let (s, mb) = PAPER_7SCENES;
+                println!(
+                    "{:<16} {:<11} paper's code: {s} s, {mb} MB -> {:.0}x faster, {:.1}x less memory (target 100x, 10x)",
+                    "",
+                    "",
+                    s / wall,
+                    mb / f("peak_rss_mb")
+                );
+            }
+        }
+    }
+    let _ = std::fs::remove_dir_all(&out);
+    println!(
+        "wall_s: the child process from spawn to exit (reading, voxelizing, solving, writing),\n\
+         the median of {} rounds that run every row in turn, after an untimed run that warms\n\
+         the page cache (the other columns are that run's; a recorded sequence's decode-only\n\
+         runs beside every run of a solver, its row the median);\n\
+         cpu_s: that child's CPU time, user and system, all threads (steadier than wall time\n\
+         when the machine's speed drifts); total_s: select's own clock, up to its outputs;\n\
+         * read and voxel are CPU time summed over threads; the others are wall time",
+        a.repeat
+    );
+    Ok(())
+}
+
+/// A child of the timing table (`bench --decode-only PATH`): decodes every
+/// depth image of the sequence at `path`, as select would, and prints its
+/// frames and peak memory as JSON.
+pub fn decode_only(path: &Path) -> Result<(), Error> {
+    let seq = read::open(path, &ReadOptions::default())?;
+    voxelize::decode_all(&seq)?;
+    let json = serde_json::json!({
+        "frames": seq.frames.len(),
+        "peak_rss_mb": metrics_json::peak_rss_mb(),
+    });
+    println!("{json}");
+    Ok(())
+}
+
+/// CPU time, user and system, of this process's children that have been
+/// waited for; NaN where the platform does not say.
+fn children_cpu_s() -> f64 {
+    #[cfg(unix)]
+    {
+        // SAFETY: `getrusage` fills the struct it is given and reads nothing.
+        let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+        // SAFETY: `usage` is a valid, writable `rusage`.
+        if unsafe { libc::getrusage(libc::RUSAGE_CHILDREN, &mut usage) } == 0 {
+            let s = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+            return s(usage.ru_utime) + s(usage.ru_stime);
+        }
+    }
+    f64::NAN
+}

@@ -1,0 +1,94 @@
+//! `placedb bench`: its arguments; the measurements are in [`crate::bench`].
+
+use crate::bench::{db_scaling, instructions, timing, BenchOptions};
+use crate::error::CommandError as Error;
+use crate::pipeline::Solver;
+use clap::Args;
+use std::path::PathBuf;
+
+#[derive(Args)]
+pub struct BenchArgs {
+    /// Directory holding the recorded samples (7scenes-1000, vprdb-test-db).
+    #[arg(long, default_value = "../shared/data")]
+    data: PathBuf,
+    /// Solvers to time, comma separated.
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "in-order,greedy,exact,online"
+    )]
+    solvers: Vec<Solver>,
+    /// Pixel stride.
+    #[arg(long, default_value_t = 1)]
+    stride: u16,
+    /// Frames of the synthetic scan.
+    #[arg(long, default_value_t = 5000)]
+    synthetic_frames: usize,
+    /// Instead: count the core's instructions per frame and per valid pixel
+    /// with valgrind's callgrind (repeatable counts, not seconds).
+    #[arg(long)]
+    core: bool,
+    /// With --core: frames of 7scenes-1000 to replay.
+    #[arg(long, default_value_t = 20)]
+    core_frames: usize,
+    /// Instead: count the instructions per valid pixel of the QEMU board's
+    /// Cortex-M4F firmware (-icount shift=0), protocol included, and the
+    /// core's share: the same frames at strides 2 and 4.
+    #[arg(long)]
+    device: bool,
+    /// With --device: frames of 7scenes-1000 (twice as many synthetic ones).
+    #[arg(long, default_value_t = 3)]
+    device_frames: usize,
+    /// Instead: count with callgrind the instructions of one frame decided
+    /// against a database of 10 frames and of ~900 (a synthetic building at
+    /// mu 0.5 on the ram256k device, its database restored from flash).
+    #[arg(long)]
+    db_scaling: bool,
+    /// With --db-scaling: frames of the building (40 rooms).
+    #[arg(long, default_value_t = 20_000)]
+    building_frames: usize,
+    /// Internal (the callgrind child of --db-scaling): the flash image.
+    #[arg(long, hide = true)]
+    db_probe: Option<PathBuf>,
+    /// Rounds of the timing table, each running every row of a sequence in
+    /// turn; a row is its run of median wall time, a ratio to the floor the
+    /// median of the rounds' (a single run of a half-second job moves by
+    /// 10 % and more, and the machine's speed drifts).
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..))]
+    repeat: u32,
+    /// Internal (a child of the timing table): only decode every depth
+    /// image of this sequence, as select would, and exit.
+    #[arg(long, hide = true)]
+    decode_only: Option<PathBuf>,
+}
+
+/// Runs `placedb bench`: the timing table, or one of the instruction counts.
+pub fn run(a: BenchArgs) -> Result<(), Error> {
+    let opts = BenchOptions {
+        data: a.data.clone(),
+        solvers: a.solvers.clone(),
+        stride: a.stride,
+        synthetic_frames: a.synthetic_frames,
+        core_frames: a.core_frames,
+        device_frames: a.device_frames,
+        building_frames: a.building_frames,
+        repeat: a.repeat,
+    };
+    if a.core {
+        return instructions::core_cost(&opts);
+    }
+    if a.device {
+        return instructions::device_cost(&opts);
+    }
+    if let Some(flash) = &a.db_probe {
+        return Ok(db_scaling::run_probe(flash, a.building_frames)?);
+    }
+    if a.db_scaling {
+        return instructions::db_scaling(&opts);
+    }
+    if let Some(path) = &a.decode_only {
+        return timing::decode_only(path);
+    }
+    timing::table(&opts)
+}

@@ -1,0 +1,135 @@
+//! `placedb select`: one solver on a sequence, the database directory
+//! written (and a dataset when asked), a summary printed.
+
+use super::{open_sequence, open_test, print_dataset, solver_params, voxel_config};
+use super::{ParamArgs, SeqArgs};
+use crate::error::CommandError as Error;
+use crate::output::{self, dataset, metrics_json, topview};
+use crate::pipeline::{self, Solver};
+use clap::Args;
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(Args)]
+pub struct SelectArgs {
+    #[command(flatten)]
+    seq: SeqArgs,
+    /// Output directory for database.csv, labels.csv, metrics.json, topview.png.
+    #[arg(short, long)]
+    out: PathBuf,
+    /// Also write a training-ready dataset here: color/, depth/, poses.txt,
+    /// intrinsics.txt and classes.csv of every frame, and database/ (the reference code's layout).
+    #[arg(long)]
+    dataset: Option<PathBuf>,
+    /// Which solver or baseline.
+    #[arg(long, value_enum, default_value_t = Solver::Online)]
+    solver: Solver,
+    /// IoU threshold: frames overlap when IoU > mu.
+    #[arg(long, default_value_t = 0.3)]
+    mu: f32,
+    #[command(flatten)]
+    params: ParamArgs,
+}
+
+/// Runs `placedb select`.
+pub fn run(a: SelectArgs) -> Result<(), Error> {
+    let t0 = Instant::now();
+    let seq = open_sequence(&a.seq)?;
+    let params = solver_params(&a.params)?;
+    let prep = pipeline::prepare(&seq, voxel_config(&a.seq), a.params.quiet)?;
+    // The top view's map and trajectory do not depend on the solver: they
+    // are projected on the other thread while it solves.
+    let (solved, mut view) = rayon::join(
+        || pipeline::solve(&seq, &prep, a.solver, a.mu, &params, a.params.quiet),
+        || topview::project(&seq, &prep.sets.sets, prep.sets.grid),
+    );
+    let mut o = solved?;
+    if let Some(test) = &a.params.test {
+        let tseq = open_test(test, &a.seq)?;
+        let tsets = pipeline::prepare_test(&tseq, &prep, a.params.quiet)?;
+        pipeline::add_oracle_recall(&mut o, &prep, &tsets);
+    }
+    let rows = match &o.online {
+        // The device's own records: what an export from a board would hold.
+        Some(run) => output::rows_from_records(&run.database),
+        None => output::rows_from_sequence(&seq, &o.database),
+    };
+    let timestamps: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
+    let mut json = metrics_json::of_select(&seq, &prep, &o, a.mu, &params);
+    json["total_s"] = t0.elapsed().as_secs_f64().into();
+    if let Some(mb) = metrics_json::peak_rss_mb() {
+        json["peak_rss_mb"] = mb.into();
+    }
+    view.database.clone_from(&o.database);
+    // The picture is drawn and encoded while the tables are written, into
+    // the directory both need, made first.
+    std::fs::create_dir_all(&a.out)?;
+    let (written, drawn) = rayon::join(
+        || output::write_database_dir(&a.out, &rows, &timestamps, &o.labels, &json),
+        || view.render().write_png(&a.out.join("topview.png")),
+    );
+    written?;
+    drawn?;
+    let dataset = match &a.dataset {
+        Some(dir) => Some((dir, dataset::write(dir, &seq, &o.labels)?)),
+        None => None,
+    };
+    if a.params.json {
+        println!("{}", serde_json::to_string_pretty(&json)?);
+    } else {
+        let m = &o.metrics;
+        println!(
+            "{}: {} frames -> {} database frames ({:.1}x reduction) with solver {} at mu {}",
+            seq.name,
+            seq.frames.len(),
+            m.size,
+            m.reduction,
+            o.solver.name(),
+            a.mu
+        );
+        println!(
+            "  uncovered {}  spatial coverage {:.3}  frame coverage mean {:.3} min {:.3} (<0.3: {:.1}%)",
+            m.uncovered,
+            m.spatial_coverage,
+            m.frames_coverage_mean,
+            m.frames_coverage_min,
+            100.0 * m.frames_coverage_below_0_3
+        );
+        if let Some(r) = m.oracle_recall_0_3 {
+            println!("  oracle_recall@0.3 on the test sequence: {r:.3}");
+        }
+        if let Some((optimal, lb)) = o.exact {
+            println!(
+                "  exact: {} (lower bound {lb})",
+                if optimal {
+                    "proven minimum"
+                } else {
+                    "time limit hit, not proven"
+                }
+            );
+        }
+        if let Some(run) = &o.online {
+            let st = &run.status;
+            println!(
+                "  online core: profile {}, window {}, {} frames by sketch, {} truncated, {} uncovered by capacity",
+                params.profile, params.window, st.sketched_frames, st.truncated_frames, st.uncovered_frames
+            );
+        }
+        println!("  database frames: {:?}", o.database);
+        println!(
+            "  time: voxelize {:.3} s, overlaps {:.3} s, solve {:.3} s, total {:.3} s",
+            prep.voxelize_wall.as_secs_f64(),
+            prep.graph_wall.as_secs_f64(),
+            o.solve_time.as_secs_f64(),
+            t0.elapsed().as_secs_f64()
+        );
+        println!(
+            "  wrote {}/{{database.csv,labels.csv,metrics.json,topview.png}}",
+            a.out.display()
+        );
+        if let Some((dir, d)) = &dataset {
+            print_dataset(dir, d);
+        }
+    }
+    Ok(())
+}

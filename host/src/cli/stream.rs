@@ -1,0 +1,216 @@
+//! `placedb stream`: a recorded sequence streamed to a device (a board, an
+//! emulator or `local:PROFILE`), with a live status line and a summary.
+
+use super::{open_sequence, voxel_config, SeqArgs};
+use crate::device::client::Client;
+use crate::device::error::DeviceError;
+use crate::device::export;
+use crate::device::link::{self, fault::FaultConfig, fault::FaultInjector};
+use crate::device::scan::{
+    device_config, scan_config, status_line, stream, Recovery, StreamReport,
+};
+use crate::error::CommandError as Error;
+use crate::pipeline::SolverParams;
+use crate::sequence::Sequence;
+use crate::voxelize::VoxelConfig;
+use clap::Args;
+use indicatif::ProgressBar;
+use placedb::SelectorConfig;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+/// `placedb stream`: the sequence options of select, a port and the selector's.
+#[derive(Args)]
+pub struct StreamArgs {
+    #[command(flatten)]
+    seq: SeqArgs,
+    /// Device: a serial port (/dev/ttyACM0), tcp:HOST:PORT (the emulator) or local:PROFILE.
+    #[arg(long)]
+    port: String,
+    /// IoU threshold: frames overlap when IoU > mu.
+    #[arg(long, default_value_t = 0.3)]
+    mu: f32,
+    /// Frames held undecided (capped by the device's window).
+    #[arg(long, default_value_t = 32)]
+    window: u16,
+    /// Capacity profile the device's firmware was built with (checked).
+    #[arg(long, default_value = "ram512k")]
+    profile: String,
+    /// Also export the result into this directory (as `placedb export -o`).
+    #[arg(short, long)]
+    out: Option<PathBuf>,
+    /// No progress bar.
+    #[arg(long, short)]
+    quiet: bool,
+    /// Fault injection: chance that a frame is dropped, each direction (0..1).
+    #[arg(long, default_value_t = 0.0)]
+    drop_chance: f64,
+    /// Fault injection: chance that a frame has one bit flipped, each direction (0..1).
+    #[arg(long, default_value_t = 0.0)]
+    corrupt_chance: f64,
+    /// Seed of the fault injector's PRNG (a run is reproducible).
+    #[arg(long, default_value_t = 1)]
+    fault_seed: u64,
+    /// Retransmissions per message (stop-and-wait). Default: 0 (pipelined, the
+    /// first error stops the stream) without fault injection, 20 with.
+    #[arg(long)]
+    retries: Option<usize>,
+    /// With retransmission: wait this many milliseconds for a reply before sending again.
+    #[arg(long, default_value_t = 2000)]
+    resend_ms: u64,
+    /// Go on with the scan the device holds (e.g. restored from flash after a
+    /// power cut) from its first undecided frame, instead of starting over.
+    #[arg(long)]
+    resume: bool,
+    /// Leave the scan open (no Finish): more frames can follow with --resume.
+    #[arg(long)]
+    no_finish: bool,
+}
+
+/// Runs `placedb stream`.
+pub fn run(a: StreamArgs) -> Result<(), Error> {
+    let seq = open_sequence(&a.seq)?;
+    let v = voxel_config(&a.seq);
+    let sel = placedb::SelectorConfig {
+        mu: a.mu,
+        window: a.window,
+        sketch_margin: SolverParams::default().sketch_margin,
+    };
+    let out = a.out.as_deref();
+    let recovery = Recovery {
+        faults: FaultConfig::new(a.drop_chance, a.corrupt_chance, a.fault_seed),
+        retries: a.retries,
+        resend_after: Duration::from_millis(a.resend_ms.max(1)),
+        resume: a.resume,
+        finish: !a.no_finish,
+    };
+    stream_cmd(&a.port, &seq, &v, sel, &a.profile, out, a.quiet, &recovery)?;
+    Ok(())
+}
+
+/// `placedb stream`: streams `seq` (configured by `vcfg` and `sel`, as
+/// `placedb select` is) to the device on `port`, which must run `profile`;
+/// prints a summary, and exports into `out` if given. `recovery` injects
+/// faults into the link and sets the retransmission policy.
+#[allow(clippy::too_many_arguments)]
+pub fn stream_cmd(
+    port: &str,
+    seq: &Sequence,
+    vcfg: &VoxelConfig,
+    sel: SelectorConfig,
+    profile: &str,
+    out: Option<&Path>,
+    quiet: bool,
+    recovery: &Recovery,
+) -> Result<StreamReport, DeviceError> {
+    recovery.faults.validate().map_err(DeviceError::Input)?;
+    if placedb::profile::by_name(profile).is_none() {
+        return Err(DeviceError::Input(format!(
+            "unknown --profile {profile:?}; see `placedb budget`"
+        )));
+    }
+    let scan = scan_config(seq, vcfg)?;
+    let sel = SelectorConfig {
+        window: sel.window.max(1),
+        ..sel
+    };
+    let cfg = device_config(&scan, &sel)?;
+    let link = link::open(port, Duration::from_secs(10))?;
+    let mut client = Client::new(FaultInjector::new(link, recovery.faults));
+    let pb = (!quiet).then(|| {
+        let pb = ProgressBar::new(seq.frames.len() as u64);
+        if let Ok(style) = indicatif::ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} frames {msg}",
+        ) {
+            pb.set_style(style);
+        }
+        pb
+    });
+    let report = stream(
+        &mut client,
+        seq,
+        &cfg,
+        profile,
+        &recovery.stream_options(),
+        pb.as_ref(),
+    )?;
+    if let Some(pb) = &pb {
+        pb.finish_and_clear();
+    }
+    let st = &report.status;
+    println!(
+        "{}: {} frames -> {} database frames on the device ({} profile, mu {}, window {}, stride {})",
+        seq.name,
+        report.frames,
+        st.database_size,
+        profile,
+        sel.mu,
+        sel.window,
+        scan.stride
+    );
+    println!(
+        "  link: {:.1} s, {:.2} frames/s, {} messages, {:.1} KB sent ({:.1} KB/s)",
+        report.wall.as_secs_f64(),
+        report.fps(),
+        report.messages,
+        report.bytes_sent as f64 / 1e3,
+        report.bytes_sent as f64 / 1e3 / report.wall.as_secs_f64().max(1e-9)
+    );
+    if let Some(t) = report.ticks_per_frame() {
+        println!(
+            "  device: {:.3} M clock ticks per frame (max {:.3} M) at {} Hz: {:.2} ms of device time per frame \
+             (the QEMU board counts instructions under -icount shift=0)",
+            t / 1e6,
+            f64::from(st.cost.max) / 1e6,
+            st.cost.clock_hz,
+            1e3 * t / f64::from(st.cost.clock_hz)
+        );
+    }
+    if st.degradation & placedb::protocol::degradation::STORAGE_FAILED != 0 {
+        println!(
+            "  WARNING: the device's flash failed a write: only {} records of this scan are \
+             durable; a power cut now would lose the rest (export it now)",
+            st.stored_records
+        );
+    }
+    if st.degradation & placedb::protocol::degradation::TAIL_DROPPED != 0 {
+        println!(
+            "  WARNING: at boot the device found records in its flash log that no scan can \
+             hold (damaged flash) and dropped them with everything after them; the scan went \
+             on from the last good record"
+        );
+    }
+    if let Some(k) = report.log_full_at {
+        println!(
+            "  the device's flash log is full: frames {k}..{} were not scanned; the scan \
+             was finished with frames 0..{k} (Reset the device, or give it more flash, \
+             for a longer scan)",
+            seq.frames.len()
+        );
+    }
+    if recovery.faults.is_active() {
+        let f = client.link().stats();
+        let lost = report.decisions.iter().filter(|d| d.is_none()).count();
+        println!(
+            "  faults (seed {}): host->device {} of {} frames dropped, {} corrupted; \
+             device->host {} of {} dropped, {} corrupted; {} retransmissions; \
+             {lost} decisions lost on the way (the export has them)",
+            recovery.faults.seed,
+            f.sent_dropped,
+            f.sent,
+            f.sent_corrupted,
+            f.received_dropped,
+            f.received,
+            f.received_corrupted,
+            report.retransmissions
+        );
+    }
+    println!("  {}", status_line(st));
+    match out {
+        Some(dir) => {
+            export::export_to_with(&mut client, dir, None, quiet, &recovery.export_options())?;
+        }
+        None => println!("  pull the result with: placedb export --port {port} -o DIR"),
+    }
+    Ok(report)
+}

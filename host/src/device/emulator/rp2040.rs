@@ -1,0 +1,437 @@
+//! The Raspberry Pi Pico firmware (`boards/rp-pico`) run instruction by
+//! instruction under an RP2040 emulator: `rp2040js` (npm) driven by the Node
+//! harness in `boards/rp-pico/emulator/harness.mjs`. The harness boots the
+//! firmware through the real boot ROM (`../shared/rp2040/bootrom-b1.bin`)
+//! and boot2, models the 2 MiB QSPI flash behind the ROM's flash functions
+//! (backed by a file, so a restarted board restores its scan), enumerates the
+//! firmware's USB CDC-ACM port as a USB host and bridges its bulk endpoints
+//! to a TCP port on 127.0.0.1. [`Rp2040`] is that board as a [`Link`]; the
+//! protocol, `placedb stream` and `placedb export` are unchanged.
+//!
+//! Needs Node (20 or later) and the harness's packages:
+//! `cd boards/rp-pico/emulator && npm ci`.
+
+use crate::device::error::DeviceError;
+use crate::device::link::{Link, TcpLink};
+use std::io::{self, BufRead, BufReader, Read};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::{Arc, Mutex};
+use std::thread::{self, JoinHandle};
+use std::time::{Duration, Instant};
+
+/// Where the harness lives: `boards/rp-pico/emulator` of this source tree.
+pub fn harness_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../boards/rp-pico/emulator")
+}
+
+/// How to install the harness's packages (for error messages).
+pub const HARNESS_SETUP: &str = "cd boards/rp-pico/emulator && npm ci";
+
+/// The RP2040 boot ROM image: `PLACEDB_RP2040_BOOTROM` if set, else
+/// `../shared/rp2040/bootrom-b1.bin` beside this source tree.
+pub fn bootrom() -> PathBuf {
+    std::env::var_os("PLACEDB_RP2040_BOOTROM")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| {
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/rp2040/bootrom-b1.bin")
+        })
+}
+
+/// Where the Pico firmware is built: `PLACEDB_RP2040_FIRMWARE` if set, else
+/// `boards/rp-pico/target/thumbv6m-none-eabi/release/placedb-rp-pico`.
+pub fn default_firmware() -> PathBuf {
+    std::env::var_os("PLACEDB_RP2040_FIRMWARE")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| {
+            Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../boards/rp-pico/target/thumbv6m-none-eabi/release/placedb-rp-pico")
+        })
+}
+
+/// How to build the Pico firmware (for error messages).
+pub const FIRMWARE_BUILD: &str = "cd boards/rp-pico && cargo build --release";
+
+/// The Pico firmware, built (or brought up to date) first unless
+/// `PLACEDB_RP2040_FIRMWARE` names one, as [`super::qemu::built_firmware`]
+/// does for the QEMU board. Built once per process.
+pub fn built_firmware() -> Result<PathBuf, String> {
+    static BUILT: std::sync::OnceLock<Result<PathBuf, String>> = std::sync::OnceLock::new();
+    BUILT
+        .get_or_init(|| {
+            super::build_board(
+                "rp-pico",
+                default_firmware(),
+                std::env::var_os("PLACEDB_RP2040_FIRMWARE").is_none(),
+                FIRMWARE_BUILD,
+            )
+        })
+        .clone()
+}
+
+/// How to run the emulated Pico.
+#[derive(Debug, Clone)]
+pub struct Rp2040Options {
+    /// The Node binary (default `node`).
+    pub node: PathBuf,
+    /// The boot ROM image (default [`bootrom`]).
+    pub bootrom: PathBuf,
+    /// The file holding the Pico's 2 MiB flash (created erased if missing);
+    /// `None`: a fresh erased flash every run.
+    pub flash: Option<PathBuf>,
+    /// TCP port on 127.0.0.1 (0: any free port).
+    pub port: u16,
+    /// The harness stops by itself this long after it started (0: never).
+    pub deadline: Duration,
+    /// How long booting and enumerating may take.
+    pub connect_timeout: Duration,
+}
+
+impl Default for Rp2040Options {
+    fn default() -> Self {
+        Rp2040Options {
+            node: "node".into(),
+            bootrom: bootrom(),
+            flash: None,
+            port: 0,
+            deadline: Duration::from_secs(600),
+            connect_timeout: Duration::from_secs(30),
+        }
+    }
+}
+
+/// The harness command line for `firmware` and `options`.
+pub fn harness_command(firmware: &Path, options: &Rp2040Options) -> Command {
+    let mut command = Command::new(&options.node);
+    command
+        .arg(harness_dir().join("harness.mjs"))
+        .arg("--elf")
+        .arg(firmware)
+        .arg("--bootrom")
+        .arg(&options.bootrom)
+        .arg("--port")
+        .arg(options.port.to_string());
+    if let Some(flash) = &options.flash {
+        command.arg("--flash").arg(flash);
+    }
+    if !options.deadline.is_zero() {
+        command
+            .arg("--deadline")
+            .arg(options.deadline.as_secs_f64().to_string());
+    }
+    command.stdin(Stdio::null());
+    command
+}
+
+/// Checks what the harness needs before starting it, with a message that
+/// says how to fix each thing.
+fn check_setup(firmware: &Path, options: &Rp2040Options) -> io::Result<()> {
+    let missing = |what: String| Err(io::Error::new(io::ErrorKind::NotFound, what));
+    if !firmware.is_file() {
+        return missing(format!(
+            "firmware ELF {} not found: build it with `{FIRMWARE_BUILD}`",
+            firmware.display()
+        ));
+    }
+    if !options.bootrom.is_file() {
+        return missing(format!(
+            "RP2040 boot ROM {} not found (../shared/rp2040/bootrom-b1.bin, or set PLACEDB_RP2040_BOOTROM)",
+            options.bootrom.display()
+        ));
+    }
+    if !harness_dir().join("node_modules/rp2040js").is_dir() {
+        return missing(format!(
+            "the emulator's packages are not installed: run `{HARNESS_SETUP}`"
+        ));
+    }
+    Ok(())
+}
+
+/// The emulated Pico: the harness process and a TCP link to the firmware's
+/// CDC-ACM port. The harness is killed when this is dropped (or by
+/// [`Rp2040::power_cut`]); what it printed is in [`Rp2040::console`].
+pub struct Rp2040 {
+    link: TcpLink,
+    child: Child,
+    console: Arc<Mutex<String>>,
+    threads: Vec<JoinHandle<()>>,
+}
+
+impl Rp2040 {
+    /// Boots `firmware` with `options`, waits for USB enumeration and
+    /// connects to the bridged port.
+    pub fn start_with(firmware: &Path, options: &Rp2040Options) -> io::Result<Rp2040> {
+        check_setup(firmware, options)?;
+        let mut command = harness_command(firmware, options);
+        command.stdout(Stdio::piped()).stderr(Stdio::piped());
+        let mut child = command.spawn().map_err(|e| {
+            io::Error::new(
+                e.kind(),
+                format!(
+                    "cannot start {} (Node 20 or later is needed): {e}",
+                    options.node.display()
+                ),
+            )
+        })?;
+        let console = Arc::new(Mutex::new(String::new()));
+        let mut threads = Vec::new();
+        if let Some(out) = child.stdout.take() {
+            threads.push(collect_lines(out, Arc::clone(&console))?);
+        }
+        if let Some(err) = child.stderr.take() {
+            threads.push(collect_lines(err, Arc::clone(&console))?);
+        }
+        let mut board = Booting {
+            child: Some(child),
+            console,
+            threads,
+        };
+        let end = Instant::now() + options.connect_timeout;
+        let port = loop {
+            if let Some(port) = listening_port(&board.text()) {
+                break port;
+            }
+            board.check_running(end)?;
+            thread::sleep(Duration::from_millis(10));
+        };
+        while !board.text().contains("usb configured") {
+            board.check_running(end)?;
+            thread::sleep(Duration::from_millis(10));
+        }
+        let link = TcpLink::connect(("127.0.0.1", port), Duration::from_secs(5))?;
+        board.into_board(link)
+    }
+
+    /// Everything the harness printed so far.
+    pub fn console(&self) -> String {
+        self.console.lock().map(|c| c.clone()).unwrap_or_default()
+    }
+
+    /// Waits until the console contains `needle`; false after `timeout`.
+    pub fn wait_console(&self, needle: &str, timeout: Duration) -> bool {
+        let end = Instant::now() + timeout;
+        while !self.console().contains(needle) {
+            if Instant::now() >= end {
+                return false;
+            }
+            thread::sleep(Duration::from_millis(10));
+        }
+        true
+    }
+
+    /// The harness's exit status if it has exited.
+    pub fn try_wait(&mut self) -> io::Result<Option<ExitStatus>> {
+        self.child.try_wait()
+    }
+
+    /// Stops the emulator cleanly (SIGTERM: it prints its `stats` line) and
+    /// returns everything it printed.
+    pub fn stop(mut self) -> String {
+        self.terminate();
+        self.console()
+    }
+
+    /// Kills the emulator at once (SIGKILL): a power cut. The flash file
+    /// holds exactly what the firmware had erased and programmed.
+    pub fn power_cut(mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+
+    fn terminate(&mut self) {
+        if let Ok(None) = self.child.try_wait() {
+            // SIGTERM through kill(1), so the harness can print its stats.
+            let _ = Command::new("kill")
+                .arg("-TERM")
+                .arg(self.child.id().to_string())
+                .status();
+            let end = Instant::now() + Duration::from_secs(5);
+            while matches!(self.child.try_wait(), Ok(None)) && Instant::now() < end {
+                thread::sleep(Duration::from_millis(10));
+            }
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        for t in self.threads.drain(..) {
+            let _ = t.join();
+        }
+    }
+}
+
+/// The harness while it boots: killed if dropped before it is ready.
+struct Booting {
+    child: Option<Child>,
+    console: Arc<Mutex<String>>,
+    threads: Vec<JoinHandle<()>>,
+}
+
+impl Booting {
+    fn text(&self) -> String {
+        self.console.lock().map(|c| c.clone()).unwrap_or_default()
+    }
+
+    /// An error if the harness exited or `end` passed.
+    fn check_running(&mut self, end: Instant) -> io::Result<()> {
+        let exited = match self.child.as_mut() {
+            Some(child) => child.try_wait()?,
+            None => return Err(io::ErrorKind::BrokenPipe.into()),
+        };
+        if let Some(status) = exited {
+            // Let the output threads catch the harness's last words.
+            for t in self.threads.drain(..) {
+                let _ = t.join();
+            }
+            return Err(io::Error::new(
+                io::ErrorKind::BrokenPipe,
+                format!(
+                    "the RP2040 emulator exited ({status}) before the firmware enumerated: {}",
+                    self.text()
+                ),
+            ));
+        }
+        if Instant::now() >= end {
+            return Err(io::Error::new(
+                io::ErrorKind::TimedOut,
+                format!(
+                    "the emulated Pico did not enumerate on USB in time: {}",
+                    self.text()
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// The running harness, with its link: the board.
+    fn into_board(mut self, link: TcpLink) -> io::Result<Rp2040> {
+        let child = self.child.take().ok_or(io::ErrorKind::BrokenPipe)?;
+        Ok(Rp2040 {
+            link,
+            child,
+            console: Arc::clone(&self.console),
+            threads: std::mem::take(&mut self.threads),
+        })
+    }
+}
+
+impl Drop for Booting {
+    fn drop(&mut self) {
+        if let Some(mut child) = self.child.take() {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+        for t in self.threads.drain(..) {
+            let _ = t.join();
+        }
+    }
+}
+
+/// The port of the harness's "listening tcp:127.0.0.1:PORT" line.
+fn listening_port(console: &str) -> Option<u16> {
+    let rest = console.split("listening tcp:127.0.0.1:").nth(1)?;
+    rest.lines().next()?.trim().parse().ok()
+}
+
+impl Link for Rp2040 {
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        self.link.send(bytes)
+    }
+
+    fn recv(&mut self, timeout: Duration) -> io::Result<Vec<u8>> {
+        self.link.recv(timeout)
+    }
+}
+
+impl Drop for Rp2040 {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        for t in self.threads.drain(..) {
+            let _ = t.join();
+        }
+    }
+}
+
+/// Copies a child's output, line by line, into `console` until it closes.
+fn collect_lines(
+    from: impl Read + Send + 'static,
+    console: Arc<Mutex<String>>,
+) -> io::Result<JoinHandle<()>> {
+    thread::Builder::new()
+        .name("placedb-rp2040-console".into())
+        .spawn(move || {
+            for line in BufReader::new(from).lines() {
+                let Ok(line) = line else { return };
+                if let Ok(mut c) = console.lock() {
+                    c.push_str(&line);
+                    c.push('\n');
+                }
+            }
+        })
+}
+
+/// `placedb device --rp2040`: runs the emulated Pico in the foreground
+/// (its TCP port printed), until Ctrl-C, SIGTERM or SIGHUP, which stop the
+/// emulator first ([`super::foreground`]).
+pub fn device_cmd(
+    firmware: Option<PathBuf>,
+    port: u16,
+    flash: Option<PathBuf>,
+) -> Result<(), DeviceError> {
+    let firmware = firmware.unwrap_or_else(default_firmware);
+    let options = Rp2040Options {
+        flash: flash.clone(),
+        port,
+        deadline: Duration::ZERO,
+        ..Rp2040Options::default()
+    };
+    check_setup(&firmware, &options).map_err(|e| DeviceError::Input(e.to_string()))?;
+    println!("emulated Raspberry Pi Pico (rp2040js, profile ram256k), USB CDC-ACM bridged to TCP");
+    println!("  e.g. placedb stream --port tcp:127.0.0.1:PORT --profile ram256k --demo --stride 8 --max-frames 30");
+    println!("       placedb export --port tcp:127.0.0.1:PORT -o out");
+    match &flash {
+        Some(f) => println!(
+            "  flash kept in {} (2 MiB): after a restart, `placedb stream --resume` goes on with the scan",
+            f.display()
+        ),
+        None => println!("  no --flash file: the board starts with an erased flash every time"),
+    }
+    println!("  Ctrl-C (or SIGTERM, SIGHUP) stops it, the emulator with it");
+    // The emulator ends with placedb, whatever stops it (foreground.rs).
+    let mut child = super::foreground::spawn(&mut harness_command(&firmware, &options))
+        .map_err(|e| DeviceError::Input(format!("cannot start node (Node 20 or later): {e}")))?;
+    super::wait_in_foreground(&mut child, "the RP2040 emulator", "the emulator")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn harness_command_names_every_file() {
+        let options = Rp2040Options {
+            flash: Some("out/pico.flash".into()),
+            port: 4321,
+            deadline: Duration::from_secs(90),
+            ..Rp2040Options::default()
+        };
+        let command = harness_command(Path::new("fw.elf"), &options);
+        let args: Vec<_> = command.get_args().map(|a| a.to_string_lossy()).collect();
+        assert!(args[0].ends_with("boards/rp-pico/emulator/harness.mjs"));
+        assert!(args.windows(2).any(|w| w == ["--elf", "fw.elf"]));
+        assert!(args.windows(2).any(|w| w == ["--port", "4321"]));
+        assert!(args.windows(2).any(|w| w == ["--flash", "out/pico.flash"]));
+        assert!(args.windows(2).any(|w| w == ["--deadline", "90"]));
+        assert!(args
+            .windows(2)
+            .any(|w| w[0] == "--bootrom" && w[1].ends_with("bootrom-b1.bin")));
+    }
+
+    #[test]
+    fn a_missing_firmware_is_reported() {
+        let err = Rp2040::start_with(Path::new("/nonexistent/fw.elf"), &Rp2040Options::default())
+            .err()
+            .unwrap();
+        assert_eq!(err.kind(), io::ErrorKind::NotFound);
+        assert!(err.to_string().contains(FIRMWARE_BUILD));
+    }
+}

@@ -1,0 +1,32 @@
+//! [`DeviceError`]: why talking to a device failed, for every layer of the
+//! device client.
+
+use placedb::protocol::ErrorKind;
+use std::io;
+
+/// Why talking to a device failed.
+#[derive(Debug, thiserror::Error)]
+pub enum DeviceError {
+    /// The link failed or timed out.
+    #[error("link: {0}")]
+    Io(#[from] io::Error),
+    /// The device refused a message with a typed error.
+    #[error("the device refused {what} (seq {seq}): {kind}")]
+    Refused {
+        /// Which message.
+        what: String,
+        /// Its sequence number.
+        seq: u32,
+        /// The device's reason.
+        kind: ErrorKind,
+    },
+    /// The conversation went wrong (damaged or unexpected replies).
+    #[error("protocol: {0}")]
+    Protocol(String),
+    /// The device runs another capacity profile than asked for.
+    #[error("{0}")]
+    Profile(String),
+    /// Bad input on the host side (sequence, options, files).
+    #[error("{0}")]
+    Input(String),
+}

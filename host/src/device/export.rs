@@ -1,0 +1,399 @@
+//! Pulling a scan's results from a device (`placedb export`): every record
+//! in batches checked by count and CRC and asked again, shorter, when they
+//! fail ([`export`]); the checked batches kept in a partial-export file so
+//! that an interrupted export resumes ([`export_to_with`] with `from`); and
+//! the files of [`crate::output`], byte-identical to `placedb select
+//! --solver online`'s with the same profile and configuration.
+
+use crate::device::client::{ask_status, device_profile, Client, Received, Wait};
+use crate::device::error::DeviceError;
+use crate::device::link::Link;
+use crate::output::{self, metrics_json};
+use indicatif::ProgressBar;
+use placedb::protocol::{
+    encode, export_crc, CapacitySlot, DeviceMessage, ExportRecord, Feed, FrameDecoder, HostMessage,
+    RecordKind, Status, MAX_FRAME_LEN,
+};
+use placedb::DbRecord;
+use std::io;
+use std::path::Path;
+use std::time::Duration;
+
+/// How to export.
+#[derive(Debug, Clone)]
+pub struct ExportOptions {
+    /// Most records per ExportRequest; each batch is checked by count and
+    /// CRC. After a failed batch the next one is half as long (down to 1
+    /// record), after a good one a record longer (up to this).
+    pub batch: u32,
+    /// Failed attempts in a row (a batch re-requested from its first record,
+    /// a status request sent again) before giving up.
+    pub retries: usize,
+    /// Longest wait for one reply (the next record or the batch's end).
+    pub reply_timeout: Duration,
+}
+
+impl ExportOptions {
+    /// How a status request of the export waits: stop-and-wait, sent again
+    /// (at least once) when no reply comes within `reply_timeout`.
+    pub fn wait(&self) -> Wait {
+        Wait::Resend {
+            after: self.reply_timeout,
+            retries: self.retries.max(1),
+        }
+    }
+}
+
+impl Default for ExportOptions {
+    fn default() -> Self {
+        ExportOptions {
+            batch: 256,
+            retries: 5,
+            reply_timeout: Duration::from_secs(30),
+        }
+    }
+}
+
+/// Every record of the device's export, checked.
+#[derive(Debug, Clone)]
+pub struct Export {
+    /// The records, numbered from 0.
+    pub records: Vec<ExportRecord>,
+    /// The device's status when the export ended.
+    pub status: Status,
+    /// Batches that had to be retried.
+    pub retried: usize,
+}
+
+/// One batch: records `from..from+max`, checked by count and CRC.
+fn export_batch<L: Link>(
+    client: &mut Client<L>,
+    from: u32,
+    max: u32,
+    timeout: Duration,
+) -> Result<Vec<ExportRecord>, DeviceError> {
+    let seq = client.send(HostMessage::ExportRequest {
+        from_record: from,
+        max_records: max,
+    })?;
+    let mut got: Vec<ExportRecord> = Vec::new();
+    let mut damaged = false;
+    loop {
+        match client.recv(timeout)? {
+            Received::Message(DeviceMessage::ExportRecord(r)) => got.push(r),
+            Received::Damaged(_) => damaged = true,
+            Received::Message(DeviceMessage::ExportEnd {
+                seq: s,
+                from_record,
+                count,
+                crc32,
+            }) if s == seq => {
+                let numbered = got
+                    .iter()
+                    .enumerate()
+                    .all(|(k, r)| r.record == from + k as u32);
+                if damaged || from_record != from || count as usize != got.len() || !numbered {
+                    return Err(DeviceError::Protocol(format!(
+                        "export batch from {from}: {} records received, {count} sent",
+                        got.len()
+                    )));
+                }
+                if crc32 != export_crc(&got) {
+                    return Err(DeviceError::Protocol(format!(
+                        "export batch from {from}: CRC mismatch"
+                    )));
+                }
+                return Ok(got);
+            }
+            // The request (or a record) was damaged on the way: ask again.
+            Received::Message(DeviceMessage::Error { kind, .. }) if kind.is_damage() => {
+                return Err(DeviceError::Protocol(format!(
+                    "export batch from {from}: the request was damaged ({kind})"
+                )));
+            }
+            Received::Message(DeviceMessage::Error { seq: s, kind }) if s == Some(seq) => {
+                return Err(DeviceError::Refused {
+                    what: format!("ExportRequest from {from}"),
+                    seq,
+                    kind,
+                })
+            }
+            // Anything else (a reply to an earlier request, a log) is not ours.
+            _ => {}
+        }
+    }
+}
+
+/// Pulls every record from the device, in checked batches, starting after
+/// the records in `have` (a resumed export). `saved` is called with each
+/// checked batch (to persist it).
+pub fn export<L: Link>(
+    client: &mut Client<L>,
+    mut have: Vec<ExportRecord>,
+    opts: &ExportOptions,
+    progress: Option<&ProgressBar>,
+    saved: &mut dyn FnMut(&[ExportRecord]) -> io::Result<()>,
+) -> Result<Export, DeviceError> {
+    let timeout = opts.reply_timeout;
+    client.resync()?;
+    let first = ask_status(client, opts.wait())?.0;
+    let total = first.export_records() as usize;
+    if have.len() > total {
+        return Err(DeviceError::Input(format!(
+            "resuming from record {} but the device holds {total}",
+            have.len()
+        )));
+    }
+    if let Some(p) = progress {
+        p.set_length(total as u64);
+        p.set_position(have.len() as u64);
+    }
+    let mut retried = 0;
+    let mut failed_in_a_row = 0;
+    let mut batch_len = opts.batch.max(1);
+    while have.len() < total {
+        let from = have.len() as u32;
+        match export_batch(client, from, batch_len, timeout) {
+            Ok(batch) if !batch.is_empty() => {
+                failed_in_a_row = 0;
+                batch_len = batch_len.saturating_add(1).min(opts.batch.max(1));
+                saved(&batch)?;
+                have.extend(batch);
+                if let Some(p) = progress {
+                    p.set_position(have.len() as u64);
+                }
+            }
+            Ok(_) => {
+                return Err(DeviceError::Protocol(format!(
+                    "the device sent no record from {from} of {total}"
+                )))
+            }
+            Err(e @ DeviceError::Refused { .. }) => return Err(e),
+            Err(e) if failed_in_a_row < opts.retries => {
+                retried += 1;
+                failed_in_a_row += 1;
+                batch_len = (batch_len / 2).max(1);
+                if let Some(p) = progress {
+                    p.println(format!("retrying from record {from}: {e}"));
+                }
+                // Let a broken reply finish, then resynchronise.
+                while client.recv(Duration::from_millis(200).min(timeout)).is_ok() {}
+                client.resync()?;
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    let last = ask_status(client, opts.wait())?.0;
+    if last.export_records() as usize != have.len()
+        || (last.frames_seen, last.database_size) != (first.frames_seen, first.database_size)
+    {
+        return Err(DeviceError::Protocol(
+            "the device's state changed during the export".into(),
+        ));
+    }
+    check_records(&have, last.database_size as usize)?;
+    Ok(Export {
+        records: have,
+        status: last,
+        retried,
+    })
+}
+
+/// Checks the layout: database records in strictly increasing frame order,
+/// then one label per frame 0, 1, 2, ...
+fn check_records(records: &[ExportRecord], database: usize) -> Result<(), DeviceError> {
+    let bad = |what: &str| Err(DeviceError::Protocol(format!("export: {what}")));
+    let (db, labels) = records.split_at(database.min(records.len()));
+    if db.len() != database {
+        return bad("fewer records than database frames");
+    }
+    let mut last = None;
+    for r in db {
+        if !matches!(r.kind, RecordKind::Database { .. }) || last.is_some_and(|l| r.frame <= l) {
+            return bad("database records out of order");
+        }
+        last = Some(r.frame);
+    }
+    for (j, r) in labels.iter().enumerate() {
+        if !matches!(r.kind, RecordKind::Label { .. }) || r.frame as usize != j {
+            return bad("label records out of order");
+        }
+    }
+    Ok(())
+}
+
+impl Export {
+    /// The database records as the core's [`DbRecord`]s (voxel counts are not
+    /// exported: 0).
+    pub fn database(&self) -> Vec<DbRecord> {
+        self.records
+            .iter()
+            .filter_map(|r| match r.kind {
+                RecordKind::Database { pose } => Some(DbRecord {
+                    index: r.frame,
+                    timestamp: r.timestamp,
+                    pose,
+                    voxels: 0,
+                }),
+                RecordKind::Label { .. } => None,
+            })
+            .collect()
+    }
+
+    /// Timestamps and class labels of every labelled frame.
+    pub fn labels(&self) -> (Vec<f64>, Vec<usize>) {
+        self.records
+            .iter()
+            .filter_map(|r| match r.kind {
+                RecordKind::Label { class } => Some((r.timestamp, class as usize)),
+                RecordKind::Database { .. } => None,
+            })
+            .unzip()
+    }
+
+    /// The text of `database.csv` and `labels.csv`.
+    pub fn csv(&self) -> (String, String) {
+        let (timestamps, labels) = self.labels();
+        output::run_csv(&self.database(), &timestamps, &labels)
+    }
+
+    /// `metrics.json` of an export: what the device knows (the metrics that
+    /// need the sequence's voxel sets are computed by `placedb select`).
+    pub fn metrics(&self) -> serde_json::Value {
+        let profile = device_profile(&self.status).map(|p| p.name);
+        metrics_json::of_device(&self.status, self.records.len(), profile)
+    }
+}
+
+/// Name of the file holding the checked batches of an unfinished export.
+pub const PARTIAL_EXPORT: &str = ".export-partial";
+
+/// The records of an unfinished export in `dir` and the status it began
+/// with: COBS frames of a `Status` then `ExportRecord`s, as the device sent
+/// them (so timestamps and poses survive bit for bit).
+pub fn read_partial(dir: &Path) -> Result<(Status, Vec<ExportRecord>), DeviceError> {
+    let path = dir.join(PARTIAL_EXPORT);
+    let bytes = std::fs::read(&path).map_err(|e| {
+        DeviceError::Input(format!("no unfinished export in {}: {e}", path.display()))
+    })?;
+    let mut decoder = Box::new(FrameDecoder::<MAX_FRAME_LEN>::new());
+    let mut rest: &[u8] = &bytes;
+    let (mut status, mut records) = (None, Vec::new());
+    while let Feed::Frame { result, remaining } = decoder.feed::<DeviceMessage>(rest) {
+        match result {
+            Ok(DeviceMessage::Status(s)) if status.is_none() => status = Some(s),
+            Ok(DeviceMessage::ExportRecord(r)) if status.is_some() => records.push(r),
+            // A torn last write: keep what was whole.
+            _ => break,
+        }
+        rest = remaining;
+    }
+    let status = status
+        .ok_or_else(|| DeviceError::Input(format!("{} holds no export header", path.display())))?;
+    Ok((status, records))
+}
+
+/// Appends `msgs` as COBS frames to the partial-export file `path`.
+pub(crate) fn append_frames(path: &Path, msgs: &[DeviceMessage<'_>]) -> io::Result<()> {
+    use std::io::Write;
+    let mut file = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(path)?;
+    let mut buf = vec![0u8; MAX_FRAME_LEN];
+    for m in msgs {
+        let frame = encode(m, &mut buf).map_err(io::Error::other)?;
+        file.write_all(frame)?;
+    }
+    file.sync_data()
+}
+
+/// `placedb export` over an open link: pulls every record from the device
+/// and writes `database.csv`, `labels.csv` and `metrics.json` to `out`.
+/// `from = Some(k)` resumes an interrupted export of the same device state
+/// from record `k` (the checked records before it are kept in `out`).
+pub fn export_to<L: Link>(
+    client: &mut Client<L>,
+    out: &Path,
+    from: Option<u32>,
+    quiet: bool,
+) -> Result<Export, DeviceError> {
+    export_to_with(client, out, from, quiet, &ExportOptions::default())
+}
+
+/// [`export_to`] with `opts`.
+pub fn export_to_with<L: Link>(
+    client: &mut Client<L>,
+    out: &Path,
+    from: Option<u32>,
+    quiet: bool,
+    opts: &ExportOptions,
+) -> Result<Export, DeviceError> {
+    std::fs::create_dir_all(out)?;
+    let partial = out.join(PARTIAL_EXPORT);
+    client.resync()?;
+    let (now, _) = ask_status(client, opts.wait())?;
+    let have = match from {
+        Some(k) => {
+            let (was, mut records) = read_partial(out)?;
+            if (was.frames_seen, was.database_size, was.export_records())
+                != (now.frames_seen, now.database_size, now.export_records())
+            {
+                return Err(DeviceError::Input(
+                    "the device's state changed since the interrupted export: export from 0".into(),
+                ));
+            }
+            if records.len() < k as usize {
+                return Err(DeviceError::Input(format!(
+                    "--from {k}: only {} checked records were saved",
+                    records.len()
+                )));
+            }
+            records.truncate(k as usize);
+            records
+        }
+        None => Vec::new(),
+    };
+    // Rewrite the partial file with exactly what is kept.
+    let _ = std::fs::remove_file(&partial);
+    let mut head = vec![DeviceMessage::Status(now)];
+    head.extend(have.iter().map(|r| DeviceMessage::ExportRecord(*r)));
+    append_frames(&partial, &head)?;
+    let pb = (!quiet).then(|| ProgressBar::new(0));
+    let export = export(client, have, opts, pb.as_ref(), &mut |batch| {
+        let msgs: Vec<_> = batch
+            .iter()
+            .map(|r| DeviceMessage::ExportRecord(*r))
+            .collect();
+        append_frames(&partial, &msgs)
+    })
+    .map_err(|e| match e {
+        DeviceError::Io(io) => DeviceError::Io(io::Error::new(
+            io.kind(),
+            format!("{io}; resume with --from N (checked records are saved)"),
+        )),
+        other => other,
+    })?;
+    if let Some(pb) = &pb {
+        pb.finish_and_clear();
+    }
+    let (timestamps, labels) = export.labels();
+    let rows = output::rows_from_records(&export.database());
+    output::write_database_dir(out, &rows, &timestamps, &labels, &export.metrics())?;
+    std::fs::remove_file(&partial)?;
+    if !quiet {
+        println!(
+            "exported {} records ({} database frames, {} labels), checked by count and CRC{}; wrote {}/{{database.csv,labels.csv,metrics.json}}",
+            export.records.len(),
+            export.status.database_size,
+            export.status.capacity(CapacitySlot::Labels).used,
+            if export.retried > 0 {
+                format!(" ({} batches retried)", export.retried)
+            } else {
+                String::new()
+            },
+            out.display()
+        );
+    }
+    Ok(export)
+}

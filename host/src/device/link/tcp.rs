@@ -1,0 +1,70 @@
+//! [`TcpLink`]: a device behind a TCP port (an emulator, or a
+//! serial-to-TCP bridge).
+
+use super::{reader_thread, recv_channel, Link};
+use std::io::{self, Write};
+use std::net::{Shutdown, SocketAddr, TcpStream, ToSocketAddrs};
+use std::sync::mpsc::Receiver;
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+/// A TCP connection; a reader thread feeds a channel.
+pub struct TcpLink {
+    stream: TcpStream,
+    rx: Receiver<io::Result<Vec<u8>>>,
+    reader: Option<JoinHandle<()>>,
+    closed: bool,
+}
+
+impl TcpLink {
+    /// Connects to `addr` (`HOST:PORT`) within `timeout`.
+    pub fn connect(addr: impl ToSocketAddrs, timeout: Duration) -> io::Result<TcpLink> {
+        let mut last = io::Error::new(io::ErrorKind::NotFound, "address resolves to nothing");
+        for a in addr.to_socket_addrs()? {
+            match TcpStream::connect_timeout(&a, timeout) {
+                Ok(stream) => return TcpLink::from_stream(stream),
+                Err(e) => last = e,
+            }
+        }
+        Err(last)
+    }
+
+    /// Wraps a connected stream.
+    pub fn from_stream(stream: TcpStream) -> io::Result<TcpLink> {
+        stream.set_nodelay(true)?;
+        stream.set_nonblocking(false)?;
+        let reading = stream.try_clone()?;
+        let (rx, reader) = reader_thread(reading, false)?;
+        Ok(TcpLink {
+            stream,
+            rx,
+            reader: Some(reader),
+            closed: false,
+        })
+    }
+
+    /// The peer's address.
+    pub fn peer_addr(&self) -> io::Result<SocketAddr> {
+        self.stream.peer_addr()
+    }
+}
+
+impl Link for TcpLink {
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        self.stream.write_all(bytes)?;
+        self.stream.flush()
+    }
+
+    fn recv(&mut self, timeout: Duration) -> io::Result<Vec<u8>> {
+        recv_channel(&self.rx, &mut self.closed, timeout)
+    }
+}
+
+impl Drop for TcpLink {
+    fn drop(&mut self) {
+        let _ = self.stream.shutdown(Shutdown::Both);
+        if let Some(reader) = self.reader.take() {
+            let _ = reader.join();
+        }
+    }
+}

@@ -1,0 +1,16 @@
+//! The device client, one layer, bottom up: transports and fault injection
+//! ([`link`]), the emulated boards ([`emulator`]), the protocol client with
+//! the one send-and-wait ([`client`]), streaming a scan ([`scan`]), pulling
+//! its results ([`export`]), and the public [`session`] a robot program
+//! calls. Imports go one way, from the top: session → scan → export →
+//! client → link, emulator → link, and every one may name [`error`].
+
+pub mod client;
+pub mod emulator;
+pub mod error;
+pub mod export;
+pub mod link;
+pub mod scan;
+pub mod session;
+
+pub use error::DeviceError;

@@ -1,0 +1,780 @@
+//! Streaming a scan to a device: the options ([`StreamOptions`], and
+//! [`Recovery`] for a lossy link), the scan and Hello configuration of a
+//! sequence, one depth frame in memory ([`DepthFrame`]), what a scan has sent
+//! and been told ([`ScanState`], which the public
+//! [`Session`](crate::device::session::Session) drives too), and [`stream`],
+//! which sends a recorded sequence (`placedb stream`).
+//!
+//! The device is the core's [`placedb::device::Device`], on a board or
+//! in-process (`local:PROFILE`); what it selects is what `placedb select
+//! --solver online` computes with the same profile and configuration.
+//!
+//! Over a lossy link ([`StreamOptions::retries`] > 0, e.g. `placedb stream
+//! --drop-chance 0.05 --corrupt-chance 0.05`, which wraps the link in a
+//! [`crate::device::link::fault::FaultInjector`]) the host goes stop-and-wait
+//! and retransmits a message with the same sequence number when its reply is
+//! late or says the frame was damaged
+//! ([`exchange`](crate::device::client::exchange)); the device answers a
+//! repeat without applying it twice.
+
+use crate::device::client::{ask_status, check_profile, send_and_wait, Client, Received, Wait};
+use crate::device::error::DeviceError;
+use crate::device::export::ExportOptions;
+use crate::device::link::fault::FaultConfig;
+use crate::device::link::Link;
+use crate::replay::sampled_rows_of;
+use crate::row_chunks::row_chunks;
+use crate::sequence::Sequence;
+use crate::voxelize::{self, GridOrigin, VoxelConfig};
+use indicatif::ProgressBar;
+use placedb::protocol::{
+    depth_rows_per_message, encode, CapacitySlot, Config, DecisionKind, DeviceMessage, ErrorKind,
+    HostFrame, HostMessage, Phase, Status, MAX_FRAME_LEN,
+};
+use placedb::{Intrinsics, Pose, ScanConfig, SelectorConfig, VoxelGrid};
+use std::collections::VecDeque;
+use std::io;
+use std::time::{Duration, Instant};
+
+/// How to stream.
+#[derive(Debug, Clone)]
+pub struct StreamOptions {
+    /// Strided rows per DepthRows message (0: as many as fit a frame).
+    pub rows_per_message: u16,
+    /// Messages sent ahead of their replies (1 = stop-and-wait).
+    pub in_flight: usize,
+    /// Longest wait for one reply.
+    pub reply_timeout: Duration,
+    /// Reset the device before the Hello (a new scan).
+    pub reset: bool,
+    /// Go on with the scan the device holds (after a power cut it restores
+    /// it from flash): no Reset, the same Hello (the device accepts an
+    /// identical one), frames from the device's `frames_seen` on.
+    pub resume: bool,
+    /// End with Finish (decides the frames still pending).
+    pub finish: bool,
+    /// Retransmissions allowed per message. 0: messages are pipelined
+    /// (`in_flight`) and the first error or timeout ends the stream. Above 0:
+    /// stop-and-wait, and a message whose terminal reply does not come within
+    /// `resend_after`, or is an error saying the frame was damaged, is sent
+    /// again with the same sequence number (the device answers a repeat
+    /// without applying it twice).
+    pub retries: usize,
+    /// With `retries > 0`: how long to wait for a terminal reply before
+    /// sending the message again.
+    pub resend_after: Duration,
+}
+
+impl StreamOptions {
+    /// How a message of the scan's set-up waits for its reply: once, or
+    /// stop-and-wait with retransmission when `retries > 0`.
+    pub fn wait(&self) -> Wait {
+        match self.retries {
+            0 => Wait::Once(self.reply_timeout),
+            retries => Wait::Resend {
+                after: self.resend_after,
+                retries,
+            },
+        }
+    }
+}
+
+impl Default for StreamOptions {
+    fn default() -> Self {
+        StreamOptions {
+            rows_per_message: 0,
+            in_flight: 4,
+            reply_timeout: Duration::from_secs(30),
+            reset: true,
+            resume: false,
+            finish: true,
+            retries: 0,
+            resend_after: Duration::from_secs(2),
+        }
+    }
+}
+
+/// What a stream did.
+#[derive(Debug, Clone)]
+pub struct StreamReport {
+    /// Frames sent.
+    pub frames: usize,
+    /// Final decision of every frame, by index.
+    pub decisions: Vec<Option<DecisionKind>>,
+    /// The device's status after Finish.
+    pub status: Status,
+    /// Wall time from Hello to the last reply.
+    pub wall: Duration,
+    /// Bytes written to the link.
+    pub bytes_sent: u64,
+    /// Messages sent.
+    pub messages: u64,
+    /// Messages sent again (lost or damaged on the way, or their reply was).
+    pub retransmissions: u64,
+    /// The device's flash log filled up: frames from this one on were not
+    /// scanned (the open one was dropped, the scan finished with the rest).
+    pub log_full_at: Option<usize>,
+}
+
+impl StreamReport {
+    /// Frames per second over the link, wall clock.
+    pub fn fps(&self) -> f64 {
+        self.frames as f64 / self.wall.as_secs_f64().max(1e-9)
+    }
+
+    /// Mean device clock ticks per frame (instructions for the QEMU board
+    /// under `-icount shift=0`), if the device has a clock.
+    pub fn ticks_per_frame(&self) -> Option<f64> {
+        let c = &self.status.cost;
+        (c.clock_hz > 0 && c.frames > 0).then(|| c.total as f64 / f64::from(c.frames))
+    }
+}
+
+/// The scan configuration `placedb select` uses for `seq` and `vcfg`: the
+/// same intrinsics, depth scale, range, stride and grid.
+pub fn scan_config(seq: &Sequence, vcfg: &VoxelConfig) -> Result<ScanConfig, DeviceError> {
+    let grid = match vcfg.origin {
+        GridOrigin::World => VoxelGrid::new(vcfg.voxel, [0.0; 3])
+            .map_err(|e| DeviceError::Input(format!("voxel grid: {e:?}")))?,
+        // The scene's corner needs every frame first, as select does.
+        GridOrigin::SceneMin => {
+            voxelize::voxelize(seq, vcfg, None)
+                .map_err(|e| DeviceError::Input(e.to_string()))?
+                .grid
+        }
+    };
+    Ok(ScanConfig {
+        intrinsics: seq.intrinsics(),
+        depth_scale: seq.depth_scale as f32,
+        range: vcfg.range,
+        stride: vcfg.stride,
+        grid,
+    })
+}
+
+/// The Hello for `scan` and `sel`, checked as the device will check it.
+pub fn device_config(scan: &ScanConfig, sel: &SelectorConfig) -> Result<Config, DeviceError> {
+    let cfg = Config::new(scan, sel);
+    cfg.validate().map_err(|kind| {
+        DeviceError::Input(format!(
+            "the device would refuse this configuration: {kind} \
+             (a strided row of {} values must fit one message: use a larger --stride)",
+            cfg.width_sent()
+        ))
+    })?;
+    Ok(cfg)
+}
+
+/// One line about the device's state, for a live status display.
+pub fn status_line(st: &Status) -> String {
+    let c = |slot| {
+        let c = st.capacity(slot);
+        format!("{}/{}", c.used, c.limit)
+    };
+    let mut s = format!(
+        "db {} pool {} win {} labels {} flash {}/{} KiB",
+        c(CapacitySlot::Database),
+        c(CapacitySlot::Pool),
+        c(CapacitySlot::Window),
+        c(CapacitySlot::Labels),
+        st.capacity(CapacitySlot::Flash).used / 1024,
+        st.capacity(CapacitySlot::Flash).limit / 1024,
+    );
+    if st.cost.clock_hz > 0 && st.cost.frames > 0 {
+        s += &format!(
+            " | last frame {:.2} M ticks",
+            f64::from(st.cost.last_rows.saturating_add(st.cost.last_end)) / 1e6
+        );
+    }
+    if st.degradation != 0 {
+        s += &format!(" | degraded {:#x}", st.degradation);
+    }
+    s
+}
+
+/// Streams `seq` to the device behind `client`: (Reset,) Hello with `cfg`,
+/// every frame as FrameBegin, DepthRows, FrameEnd (and a StatusRequest for
+/// the live line), then Finish. The device must run capacity profile
+/// `profile`. The frames go through the client API's code
+/// ([`ScanState`], what [`crate::device::session::Session`] runs), as a robot's would.
+pub fn stream<L: Link>(
+    client: &mut Client<L>,
+    seq: &Sequence,
+    cfg: &Config,
+    profile: &str,
+    opts: &StreamOptions,
+    progress: Option<&ProgressBar>,
+) -> Result<StreamReport, DeviceError> {
+    let n = seq.frames.len();
+    let mut scan = ScanState::new(opts.clone());
+    scan.begin(client, cfg, Some(profile), Some(n))?;
+    let first = scan.next_frame as usize;
+    scan.decisions = vec![None; n];
+    let started = scan.started.unwrap_or_else(Instant::now);
+    if let Some(p) = progress {
+        p.set_position(first as u64);
+    }
+    let mut log_full_at = None;
+    match send_frames(client, &mut scan, seq, cfg, first..n, progress, started) {
+        Ok(()) => {}
+        // The device's flash log is full: it kept room to end the scan, so
+        // drop the open frame and Finish with every frame so far.
+        Err(e) if ScanState::is_log_full(&e) => {
+            log_full_at = Some(scan.abandon_open_frame(client)? as usize);
+        }
+        Err(e) => return Err(e),
+    }
+    if opts.finish {
+        scan.send(client, HostMessage::Finish, || "Finish".into())?;
+    }
+    scan.drain(client)?;
+    let wall = started.elapsed();
+    let status = scan.call_status(client)?;
+    Ok(StreamReport {
+        frames: log_full_at.unwrap_or(n) - first,
+        log_full_at,
+        decisions: scan.decisions,
+        status,
+        wall,
+        bytes_sent: scan.bytes,
+        messages: scan.messages,
+        retransmissions: scan.retransmissions,
+    })
+}
+
+/// Sends frames `range` of `seq` (FrameBegin, DepthRows, FrameEnd, and a
+/// StatusRequest for the live line) through `scan`.
+fn send_frames<L: Link>(
+    client: &mut Client<L>,
+    scan: &mut ScanState,
+    seq: &Sequence,
+    cfg: &Config,
+    range: std::ops::Range<usize>,
+    progress: Option<&ProgressBar>,
+    started: Instant,
+) -> Result<(), DeviceError> {
+    let first = range.start;
+    for i in range {
+        let img = seq
+            .depth(i)
+            .map_err(|e| DeviceError::Input(format!("frame {i}: {e}")))?;
+        let pose = seq.frames[i]
+            .pose()
+            .map_err(|e| DeviceError::Input(format!("frame {i}: pose: {e:?}")))?;
+        scan.push(
+            client,
+            &DepthFrame {
+                timestamp: seq.frames[i].timestamp,
+                pose,
+                intrinsics: cfg.intrinsics,
+                depth: &img.data,
+            },
+        )?;
+        // The live line's status; stop-and-wait without a display skips it.
+        if scan.opts.retries == 0 || progress.is_some() {
+            scan.send(client, HostMessage::StatusRequest, || {
+                "StatusRequest".into()
+            })?;
+        }
+        if let Some(p) = progress {
+            p.set_position(i as u64 + 1);
+            if let Some(st) = &scan.status {
+                let fps = (i + 1 - first) as f64 / started.elapsed().as_secs_f64().max(1e-9);
+                p.set_message(format!("{fps:.2} fps | {}", status_line(st)));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Fault injection and recovery for `placedb stream`.
+#[derive(Debug, Clone, Copy)]
+pub struct Recovery {
+    /// Faults injected into the link (none by default).
+    pub faults: FaultConfig,
+    /// Retransmissions per message; `None`: 0 without faults (pipelined), 20 with.
+    pub retries: Option<usize>,
+    /// How long to wait for a terminal reply before sending a message again
+    /// (also the export's wait for its next record).
+    pub resend_after: Duration,
+    /// Resume the scan the device holds (see [`StreamOptions::resume`]).
+    pub resume: bool,
+    /// End the stream with Finish ([`StreamOptions::finish`]).
+    pub finish: bool,
+}
+
+impl Default for Recovery {
+    fn default() -> Self {
+        Recovery {
+            faults: FaultConfig::default(),
+            retries: None,
+            resend_after: Duration::from_secs(2),
+            resume: false,
+            finish: true,
+        }
+    }
+}
+
+impl Recovery {
+    /// Retransmissions per message.
+    pub fn retries(&self) -> usize {
+        self.retries
+            .unwrap_or(if self.faults.is_active() { 20 } else { 0 })
+    }
+
+    /// The stream options: stop-and-wait with retransmission when `retries() > 0`.
+    pub fn stream_options(&self) -> StreamOptions {
+        StreamOptions {
+            retries: self.retries(),
+            resend_after: self.resend_after,
+            resume: self.resume,
+            finish: self.finish,
+            ..StreamOptions::default()
+        }
+    }
+
+    /// The export options: short waits and small batches under faults.
+    pub fn export_options(&self) -> ExportOptions {
+        if self.retries() == 0 {
+            return ExportOptions::default();
+        }
+        ExportOptions {
+            batch: 8,
+            retries: self.retries().max(5),
+            reply_timeout: self.resend_after,
+        }
+    }
+}
+
+/// One depth frame held in memory, as a camera driver delivers it.
+#[derive(Debug, Clone, Copy)]
+pub struct DepthFrame<'a> {
+    /// Seconds (any epoch; exported as given).
+    pub timestamp: f64,
+    /// Camera-to-world pose of the depth camera's optical frame.
+    pub pose: Pose,
+    /// The camera; must be the configured one (a scan has one camera).
+    pub intrinsics: Intrinsics,
+    /// `width * height` depth values, row after row, in the configured
+    /// depth scale's units (0 = no measurement).
+    pub depth: &'a [u16],
+}
+
+/// What a scan has sent and been told: messages in flight, decisions, the
+/// last status, counters. Works on a client it is handed, so that a
+/// [`Session`](crate::device::session::Session) (owning its client) and
+/// [`stream`] (borrowing one) run the very same code.
+pub(crate) struct ScanState {
+    pub(crate) opts: StreamOptions,
+    outstanding: VecDeque<(u32, String)>,
+    /// The configuration sent in the Hello.
+    cfg: Option<Config>,
+    /// Strided rows per DepthRows message.
+    rows_per_msg: u16,
+    pub(crate) next_frame: u32,
+    pub(crate) decisions: Vec<Option<DecisionKind>>,
+    pub(crate) new_decisions: Vec<(u32, DecisionKind)>,
+    pub(crate) status: Option<Status>,
+    pub(crate) bytes: u64,
+    pub(crate) messages: u64,
+    pub(crate) retransmissions: u64,
+    /// When the Hello was sent.
+    pub(crate) started: Option<Instant>,
+    tx: Vec<u8>,
+}
+
+impl ScanState {
+    pub(crate) fn new(opts: StreamOptions) -> Self {
+        ScanState {
+            opts,
+            outstanding: VecDeque::new(),
+            cfg: None,
+            rows_per_msg: 1,
+            next_frame: 0,
+            decisions: Vec::new(),
+            new_decisions: Vec::new(),
+            status: None,
+            bytes: 0,
+            messages: 0,
+            retransmissions: 0,
+            started: None,
+            tx: vec![0u8; MAX_FRAME_LEN],
+        }
+    }
+
+    /// Status check, (Reset,) Hello: see [`Session::start`]. `frames`: how
+    /// many frames the host has (a resumed scan must not be past them).
+    pub(crate) fn begin<L: Link>(
+        &mut self,
+        client: &mut Client<L>,
+        cfg: &Config,
+        profile: Option<&str>,
+        frames: Option<usize>,
+    ) -> Result<Status, DeviceError> {
+        let opts = self.opts.clone();
+        client.resync()?;
+        let st = self.call_status(client)?;
+        if let Some(profile) = profile {
+            check_profile(&st, profile)?;
+        }
+        self.next_frame = 0;
+        if opts.resume {
+            if st.phase == Phase::InFrame {
+                return Err(DeviceError::Input(
+                    "the device has a frame open: restart it (it resumes from flash) or stream without --resume"
+                        .into(),
+                ));
+            }
+            let seen = st.frames_seen as usize;
+            if let Some(n) = frames.filter(|&n| seen > n) {
+                return Err(DeviceError::Input(format!(
+                    "the device has seen {seen} frames, the sequence has {n}: not this sequence?"
+                )));
+            }
+            self.next_frame = st.frames_seen;
+        } else if opts.reset {
+            self.call(client, HostMessage::Reset, "Reset")?;
+        }
+        self.started = Some(Instant::now());
+        self.call(client, HostMessage::Hello(*cfg), "Hello")?;
+        let fit = depth_rows_per_message(cfg.width_sent());
+        self.rows_per_msg = match opts.rows_per_message {
+            0 => fit,
+            r => r.min(fit),
+        }
+        .max(1);
+        self.cfg = Some(*cfg);
+        Ok(st)
+    }
+
+    /// Sends one frame: see [`Session::push_frame`].
+    pub(crate) fn push<L: Link>(
+        &mut self,
+        client: &mut Client<L>,
+        f: &DepthFrame<'_>,
+    ) -> Result<u32, DeviceError> {
+        let cfg = self
+            .cfg
+            .ok_or_else(|| DeviceError::Input("push_frame before configure".into()))?;
+        let frame = self.next_frame;
+        if f.intrinsics != cfg.intrinsics {
+            return Err(DeviceError::Input(format!(
+                "frame {frame}: intrinsics {:?} differ from the scan's {:?} (one camera per scan)",
+                f.intrinsics, cfg.intrinsics
+            )));
+        }
+        let (w, h) = (f.intrinsics.width, f.intrinsics.height);
+        if f.depth.len() != usize::from(w) * usize::from(h) {
+            return Err(DeviceError::Input(format!(
+                "frame {frame}: {} depth values for a {w}x{h} image",
+                f.depth.len()
+            )));
+        }
+        let (sampled, rows) = sampled_rows_of(f.depth, w, cfg.stride);
+        let width = usize::from(cfg.width_sent());
+        if sampled != width {
+            return Err(DeviceError::Input(format!(
+                "frame {frame}: {sampled} sampled columns, the configuration says {width}"
+            )));
+        }
+        self.send(
+            client,
+            HostMessage::FrameBegin {
+                frame,
+                timestamp: f.timestamp,
+                pose: f.pose,
+            },
+            || format!("FrameBegin {frame}"),
+        )?;
+        for chunk in row_chunks(width, &rows, usize::from(self.rows_per_msg)) {
+            let first_row = chunk.first_row;
+            self.send(client, chunk.message(frame), || {
+                format!("DepthRows {frame}:{first_row}")
+            })?;
+        }
+        self.send(client, HostMessage::FrameEnd { frame }, || {
+            format!("FrameEnd {frame}")
+        })?;
+        self.next_frame = frame + 1;
+        Ok(frame)
+    }
+
+    /// See [`Session::abandon_open_frame`].
+    pub(crate) fn abandon_open_frame<L: Link>(
+        &mut self,
+        client: &mut Client<L>,
+    ) -> Result<u32, DeviceError> {
+        // What was in flight was refused or answered: the device said why.
+        self.outstanding.clear();
+        let st = self.call_status(client)?;
+        let frame = st.frames_seen;
+        if st.phase == Phase::InFrame {
+            self.call(client, HostMessage::FrameAbort { frame }, "FrameAbort")?;
+        }
+        self.next_frame = frame;
+        Ok(frame)
+    }
+
+    /// Sends `msg`: pipelined (at most `in_flight` unanswered), or
+    /// stop-and-wait with retransmission when `retries > 0`.
+    pub(crate) fn send<L: Link>(
+        &mut self,
+        client: &mut Client<L>,
+        msg: HostMessage<'_>,
+        what: impl FnOnce() -> String,
+    ) -> Result<(), DeviceError> {
+        while self.outstanding.len() >= self.opts.in_flight.max(1) {
+            self.pump(client)?;
+        }
+        self.bytes += encode(&HostFrame { seq: 0, msg }, &mut self.tx)
+            .map(|f| f.len() as u64)
+            .unwrap_or(0);
+        self.messages += 1;
+        if self.opts.retries > 0 {
+            let what = what();
+            let (replies, resent) = send_and_wait(client, msg, &what, self.opts.wait())?;
+            self.retransmissions += resent;
+            for item in &replies {
+                self.note(item);
+            }
+            return Ok(());
+        }
+        let seq = client.send(msg)?;
+        self.outstanding.push_back((seq, what()));
+        Ok(())
+    }
+
+    /// One message of the scan's set-up, waited for as the options say
+    /// ([`StreamOptions::wait`]).
+    pub(crate) fn call<L: Link>(
+        &mut self,
+        client: &mut Client<L>,
+        msg: HostMessage<'_>,
+        what: &str,
+    ) -> Result<Vec<Received>, DeviceError> {
+        let (replies, resent) = send_and_wait(client, msg, what, self.opts.wait())?;
+        self.retransmissions += resent;
+        Ok(replies)
+    }
+
+    /// The device's status through [`ScanState::call`].
+    pub(crate) fn call_status<L: Link>(
+        &mut self,
+        client: &mut Client<L>,
+    ) -> Result<Status, DeviceError> {
+        let (status, resent) = ask_status(client, self.opts.wait())?;
+        self.retransmissions += resent;
+        Ok(status)
+    }
+
+    /// Keeps the final decisions and the last status.
+    fn note(&mut self, item: &Received) {
+        match item {
+            Received::Message(DeviceMessage::Decision { frame, kind })
+                if *kind != DecisionKind::Pending =>
+            {
+                // Only frames this scan sent: a frame index is never
+                // trusted to size a buffer.
+                let i = *frame as usize;
+                if *frame < self.next_frame || i < self.decisions.len() {
+                    if self.decisions.len() <= i {
+                        self.decisions.resize(i + 1, None);
+                    }
+                    self.decisions[i] = Some(*kind);
+                    self.new_decisions.push((*frame, *kind));
+                }
+            }
+            Received::Message(DeviceMessage::Status(s)) => self.status = Some(*s),
+            _ => {}
+        }
+    }
+
+    /// Handles replies until the oldest outstanding message is answered.
+    fn pump<L: Link>(&mut self, client: &mut Client<L>) -> Result<(), DeviceError> {
+        let Some((want, what)) = self.outstanding.front().cloned() else {
+            return Ok(());
+        };
+        loop {
+            let item = client.recv(self.opts.reply_timeout).map_err(|e| {
+                DeviceError::Io(io::Error::new(
+                    e.kind(),
+                    format!("waiting for the reply to {what}: {e}"),
+                ))
+            })?;
+            self.note(&item);
+            match &item {
+                Received::Message(DeviceMessage::Error { seq, kind }) => {
+                    return Err(DeviceError::Refused {
+                        what,
+                        seq: seq.unwrap_or(want),
+                        kind: *kind,
+                    })
+                }
+                Received::Damaged(e) => {
+                    return Err(DeviceError::Protocol(format!(
+                        "damaged reply while waiting for {what}: {e}"
+                    )))
+                }
+                _ => {}
+            }
+            match item.terminal_seq() {
+                Some(s) if s == want => {
+                    self.outstanding.pop_front();
+                    return Ok(());
+                }
+                Some(s) => {
+                    return Err(DeviceError::Protocol(format!(
+                        "reply to seq {s} while waiting for seq {want} ({what})"
+                    )))
+                }
+                None => {}
+            }
+        }
+    }
+
+    /// Waits for every outstanding reply.
+    pub(crate) fn drain<L: Link>(&mut self, client: &mut Client<L>) -> Result<(), DeviceError> {
+        while !self.outstanding.is_empty() {
+            self.pump(client)?;
+        }
+        Ok(())
+    }
+
+    /// Whether a push failed because the device's flash log is full.
+    pub(crate) fn is_log_full(e: &DeviceError) -> bool {
+        matches!(
+            e,
+            DeviceError::Refused {
+                kind: ErrorKind::StorageFull,
+                ..
+            }
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::device::client::status;
+    use crate::device::export::{append_frames, export_to, read_partial, PARTIAL_EXPORT};
+    use crate::device::link::LocalLink;
+    use crate::output;
+    use crate::testing::{demo, selector, voxel_config};
+    use placedb::protocol::{DeviceMessage, ErrorKind};
+
+    fn setup(seq: &Sequence, window: u16) -> (ScanConfig, SelectorConfig, Config) {
+        let scan = scan_config(seq, &voxel_config(8)).unwrap();
+        let sel = selector(window);
+        let cfg = device_config(&scan, &sel).unwrap();
+        (scan, sel, cfg)
+    }
+
+    #[test]
+    fn the_local_device_matches_the_replay_and_exports_resumably() {
+        let seq = demo(40);
+        let (scan, sel, cfg) = setup(&seq, 6);
+        let mut client = Client::new(LocalLink::start("ram256k").unwrap());
+        let opts = StreamOptions {
+            rows_per_message: 5,
+            ..StreamOptions::default()
+        };
+        let report = stream(&mut client, &seq, &cfg, "ram256k", &opts, None).unwrap();
+        let run = crate::replay::replay(&seq, "ram256k", scan, sel, 8, None).unwrap();
+        let finals: Vec<_> = report
+            .decisions
+            .iter()
+            .map(|d| placedb::Decision::from(d.unwrap()))
+            .collect();
+        assert_eq!(finals, run.decisions);
+        assert_eq!(report.status.database_size as usize, run.database.len());
+        // Export into a directory, interrupted after the first batch, resumed.
+        let dir = std::env::temp_dir().join(format!("placedb-export-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let full = export_to(&mut client, &dir, None, true).unwrap();
+        let timestamps: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
+        let want = output::run_csv(&run.database, &timestamps, &run.labels);
+        assert_eq!(full.csv(), want);
+        assert_eq!(
+            std::fs::read_to_string(dir.join("database.csv")).unwrap(),
+            want.0
+        );
+        assert!(!dir.join(PARTIAL_EXPORT).exists());
+        // An interrupted export leaves its checked records; --from resumes.
+        let partial = dir.join(PARTIAL_EXPORT);
+        let mut head = vec![DeviceMessage::Status(full.status)];
+        head.extend(
+            full.records[..20]
+                .iter()
+                .map(|r| DeviceMessage::ExportRecord(*r)),
+        );
+        append_frames(&partial, &head).unwrap();
+        let (_, saved) = read_partial(&dir).unwrap();
+        assert_eq!(saved, full.records[..20]);
+        let resumed = export_to(&mut client, &dir, Some(12), true).unwrap();
+        assert_eq!(resumed.records, full.records);
+        assert!(export_to(&mut client, &dir, Some(12), true).is_err());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_profile_mismatch_is_refused_before_anything_is_sent() {
+        let seq = demo(2);
+        let (_, _, cfg) = setup(&seq, 4);
+        let mut client = Client::new(LocalLink::start("ram256k").unwrap());
+        let err = stream(
+            &mut client,
+            &seq,
+            &cfg,
+            "ram512k",
+            &StreamOptions::default(),
+            None,
+        )
+        .unwrap_err();
+        assert!(matches!(err, DeviceError::Profile(_)), "{err}");
+        assert_eq!(
+            status(&mut client, Duration::from_secs(5))
+                .unwrap()
+                .frames_seen,
+            0
+        );
+    }
+
+    #[test]
+    fn the_device_rejects_what_the_host_should_not_send() {
+        let seq = demo(3);
+        let (_, _, mut cfg) = setup(&seq, 4);
+        let mut client = Client::new(LocalLink::start("ram256k").unwrap());
+        stream(
+            &mut client,
+            &seq,
+            &cfg,
+            "ram256k",
+            &StreamOptions::default(),
+            None,
+        )
+        .unwrap();
+        // Streaming again without a reset would mix scans: refused, nothing changes.
+        cfg.mu = 0.5;
+        let opts = StreamOptions {
+            reset: false,
+            ..StreamOptions::default()
+        };
+        let err = stream(&mut client, &seq, &cfg, "ram256k", &opts, None).unwrap_err();
+        assert!(
+            matches!(
+                err,
+                DeviceError::Refused {
+                    kind: ErrorKind::NeedsReset,
+                    ..
+                }
+            ),
+            "{err}"
+        );
+        assert_eq!(
+            status(&mut client, Duration::from_secs(5))
+                .unwrap()
+                .frames_seen,
+            3
+        );
+    }
+}

@@ -1,0 +1,133 @@
+//! The one writer of `metrics.json`: the flat object of a `placedb select`
+//! outcome ([`of_select`]) and of a device's export ([`of_device`]), and its
+//! text ([`text`]). Scripts read these: the key names are stable.
+
+use crate::pipeline::{Outcome, Prepared, SolverParams};
+use crate::sequence::Sequence;
+use placedb::protocol::{CapacitySlot, Status};
+use std::io;
+
+/// Peak resident memory of this process so far, MB (Linux `VmHWM`).
+pub fn peak_rss_mb() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+/// The text of `metrics.json`: `metrics` pretty-printed, with a final newline.
+pub fn text(metrics: &serde_json::Value) -> io::Result<String> {
+    let json = serde_json::to_string_pretty(metrics).map_err(io::Error::other)?;
+    Ok(json + "\n")
+}
+
+/// The flat `metrics.json` object of one outcome of `placedb select` (and
+/// one entry of `placedb compare --json`).
+pub fn of_select(
+    seq: &Sequence,
+    prep: &Prepared,
+    o: &Outcome,
+    mu: f32,
+    params: &SolverParams,
+) -> serde_json::Value {
+    let mut m = match serde_json::to_value(&o.metrics) {
+        Ok(serde_json::Value::Object(m)) => m,
+        _ => serde_json::Map::new(),
+    };
+    // DESIGN names the recall metric `oracle_recall@0.3`.
+    if let Some(r) = m.remove("oracle_recall_0_3") {
+        if !r.is_null() {
+            m.insert("oracle_recall@0.3".into(), r);
+        }
+    }
+    let c = &prep.config;
+    let mut put = |k: &str, v: serde_json::Value| {
+        m.insert(k.to_string(), v);
+    };
+    put("solver", o.solver.name().into());
+    // As typed (0.1), not as the f32 widened (0.10000000149011612).
+    let decimal = |x: f32| x.to_string().parse::<f64>().unwrap_or(f64::from(x));
+    put("mu", decimal(mu).into());
+    put("voxel", decimal(c.voxel).into());
+    put("stride", c.stride.into());
+    put("depth_min", f64::from(c.range.min).into());
+    put(
+        "depth_max",
+        if c.range.max.is_finite() {
+            f64::from(c.range.max).into()
+        } else {
+            "inf".into()
+        },
+    );
+    put(
+        "grid_origin",
+        serde_json::to_value(c.origin).unwrap_or_default(),
+    );
+    put("sequence", seq.name.clone().into());
+    put(
+        "format",
+        serde_json::to_value(seq.format).unwrap_or_default(),
+    );
+    put("frames", seq.frames.len().into());
+    put("voxelize_s", prep.voxelize_wall.as_secs_f64().into());
+    put("read_cpu_s", prep.sets.read_time.as_secs_f64().into());
+    put(
+        "voxelize_cpu_s",
+        prep.sets.voxelize_time.as_secs_f64().into(),
+    );
+    put("graph_s", prep.graph_wall.as_secs_f64().into());
+    put("solve_s", o.solve_time.as_secs_f64().into());
+    put("co_observing_pairs", prep.co.pair_count().into());
+    put("labels_below_mu", o.labels_below_mu.into());
+    put("label_iou_min", f64::from(o.label_iou_min).into());
+    if let Some((optimal, lb)) = o.exact {
+        put("optimal", optimal.into());
+        put("lower_bound", lb.into());
+    }
+    if let Some(run) = &o.online {
+        put("profile", params.profile.clone().into());
+        put("window", params.window.into());
+        let st = &run.status;
+        put("sketched_frames", st.sketched_frames.into());
+        put("truncated_frames", st.truncated_frames.into());
+        put("uncovered_by_capacity", st.uncovered_frames.into());
+        put("degradation_flags", st.flags.into());
+        put("pool_peak_words", st.pool.peak.into());
+        put("frame_voxels_peak", st.frame_voxels.peak.into());
+        put("core_s", run.core_time.as_secs_f64().into());
+        put("valid_pixels", st.valid_pixels.into());
+    }
+    serde_json::Value::Object(m)
+}
+
+/// The `metrics.json` object of a device's export: what the device knows
+/// from its status (`profile`: the capacity profile it reports, if any).
+pub fn of_device(st: &Status, export_records: usize, profile: Option<&str>) -> serde_json::Value {
+    let size = st.database_size;
+    let frames = st.capacity(CapacitySlot::Labels).used;
+    let mut m = serde_json::json!({
+        "solver": "online",
+        "source": "device",
+        "size": size,
+        "frames": frames,
+        "reduction": if size > 0 { f64::from(frames) / f64::from(size) } else { 0.0 },
+        "profile": profile,
+        "frames_seen": st.frames_seen,
+        "sketched_frames": st.sketched_frames,
+        "truncated_frames": st.truncated_frames,
+        "uncovered_by_capacity": st.uncovered_frames,
+        "labels_dropped": st.labels_dropped,
+        "degradation_flags": st.degradation,
+        "pool_peak_words": st.capacity(CapacitySlot::Pool).peak,
+        "frame_voxels_peak": st.capacity(CapacitySlot::FrameVoxels).peak,
+        "export_records": export_records,
+        "resident_peak": st.capacity(CapacitySlot::Resident).peak,
+        "flash_bytes_used": st.capacity(CapacitySlot::Flash).used,
+        "flash_bytes_limit": st.capacity(CapacitySlot::Flash).limit,
+    });
+    if st.cost.clock_hz > 0 && st.cost.frames > 0 {
+        m["device_ticks_per_frame"] = (st.cost.total as f64 / f64::from(st.cost.frames)).into();
+        m["device_clock_hz"] = st.cost.clock_hz.into();
+    }
+    m
+}

@@ -1,0 +1,100 @@
+//! The database directory (DESIGN section 6): `database.csv`, `labels.csv`,
+//! `metrics.json` ([`metrics_json`]) and `topview.png` ([`topview`]), and the
+//! training dataset ([`dataset`]). The one writer of each: `placedb select`,
+//! `placedb export` and the tests all go through it. Scripts read these: the
+//! column sets and key names are stable.
+
+pub mod dataset;
+pub mod metrics_json;
+pub mod topview;
+
+use crate::sequence::Sequence;
+use std::fmt::Write as _;
+use std::io;
+use std::path::Path;
+
+/// One database row: frame index, timestamp and pose `[tx ty tz qx qy qz qw]`.
+pub type DbRow = (usize, f64, [f64; 7]);
+
+/// The rows of `database.csv` for database `db` of `seq`, from its poses.
+pub fn rows_from_sequence(seq: &Sequence, db: &[usize]) -> Vec<DbRow> {
+    db.iter()
+        .map(|&i| {
+            let f = &seq.frames[i];
+            let [tx, ty, tz] = f.translation;
+            let [qx, qy, qz, qw] = f.rotation;
+            (i, f.timestamp, [tx, ty, tz, qx, qy, qz, qw])
+        })
+        .collect()
+}
+
+/// `database.csv` rows of the online selector's database records, exactly
+/// as `placedb select --solver online` writes them (f32 pose widened to f64).
+pub fn rows_from_records(database: &[placedb::DbRecord]) -> Vec<DbRow> {
+    database
+        .iter()
+        .map(|r| {
+            let t = r.pose.translation.map(f64::from);
+            let q = r.pose.rotation.map(f64::from);
+            (
+                r.index as usize,
+                r.timestamp,
+                [t[0], t[1], t[2], q[0], q[1], q[2], q[3]],
+            )
+        })
+        .collect()
+}
+
+/// The text of `database.csv`: header and one line per database frame, in
+/// sequence order.
+pub fn database_csv(rows: &[DbRow]) -> String {
+    let mut s = String::from("index,timestamp,tx,ty,tz,qx,qy,qz,qw\n");
+    let mut rows = rows.to_vec();
+    rows.sort_by_key(|r| r.0);
+    for (i, ts, p) in rows {
+        let _ = write!(s, "{i},{ts:.6}");
+        for c in p {
+            let _ = write!(s, ",{c}");
+        }
+        s.push('\n');
+    }
+    s
+}
+
+/// The text of `labels.csv`: `index,timestamp,class_index` for every frame.
+pub fn labels_csv(timestamps: &[f64], labels: &[usize]) -> String {
+    let mut s = String::from("index,timestamp,class_index\n");
+    for (i, (ts, l)) in timestamps.iter().zip(labels).enumerate() {
+        let _ = writeln!(s, "{i},{ts:.6},{l}");
+    }
+    s
+}
+
+/// The text of `database.csv` and `labels.csv` of a run that kept the
+/// device's records (the online replay, a device's export): the one place
+/// both are built from them.
+pub fn run_csv(
+    database: &[placedb::DbRecord],
+    timestamps: &[f64],
+    labels: &[usize],
+) -> (String, String) {
+    (
+        database_csv(&rows_from_records(database)),
+        labels_csv(timestamps, labels),
+    )
+}
+
+/// Writes the database directory; `metrics` must be a flat JSON object.
+pub fn write_database_dir(
+    dir: &Path,
+    rows: &[DbRow],
+    timestamps: &[f64],
+    labels: &[usize],
+    metrics: &serde_json::Value,
+) -> io::Result<()> {
+    std::fs::create_dir_all(dir)?;
+    std::fs::write(dir.join("database.csv"), database_csv(rows))?;
+    std::fs::write(dir.join("labels.csv"), labels_csv(timestamps, labels))?;
+    std::fs::write(dir.join("metrics.json"), metrics_json::text(metrics)?)?;
+    Ok(())
+}
