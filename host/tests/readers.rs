@@ -209,6 +209,11 @@ fn seven_scenes_sample() {
             assert_eq!(raw, img);
         }
     }
+    // The mapping above was checked: some sampled frame stores 65535.
+    assert!(
+        raw_with_65535 > 0,
+        "no sampled 7-Scenes frame stores 65535: the mapping to 0 went unchecked"
+    );
     eprintln!("{raw_with_65535} of 20 sampled 7-Scenes frames store 65535");
 }
 

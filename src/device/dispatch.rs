@@ -8,7 +8,7 @@ use crate::protocol::{
 };
 use crate::select::{FrameDecision, FrameStore, SelectError, Selector};
 
-use super::durable::{step_records, LogStore};
+use super::durable::{self, step_records, LogStore};
 use super::reply::{delta, now, select_error, storage_error, Out};
 use super::retransmit::{Applied, MessageKey};
 use super::Core;
@@ -209,12 +209,18 @@ impl<
             Some(m) if m.index == frame => {}
             _ => return Err(ErrorKind::FrameEndWithoutBegin),
         }
-        // Room for this step and, after it, a Finish of a full window, so
-        // that a scan whose log is full still ends with every frame decided.
+        // Room for this step (with the key chunks it may write) and, after
+        // it, a Finish of a full window (which writes no keys), so that a
+        // scan whose log is full still ends with every frame decided.
         let records = 2 * step_records(W) + 1;
-        let ticks = self.decide(journal, records, false, send, |s, store, emit| {
-            s.end_frame_with(store, emit)
-        })?;
+        let key_chunks = self.selector.key_chunks_next_frame();
+        let ticks = self.decide(
+            journal,
+            (records, key_chunks),
+            false,
+            send,
+            |s, store, emit| s.end_frame_with(store, emit),
+        )?;
         let end = delta(self.clock, t0, ticks.sending);
         let rows = self.rows_ticks;
         let core = self.core_ticks.saturating_add(ticks.step);
@@ -255,7 +261,7 @@ impl<
         }
         self.decide(
             journal,
-            step_records(W) + 1,
+            (step_records(W) + 1, 0),
             true,
             send,
             |s, store, emit| s.finish_with(store, emit),
@@ -282,7 +288,8 @@ impl<
     }
 
     /// Runs a selector step that decides frames, if the journal has room for
-    /// `records` records: database frames taken go to the journal during the
+    /// `records` (records, and key chunk records on top): database frames
+    /// taken go to the journal during the
     /// step; final decisions join the batch on its way to the journal (and
     /// go out once it is written; all of them when `flush`); Pending ones go
     /// out at once. Returns the ticks spent sending, which the frame cost
@@ -290,7 +297,7 @@ impl<
     fn decide(
         &mut self,
         journal: &mut dyn Journal,
-        records: usize,
+        (records, key_chunks): (usize, usize),
         flush: bool,
         send: &mut dyn FnMut(&[u8]),
         step: impl FnOnce(
@@ -300,8 +307,13 @@ impl<
         ) -> Result<(), SelectError>,
     ) -> Result<StepTicks, ErrorKind> {
         // `records` bounds what may be written; checked first so that a
-        // refusal changes nothing.
-        if !self.storage_failed && !journal.has_room(records, Self::STEP_RECORD_LEN) {
+        // refusal changes nothing. A frame's key chunks come first (before
+        // its database record, the decisions and a Finish after them).
+        let room = journal.has_room_then(
+            (key_chunks, durable::KEY_RECORD_LEN),
+            (records, Self::STEP_RECORD_LEN),
+        );
+        if !self.storage_failed && !room {
             return Err(ErrorKind::StorageFull);
         }
         let Core {
@@ -323,7 +335,6 @@ impl<
             record,
             failed: storage_failed,
             stored,
-            reserve: records,
         };
         step(selector, &mut store, &mut |d| {
             // At most W final decisions and one Pending per step.

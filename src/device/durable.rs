@@ -10,7 +10,6 @@
 
 use crate::key_pool::{key_of, Aabb};
 use crate::persist::keys::{self, MAX_KEY_CHUNKS};
-use crate::persist::log::MAX_PAYLOAD;
 use crate::persist::record::{KeyChunks, DECISION_BATCH, DECISION_LEN};
 use crate::persist::{Journal, Record};
 use crate::protocol::{DecisionKind, DeviceMessage};
@@ -19,13 +18,25 @@ use crate::sketch::Sketch;
 
 use super::reply::Out;
 
-/// The largest log record: a database frame with its sketch (`K` ≤ 168,
+/// The largest log record: a database frame with its sketch (`K` ≤ 161,
 /// checked at compile time by the device), or a batch of decisions.
 pub(super) const MAX_RECORD_LEN: usize = 768;
 
-/// A key chunk and its record fields (tag, frame, count: at most 9 bytes)
-/// fit the record buffer.
-const _: () = assert!(keys::KEY_CHUNK_BYTES + 9 <= MAX_RECORD_LEN);
+/// Bound on the encoded length of a key chunk record: the chunk and its
+/// record fields (tag, frame, count: at most 1 + 5 + 3 bytes).
+pub(super) const KEY_RECORD_LEN: usize = keys::KEY_CHUNK_BYTES + 9;
+
+/// A key chunk record fits the record buffer.
+const _: () = assert!(KEY_RECORD_LEN <= MAX_RECORD_LEN);
+
+/// Postcard's worst case for the fields of a [`Record::Database`] (its
+/// sketch follows them): the variant tag (1 byte); the frame's index
+/// (varint, up to 5), timestamp (8) and pose (7 `f32`s, 28); its voxel count
+/// (varint, up to 5); its box (option tag and 6 zigzag varints of up to 5
+/// bytes: 31); the hash count (varint `u16`, up to 3); the key chunks (a
+/// count byte and 8 varint positions of up to 5 bytes: 41). Checked against
+/// a record of extreme values in the tests.
+pub(super) const DB_FIELDS_LEN: usize = 1 + (5 + 8 + 28) + 5 + 31 + 3 + (1 + 5 * MAX_KEY_CHUNKS);
 
 /// Bound on the encoded length of a decisions record.
 pub(super) const DECISIONS_RECORD_LEN: usize = 12 + DECISION_BATCH * DECISION_LEN;
@@ -46,9 +57,6 @@ pub(super) struct LogStore<'a> {
     pub failed: &'a mut bool,
     /// Records of this scan in the journal.
     pub stored: &'a mut u32,
-    /// Records the rest of the step (and a Finish) may still need: key
-    /// chunks are written only if they leave room for these.
-    pub reserve: usize,
 }
 
 impl LogStore<'_> {
@@ -70,11 +78,13 @@ impl LogStore<'_> {
     }
 
     /// Writes the key chunks of frame `frame`; their positions, or `None`
-    /// when they do not fit (with room for the rest of the step) or a
-    /// write failed.
+    /// when they are more than a frame may have or a write failed. The log
+    /// has room for them: the selector offers keys by its rule alone
+    /// (`select::KeyOffer`), and the step was accepted only with room for
+    /// the chunks it may offer ([`crate::select::Selector::key_chunks_next_frame`]).
     fn save_keys(&mut self, frame: u32, words: &[u32]) -> Option<KeyChunks> {
         let (n, _) = keys::encoded_size(words);
-        if n > MAX_KEY_CHUNKS || !self.journal.has_room(self.reserve + n, MAX_PAYLOAD) {
+        if n > MAX_KEY_CHUNKS {
             return None;
         }
         let mut chunks = KeyChunks::NONE;
@@ -311,5 +321,73 @@ impl Decisions {
             });
         }
         self.batch.clear();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::Pose;
+    use crate::frame::FrameMeta;
+    use crate::persist::record::KeyChunks;
+
+    /// A database record of extreme field values: the longest postcard can
+    /// make them is exactly [`DB_FIELDS_LEN`] (the bound the log's room
+    /// checks rely on), and with a sketch of `K` hashes the record fits
+    /// the record buffer for every `K` the device accepts.
+    #[test]
+    fn database_fields_at_their_longest_take_db_fields_len() {
+        let meta = FrameMeta {
+            index: u32::MAX,
+            timestamp: f64::MAX,
+            pose: Pose {
+                translation: [f32::MAX; 3],
+                rotation: [f32::MIN; 4],
+            },
+        };
+        let record = Record::Database {
+            meta,
+            voxels: u32::MAX,
+            aabb: Some(Aabb {
+                min: [i32::MIN; 3],
+                max: [i32::MAX; 3],
+            }),
+            hashes: u16::MAX,
+            keys: KeyChunks {
+                count: u8::MAX,
+                at: [u32::MAX; MAX_KEY_CHUNKS],
+            },
+        };
+        let mut buf = [0u8; MAX_RECORD_LEN];
+        assert_eq!(record.encode(&mut buf).map(<[u8]>::len), Ok(DB_FIELDS_LEN));
+        // The largest sketch allowed (the device's compile-time check).
+        let k = (MAX_RECORD_LEN - DB_FIELDS_LEN) / 4;
+        let hashes = [u32::MAX; 161];
+        assert_eq!(k, hashes.len());
+        let keys = KeyChunks {
+            count: MAX_KEY_CHUNKS as u8,
+            at: [u32::MAX; MAX_KEY_CHUNKS],
+        };
+        let aabb = Some(Aabb {
+            min: [i32::MIN; 3],
+            max: [i32::MAX; 3],
+        });
+        let len =
+            Record::encode_database(meta, u32::MAX, aabb, &hashes, keys, &mut buf).map(<[u8]>::len);
+        assert!(len.is_ok_and(|n| n <= MAX_RECORD_LEN), "{len:?}");
+    }
+
+    /// A key chunk record at its longest fits [`KEY_RECORD_LEN`].
+    #[test]
+    fn a_full_key_chunk_takes_at_most_key_record_len() {
+        // Words whose deltas take 5 bytes each fill a chunk unevenly; a
+        // long run of 1-byte deltas fills it to the byte.
+        let words: [u32; 800] = core::array::from_fn(|i| i as u32);
+        let mut buf = [0u8; MAX_RECORD_LEN];
+        let fill = |tail: &mut [u8]| keys::encode_chunk(&words, 0, tail).map(|(len, _)| len);
+        let (_, count) = keys::chunk_size(&words, 0).unwrap();
+        let len = Record::encode_keys(u32::MAX, count as u16, fill, &mut buf).map(<[u8]>::len);
+        assert_eq!(count, keys::KEY_CHUNK_BYTES);
+        assert!(len.is_ok_and(|n| n <= KEY_RECORD_LEN), "{len:?}");
     }
 }

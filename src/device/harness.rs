@@ -36,7 +36,7 @@ use crate::persist::sim::SimFlash;
 use crate::persist::{Journal, Log, NoJournal};
 use crate::protocol::{
     encode, export_crc, DeviceMessage, ErrorKind, ExportRecord, Feed, FrameDecoder, HostFrame,
-    HostMessage, Status, MAX_FRAME_LEN, MAX_REPLY_LEN,
+    HostMessage, RecordKind, Status, MAX_FRAME_LEN, MAX_REPLY_LEN,
 };
 
 /// A [`Device`] of any capacities (it has six const parameters), as the
@@ -270,6 +270,26 @@ impl<D: AnyDevice> Harness<D> {
         }
         records
     }
+}
+
+/// What a restore gives back of a live device's export: every label, and
+/// the database frames a label names (a frame taken for a decision not yet
+/// in the log does not come back: see `device::restore`), numbered again.
+/// The whole export, once the scan is finished.
+pub fn durable_part(export: &[ExportRecord]) -> Vec<ExportRecord> {
+    let named: Vec<u32> = export
+        .iter()
+        .filter_map(|r| match r.kind {
+            RecordKind::Label { class } => Some(class),
+            RecordKind::Database { .. } => None,
+        })
+        .collect();
+    let kept = export
+        .iter()
+        .filter(|r| matches!(r.kind, RecordKind::Label { .. }) || named.contains(&r.frame));
+    kept.zip(0u32..)
+        .map(|(r, record)| ExportRecord { record, ..*r })
+        .collect()
 }
 
 /// Checks the records of one export against its ExportEnd: their count,

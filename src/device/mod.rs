@@ -352,6 +352,7 @@ impl<
         });
         match (replayed, failure) {
             (Ok(records), None) => {
+                core.settle(&replay);
                 // A log holding only `Cleared` (a Reset) restores nothing.
                 let scan = core.hello.is_some();
                 core.stored = if scan { records } else { 0 };
@@ -396,9 +397,9 @@ impl<
     > Core<FV, POOL, DB, W, K, R>
 {
     /// Bound on the encoded length of a database record: postcard fields
-    /// (at most 96 bytes) and the sketch.
+    /// (at most [`durable::DB_FIELDS_LEN`] bytes) and the sketch.
     const DB_RECORD_LEN: usize = {
-        let len = 96 + 4 * K;
+        let len = durable::DB_FIELDS_LEN + 4 * K;
         assert!(len <= MAX_RECORD_LEN, "sketch too large for a log record");
         len
     };

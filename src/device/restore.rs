@@ -10,9 +10,24 @@
 //! of a valid log is valid (a power cut ends the log anywhere), so the
 //! records before the first that fails are a scan to go on from: the device
 //! keeps them and drops the rest ([`super::Device::restore`]).
+//!
+//! The state restored is exactly the state at the last durable decision. A
+//! database frame is written when it is taken, the decision it was taken
+//! for only with its batch: a `Database` record after the last batch, or
+//! before a batch that does not reach its decision (Finish decides many
+//! frames in one step), is the state after a decision the log does not
+//! hold. Such a frame is restored tentatively and leaves again unless a
+//! stored decision names it ([`Ahead`]); the resumed scan then meets the
+//! database the uninterrupted one met, decides its frames the same way and,
+//! taking the frame again, writes a new record of it, which replaces the
+//! earlier one at the next restore. Nothing is written to mark any of
+//! this: the rule costs no flash, reads every log written so far, and needs
+//! no new format.
 
+use crate::persist::keys::MAX_KEY_CHUNKS;
+use crate::persist::record::DECISION_BATCH;
 use crate::persist::{LogError, Record};
-use crate::select::{DbSnapshot, RestoreError};
+use crate::select::{DbSnapshot, Decision, RestoreError};
 use crate::sketch::Sketch;
 
 use super::Core;
@@ -63,40 +78,84 @@ impl RestoreFailure {
     }
 }
 
-/// Where the replay is: its place in the record grammar, and the key bytes
-/// of the frame whose `Keys` chunks came last (its `Database` record follows).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// Where the replay is: its place in the record grammar, the key chunks
+/// just read (a `Database` record names its own by position), and the
+/// database frames not decided yet.
+#[derive(Debug, Clone)]
 pub(super) struct Replay {
     grammar: Grammar,
-    keys_of: u32,
-    key_bytes: u32,
+    /// The latest `Keys` records, oldest first: a frame's chunks come right
+    /// before its `Database` record, which lists their positions.
+    chunks: heapless::Vec<Chunk, MAX_KEY_CHUNKS>,
+    /// The database frames at or after the first frame without a stored
+    /// decision, in log order (see [`Ahead`]).
+    ahead: heapless::Vec<Ahead, AHEAD>,
 }
+
+/// A `Keys` record: where, whose, and its encoded key bytes.
+#[derive(Debug, Clone, Copy)]
+struct Chunk {
+    at: u32,
+    frame: u32,
+    bytes: u32,
+}
+
+/// A database frame restored before its own decision. It was taken for the
+/// decision of an older frame, which names it (`DominatedBy`, or `Taken`
+/// for itself). Until a stored decision names it, it is *tentative*: the
+/// power may have gone before that decision's batch was written, and the
+/// state at the last durable decision does not hold it. A tentative frame
+/// leaves the database again when its own decision is not `Taken`, when a
+/// later `Database` record of the same frame replaces it (the resumed scan
+/// took it again), or when the log ends.
+#[derive(Debug, Clone, Copy)]
+struct Ahead {
+    frame: u32,
+    /// Its keys' share of the key budget, to give back if it leaves.
+    key_bytes: u32,
+    /// A stored decision names it.
+    confirmed: bool,
+}
+
+/// Most database frames at or after the first undecided frame: they lie
+/// in the window of the cut (at most 64 frames) and the batch of decisions
+/// not yet written before it (fewer than [`DECISION_BATCH`]); frames of an
+/// earlier resumed run lie in the same span, since labels only grow.
+const AHEAD: usize = 64 + DECISION_BATCH;
 
 impl Replay {
     /// Before the first record.
     pub const START: Replay = Replay {
         grammar: Grammar::Start,
-        keys_of: u32::MAX,
-        key_bytes: 0,
+        chunks: heapless::Vec::new(),
+        ahead: heapless::Vec::new(),
     };
 
-    fn add_keys(&mut self, frame: u32, bytes: usize) {
-        if self.keys_of != frame {
-            (self.keys_of, self.key_bytes) = (frame, 0);
+    /// Notes the `Keys` record at `at`.
+    fn add_keys(&mut self, at: u32, frame: u32, bytes: usize) {
+        if self.chunks.is_full() {
+            self.chunks.remove(0);
         }
-        self.key_bytes = self
-            .key_bytes
-            .saturating_add(u32::try_from(bytes).unwrap_or(u32::MAX));
+        let bytes = u32::try_from(bytes).unwrap_or(u32::MAX);
+        let _ = self.chunks.push(Chunk { at, frame, bytes });
     }
 
-    fn take_keys(&mut self, frame: u32) -> u32 {
-        let bytes = if self.keys_of == frame {
-            self.key_bytes
-        } else {
-            0
-        };
-        (self.keys_of, self.key_bytes) = (u32::MAX, 0);
+    /// The key bytes of `frame`'s chunks at `positions`, as the selector
+    /// counted them when it took the frame. Chunks are matched by position,
+    /// not by frame: chunks of the same frame written before a power cut,
+    /// which no `Database` record names, do not count.
+    fn take_keys(&mut self, frame: u32, positions: &[u32]) -> u32 {
+        let bytes = self
+            .chunks
+            .iter()
+            .filter(|c| c.frame == frame && positions.contains(&c.at))
+            .fold(0u32, |sum, c| sum.saturating_add(c.bytes));
+        self.chunks.clear();
         bytes
+    }
+
+    fn ahead(&self, frame: u32) -> Option<usize> {
+        self.ahead.iter().position(|a| a.frame == frame)
     }
 }
 
@@ -160,13 +219,33 @@ impl<
                 };
                 // Its keys' share of the key budget, as the selector counted
                 // it when the frame was taken.
-                let key_bytes = replay.take_keys(meta.index);
+                let key_bytes = replay.take_keys(meta.index, keys.positions());
+                let undecided = meta.index >= self.decisions.labels;
+                if let Some(i) = replay.ahead(meta.index).filter(|_| undecided) {
+                    // Taken again by a resumed scan: the earlier record was
+                    // never decided (a decided one is not taken again).
+                    let earlier = replay.ahead.remove(i);
+                    if earlier.confirmed {
+                        return Err(refused(RestoreError::Duplicate));
+                    }
+                    self.selector
+                        .forget_database(earlier.frame, earlier.key_bytes)
+                        .map_err(refused)?;
+                }
                 self.selector
                     .restore_database(&frame, at, keys.count > 0, key_bytes)
                     .map_err(refused)?;
+                if undecided {
+                    let ahead = Ahead {
+                        frame: meta.index,
+                        key_bytes,
+                        confirmed: false,
+                    };
+                    replay.ahead.push(ahead).map_err(|_| malformed)?;
+                }
             }
             (Grammar::Scan, Record::Keys { frame, .. }) => {
-                replay.add_keys(frame, tail.len());
+                replay.add_keys(at, frame, tail.len());
             }
             (Grammar::Scan, Record::Decisions { first, .. }) => {
                 if first != self.decisions.labels {
@@ -175,8 +254,28 @@ impl<
                 let mut labels = first;
                 for (i, (_, kind)) in tail.decisions().enumerate() {
                     let frame = first.saturating_add(i as u32);
+                    let decision = Decision::from(kind);
+                    if let Some(j) = replay.ahead(frame) {
+                        // Its own decision: a database frame is decided
+                        // Taken; one that is not was tentative, never taken
+                        // in the durable state.
+                        let own = replay.ahead.remove(j);
+                        if decision != Decision::Taken {
+                            if own.confirmed {
+                                return Err(malformed);
+                            }
+                            self.selector
+                                .forget_database(own.frame, own.key_bytes)
+                                .map_err(refused)?;
+                        }
+                    }
+                    if let Decision::DominatedBy(k) | Decision::Uncovered(Some(k)) = decision {
+                        if let Some(named) = replay.ahead(k).and_then(|j| replay.ahead.get_mut(j)) {
+                            named.confirmed = true;
+                        }
+                    }
                     self.selector
-                        .restore_decided(frame, kind.into())
+                        .restore_decided(frame, decision)
                         .map_err(refused)?;
                     labels = frame.saturating_add(1);
                 }
@@ -189,5 +288,16 @@ impl<
             _ => return Err(malformed),
         }
         Ok(())
+    }
+
+    /// After the last record: the tentative database frames leave (taken
+    /// for a decision the log does not hold), so that the restored state is
+    /// exactly the state at the last durable decision, and the resumed scan
+    /// decides the frames after it as the uninterrupted one did.
+    pub(super) fn settle(&mut self, replay: &Replay) {
+        for a in replay.ahead.iter().filter(|a| !a.confirmed) {
+            // In the index by construction: `apply` put it there.
+            let _ = self.selector.forget_database(a.frame, a.key_bytes);
+        }
     }
 }

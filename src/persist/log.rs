@@ -695,6 +695,48 @@ impl<F: NorFlash> Log<F> {
         };
         in_current + free_sectors as usize * per_sector >= count
     }
+
+    /// [`Self::has_room`] for records of two lengths written in order:
+    /// `first.0` records of up to `first.1` payload bytes, then `then.0` of
+    /// up to `then.1` (a step's key chunks, then its shorter records). Exact
+    /// for the records at those lengths, and a bound for shorter ones: a
+    /// sector opens only when the next record does not fit the last one, so
+    /// shorter records never end further on.
+    pub fn has_room_then(&self, first: (usize, usize), then: (usize, usize)) -> bool {
+        let sector_len = self.sector_len() as usize;
+        let (mut free_sectors, mut left) = match self.live {
+            Some(l) => (
+                self.sectors.saturating_sub(1 + l.sectors) as usize,
+                l.offset
+                    .map_or(0, |o| sector_len.saturating_sub(o as usize)),
+            ),
+            None => (self.sectors.saturating_sub(1) as usize, 0),
+        };
+        for (count, len) in [first, then] {
+            if count == 0 {
+                continue;
+            }
+            let total = align_up(HEADER_LEN + len, self.align);
+            if len > MAX_PAYLOAD || total > sector_len {
+                return false;
+            }
+            let here = left / total;
+            if here >= count {
+                left -= count * total;
+                continue;
+            }
+            // The rest opens new sectors, `per_sector` records each.
+            let rest = count - here;
+            let per_sector = sector_len / total;
+            let sectors = rest.div_ceil(per_sector);
+            if sectors > free_sectors {
+                return false;
+            }
+            free_sectors -= sectors;
+            left = sector_len - (rest - (sectors - 1) * per_sector) * total;
+        }
+        true
+    }
 }
 
 #[cfg(all(test, feature = "sim-flash"))]

@@ -31,6 +31,12 @@ pub trait Journal {
     fn append(&mut self, payload: &[u8]) -> Result<Option<u32>, LogError>;
     /// Whether `count` records of up to `len` bytes are sure to fit.
     fn has_room(&self, count: usize, len: usize) -> bool;
+    /// Whether `first.0` records of up to `first.1` bytes, then `then.0`
+    /// of up to `then.1`, are sure to fit (by default: all of them at the
+    /// longer length).
+    fn has_room_then(&self, first: (usize, usize), then: (usize, usize)) -> bool {
+        self.has_room(first.0.saturating_add(then.0), first.1.max(then.1))
+    }
     /// Whether appended records are kept (false for [`NoJournal`]).
     fn keeps(&self) -> bool {
         true
@@ -54,6 +60,10 @@ impl<F: NorFlash> Journal for Log<F> {
 
     fn has_room(&self, count: usize, len: usize) -> bool {
         Log::has_room(self, count, len)
+    }
+
+    fn has_room_then(&self, first: (usize, usize), then: (usize, usize)) -> bool {
+        Log::has_room_then(self, first, then)
     }
 
     fn read_at(&mut self, at: u32) -> Result<&[u8], LogError> {

@@ -197,6 +197,12 @@ impl<const N: usize> DbIndex<N> {
         self.entries.get_mut(i)
     }
 
+    /// Removes the entry of frame `index`; it, or `None` when there is none.
+    pub fn remove(&mut self, index: u32) -> Option<DbEntry> {
+        let i = self.find(index)?;
+        Some(self.entries.remove(i))
+    }
+
     /// Adds an entry (its frame not yet in the index); `false` when the index
     /// is full or holds the frame already.
     pub fn add(&mut self, entry: DbEntry) -> bool {

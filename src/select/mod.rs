@@ -301,6 +301,24 @@ pub struct Selector<
     status: Status,
 }
 
+/// Whether a frame taken gives the store its exact keys. This is the one
+/// rule for when keys are stored, and the selector alone applies it: a
+/// frame taken while deciding for a new frame (`end_frame_with`) offers its
+/// keys when they take at most [`crate::persist::keys::MAX_KEY_CHUNKS`]
+/// chunks and fit what is left of [`database::KEY_BUDGET`]; a frame taken
+/// by `finish_with` offers none (no later frame is compared with it). A
+/// store keeps every key it is offered: the host replay's store always can,
+/// and a device refuses the frame (`StorageFull`) before its log could not
+/// ([`Selector::key_chunks_next_frame`]), so a replay and a device decide
+/// alike up to the last frame the device's log accepts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum KeyOffer {
+    /// The keys while they fit the budget.
+    WithinBudget,
+    /// No keys.
+    None,
+}
+
 /// Why the selector refused a step; nothing stored changed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum SelectError {
@@ -579,6 +597,28 @@ impl<
         st
     }
 
+    /// Most key chunks the store may be given while the next frame ends
+    /// (see `KeyOffer`): each frame it decides may take one frame, whose
+    /// keys take at most [`crate::persist::keys::MAX_KEY_CHUNKS`] chunks and
+    /// at most what is left of the key budget (every chunk but a frame's last
+    /// holds more than `KEY_CHUNK_BYTES - 5` bytes). A device reserves log
+    /// room for them before it accepts the frame.
+    pub fn key_chunks_next_frame(&self) -> usize {
+        use crate::persist::keys::{KEY_CHUNK_BYTES, MAX_KEY_CHUNKS};
+        let window = self
+            .config
+            .as_ref()
+            .map_or(1, |(_, c)| usize::from(c.window));
+        // The frames that leave the window when the next frame ends.
+        let takes = (self.len + 1).saturating_sub(window.saturating_sub(1));
+        let left = KEY_BUDGET.saturating_sub(self.status.stored_key_bytes) as usize;
+        if left == 0 {
+            return 0;
+        }
+        let by_budget = left / (KEY_CHUNK_BYTES - 5) + takes;
+        by_budget.min(takes.saturating_mul(MAX_KEY_CHUNKS))
+    }
+
     /// Number of database entries.
     pub fn database_len(&self) -> usize {
         self.db.len()
@@ -733,7 +773,7 @@ impl<
         }
         self.note_usage();
         while self.len >= cfg.window as usize {
-            self.decide_oldest(store, &mut emit);
+            self.decide_oldest(store, KeyOffer::WithinBudget, &mut emit);
         }
         if self.len > 0 && self.ring.get(s).is_some_and(|e| e.live) {
             emit(FrameDecision {
@@ -798,8 +838,10 @@ impl<
         if self.ingest.current().is_some() {
             return Err(SelectError::FrameInProgress);
         }
+        // No later frame is compared with a frame taken now: its keys
+        // would cost the store for nothing (see `KeyOffer`).
         while self.len > 0 {
-            self.decide_oldest(store, &mut emit);
+            self.decide_oldest(store, KeyOffer::None, &mut emit);
         }
         Ok(())
     }
@@ -869,6 +911,7 @@ impl<
     fn decide_oldest(
         &mut self,
         store: &mut dyn FrameStore<K>,
+        keys: KeyOffer,
         emit: &mut impl FnMut(FrameDecision),
     ) {
         let o = self.head;
@@ -901,7 +944,7 @@ impl<
                 }
             }
             match best {
-                Some((_, idx, t)) if self.can_take() && self.take(t, store) => {
+                Some((_, idx, t)) if self.can_take() && self.take(t, store, keys) => {
                     if t == o {
                         Decision::Taken
                     } else {
@@ -930,7 +973,7 @@ impl<
     /// Moves window slot `t` into the database (the store and the resident
     /// set) and updates every window frame's cover and nearest database
     /// frame; `false` (nothing changed) when there is no room.
-    fn take(&mut self, t: usize, store: &mut dyn FrameStore<K>) -> bool {
+    fn take(&mut self, t: usize, store: &mut dyn FrameStore<K>, offer: KeyOffer) -> bool {
         let Some(frame) = self.ring.get(t).and_then(RingEntry::get).map(|s| &s.frame) else {
             return false;
         };
@@ -955,12 +998,16 @@ impl<
         else {
             return false;
         };
-        // Its exact keys go with it while the budget lasts.
+        // Its exact keys go with it while the budget lasts (the one rule:
+        // see `KeyOffer`).
         let words = frame.keys.as_ref().map(|run| self.pool.words(run));
         let (chunks, bytes) = words.map_or((0, 0), crate::persist::keys::encoded_size);
         let budget_left = KEY_BUDGET.saturating_sub(self.status.stored_key_bytes) as usize;
-        let offer = words
-            .filter(|_| chunks <= crate::persist::keys::MAX_KEY_CHUNKS && bytes <= budget_left);
+        let offer = words.filter(|_| {
+            offer == KeyOffer::WithinBudget
+                && chunks <= crate::persist::keys::MAX_KEY_CHUNKS
+                && bytes <= budget_left
+        });
         let (at, keyed) = store.save(&snapshot, offer).unwrap_or((NOWHERE, false));
         if keyed {
             let st = &mut self.status;

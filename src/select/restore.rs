@@ -1,8 +1,12 @@
 //! Rebuilding a selector from durable records after a restart: the
 //! database frames (back in the index, read from the store when a frame
 //! near them needs them, compared exactly where the key budget let the
-//! store keep their keys, else by sketch) and the final decisions, in
-//! order. The scan then goes on with the first undecided frame.
+//! store keep their keys, else by sketch) and
+//! the final decisions, in order. The scan then goes on with the first
+//! undecided frame. Which records make the state at the last durable
+//! decision is the caller's to say (the device's rule is in
+//! `device::restore`): a frame restored too early is taken back with
+//! [`Selector::forget_database`].
 
 use super::database::{entry_of, NOWHERE};
 use super::{flags, Decision, Selector};
@@ -66,10 +70,10 @@ impl<
     }
 
     /// Puts back a database frame that the store keeps at `at` (with its
-    /// exact keys when `keyed`, which took `key_bytes` of the key budget). It may be a
-    /// frame not decided yet (taken while still in the window, or before its
-    /// decision was durable): when that frame is streamed again it takes its
-    /// place back, whole in RAM.
+    /// exact keys when `keyed`, which took `key_bytes` of the key budget). It
+    /// may be a frame not decided yet (taken while still in the window, for
+    /// the decision of an older frame): when that frame is streamed again it
+    /// takes its place back, whole in RAM.
     pub fn restore_database(
         &mut self,
         frame: &DbSnapshot<K>,
@@ -94,6 +98,21 @@ impl<
         if keyed {
             let st = &mut self.status;
             st.stored_key_bytes = st.stored_key_bytes.saturating_add(key_bytes);
+        }
+        self.note_usage();
+        Ok(())
+    }
+
+    /// Takes back a database frame restored by [`Self::restore_database`]
+    /// (with `key_bytes` of the key budget, as given there) that the
+    /// durable state turns out not to hold: a frame taken for a decision
+    /// that was never stored, which the resumed scan decides again.
+    pub fn forget_database(&mut self, index: u32, key_bytes: u32) -> Result<(), RestoreError> {
+        self.restorable()?;
+        let entry = self.db.remove(index).ok_or(RestoreError::BadDecision)?;
+        if entry.keyed {
+            let st = &mut self.status;
+            st.stored_key_bytes = st.stored_key_bytes.saturating_sub(key_bytes);
         }
         self.note_usage();
         Ok(())
