@@ -2,10 +2,12 @@
 //! graph, dominating-set solvers, baselines, metrics), replay of the core, and
 //! the `placedb` command line built on them.
 
+pub mod annotate;
 pub mod dataset;
 pub mod dbscale;
 pub mod device_cli;
 pub mod error;
+pub mod exports;
 pub mod fault;
 pub mod foreground;
 pub mod frame_keys;

@@ -6,7 +6,7 @@ use clap::{Args, Parser, Subcommand};
 use placedb_host::pipeline::{self, Outcome, Prepared, Solver, SolverParams};
 use placedb_host::read::{self, ReadOptions};
 use placedb_host::synth::{self, SynthConfig};
-use placedb_host::{dataset, device_cli, voxelize};
+use placedb_host::{annotate, dataset, device_cli, exports, voxelize};
 use placedb_host::{output, plot, CameraModel, Format, GridOrigin, Sequence, VoxelConfig};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -124,8 +124,9 @@ struct ExportArgs {
     /// exported labels and the frames of --sequence (the sequence streamed).
     #[arg(long, requires = "sequence")]
     dataset: Option<PathBuf>,
-    /// With --dataset: the sequence that was streamed (directory or ROS 2 bag).
-    #[arg(long, requires = "dataset")]
+    /// With --dataset, --colmap, --vpr-eval or --pairs: the sequence that
+    /// was streamed (directory or ROS 2 bag).
+    #[arg(long)]
     sequence: Option<PathBuf>,
     /// With --dataset: the sequence's layout (detected when omitted).
     #[arg(long, value_enum)]
@@ -135,6 +136,10 @@ struct ExportArgs {
     /// No progress bar.
     #[arg(long, short)]
     quiet: bool,
+    #[command(flatten)]
+    exports: exports::ExportFlags,
+    #[command(flatten)]
+    streamed: exports::StreamedWith,
 }
 
 /// `placedb device`.
@@ -296,6 +301,8 @@ struct SelectArgs {
     mu: f32,
     #[command(flatten)]
     params: ParamArgs,
+    #[command(flatten)]
+    exports: exports::ExportFlags,
 }
 
 #[derive(Args)]
@@ -521,9 +528,12 @@ fn select(a: SelectArgs) -> Result<(), Error> {
         || plot::project(&seq, &prep.sets.sets, prep.sets.grid),
     );
     let mut o = solved?;
-    if let Some(test) = &a.params.test {
-        let tseq = open_test(test, &a.seq)?;
-        let tsets = pipeline::prepare_test(&tseq, &prep, a.params.quiet)?;
+    let test_seq = match &a.params.test {
+        Some(test) => Some(open_test(test, &a.seq)?),
+        None => None,
+    };
+    if let Some(tseq) = &test_seq {
+        let tsets = pipeline::prepare_test(tseq, &prep, a.params.quiet)?;
         pipeline::add_oracle_recall(&mut o, &prep, &tsets);
     }
     let rows = match &o.online {
@@ -538,12 +548,25 @@ fn select(a: SelectArgs) -> Result<(), Error> {
         json["peak_rss_mb"] = mb.into();
     }
     view.database.clone_from(&o.database);
+    view.classes.clone_from(&o.labels);
+    let caption = annotate::Caption::of_selection(
+        &seq.name,
+        o.solver.name(),
+        a.mu,
+        o.database.len(),
+        seq.frames.len(),
+        plot::horizontal(&seq.frames),
+    );
     // The picture is drawn and encoded while the tables are written, into
     // the directory both need, made first.
     std::fs::create_dir_all(&a.out)?;
     let (written, drawn) = rayon::join(
         || output::write_database_dir(&a.out, &rows, &timestamps, &o.labels, &json),
-        || view.render().write_png(&a.out.join("topview.png")),
+        || {
+            annotate::render(&view, &caption)
+                .image
+                .write_png(&a.out.join("topview.png"))
+        },
     );
     written?;
     drawn?;
@@ -551,6 +574,17 @@ fn select(a: SelectArgs) -> Result<(), Error> {
         Some(dir) => Some((dir, dataset::write(dir, &seq, &o.labels)?)),
         None => None,
     };
+    let exported = exports::write_all(
+        &a.exports,
+        &exports::Selection {
+            seq: &seq,
+            rows: &rows,
+            labels: &o.labels,
+            overlaps: Some(&prep.co),
+            mu: a.mu,
+            test: test_seq.as_ref(),
+        },
+    )?;
     if a.params.json {
         println!("{}", serde_json::to_string_pretty(&json)?);
     } else {
@@ -606,6 +640,9 @@ fn select(a: SelectArgs) -> Result<(), Error> {
         );
         if let Some((dir, d)) = &dataset {
             print_dataset(dir, d);
+        }
+        for line in &exported {
+            println!("{line}");
         }
     }
     Ok(())
@@ -708,8 +745,16 @@ fn export(a: ExportArgs) -> Result<(), Error> {
         }
         None => None,
     };
+    if seq.is_some() && a.dataset.is_none() && !a.exports.any() {
+        return Err("--sequence is for --dataset, --colmap, --vpr-eval or --pairs".into());
+    }
+    if a.exports.any() && seq.is_none() {
+        return Err(
+            "--colmap, --vpr-eval and --pairs need --sequence SEQ (the streamed sequence)".into(),
+        );
+    }
     let export = device_cli::export_cmd(&a.port, &a.out, a.from, a.quiet)?;
-    if let (Some(dir), Some(seq)) = (&a.dataset, &seq) {
+    if let Some(seq) = &seq {
         let (timestamps, labels) = export.labels();
         // The device's timestamps are the sequence's: a different sequence shows.
         if let Some(i) = timestamps
@@ -723,10 +768,53 @@ fn export(a: ExportArgs) -> Result<(), Error> {
             )
             .into());
         }
-        let d = dataset::write(dir, seq, &labels)?;
-        print_dataset(dir, &d);
+        if let Some(dir) = &a.dataset {
+            let d = dataset::write(dir, seq, &labels)?;
+            print_dataset(dir, &d);
+        }
+        for line in exports_of_device(&a, seq, &export, &labels)? {
+            println!("{line}");
+        }
     }
     Ok(())
+}
+
+/// `export --sequence SEQ`'s COLMAP, VPR-evaluation and pairs exports, from
+/// the device's records as `select` writes them from its own.
+fn exports_of_device(
+    a: &ExportArgs,
+    seq: &Sequence,
+    export: &device_cli::Export,
+    labels: &[usize],
+) -> Result<Vec<String>, Error> {
+    if !a.exports.any() {
+        return Ok(Vec::new());
+    }
+    let rows = output::rows_from_records(&export.database());
+    // The overlaps of the streamed frames, as the device saw them.
+    let prep = match &a.exports.pairs {
+        Some(_) => {
+            let config = VoxelConfig {
+                voxel: a.streamed.voxel,
+                ..VoxelConfig::default()
+            };
+            Some(pipeline::prepare(seq, config, a.quiet)?)
+        }
+        None => None,
+    };
+    let test = match &a.streamed.test {
+        Some(path) => Some(read::open(path, &ReadOptions::default())?),
+        None => None,
+    };
+    let sel = exports::Selection {
+        seq,
+        rows: &rows,
+        labels,
+        overlaps: prep.as_ref().map(|p| &p.co),
+        mu: a.streamed.mu,
+        test: test.as_ref(),
+    };
+    Ok(exports::write_all(&a.exports, &sel)?)
 }
 
 fn synth_cmd(a: SynthArgs) -> Result<(), Error> {
