@@ -772,49 +772,13 @@ fn export(a: ExportArgs) -> Result<(), Error> {
             let d = dataset::write(dir, seq, &labels)?;
             print_dataset(dir, &d);
         }
-        for line in exports_of_device(&a, seq, &export, &labels)? {
+        let exported =
+            exports::device::write_from_device(&a.exports, &a.streamed, seq, &export, a.quiet)?;
+        for line in exported {
             println!("{line}");
         }
     }
     Ok(())
-}
-
-/// `export --sequence SEQ`'s COLMAP, VPR-evaluation and pairs exports, from
-/// the device's records as `select` writes them from its own.
-fn exports_of_device(
-    a: &ExportArgs,
-    seq: &Sequence,
-    export: &device_cli::Export,
-    labels: &[usize],
-) -> Result<Vec<String>, Error> {
-    if !a.exports.any() {
-        return Ok(Vec::new());
-    }
-    let rows = output::rows_from_records(&export.database());
-    // The overlaps of the streamed frames, as the device saw them.
-    let prep = match &a.exports.pairs {
-        Some(_) => {
-            let config = VoxelConfig {
-                voxel: a.streamed.voxel,
-                ..VoxelConfig::default()
-            };
-            Some(pipeline::prepare(seq, config, a.quiet)?)
-        }
-        None => None,
-    };
-    let test = match &a.streamed.test {
-        Some(path) => Some(read::open(path, &ReadOptions::default())?),
-        None => None,
-    };
-    let sel = exports::Selection {
-        seq,
-        rows: &rows,
-        labels,
-        overlaps: prep.as_ref().map(|p| &p.co),
-        mu: a.streamed.mu,
-        test: test.as_ref(),
-    };
-    Ok(exports::write_all(&a.exports, &sel)?)
 }
 
 fn synth_cmd(a: SynthArgs) -> Result<(), Error> {

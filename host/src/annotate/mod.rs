@@ -415,3 +415,109 @@ fn number_database_frames(img: &mut Image, origin: (i64, i64), f: &Frame, view: 
         taken.push(b);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Frames on a line far from the map, two classes.
+    fn view() -> TopView {
+        let positions: Vec<[f64; 2]> = (0..10).map(|k| [k as f64, 0.5 * k as f64]).collect();
+        TopView {
+            cell: 0.5,
+            columns: vec![([-20.0, -3.0], 4), ([-19.5, -3.0], 1)],
+            view_dirs: vec![[1.0, 0.0]; positions.len()],
+            positions,
+            database: vec![2, 7],
+            classes: vec![2, 2, 2, 2, 2, 7, 7, 7, 7, 7],
+        }
+    }
+
+    fn caption() -> Caption {
+        Caption::of_selection("test", "greedy", 0.3, 2, 10, Projection::new((2, -1.0)))
+    }
+
+    #[test]
+    fn every_pose_is_inside_and_in_its_class_colour() {
+        let v = view();
+        let a = render(&v, &caption());
+        let colours = class_colours(&v);
+        assert_eq!(colours[0], CLASS_PALETTE[0]);
+        assert_eq!(colours[9], CLASS_PALETTE[1]);
+        for (k, &p) in v.positions.iter().enumerate() {
+            let (x, y) = a.pixel(p).unwrap();
+            let inside = (0..i64::from(a.image.width)).contains(&x)
+                && (0..i64::from(a.image.height)).contains(&y);
+            assert!(inside, "frame {k} at {x},{y} outside the picture");
+            assert_eq!(a.image.pixel(x, y), Some(colours[k]), "frame {k}");
+        }
+        // A database frame is ringed in ink.
+        let (x, y) = a.pixel(v.positions[7]).unwrap();
+        assert_eq!(a.image.pixel(x, y + DISC_RADIUS + 1), Some(INK));
+        // Far map and trajectory both inside: the map's dark column too.
+        let (x, y) = a.pixel([-20.0, -3.0]).unwrap();
+        assert!(a
+            .image
+            .pixel(x, y)
+            .is_some_and(|c| c[0] == c[1] && c[0] < 200));
+    }
+
+    #[test]
+    fn the_picture_has_title_legend_and_frame_above_and_below_the_map() {
+        let v = view();
+        let a = render(&v, &caption());
+        let (map, _) = v.render_mapped();
+        let ink_rows = |y0: i64, y1: i64| {
+            (y0..y1)
+                .any(|y| (0..i64::from(a.image.width)).any(|x| a.image.pixel(x, y) == Some(INK)))
+        };
+        let (ox, oy) = a.map_origin;
+        assert!(ink_rows(0, oy - 1), "no title");
+        assert!(
+            ink_rows(oy + i64::from(map.height) + 1, i64::from(a.image.height)),
+            "no legend"
+        );
+        // The map's frame on its left.
+        assert_eq!(a.image.pixel(ox - 1, oy + 5), Some(INK));
+        assert!(a.image.width >= map.width && a.image.height > map.height);
+    }
+
+    #[test]
+    fn no_classes_keeps_the_plain_colours() {
+        let mut v = view();
+        v.classes.clear();
+        assert!(class_colours(&v).is_empty());
+        let (img, frame) = v.render_mapped();
+        let (x, y) = frame.unwrap().pixel(v.positions[2]);
+        assert_eq!(img.pixel(x, y), Some(crate::plot::DATABASE));
+    }
+
+    #[test]
+    fn ticks_are_round_and_far_enough_apart() {
+        assert_eq!(tick_step(100.0), 1.0);
+        assert_eq!(tick_step(128.0), 1.0);
+        assert_eq!(tick_step(50.0), 2.0);
+        assert_eq!(tick_step(1000.0), 0.1);
+        assert_eq!(tick_step(20.0), 5.0);
+        assert_eq!(metres(-0.0, 0.5), "0.0");
+        assert_eq!(metres(2.0, 1.0), "2");
+        assert_eq!(multiples(-0.2, 2.1, 1.0), vec![0.0, 1.0, 2.0]);
+    }
+
+    #[test]
+    fn axis_names_follow_the_projection() {
+        // y down (TUM, 7-Scenes): right = +z, up = -x.
+        let p = Projection::new((1, 1.0));
+        let (e, n) = east_north(&p);
+        assert_eq!(
+            (axis_name(e), axis_name(n)),
+            ("+z".to_string(), "-x".to_string())
+        );
+        // z up: right = +x, up = +y.
+        let (e, n) = east_north(&Projection::new((2, -1.0)));
+        assert_eq!(
+            (axis_name(e), axis_name(n)),
+            ("+x".to_string(), "+y".to_string())
+        );
+    }
+}

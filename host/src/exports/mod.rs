@@ -6,6 +6,7 @@
 //! [`write_all`]. Each export is all or nothing ([`replace`]).
 
 pub mod colmap;
+pub mod device;
 pub mod image;
 pub mod pairs;
 pub mod replace;
