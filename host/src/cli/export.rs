@@ -7,6 +7,7 @@ use crate::device::client::connect;
 use crate::device::error::DeviceError;
 use crate::device::export::{export_to, Export};
 use crate::error::CommandError as Error;
+use crate::output::exports;
 use crate::output::dataset;
 use crate::read::{self, ReadOptions};
 use crate::Format;
@@ -29,8 +30,9 @@ pub struct ExportArgs {
     /// exported labels and the frames of --sequence (the sequence streamed).
     #[arg(long, requires = "sequence")]
     dataset: Option<PathBuf>,
-    /// With --dataset: the sequence that was streamed (directory or ROS 2 bag).
-    #[arg(long, requires = "dataset")]
+    /// With --dataset, --colmap, --vpr-eval or --pairs: the sequence that
+    /// was streamed (directory or ROS 2 bag).
+    #[arg(long)]
     sequence: Option<PathBuf>,
     /// With --dataset: the sequence's layout (detected when omitted).
     #[arg(long, value_enum)]
@@ -40,6 +42,10 @@ pub struct ExportArgs {
     /// No progress bar.
     #[arg(long, short)]
     quiet: bool,
+    #[command(flatten)]
+    exports: exports::ExportFlags,
+    #[command(flatten)]
+    streamed: exports::StreamedWith,
 }
 
 /// `placedb export`, and the dataset of the exported labels when asked.
@@ -56,8 +62,16 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
         }
         None => None,
     };
+    if seq.is_some() && a.dataset.is_none() && !a.exports.any() {
+        return Err("--sequence is for --dataset, --colmap, --vpr-eval or --pairs".into());
+    }
+    if a.exports.any() && seq.is_none() {
+        return Err(
+            "--colmap, --vpr-eval and --pairs need --sequence SEQ (the streamed sequence)".into(),
+        );
+    }
     let export = export_cmd(&a.port, &a.out, a.from, a.quiet)?;
-    if let (Some(dir), Some(seq)) = (&a.dataset, &seq) {
+    if let Some(seq) = &seq {
         let (timestamps, labels) = export.labels();
         // The device's timestamps are the sequence's: a different sequence shows.
         if let Some(i) = timestamps
@@ -71,8 +85,15 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
             )
             .into());
         }
-        let d = dataset::write(dir, seq, &labels)?;
-        print_dataset(dir, &d);
+        if let Some(dir) = &a.dataset {
+            let d = dataset::write(dir, seq, &labels)?;
+            print_dataset(dir, &d);
+        }
+        let exported =
+            exports::device::write_from_device(&a.exports, &a.streamed, seq, &export, a.quiet)?;
+        for line in exported {
+            println!("{line}");
+        }
     }
     Ok(())
 }

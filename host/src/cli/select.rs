@@ -4,6 +4,7 @@
 use super::{open_sequence, open_test, print_dataset, solver_params, voxel_config};
 use super::{ParamArgs, SeqArgs};
 use crate::error::CommandError as Error;
+use crate::output::{annotate, exports};
 use crate::output::{self, dataset, metrics_json, topview};
 use crate::pipeline::{self, Solver};
 use clap::Args;
@@ -29,6 +30,8 @@ pub struct SelectArgs {
     mu: f32,
     #[command(flatten)]
     params: ParamArgs,
+    #[command(flatten)]
+    exports: exports::ExportFlags,
 }
 
 /// Runs `placedb select`.
@@ -44,9 +47,12 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
         || topview::project(&seq, &prep.sets.sets, prep.sets.grid),
     );
     let mut o = solved?;
-    if let Some(test) = &a.params.test {
-        let tseq = open_test(test, &a.seq)?;
-        let tsets = pipeline::prepare_test(&tseq, &prep, a.params.quiet)?;
+    let test_seq = match &a.params.test {
+        Some(test) => Some(open_test(test, &a.seq)?),
+        None => None,
+    };
+    if let Some(tseq) = &test_seq {
+        let tsets = pipeline::prepare_test(tseq, &prep, a.params.quiet)?;
         pipeline::add_oracle_recall(&mut o, &prep, &tsets);
     }
     let rows = match &o.online {
@@ -61,12 +67,25 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
         json["peak_rss_mb"] = mb.into();
     }
     view.database.clone_from(&o.database);
+    view.classes.clone_from(&o.labels);
+    let caption = annotate::Caption::of_selection(
+        &seq.name,
+        o.solver.name(),
+        a.mu,
+        o.database.len(),
+        seq.frames.len(),
+        topview::horizontal(&seq.frames),
+    );
     // The picture is drawn and encoded while the tables are written, into
     // the directory both need, made first.
     std::fs::create_dir_all(&a.out)?;
     let (written, drawn) = rayon::join(
         || output::write_database_dir(&a.out, &rows, &timestamps, &o.labels, &json),
-        || view.render().write_png(&a.out.join("topview.png")),
+        || {
+            annotate::render(&view, &caption)
+                .image
+                .write_png(&a.out.join("topview.png"))
+        },
     );
     written?;
     drawn?;
@@ -74,6 +93,17 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
         Some(dir) => Some((dir, dataset::write(dir, &seq, &o.labels)?)),
         None => None,
     };
+    let exported = exports::write_all(
+        &a.exports,
+        &exports::Selection {
+            seq: &seq,
+            rows: &rows,
+            labels: &o.labels,
+            overlaps: Some(&prep.co),
+            mu: a.mu,
+            test: test_seq.as_ref(),
+        },
+    )?;
     if a.params.json {
         println!("{}", serde_json::to_string_pretty(&json)?);
     } else {
@@ -129,6 +159,9 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
         );
         if let Some((dir, d)) = &dataset {
             print_dataset(dir, d);
+        }
+        for line in &exported {
+            println!("{line}");
         }
     }
     Ok(())

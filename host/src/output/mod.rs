@@ -4,7 +4,9 @@
 //! `placedb export` and the tests all go through it. Scripts read these: the
 //! column sets and key names are stable.
 
+pub mod annotate;
 pub mod dataset;
+pub mod exports;
 pub mod metrics_json;
 pub mod topview;
 

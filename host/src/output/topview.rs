@@ -32,9 +32,9 @@ const BLANK_SIDE: u32 = 64;
 const DISC_RADIUS: i64 = 4;
 /// Length of the view-direction line of a database frame, pixels.
 const VIEW_LENGTH: f64 = 12.0;
-/// Lightest and darkest grey of an occupied column.
-const GREY_LIGHT: f64 = 225.0;
-const GREY_DARK: f64 = 50.0;
+/// Lightest and darkest grey of an occupied column (the legend draws the ramp).
+pub const GREY_LIGHT: f64 = 225.0;
+pub const GREY_DARK: f64 = 50.0;
 
 /// An 8-bit RGB raster, row-major, three bytes per pixel.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -148,23 +148,32 @@ pub struct TopView {
     /// Indices into `positions` of the database frames; out-of-range indices
     /// are ignored.
     pub database: Vec<usize>,
+    /// Per position, its class (the database frame that covers it); when
+    /// given, every frame is drawn in its class's colour
+    /// ([`crate::output::annotate::class_colours`]); empty: one trajectory colour.
+    pub classes: Vec<usize>,
 }
 
 /// Pixel mapping of a [`TopView`]: `pixel = MARGIN + (p - min) * scale`.
-struct Frame {
-    min: [f64; 2],
-    scale: f64,
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Frame {
+    /// Plane coordinates at the drawing area's top-left corner, metres.
+    pub min: [f64; 2],
+    /// Pixels per metre.
+    pub scale: f64,
 }
 
 impl Frame {
-    fn px(&self, p: [f64; 2]) -> [f64; 2] {
+    /// Sub-pixel position of plane point `p`.
+    pub fn px(&self, p: [f64; 2]) -> [f64; 2] {
         [
             MARGIN as f64 + (p[0] - self.min[0]) * self.scale,
             MARGIN as f64 + (p[1] - self.min[1]) * self.scale,
         ]
     }
 
-    fn pixel(&self, p: [f64; 2]) -> (i64, i64) {
+    /// The pixel holding plane point `p`.
+    pub fn pixel(&self, p: [f64; 2]) -> (i64, i64) {
         let [x, y] = self.px(p);
         (x.floor() as i64, y.floor() as i64)
     }
@@ -186,6 +195,11 @@ impl TopView {
     /// margin. With nothing finite to draw the result is a blank 64 x 64
     /// image; a single point is drawn in a 1 m wide window.
     pub fn render(&self) -> Image {
+        self.render_mapped().0
+    }
+
+    /// [`Self::render`] and its pixel mapping (`None` for the blank image).
+    pub fn render_mapped(&self) -> (Image, Option<Frame>) {
         let cell = if self.cell.is_finite() && self.cell > 0.0 {
             self.cell
         } else {
@@ -207,13 +221,14 @@ impl TopView {
         for &p in self.positions.iter().filter(|p| finite2(**p)) {
             grow(p, p);
         }
+        let blank = || (Image::filled(BLANK_SIDE, BLANK_SIDE, BACKGROUND), None);
         if !(min[0] <= max[0] && min[1] <= max[1]) {
-            return Image::filled(BLANK_SIDE, BLANK_SIDE, BACKGROUND);
+            return blank();
         }
         let mut extent = [max[0] - min[0], max[1] - min[1]];
         let long = extent[0].max(extent[1]);
         if !long.is_finite() {
-            return Image::filled(BLANK_SIDE, BLANK_SIDE, BACKGROUND);
+            return blank();
         }
         if long < 1e-9 {
             // One point: centre it in a 1 m window.
@@ -256,19 +271,25 @@ impl TopView {
             }
         }
 
-        // Trajectory.
+        // Trajectory, each step in the colour of the frame it reaches.
+        let colours = crate::output::annotate::class_colours(self);
+        let colour = |k: usize| colours.get(k).copied().unwrap_or(TRAJECTORY);
         let mut last: Option<(i64, i64)> = None;
-        for &p in &self.positions {
+        for (k, &p) in self.positions.iter().enumerate() {
             if !finite2(p) {
                 last = None;
                 continue;
             }
             let q = frame.pixel(p);
             match last {
-                Some(a) => img.line(a, q, TRAJECTORY),
-                None => img.set(q.0, q.1, TRAJECTORY),
+                Some(a) => img.line(a, q, colour(k)),
+                None => img.set(q.0, q.1, colour(k)),
             }
             last = Some(q);
+        }
+        if !colours.is_empty() {
+            crate::output::annotate::mark_frames(&mut img, &frame, self, &colours);
+            return (img, Some(frame));
         }
 
         // Database frames: view lines first so that no line covers a disc.
@@ -294,7 +315,7 @@ impl TopView {
         for (_, p) in db() {
             img.disc(frame.pixel(p), DISC_RADIUS, DATABASE);
         }
-        img
+        (img, Some(frame))
     }
 }
 
@@ -393,13 +414,7 @@ fn camera_axes(q: [f64; 4]) -> Option<([f64; 3], [f64; 3])> {
 pub fn project(seq: &Sequence, sets: &[Vec<u64>], grid: placedb::VoxelGrid) -> TopView {
     let axes: Vec<Option<([f64; 3], [f64; 3])>> =
         seq.frames.iter().map(|f| camera_axes(f.rotation)).collect();
-    let mut down = [0.0; 3];
-    for (y, _) in axes.iter().flatten() {
-        for a in 0..3 {
-            down[a] += y[a];
-        }
-    }
-    let proj = Projection::new(vertical_axis(down));
+    let proj = horizontal(&seq.frames);
     let (i, j) = proj.axes();
 
     let union = crate::yardstick::metrics::union(sets);
@@ -434,7 +449,21 @@ pub fn project(seq: &Sequence, sets: &[Vec<u64>], grid: placedb::VoxelGrid) -> T
             .map(|a| a.map_or([0.0; 2], |(_, z)| proj.apply(z)))
             .collect(),
         database: Vec::new(),
+        classes: Vec::new(),
     }
+}
+
+/// The top view's projection of `frames` (see [`project`]): the vertical
+/// axis from the mean camera y axis. The exports name their horizontal
+/// axes by it, so that a map and an export agree.
+pub fn horizontal(frames: &[crate::sequence::FrameInfo]) -> Projection {
+    let mut down = [0.0; 3];
+    for (y, _) in frames.iter().filter_map(|f| camera_axes(f.rotation)) {
+        for a in 0..3 {
+            down[a] += y[a];
+        }
+    }
+    Projection::new(vertical_axis(down))
 }
 
 #[cfg(test)]
@@ -462,6 +491,7 @@ mod tests {
             positions: vec![[-2.0, -2.0], [6.0, -2.0], [6.0, 6.0], [-2.0, 6.0]],
             view_dirs: vec![[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]],
             database: vec![0, 2],
+            classes: Vec::new(),
         }
     }
 

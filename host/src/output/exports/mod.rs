@@ -1,0 +1,180 @@
+//! Exports for the next tools in a pipeline (docs/exports.md): a COLMAP
+//! model of the database frames ([`colmap`]), the layout of
+//! VPR-methods-evaluation ([`vpr_eval`]) and hloc's retrieval pairs
+//! ([`pairs`]). `placedb select` writes them from its selection and
+//! `placedb export --sequence SEQ` from a device's labels, both through
+//! [`write_all`]. Each export is all or nothing ([`replace`]).
+
+pub mod colmap;
+pub mod device;
+pub mod image;
+pub mod pairs;
+pub mod replace;
+pub mod vpr_eval;
+
+use crate::output::dataset::DatasetError;
+use crate::yardstick::graph::CoObservation;
+use crate::output::DbRow;
+use crate::output::topview::Projection;
+use crate::sequence::Sequence;
+use std::path::{Path, PathBuf};
+
+/// The export options shared by `select` and `export`.
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct ExportFlags {
+    /// Also write the database frames as a COLMAP text model here:
+    /// sparse/0/{cameras,images,points3D}.txt and images/ (docs/exports.md).
+    #[arg(long)]
+    pub colmap: Option<PathBuf>,
+    /// Also write VPR-methods-evaluation's layout here: database/ and
+    /// queries/ named @east@north@index@.jpg (docs/exports.md).
+    #[arg(long)]
+    pub vpr_eval: Option<PathBuf>,
+    /// Also write hloc's retrieval pairs to this file: each non-database
+    /// frame with the database frames it overlaps above mu, best first.
+    #[arg(long)]
+    pub pairs: Option<PathBuf>,
+}
+
+impl ExportFlags {
+    /// Whether any export was asked for.
+    pub fn any(&self) -> bool {
+        self.colmap.is_some() || self.vpr_eval.is_some() || self.pairs.is_some()
+    }
+}
+
+/// What `export --sequence` needs to know of the stream for the exports
+/// (the device does not report it).
+#[derive(clap::Args, Debug, Clone)]
+pub struct StreamedWith {
+    /// With --pairs: the IoU threshold the sequence was streamed with.
+    #[arg(long, default_value_t = 0.3)]
+    pub mu: f32,
+    /// With --pairs: the voxel edge in metres the sequence was streamed with.
+    #[arg(long, default_value_t = 0.3)]
+    pub voxel: f32,
+    /// With --vpr-eval: a test sequence of the same place, whose frames are
+    /// the queries (otherwise the non-database frames are).
+    #[arg(long)]
+    pub test: Option<PathBuf>,
+}
+
+/// A selection as the exports see it.
+pub struct Selection<'a> {
+    /// The sequence selected from.
+    pub seq: &'a Sequence,
+    /// The rows of `database.csv`: the poses the exports write.
+    pub rows: &'a [DbRow],
+    /// The class of every labelled frame from 0 (a device may have
+    /// labelled fewer frames than the sequence holds).
+    pub labels: &'a [usize],
+    /// The frames' overlaps (for `--pairs`).
+    pub overlaps: Option<&'a CoObservation>,
+    /// The IoU threshold (for `--pairs`).
+    pub mu: f32,
+    /// The test sequence, whose frames are the VPR-evaluation queries.
+    pub test: Option<&'a Sequence>,
+}
+
+impl Selection<'_> {
+    /// The database rows in frame order.
+    pub fn database_rows(&self) -> Vec<DbRow> {
+        let mut rows = self.rows.to_vec();
+        rows.sort_by_key(|r| r.0);
+        rows
+    }
+
+    /// The labelled frames that are no database frame, ascending.
+    pub fn non_database(&self) -> Vec<usize> {
+        (0..self.labels.len())
+            .filter(|&i| self.labels[i] != i)
+            .collect()
+    }
+
+    /// The top view's projection of the sequence.
+    pub fn projection(&self) -> Projection {
+        crate::output::topview::horizontal(&self.seq.frames)
+    }
+
+    /// Database rows, labels and sequence agree.
+    fn check(&self) -> Result<(), DatasetError> {
+        let n = self.seq.frames.len();
+        if self.labels.len() > n {
+            return Err(DatasetError::Mismatch(format!(
+                "{} labels for a sequence of {n} frames",
+                self.labels.len()
+            )));
+        }
+        for &(i, _, _) in self.rows {
+            if i >= self.labels.len() || self.labels[i] != i {
+                return Err(DatasetError::Mismatch(format!(
+                    "database frame {i} is not labelled as its own class in the {} labelled frames",
+                    self.labels.len()
+                )));
+            }
+            if self.overlaps.is_some_and(|co| i >= co.len()) {
+                return Err(DatasetError::Mismatch(format!(
+                    "database frame {i} has no overlaps computed"
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The name of frame `i`'s image in the COLMAP export and in the pairs.
+pub fn image_name(i: usize) -> String {
+    format!("{i:06}.jpg")
+}
+
+/// `[east, north]` of world point `p`: the top view's right and up.
+pub fn east_north_of(proj: &Projection, p: [f64; 3]) -> [f64; 2] {
+    let ((e, es), (n, ns)) = crate::output::annotate::east_north(proj);
+    [es * p[e], ns * p[n]]
+}
+
+fn write_err(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
+    move |source| DatasetError::Write {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// Writes every export `flags` asks for; returns a line about each.
+pub fn write_all(flags: &ExportFlags, sel: &Selection) -> Result<Vec<String>, DatasetError> {
+    let mut said = Vec::new();
+    if !flags.any() {
+        return Ok(said);
+    }
+    sel.check()?;
+    if let Some(dir) = &flags.colmap {
+        let n = replace::replace_dir(dir, "a COLMAP export", colmap::is_export, |d| {
+            colmap::write(d, sel)
+        })?;
+        said.push(format!(
+            "  colmap: {n} images with their poses in {}/{{sparse/0,images}}",
+            dir.display()
+        ));
+    }
+    if let Some(dir) = &flags.vpr_eval {
+        let (db, q) =
+            replace::replace_dir(dir, "a VPR-evaluation export", vpr_eval::is_export, |d| {
+                vpr_eval::write(d, sel)
+            })?;
+        said.push(format!(
+            "  vpr-eval: {db} database and {q} query images in {}/{{database,queries}}",
+            dir.display()
+        ));
+    }
+    if let Some(file) = &flags.pairs {
+        let text = pairs::text(sel)?;
+        replace::replace_file(file, &text)?;
+        said.push(format!(
+            "  pairs: {} query-database pairs above mu {} in {}",
+            text.lines().count(),
+            sel.mu,
+            file.display()
+        ));
+    }
+    Ok(said)
+}

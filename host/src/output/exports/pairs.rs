@@ -1,0 +1,36 @@
+//! `--pairs FILE`: hloc's retrieval pairs, `QUERY DATABASE` a line (the
+//! names of the COLMAP export's images, [`super::image_name`]): every
+//! non-database frame with each database frame it overlaps above mu (IoU of
+//! the voxel sets the solver saw), best first; ties in frame order.
+
+use super::{image_name, Selection};
+use crate::output::dataset::DatasetError;
+use std::fmt::Write as _;
+
+/// The text of the pairs file.
+pub fn text(sel: &Selection) -> Result<String, DatasetError> {
+    let co = sel.overlaps.ok_or_else(|| {
+        DatasetError::Mismatch("--pairs needs the frames' overlaps, which were not computed".into())
+    })?;
+    if co.len() < sel.labels.len() {
+        return Err(DatasetError::Mismatch(format!(
+            "overlaps of {} frames for {} labelled frames",
+            co.len(),
+            sel.labels.len()
+        )));
+    }
+    let database: Vec<usize> = sel.database_rows().iter().map(|r| r.0).collect();
+    let mut s = String::new();
+    for q in sel.non_database() {
+        let mut best: Vec<(f32, usize)> = database
+            .iter()
+            .map(|&d| (co.iou(q, d), d))
+            .filter(|&(iou, _)| iou > sel.mu)
+            .collect();
+        best.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        for (_, d) in best {
+            let _ = writeln!(s, "{} {}", image_name(q), image_name(d));
+        }
+    }
+    Ok(s)
+}

@@ -1,0 +1,372 @@
+//! `select --colmap/--vpr-eval/--pairs` and `export --sequence`: the COLMAP
+//! model read back against database.csv, the VPR-evaluation names parsed
+//! back to the poses, the pairs above mu and best first, the outputs
+//! without the new options unchanged, a failed export leaving the previous
+//! one, and a device's exports equal to select's.
+
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use placedb_host::device_cli::{self, StreamOptions};
+use placedb_host::output::exports::{self, vpr_eval, ExportFlags, StreamedWith};
+use placedb_host::link::{Client, LocalLink};
+use placedb_host::pipeline::{self, SolverParams};
+use placedb_host::read::{self, ReadOptions};
+use placedb_host::{synth, VoxelConfig};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+const SEVEN_SCENES: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../../shared/data/7scenes-1000"
+);
+const FRAMES: usize = 60;
+
+fn temp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("placedb-exports-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn placedb(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_placedb"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn select(args: &[&str]) -> String {
+    let out = placedb(args);
+    assert!(
+        out.status.success(),
+        "select failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+/// database.csv: frame index -> (tx, ty, tz).
+fn database_csv(dir: &Path) -> BTreeMap<usize, [f64; 3]> {
+    let text = std::fs::read_to_string(dir.join("database.csv")).unwrap();
+    text.lines()
+        .skip(1)
+        .map(|l| {
+            let v: Vec<f64> = l.split(',').map(|c| c.parse().unwrap()).collect();
+            (v[0] as usize, [v[2], v[3], v[4]])
+        })
+        .collect()
+}
+
+/// images.txt: image name -> camera centre `-R^T T`, and the lines after
+/// each image line (COLMAP's POINTS2D, empty here).
+fn colmap_centres(dir: &Path) -> BTreeMap<String, [f64; 3]> {
+    let text = std::fs::read_to_string(dir.join("sparse/0/images.txt")).unwrap();
+    let lines: Vec<&str> = text.lines().filter(|l| !l.starts_with('#')).collect();
+    assert_eq!(lines.len() % 2, 0, "two lines per image");
+    lines
+        .chunks(2)
+        .enumerate()
+        .map(|(k, pair)| {
+            let f: Vec<&str> = pair[0].split(' ').collect();
+            assert_eq!(f.len(), 10, "{}", pair[0]);
+            assert_eq!(f[0], (k + 1).to_string());
+            assert_eq!(f[8], "1");
+            assert_eq!(pair[1], "", "no 2D points");
+            let n: Vec<f64> = f[1..8].iter().map(|c| c.parse().unwrap()).collect();
+            let r = UnitQuaternion::from_quaternion(Quaternion::new(n[0], n[1], n[2], n[3]));
+            let c = -(r.inverse() * Vector3::new(n[4], n[5], n[6]));
+            (f[9].to_string(), [c.x, c.y, c.z])
+        })
+        .collect()
+}
+
+fn files(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn colmap_vpr_eval_and_pairs_of_a_recorded_sequence() {
+    let root = temp("7scenes");
+    let (out, plain) = (root.join("out"), root.join("plain"));
+    let (colmap, vpr, pairs) = (
+        root.join("colmap"),
+        root.join("vpr"),
+        root.join("pairs.txt"),
+    );
+    let n = FRAMES.to_string();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let base = ["select", SEVEN_SCENES, "-q", "--max-frames", &n];
+    let mut with: Vec<String> = base.iter().map(|a| a.to_string()).collect();
+    with.extend(["-o".into(), s(&out), "--colmap".into(), s(&colmap)]);
+    with.extend(["--vpr-eval".into(), s(&vpr), "--pairs".into(), s(&pairs)]);
+    let said = select(&with.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(
+        said.contains("colmap:") && said.contains("pairs:"),
+        "{said}"
+    );
+    let mut without: Vec<&str> = base.to_vec();
+    without.extend(["-o", plain.to_str().unwrap()]);
+    select(&without);
+
+    // Without the options: the same outputs, byte for byte (metrics.json
+    // holds timings).
+    assert_eq!(files(&out), files(&plain));
+    for f in ["database.csv", "labels.csv"] {
+        assert_eq!(
+            std::fs::read(out.join(f)).unwrap(),
+            std::fs::read(plain.join(f)).unwrap(),
+            "{f}"
+        );
+    }
+
+    // COLMAP: every camera centre is database.csv's position.
+    let db = database_csv(&out);
+    assert!(!db.is_empty());
+    let centres = colmap_centres(&colmap);
+    assert_eq!(centres.len(), db.len());
+    for (i, t) in &db {
+        let c = centres[&exports::image_name(*i)];
+        for a in 0..3 {
+            assert!((c[a] - t[a]).abs() < 1e-9, "frame {i}: {c:?} against {t:?}");
+        }
+        // The colour JPEG as the sequence has it.
+        let src = format!("{SEVEN_SCENES}/frame-{i:06}.color.jpg");
+        assert_eq!(
+            std::fs::read(colmap.join("images").join(exports::image_name(*i))).unwrap(),
+            std::fs::read(src).unwrap()
+        );
+    }
+    let cameras = std::fs::read_to_string(colmap.join("sparse/0/cameras.txt")).unwrap();
+    assert!(
+        cameras.contains("\n1 PINHOLE 640 480 585 585 320.5 240.5\n"),
+        "{cameras}"
+    );
+    let points = std::fs::read_to_string(colmap.join("sparse/0/points3D.txt")).unwrap();
+    assert!(points.lines().all(|l| l.starts_with('#')));
+
+    // VPR-evaluation: names parse back to the database poses on the top
+    // view's axes; the queries are the other frames.
+    let mut seq = read::open(Path::new(SEVEN_SCENES), &ReadOptions::default()).unwrap();
+    seq.frames.truncate(FRAMES);
+    let proj = placedb_host::output::topview::horizontal(&seq.frames);
+    let names = files(&vpr.join("database"));
+    assert_eq!(names.len(), db.len());
+    for name in &names {
+        let (en, i) = vpr_eval::parse(name).unwrap();
+        let want = exports::east_north_of(&proj, db[&i]);
+        assert!(
+            (en[0] - want[0]).abs() <= 5e-5 && (en[1] - want[1]).abs() <= 5e-5,
+            "{name}"
+        );
+    }
+    let queries = files(&vpr.join("queries"));
+    assert_eq!(queries.len(), FRAMES - db.len());
+    for name in &queries {
+        let (en, i) = vpr_eval::parse(name).unwrap();
+        assert!(!db.contains_key(&i));
+        let want = exports::east_north_of(&proj, seq.frames[i].translation);
+        assert!(
+            (en[0] - want[0]).abs() <= 5e-5 && (en[1] - want[1]).abs() <= 5e-5,
+            "{name}"
+        );
+    }
+
+    // Pairs: every non-database frame with each database frame above mu,
+    // best first.
+    let prep = pipeline::prepare(&seq, VoxelConfig::default(), true).unwrap();
+    let text = std::fs::read_to_string(&pairs).unwrap();
+    let mut listed: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
+    let index = |name: &str| name.trim_end_matches(".jpg").parse::<usize>().unwrap();
+    for line in text.lines() {
+        let (q, d) = line.split_once(' ').unwrap();
+        listed.entry(index(q)).or_default().push(index(d));
+    }
+    for q in (0..FRAMES).filter(|q| !db.contains_key(q)) {
+        let got = listed.remove(&q).unwrap_or_default();
+        let ious: Vec<f32> = got.iter().map(|&d| prep.co.iou(q, d)).collect();
+        assert!(ious.iter().all(|&v| v > 0.3), "frame {q}: {ious:?}");
+        assert!(
+            ious.windows(2).all(|w| w[0] >= w[1]),
+            "frame {q}: not best first"
+        );
+        let above = db.keys().filter(|&&d| prep.co.iou(q, d) > 0.3).count();
+        assert_eq!(got.len(), above, "frame {q}");
+    }
+    assert!(listed.is_empty(), "pairs for database frames: {listed:?}");
+    std::fs::remove_dir_all(&root).ok();
+}
+
+#[test]
+fn a_failed_export_leaves_the_one_before() {
+    let root = temp("failed");
+    // Ten frames of the recorded sequence, copied.
+    let seq_dir = root.join("seq");
+    std::fs::create_dir_all(&seq_dir).unwrap();
+    for f in std::fs::read_dir(SEVEN_SCENES).unwrap() {
+        let f = f.unwrap();
+        let name = f.file_name().into_string().unwrap();
+        let frame = name
+            .strip_prefix("frame-")
+            .and_then(|r| r.get(..6))
+            .and_then(|n| n.parse::<usize>().ok());
+        if frame.is_none_or(|k| k < 10) && f.path().is_file() {
+            std::fs::copy(f.path(), seq_dir.join(&name)).unwrap();
+        }
+    }
+    let colmap = root.join("colmap");
+    let args = |out: &str| {
+        vec![
+            "select".to_string(),
+            seq_dir.to_str().unwrap().into(),
+            "-q".into(),
+            "-o".into(),
+            root.join(out).to_str().unwrap().into(),
+            "--colmap".into(),
+            colmap.to_str().unwrap().into(),
+        ]
+    };
+    let run = |out: &str| placedb(&args(out).iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(run("out1").status.success());
+    let before = std::fs::read(colmap.join("sparse/0/images.txt")).unwrap();
+    let images = files(&colmap.join("images"));
+    // Every colour image broken: the second export fails.
+    for f in std::fs::read_dir(&seq_dir).unwrap() {
+        let p = f.unwrap().path();
+        if p.to_str().unwrap().ends_with(".color.jpg") {
+            std::fs::write(&p, b"broken").unwrap();
+        }
+    }
+    let failed = run("out2");
+    assert!(!failed.status.success());
+    let err = String::from_utf8_lossy(&failed.stderr);
+    assert!(err.contains("not a readable JPEG file"), "{err}");
+    assert_eq!(
+        std::fs::read(colmap.join("sparse/0/images.txt")).unwrap(),
+        before
+    );
+    assert_eq!(files(&colmap.join("images")), images);
+    // Nothing half-written beside it.
+    assert!(
+        files(&root).iter().all(|f| !f.starts_with('.')),
+        "{:?}",
+        files(&root)
+    );
+    // A directory of other files is not replaced.
+    let other = root.join("seq");
+    let refused = placedb(&[
+        "select",
+        "--demo",
+        "--demo-frames",
+        "20",
+        "-q",
+        "-o",
+        root.join("out3").to_str().unwrap(),
+        "--colmap",
+        other.to_str().unwrap(),
+    ]);
+    assert!(!refused.status.success());
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("is not a COLMAP export"));
+    std::fs::remove_dir_all(&root).ok();
+}
+
+/// Every file under `dir`, relative path -> bytes.
+fn tree(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
+    let mut all = BTreeMap::new();
+    let mut todo = vec![dir.to_path_buf()];
+    while let Some(d) = todo.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                todo.push(p);
+            } else {
+                let rel = p.strip_prefix(dir).unwrap().to_path_buf();
+                all.insert(rel, std::fs::read(&p).unwrap());
+            }
+        }
+    }
+    all
+}
+
+#[test]
+fn a_devices_exports_are_selects() {
+    let root = temp("device");
+    let frames = 60;
+    let dirs = |side: &str| {
+        (
+            root.join(side).join("colmap"),
+            root.join(side).join("vpr"),
+            root.join(side).join("pairs.txt"),
+        )
+    };
+    let (colmap, vpr, pairs) = dirs("select");
+    let n = frames.to_string();
+    select(&[
+        "select",
+        "--demo",
+        "--demo-frames",
+        &n,
+        "--solver",
+        "online",
+        "-q",
+        "-o",
+        root.join("select/out").to_str().unwrap(),
+        "--colmap",
+        colmap.to_str().unwrap(),
+        "--vpr-eval",
+        vpr.to_str().unwrap(),
+        "--pairs",
+        pairs.to_str().unwrap(),
+    ]);
+    // The same scan through the in-process device, exported.
+    let seq = synth::sequence(&synth::SynthConfig {
+        frames,
+        ..synth::SynthConfig::demo()
+    });
+    let sel = placedb::SelectorConfig {
+        mu: 0.3,
+        window: 32,
+        sketch_margin: SolverParams::default().sketch_margin,
+    };
+    let scan = device_cli::scan_config(&seq, &VoxelConfig::default()).unwrap();
+    let cfg = device_cli::device_config(&scan, &sel).unwrap();
+    let mut client = Client::new(LocalLink::start("ram512k").unwrap());
+    device_cli::stream(
+        &mut client,
+        &seq,
+        &cfg,
+        "ram512k",
+        &StreamOptions::default(),
+        None,
+    )
+    .unwrap();
+    let export = device_cli::export_to(&mut client, &root.join("device/out"), None, true).unwrap();
+    let (colmap2, vpr2, pairs2) = dirs("device");
+    let flags = ExportFlags {
+        colmap: Some(colmap2.clone()),
+        vpr_eval: Some(vpr2.clone()),
+        pairs: Some(pairs2.clone()),
+    };
+    let streamed = StreamedWith {
+        mu: 0.3,
+        voxel: 0.3,
+        test: None,
+    };
+    exports::device::write_from_device(&flags, &streamed, &seq, &export, true).unwrap();
+    assert_eq!(
+        std::fs::read(root.join("select/out/database.csv")).unwrap(),
+        std::fs::read(root.join("device/out/database.csv")).unwrap()
+    );
+    let (a, b) = (tree(&colmap), tree(&colmap2));
+    assert!(a.len() > 3, "{:?}", a.keys());
+    assert!(a == b, "COLMAP exports differ");
+    assert!(tree(&vpr) == tree(&vpr2), "VPR-evaluation exports differ");
+    let p = std::fs::read_to_string(&pairs).unwrap();
+    assert!(!p.is_empty());
+    assert_eq!(p, std::fs::read_to_string(&pairs2).unwrap());
+    std::fs::remove_dir_all(&root).ok();
+}
