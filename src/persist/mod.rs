@@ -12,6 +12,8 @@
 pub mod keys;
 pub mod log;
 pub mod record;
+#[cfg(all(test, feature = "sim-flash"))]
+mod room_tests;
 #[cfg(feature = "sim-flash")]
 pub mod sim;
 
