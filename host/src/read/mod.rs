@@ -17,6 +17,8 @@
 //! [`ReadOptions`] overrides the depth scale and the intrinsics of any format
 //! (the intrinsics file is then not read).
 
+#[doc(hidden)]
+pub mod fuzzing;
 mod png;
 pub mod ros2;
 pub mod sevenscenes;
