@@ -9,7 +9,7 @@
 //!
 //! | format | depth scale | intrinsics when the file is absent | timestamp |
 //! |---|---|---|---|
-//! | [`Format::Tum`] ([`tum`]) | 5000 | fx = fy = 525, cx = 319.5, cy = 239.5 | depth.txt's |
+//! | [`Format::Tum`] ([`tum`]) | 5000 | fx = fy = 525, cx = 319.5, cy = 239.5 for 640x480 images only (warned) | depth.txt's |
 //! | [`Format::SevenScenes`] ([`sevenscenes`]) | 1000 | fx = fy = 585, cx = 320, cy = 240 | frame number |
 //! | [`Format::Vprdb`] ([`vprdb`]) | 1000 | required (`intrinsics.txt`) | pose file's, else index |
 //! | [`Format::Ros2`] ([`ros2`]) | 1000 | required (CameraInfo topic) | header stamp |
