@@ -6,6 +6,8 @@
 
 #[path = "../fuzz/src/harness.rs"]
 mod harness;
+#[path = "../fuzz/src/readers.rs"]
+mod readers;
 
 use std::path::{Path, PathBuf};
 
@@ -55,4 +57,14 @@ fn device_structured_corpus() {
 #[test]
 fn restore_corpus() {
     replay("restore", harness::restore);
+}
+
+#[test]
+fn ros2_corpus() {
+    replay("ros2", readers::ros2);
+}
+
+#[test]
+fn depth_png_corpus() {
+    replay("depth_png", readers::depth_png);
 }

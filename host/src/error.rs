@@ -37,7 +37,7 @@ pub enum ReadError {
         reason: String,
     },
     /// A pose is not finite or not a rotation.
-    #[error("{path}:{line}: bad pose: {reason:?}")]
+    #[error("{path}:{line}: bad pose: {}", crate::read::camera_error_words(*reason))]
     Pose {
         /// The file.
         path: PathBuf,
@@ -47,7 +47,13 @@ pub enum ReadError {
         reason: placedb::CameraError,
     },
     /// A depth image has another size than the first one of the sequence.
-    #[error("{name}: depth image is {found:?}, the sequence's images are {expected:?}")]
+    #[error(
+        "{name}: depth image is {}x{}, the sequence's images are {}x{}",
+        found.0,
+        found.1,
+        expected.0,
+        expected.1
+    )]
     SizeMismatch {
         /// The image.
         name: String,

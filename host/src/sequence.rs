@@ -77,7 +77,9 @@ pub enum Format {
     Vprdb,
     /// A ROS 2 recording (rosbag2, MCAP storage): a bag folder or a `.mcap` file.
     Ros2,
-    /// The built-in synthetic renderer.
+    /// The built-in synthetic renderer (`--demo`; not a layout to read, so
+    /// `--format` does not offer it).
+    #[value(skip)]
     Synthetic,
 }
 
@@ -126,6 +128,9 @@ pub struct Sequence {
     pub size: (u16, u16),
     /// Every frame, in sequence order.
     pub frames: Vec<FrameInfo>,
+    /// Frames of the source that the reader skipped with a warning (a depth
+    /// image without a pose): `frames_skipped` of metrics.json.
+    pub frames_skipped: usize,
     /// Depth images on demand.
     pub source: Box<dyn DepthSource>,
 }

@@ -339,6 +339,8 @@ fn tum_dir(name: &str) -> TempDir {
          1.110 7 8 9 0 0 0.7071068 0.7071068\n\
          1.215 1 1 1 0 0 0 1.0001\n",
     );
+    // TUM's default intrinsics are for 640x480 images only.
+    d.write("intrinsics.txt", "4 0 1.5\n0 4 1\n0 0 1\n");
     d
 }
 
@@ -351,16 +353,18 @@ fn tum_association_and_defaults() {
     assert_eq!(
         seq.camera,
         CameraModel {
-            fx: 525.0,
-            fy: 525.0,
-            cx: 319.5,
-            cy: 239.5
+            fx: 4.0,
+            fy: 4.0,
+            cx: 1.5,
+            cy: 1.0
         }
     );
     assert_eq!(seq.size, (4, 3));
-    // 1.5 has no groundtruth within 0.02 s and is dropped; order is by time.
+    // 1.5 has no groundtruth within 0.02 s and is skipped (counted); order
+    // is by time.
     let ts: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
     assert_eq!(ts, [1.0, 1.1, 1.2]);
+    assert_eq!(seq.frames_skipped, 1);
     assert_eq!(seq.frames[0].translation, [4.0, 5.0, 6.0]);
     assert_eq!(seq.frames[1].translation, [7.0, 8.0, 9.0]);
     assert_eq!(seq.frames[2].translation, [1.0, 1.0, 1.0]);
@@ -379,7 +383,7 @@ fn tum_association_and_defaults() {
     assert_eq!(seq.frames[2].color_path, None);
     assert!(seq.depth(2).unwrap().data.iter().all(|&v| v == 5000));
 
-    // An intrinsics.txt in the directory replaces the default.
+    // The intrinsics.txt in the directory is what is used.
     d.write("intrinsics.txt", "517.3 0 318.6\n0 516.5 255.3\n0 0 1\n");
     let seq = open(d.path()).unwrap();
     assert_eq!(seq.camera.fx, 517.3);
@@ -600,13 +604,13 @@ fn seven_scenes_pose_errors() {
             "1 0 0 nan\n0 1 0 0\n0 0 1 0\n0 0 0 1\n",
             "pose",
             1,
-            "NonFinitePose",
+            "not a finite number",
         ),
         (
             "1 0 0 0\n0 2 0 0\n0 0 1 0\n0 0 0 1\n",
             "pose",
             1,
-            "NotARotation",
+            "is not a rotation",
         ),
         (
             "1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 1 1\n",
@@ -810,4 +814,301 @@ fn decode_speed() {
         rayon::current_num_threads(),
         par_wall * 1e3,
     );
+}
+
+// ------------------------------- issue 22: no frame dropped, no default silent
+
+/// A temporary copy of the first `n` frames of 7scenes-1000 (depth, pose,
+/// the camera file).
+fn seven_scenes_copy(name: &str, n: usize) -> TempDir {
+    let src = sample(SEVEN_SCENES);
+    let d = TempDir::new(name);
+    std::fs::copy(
+        src.join("camera-intrinsics.txt"),
+        d.path().join("camera-intrinsics.txt"),
+    )
+    .unwrap();
+    for i in 0..n {
+        for ext in ["depth.png", "pose.txt"] {
+            let f = format!("frame-{i:06}.{ext}");
+            std::fs::copy(src.join(&f), d.path().join(&f)).unwrap();
+        }
+    }
+    d
+}
+
+/// A TUM directory of `n` frames whose depth images are 7scenes-1000's
+/// (640x480), 0.1 s apart, each with its groundtruth line; no intrinsics.
+fn tum_copy(name: &str, n: usize) -> TempDir {
+    let src = sample(SEVEN_SCENES);
+    let d = TempDir::new(name);
+    std::fs::create_dir_all(d.path().join("depth")).unwrap();
+    let (mut depth, mut gt) = (String::new(), String::new());
+    for i in 0..n {
+        let t = format!("{}.{}00", 10 + i / 10, i % 10);
+        std::fs::copy(
+            src.join(format!("frame-{i:06}.depth.png")),
+            d.path().join(format!("depth/{t}.png")),
+        )
+        .unwrap();
+        depth.push_str(&format!("{t} depth/{t}.png\n"));
+        gt.push_str(&format!("{t} {} 0 0 0 0 0 1\n", i as f64 * 0.05));
+    }
+    d.write("depth.txt", &format!("# timestamp filename\n{depth}"));
+    d.write(
+        "groundtruth.txt",
+        &format!("# timestamp tx ty tz qx qy qz qw\n{gt}"),
+    );
+    d
+}
+
+/// Runs the `placedb` binary; returns (success, stdout, stderr).
+fn placedb(args: &[&std::ffi::OsStr]) -> (bool, String, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_placedb"))
+        .args(args)
+        .output()
+        .expect("run placedb");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// `placedb select DIR -o DIR/../out --quiet` plus `extra`; the output
+/// directory and the command's outcome.
+fn select(seq: &TempDir, extra: &[&str]) -> (PathBuf, bool, String, String) {
+    let out = seq.path().with_extension("out");
+    let _ = std::fs::remove_dir_all(&out);
+    let mut args: Vec<&std::ffi::OsStr> = vec![
+        "select".as_ref(),
+        seq.path().as_os_str(),
+        "-o".as_ref(),
+        out.as_os_str(),
+        "--quiet".as_ref(),
+    ];
+    args.extend(extra.iter().map(|a| std::ffi::OsStr::new(*a)));
+    let (ok, stdout, stderr) = placedb(&args);
+    (out, ok, stdout, stderr)
+}
+
+fn metrics(out: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(out.join("metrics.json")).unwrap();
+    serde_json::from_str(&text).unwrap()
+}
+
+/// Item 5, 7-Scenes: a pose file whose depth image is missing is a counted,
+/// warned skip that renumbers nothing silently: the later frames keep their
+/// frame numbers as timestamps, and metrics.json says how many were skipped.
+#[test]
+fn seven_scenes_missing_depth_is_skipped_counted_and_traceable() {
+    let d = seven_scenes_copy("7s-missing-depth", 10);
+    std::fs::remove_file(d.path().join("frame-000007.depth.png")).unwrap();
+    let seq = open(d.path()).unwrap();
+    assert_eq!((seq.frames.len(), seq.frames_skipped), (9, 1));
+    assert_eq!(seq.frames[7].timestamp, 8.0);
+    assert_eq!(seq.frames[7].depth_name, "frame-000008.depth.png");
+
+    let (out, ok, _, stderr) = select(&d, &[]);
+    assert!(ok, "{stderr}");
+    assert!(
+        stderr.contains("warning")
+            && stderr.contains("1 of 10 frames")
+            && stderr.contains("frame-000007.pose.txt")
+            && stderr.contains("skipped"),
+        "{stderr}"
+    );
+    let m = metrics(&out);
+    assert_eq!(
+        (m["frames"].as_u64(), m["frames_skipped"].as_u64()),
+        (Some(9), Some(1))
+    );
+    let _ = std::fs::remove_dir_all(&out);
+    // A whole sequence skips nothing, and says so.
+    let whole = seven_scenes_copy("7s-whole", 3);
+    let (out, ok, _, stderr) = select(&whole, &[]);
+    assert!(ok && !stderr.contains("skipped"), "{stderr}");
+    assert_eq!(metrics(&out)["frames_skipped"].as_u64(), Some(0));
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+/// Item 5, TUM: a depth line without groundtruth is a counted skip (the
+/// warning names its line); two lines with one timestamp, a duplicated
+/// line among them, are an error naming both lines.
+#[test]
+fn tum_skips_are_counted_and_duplicate_timestamps_refused() {
+    let d = tum_copy("tum-skip", 5);
+    d.write("intrinsics.txt", "525 0 319.5\n0 525 239.5\n0 0 1\n");
+    let gt = std::fs::read_to_string(d.path().join("groundtruth.txt")).unwrap();
+    let without_third: String = gt
+        .lines()
+        .filter(|l| !l.starts_with("10.200"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    d.write("groundtruth.txt", &without_third);
+    let seq = open(d.path()).unwrap();
+    assert_eq!((seq.frames.len(), seq.frames_skipped), (4, 1));
+    assert_eq!(seq.frames[2].depth_name, "depth/10.300.png");
+    let (out, ok, _, stderr) = select(&d, &[]);
+    assert!(ok, "{stderr}");
+    assert!(
+        stderr.contains("depth.txt")
+            && stderr.contains("1 of 5 depth frames have no groundtruth")
+            && stderr.contains("line 4"),
+        "{stderr}"
+    );
+    assert_eq!(metrics(&out)["frames_skipped"].as_u64(), Some(1));
+    let _ = std::fs::remove_dir_all(&out);
+    d.write("groundtruth.txt", &gt);
+
+    let list = std::fs::read_to_string(d.path().join("depth.txt")).unwrap();
+    // A duplicated line (line 3 again as line 7).
+    let dup = format!("{list}10.100 depth/10.100.png\n");
+    d.write("depth.txt", &dup);
+    let e = err(open(d.path()));
+    assert!(matches!(e, ReadError::Parse { line: 7, .. }), "{e}");
+    names(&e, "depth.txt:7");
+    names(&e, "line 3");
+    // Two images at one time.
+    d.write("depth.txt", &list.replace("10.400 depth", "10.100 depth"));
+    let e = err(open(d.path()));
+    names(&e, "depth.txt:6");
+    names(&e, "line 3");
+    d.write("depth.txt", &list);
+    // Two poses at one time.
+    d.write("groundtruth.txt", &format!("{gt}10.300 9 9 9 0 0 0 1\n"));
+    let e = err(open(d.path()));
+    names(&e, "groundtruth.txt:7");
+    names(&e, "line 5");
+}
+
+/// Item 5, the reference layout: timestamps must rise; a duplicated or
+/// reordered line is an error naming both lines.
+#[test]
+fn vprdb_duplicate_and_descending_timestamps_are_refused() {
+    let d = vprdb_dir("vprdb-order", 3);
+    d.write(
+        "poses.txt",
+        "0.5 0 0 0 0 0 0 1\n0.6 1 0 0 0 0 0 1\n0.7 2 0 0 0 0 0 1\n",
+    );
+    assert_eq!(open(d.path()).unwrap().frames.len(), 3);
+    d.write(
+        "poses.txt",
+        "0.5 0 0 0 0 0 0 1\n0.5 1 0 0 0 0 0 1\n0.7 2 0 0 0 0 0 1\n",
+    );
+    let e = err(open(d.path()));
+    assert!(matches!(e, ReadError::Parse { line: 2, .. }), "{e}");
+    names(&e, "poses.txt:2");
+    names(&e, "equals the one of line 1");
+    d.write(
+        "poses.txt",
+        "0.5 0 0 0 0 0 0 1\n0.7 1 0 0 0 0 0 1\n0.6 2 0 0 0 0 0 1\n",
+    );
+    let e = err(open(d.path()));
+    names(&e, "poses.txt:3");
+    names(&e, "is before the one of line 2");
+}
+
+/// Item 7: TUM's default intrinsics for 640x480 images, with a warning
+/// naming them; another size without intrinsics is an error asking for
+/// them, before any output is written.
+#[test]
+fn tum_default_intrinsics_only_for_640x480_and_never_silent() {
+    let d = tum_copy("tum-default-k", 3);
+    let seq = open(d.path()).unwrap();
+    assert_eq!(seq.camera, read::tum::DEFAULT_CAMERA);
+    let (out, ok, _, stderr) = select(&d, &[]);
+    assert!(ok, "{stderr}");
+    assert!(
+        stderr.contains("warning")
+            && stderr.contains("no intrinsics.txt")
+            && stderr.contains("fx = fy = 525, cx = 319.5, cy = 239.5"),
+        "{stderr}"
+    );
+    let _ = std::fs::remove_dir_all(&out);
+
+    let small = tum_dir("tum-160x120");
+    std::fs::remove_file(small.path().join("intrinsics.txt")).unwrap();
+    for t in ["1.000", "1.100", "1.200", "1.500"] {
+        small.depth_png(&format!("depth/{t}.png"), 160, 120, 5000);
+    }
+    let e = err(open(small.path()));
+    names(&e, "intrinsics.txt");
+    names(&e, "160x120");
+    names(&e, "--intrinsics");
+    let (out, ok, _, stderr) = select(&small, &[]);
+    assert!(
+        !ok && stderr.contains("160x120") && stderr.contains("--intrinsics"),
+        "{stderr}"
+    );
+    assert!(!out.join("metrics.json").exists());
+    // Given intrinsics are used without a word.
+    let (out, ok, _, stderr) = select(&small, &["--intrinsics", "200,200,79.5,59.5"]);
+    assert!(ok && !stderr.contains("intrinsics"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+/// Item 10: a directory that two layouts match is an error naming both and
+/// asking for --format (which then decides); `--format` offers only
+/// layouts it can read; reader errors carry no Rust names.
+#[test]
+fn ambiguous_layouts_and_errors_in_words() {
+    let d = seven_scenes_copy("ambiguous", 2);
+    d.write("depth.txt", "1.0 depth/1.0.png\n");
+    d.write("groundtruth.txt", "1.0 0 0 0 0 0 0 1\n");
+    let e = err(open(d.path()));
+    assert!(matches!(e, ReadError::Layout { .. }), "{e}");
+    names(&e, "7scenes (frame-*.depth.png)");
+    names(&e, "tum (depth.txt and groundtruth.txt)");
+    names(&e, "--format");
+    let (out, ok, _, stderr) = select(&d, &[]);
+    assert!(
+        !ok && stderr.contains("--format") && stderr.contains("7scenes"),
+        "{stderr}"
+    );
+    let (out2, ok, _, stderr) = select(&d, &["--format", "7scenes"]);
+    assert!(ok, "{stderr}");
+    assert_eq!(metrics(&out2)["frames"].as_u64(), Some(2));
+    let _ = std::fs::remove_dir_all(&out);
+    let _ = std::fs::remove_dir_all(&out2);
+
+    let (ok, help, _) = placedb(&["select".as_ref(), "--help".as_ref()]);
+    let values = help
+        .split("Possible values:")
+        .nth(1)
+        .and_then(|rest| rest.split("--depth-scale").next())
+        .expect("--format lists its values");
+    assert!(
+        ok && values.contains("- 7scenes:") && !values.contains("synthetic"),
+        "{help}"
+    );
+    let (_, _, _, stderr) = select(&d, &["--format", "synthetic"]);
+    assert!(stderr.contains("invalid value"), "{stderr}");
+
+    // A NaN in a pose file and an impossible override, in words.
+    d.write(
+        "frame-000001.pose.txt",
+        "1 0 0 nan\n0 1 0 0\n0 0 1 0\n0 0 0 1\n",
+    );
+    let e = err(read::open(
+        d.path(),
+        &ReadOptions {
+            format: Some(Format::SevenScenes),
+            ..Default::default()
+        },
+    ));
+    names(&e, "not a finite number");
+    assert!(!e.to_string().contains("NonFinitePose"), "{e}");
+    let opts = ReadOptions {
+        intrinsics: Some(CameraModel {
+            fx: 0.0,
+            fy: 500.0,
+            cx: 320.0,
+            cy: 240.0,
+        }),
+        ..Default::default()
+    };
+    let e = err(read::open(d.path(), &opts));
+    assert!(!e.to_string().contains("CameraModel"), "{e}");
+    names(&e, "fx 0 fy 500");
 }

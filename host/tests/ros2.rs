@@ -484,6 +484,7 @@ fn frames_without_a_pose_are_skipped_and_a_cut_bag_is_read_to_its_cut() {
     let seq = open(&bag, Ros2Options::default()).unwrap();
     let kept: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
     assert_eq!(kept, [0.0, 2.0, 4.0]);
+    assert_eq!(seq.frames_skipped, 3);
     assert_eq!(seq.depth(1).unwrap(), s7.depth(2).unwrap());
     // A recording cut short (no summary, half a record): what came before reads.
     let file = bag.join("bag_0.mcap");
@@ -560,5 +561,139 @@ fn the_dataset_has_every_frame_its_class_and_colour_and_reads_back() {
     bad[0] = 5;
     bad[5] = 4;
     assert!(dataset::write(&dir.join("bad"), &ros, &bad).is_err());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `metadata.yaml` as rosbag2's own writer (`ros2 bag record -s mcap`,
+/// Humble) leaves it.
+const ROSBAG2_METADATA: &str = r#"
+rosbag2_bagfile_information:
+  version: 5
+  storage_identifier: mcap
+  duration:
+    nanoseconds: 300000000
+  starting_time:
+    nanoseconds_since_epoch: 1700000000000000000
+  message_count: 13
+  topics_with_message_count:
+    - topic_metadata:
+        name: /camera/depth/image_rect_raw
+        type: sensor_msgs/msg/Image
+        serialization_format: cdr
+        offered_qos_profiles: "- history: 3\n  depth: 0\n  reliability: 1\n  durability: 2\n  deadline:\n    sec: 9223372036\n    nsec: 854775807\n  avoid_ros_namespace_conventions: false"
+      message_count: 4
+  compression_format: ""
+  compression_mode: ""
+  relative_file_paths:
+    - bag_0.mcap
+  files:
+    - path: bag_0.mcap
+      starting_time:
+        nanoseconds_since_epoch: 1700000000000000000
+      duration:
+        nanoseconds: 300000000
+      message_count: 13
+  custom_data: ~
+  ros_distro: humble
+"#;
+
+/// `metadata.yaml` as the `rosbags` Python writer leaves it: `''` for
+/// "none", block lists at the key's indentation.
+const ROSBAGS_METADATA: &str = "rosbag2_bagfile_information:
+  version: 8
+  storage_identifier: mcap
+  relative_file_paths:
+  - bag_0.mcap
+  duration:
+    nanoseconds: 300000000
+  starting_time:
+    nanoseconds_since_epoch: 0
+  message_count: 13
+  topics_with_message_count:
+  - topic_metadata:
+      name: /camera/depth/image_rect_raw
+      type: sensor_msgs/msg/Image
+      serialization_format: cdr
+      offered_qos_profiles: ''
+      type_description_hash: RIHS01_0000
+    message_count: 4
+  compression_format: ''
+  compression_mode: ''
+  files:
+  - path: bag_0.mcap
+    starting_time:
+      nanoseconds_since_epoch: 0
+    duration:
+      nanoseconds: 300000000
+    message_count: 13
+  custom_data: {}
+  ros_distro: rosbags
+";
+
+/// Item 9 of issue 22: the bag folders the standard writers leave read,
+/// whatever they write for "no compression" (`""`, `''`, nothing, no
+/// key); compression, another storage and a broken file are refused in
+/// words naming metadata.yaml.
+#[test]
+fn metadata_yaml_as_the_standard_writers_leave_it() {
+    let mut s7 = sevenscenes();
+    s7.frames.truncate(4);
+    let dir = temp("metadata");
+    let bag = write_bag(&dir, &s7, &Bag::default());
+    let meta = bag.join("metadata.yaml");
+    let empty_values = ROSBAGS_METADATA
+        .replace("compression_format: ''", "compression_format:")
+        .replace("compression_mode: ''", "compression_mode:");
+    let no_keys: String = ROSBAGS_METADATA
+        .lines()
+        .filter(|l| !l.contains("compression"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    for (name, yaml) in [
+        ("rosbag2", ROSBAG2_METADATA.to_string()),
+        ("rosbags", ROSBAGS_METADATA.to_string()),
+        ("empty values", empty_values),
+        ("no compression keys", no_keys),
+        (
+            "none",
+            ROSBAGS_METADATA.replace("compression_mode: ''", "compression_mode: none"),
+        ),
+    ] {
+        std::fs::write(&meta, yaml).unwrap();
+        let seq = open(&bag, Ros2Options::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(seq.frames.len(), 4, "{name}");
+    }
+    for (yaml, needles) in [
+        (
+            ROSBAGS_METADATA
+                .replace("compression_format: ''", "compression_format: zstd")
+                .replace("compression_mode: ''", "compression_mode: FILE"),
+            ["`FILE`", "`zstd`", "ros2 bag decompress"],
+        ),
+        (
+            ROSBAG2_METADATA.replace("compression_mode: \"\"", "compression_mode: MESSAGE"),
+            ["`MESSAGE`", "unnamed", "ros2 bag decompress"],
+        ),
+        (
+            ROSBAGS_METADATA.replace("storage_identifier: mcap", "storage_identifier: sqlite3"),
+            ["`sqlite3`", "only mcap", "ros2 bag convert"],
+        ),
+        (
+            ROSBAGS_METADATA.replace("compression_mode: ''", "compression_mode: 'FILE"),
+            [
+                "not a readable rosbag2 metadata.yaml",
+                "metadata.yaml",
+                "line",
+            ],
+        ),
+    ] {
+        std::fs::write(&meta, &yaml).unwrap();
+        let e = open(&bag, Ros2Options::default()).err().expect("refused");
+        let msg = e.to_string();
+        assert!(msg.contains("metadata.yaml"), "{msg}");
+        for n in needles {
+            assert!(msg.contains(n), "{n:?} not in {msg}");
+        }
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -69,6 +69,7 @@ pub fn of_select(
         serde_json::to_value(seq.format).unwrap_or_default(),
     );
     put("frames", seq.frames.len().into());
+    put("frames_skipped", seq.frames_skipped.into());
     put("voxelize_s", prep.voxelize_wall.as_secs_f64().into());
     put("read_cpu_s", prep.sets.read_time.as_secs_f64().into());
     put(

@@ -654,6 +654,7 @@ mod tests {
                     color_path: None,
                 })
                 .collect(),
+            frames_skipped: 0,
             source: Box::new(NoDepth),
         }
     }

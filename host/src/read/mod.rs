@@ -9,7 +9,7 @@
 //!
 //! | format | depth scale | intrinsics when the file is absent | timestamp |
 //! |---|---|---|---|
-//! | [`Format::Tum`] ([`tum`]) | 5000 | fx = fy = 525, cx = 319.5, cy = 239.5 | depth.txt's |
+//! | [`Format::Tum`] ([`tum`]) | 5000 | fx = fy = 525, cx = 319.5, cy = 239.5 for 640x480 images only (warned) | depth.txt's |
 //! | [`Format::SevenScenes`] ([`sevenscenes`]) | 1000 | fx = fy = 585, cx = 320, cy = 240 | frame number |
 //! | [`Format::Vprdb`] ([`vprdb`]) | 1000 | required (`intrinsics.txt`) | pose file's, else index |
 //! | [`Format::Ros2`] ([`ros2`]) | 1000 | required (CameraInfo topic) | header stamp |
@@ -17,6 +17,8 @@
 //! [`ReadOptions`] overrides the depth scale and the intrinsics of any format
 //! (the intrinsics file is then not read).
 
+#[doc(hidden)]
+pub mod fuzzing;
 mod png;
 pub mod ros2;
 pub mod sevenscenes;
@@ -54,8 +56,15 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError> {
         }
     }
     if let Some(k) = &opts.intrinsics {
-        check_camera(k)
-            .map_err(|reason| text::layout(path, format!("intrinsics override {k:?}: {reason}")))?;
+        check_camera(k).map_err(|reason| {
+            text::layout(
+                path,
+                format!(
+                    "intrinsics override fx {} fy {} cx {} cy {}: {reason}",
+                    k.fx, k.fy, k.cx, k.cy
+                ),
+            )
+        })?;
     }
     let format = match opts.format {
         Some(f) => f,
@@ -76,34 +85,88 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError> {
 /// Recognises the layout of `path`: a ROS 2 bag if it is a `.mcap` file or
 /// a directory with `metadata.yaml` or `*.mcap`; 7-Scenes if it holds
 /// `frame-*.depth.png` files, TUM if it holds `depth.txt` and
-/// `groundtruth.txt`, the reference layout if it has a `depth/` directory.
+/// `groundtruth.txt`, the reference layout if it has a `depth/` directory
+/// and `poses.txt` (or a `depth/` directory and no `depth.txt`: TUM keeps
+/// its images in `depth/` too). A directory that looks like two layouts is
+/// an error naming both, since guessing would read the wrong frames.
 pub fn detect(path: &Path) -> Result<Format, ReadError> {
     let meta = std::fs::metadata(path).map_err(|source| ReadError::Io {
         path: path.to_path_buf(),
         source,
     })?;
-    if ros2::looks_like_bag(path) {
-        return Ok(Format::Ros2);
-    }
     if !meta.is_dir() {
+        if ros2::looks_like_bag(path) {
+            return Ok(Format::Ros2);
+        }
         return Err(text::layout(path, "not a directory (nor a .mcap file)"));
     }
     let names = text::list_dir(path)?;
+    let has = |name: &str| names.iter().any(|n| n == name);
+    let mut found: Vec<(Format, &str)> = Vec::new();
+    if ros2::looks_like_bag(path) {
+        found.push((Format::Ros2, "ros2 (metadata.yaml or *.mcap)"));
+    }
     if names.iter().any(|n| sevenscenes::frame_number(n).is_some()) {
-        return Ok(Format::SevenScenes);
+        found.push((Format::SevenScenes, "7scenes (frame-*.depth.png)"));
     }
-    if path.join("depth.txt").is_file() && path.join("groundtruth.txt").is_file() {
-        return Ok(Format::Tum);
+    if has("depth.txt") && has("groundtruth.txt") {
+        found.push((Format::Tum, "tum (depth.txt and groundtruth.txt)"));
     }
-    if path.join("depth").is_dir() {
-        return Ok(Format::Vprdb);
+    if path.join("depth").is_dir() && (has("poses.txt") || !has("depth.txt")) {
+        found.push((Format::Vprdb, "vprdb (a depth/ directory and poses.txt)"));
     }
-    Err(text::layout(
-        path,
-        "unknown sequence layout: looked for frame-*.depth.png (7scenes), \
-         depth.txt and groundtruth.txt (tum), a depth/ directory (vprdb), \
-         metadata.yaml or *.mcap (ros2)",
-    ))
+    match found.as_slice() {
+        [(format, _)] => Ok(*format),
+        [] => Err(text::layout(
+            path,
+            "unknown sequence layout: looked for frame-*.depth.png (7scenes), \
+             depth.txt and groundtruth.txt (tum), a depth/ directory (vprdb), \
+             metadata.yaml or *.mcap (ros2)",
+        )),
+        several => Err(text::layout(
+            path,
+            format!(
+                "the directory looks like {}: choose one with --format",
+                several
+                    .iter()
+                    .map(|(_, what)| *what)
+                    .collect::<Vec<_>>()
+                    .join(" and also like ")
+            ),
+        )),
+    }
+}
+
+/// What the core's camera check refused, in words for a user (its variant
+/// names mean nothing outside the code).
+pub fn camera_error_words(e: placedb::CameraError) -> &'static str {
+    use placedb::CameraError as E;
+    match e {
+        E::BadIntrinsics => {
+            "the intrinsics are out of range (focal lengths must be finite and within the \
+             supported range, the principal point within an image side of the image)"
+        }
+        E::BadImageSize => "the image size is zero or too large",
+        E::BadDepthScale => "the depth scale (units per metre) is out of the supported range",
+        E::BadDepthRange => "the depth range is empty, negative or not a number",
+        E::BadStride => "the pixel stride is zero or larger than the image",
+        E::NonFinitePose => "a pose value is not a finite number (NaN or infinity)",
+        E::NotARotation => {
+            "the rotation is not a rotation (not orthonormal, a reflection, or a quaternion \
+             far from unit length)"
+        }
+        E::BadVoxelSize => "the voxel size or grid origin is not a positive finite number",
+        E::ScaleOutOfRange => {
+            "depth scale, voxel size, image size or camera position are too extreme for the \
+             fixed-point key range"
+        }
+    }
+}
+
+/// Prints a reader's warning (a default taken, frames skipped) on stderr,
+/// where the command line's own warnings go.
+pub(crate) fn warn(msg: impl std::fmt::Display) {
+    eprintln!("placedb: warning: {msg}");
 }
 
 /// Decodes a 16-bit greyscale depth PNG as stored (no value mapping).
@@ -198,36 +261,65 @@ fn camera(
     default: Option<CameraModel>,
     opts: &ReadOptions,
 ) -> Result<CameraModel, ReadError> {
-    if let Some(k) = opts.intrinsics {
-        return Ok(k);
-    }
-    let path = dir.join(file);
-    match (path.exists(), default) {
-        (true, _) => parse_intrinsics_file(&path),
-        (false, Some(k)) => Ok(k),
-        (false, None) => Err(text::layout(
-            &path,
-            "intrinsics file missing (or give the intrinsics explicitly)",
+    match (given_camera(dir, file, opts)?, default) {
+        (Some(k), _) | (None, Some(k)) => Ok(k),
+        (None, None) => Err(text::layout(
+            &dir.join(file),
+            "intrinsics file missing: write it (3x3 K) or give --intrinsics fx,fy,cx,cy",
         )),
     }
 }
 
-/// Assembles a sequence whose frame `i` has depth PNG `paths[i]`; the size is
+/// The camera the user gave: the override, else `dir/file` when it exists.
+fn given_camera(
+    dir: &Path,
+    file: &str,
+    opts: &ReadOptions,
+) -> Result<Option<CameraModel>, ReadError> {
+    if let Some(k) = opts.intrinsics {
+        return Ok(Some(k));
+    }
+    let path = dir.join(file);
+    if path.exists() {
+        return parse_intrinsics_file(&path).map(Some);
+    }
+    Ok(None)
+}
+
+/// The frames a file-based reader found: frame `i` has depth PNG
+/// `paths[i]`; `skipped` source frames were left out with a warning.
+struct Found {
+    frames: Vec<FrameInfo>,
+    paths: Vec<PathBuf>,
+    skipped: usize,
+}
+
+/// Width and height of the first depth image of `paths` (read from its
+/// header); no image at all is an error about `dir`.
+fn first_size(dir: &Path, paths: &[PathBuf]) -> Result<(u16, u16), ReadError> {
+    let first = paths
+        .first()
+        .ok_or_else(|| text::layout(dir, "the sequence has no depth frames"))?;
+    png::depth_png_size(first)
+}
+
+/// Assembles a sequence from what a file-based reader found; the size is
 /// read from the first image's header.
 fn assemble(
     dir: &Path,
     format: Format,
     camera: CameraModel,
     depth_scale: f64,
-    frames: Vec<FrameInfo>,
-    paths: Vec<PathBuf>,
+    found: Found,
     invalid_65535: bool,
 ) -> Result<Sequence, ReadError> {
+    let Found {
+        frames,
+        paths,
+        skipped,
+    } = found;
     debug_assert_eq!(frames.len(), paths.len());
-    let first = paths
-        .first()
-        .ok_or_else(|| text::layout(dir, "the sequence has no depth frames"))?;
-    let size = png::depth_png_size(first)?;
+    let size = first_size(dir, &paths)?;
     Ok(Sequence {
         name: text::dir_name(dir),
         format,
@@ -235,6 +327,7 @@ fn assemble(
         depth_scale,
         size,
         frames,
+        frames_skipped: skipped,
         source: Box::new(png::PngDepthSource {
             paths,
             invalid_65535,

@@ -177,10 +177,21 @@ fn decode_pixels(
     data: &mut Vec<u16>,
 ) -> Result<(u16, u16), ReadError> {
     let bytes = read_file(path)?;
-    let header = parse_header(path, &bytes)?;
+    decode_bytes(path, &bytes, invalid_65535, data)
+}
+
+/// [`decode_pixels`] of a file's bytes already read (`path` names it in
+/// errors).
+pub(crate) fn decode_bytes(
+    path: &Path,
+    bytes: &[u8],
+    invalid_65535: bool,
+    data: &mut Vec<u16>,
+) -> Result<(u16, u16), ReadError> {
+    let header = parse_header(path, bytes)?;
     let (width, height) = (header.width, header.height);
     if header.interlaced {
-        *data = decode_with_png_crate(path, &bytes, width, height)?;
+        *data = decode_with_png_crate(path, bytes, width, height)?;
         if invalid_65535 {
             blank_invalid(data);
         }
@@ -188,9 +199,23 @@ fn decode_pixels(
     }
     SCRATCH.with(|scratch| {
         let scratch = &mut *scratch.borrow_mut();
-        collect_image_data(path, &bytes, &mut scratch.zlib)?;
+        collect_image_data(path, bytes, &mut scratch.zlib)?;
         let row_bytes = 2 * width as usize;
         let total = (row_bytes + 1) * height as usize;
+        // A header can claim 65535x65535 (8.6 GB) in a file of a few bytes:
+        // no deflate stream inflates more than MAX_INFLATE_RATIO times its
+        // size, so the image data must be large enough before the buffer
+        // for its scanlines is made.
+        if total / MAX_INFLATE_RATIO > scratch.zlib.len() {
+            return Err(png_error(
+                path,
+                format!(
+                    "{} bytes of image data cannot hold the {total} bytes of a \
+                     {width}x{height} 16-bit image (the file is cut short or its header is wrong)",
+                    scratch.zlib.len()
+                ),
+            ));
+        }
         scratch.scanlines.resize(total, 0);
         let n = inflate(&scratch.zlib, &mut scratch.scanlines, &mut scratch.inflater)
             .map_err(|e| {
@@ -267,6 +292,10 @@ fn collect_image_data(path: &Path, bytes: &[u8], zlib: &mut Vec<u8>) -> Result<(
     }
     Ok(())
 }
+
+/// The largest ratio of inflated to deflated size: a deflate block codes a
+/// run of 258 bytes in at least 2 bits, 1032 bytes a byte (RFC 1951).
+const MAX_INFLATE_RATIO: usize = 1032;
 
 /// Why image data did not inflate.
 enum Inflate {

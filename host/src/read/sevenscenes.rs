@@ -7,7 +7,10 @@
 //! dataset has none). `camera-intrinsics.txt` (3x3) gives the intrinsics when
 //! present, else the dataset's fx = fy = 585, cx = 320, cy = 240. The colour
 //! image is `frame-XXXXXX.color.png` or `.jpg` when one exists. A depth image
-//! without its pose file is an error naming both.
+//! without its pose file is an error naming both; a pose file without its
+//! depth image is a frame skipped with a warning naming it, and counted
+//! ([`Sequence::frames_skipped`]): the frames after it keep their
+//! timestamps (frame numbers), which is how a frame is traced to its files.
 
 use super::{text, ReadOptions};
 use crate::error::ReadError;
@@ -107,6 +110,33 @@ pub(crate) fn read(dir: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError
         return Err(text::layout(dir, "no frame-*.depth.png files"));
     }
     let present: HashSet<&str> = names.iter().map(String::as_str).collect();
+    let mut without_depth: Vec<&String> = names
+        .iter()
+        .filter(|n| {
+            n.strip_suffix(".pose.txt").is_some_and(|stem| {
+                frame_number(&format!("{stem}.depth.png")).is_some()
+                    && !present.contains(format!("{stem}.depth.png").as_str())
+            })
+        })
+        .collect();
+    without_depth.sort();
+    if let Some(first) = without_depth.first() {
+        let shown: Vec<&str> = without_depth.iter().take(10).map(|n| n.as_str()).collect();
+        super::warn(format!(
+            "{}: {} of {} frames have a pose file but no depth image ({}{}; from \
+             {first}, the depth image of the same number is missing): skipped (a \
+             frame's timestamp stays its frame number)",
+            dir.display(),
+            without_depth.len(),
+            numbered.len() + without_depth.len(),
+            shown.join(", "),
+            if without_depth.len() > shown.len() {
+                ", ..."
+            } else {
+                ""
+            },
+        ));
+    }
     let camera = super::camera(dir, "camera-intrinsics.txt", Some(DEFAULT_CAMERA), opts)?;
     let mut frames = Vec::with_capacity(numbered.len());
     let mut paths = Vec::with_capacity(numbered.len());
@@ -140,8 +170,11 @@ pub(crate) fn read(dir: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError
         Format::SevenScenes,
         camera,
         opts.depth_scale.unwrap_or(DEPTH_SCALE),
-        frames,
-        paths,
+        super::Found {
+            frames,
+            paths,
+            skipped: without_depth.len(),
+        },
         true,
     )
 }

@@ -4,15 +4,19 @@
 //!
 //! Each depth frame takes the pose of the groundtruth line nearest in time
 //! (not interpolated); a depth frame with no groundtruth within
-//! [`MAX_DIFFERENCE`] (0.02 s, the default of TUM's `associate.py`) is dropped
-//! silently, so the sequence may have fewer frames than `depth.txt` has lines.
-//! Frames are in timestamp order; the timestamp is the depth image's. The
-//! colour image is the nearest `rgb.txt` entry within the same 0.02 s.
+//! [`MAX_DIFFERENCE`] (0.02 s, the default of TUM's `associate.py`) is
+//! skipped with a warning naming its lines, and counted
+//! ([`Sequence::frames_skipped`]). Two lines of one file with the same
+//! timestamp (a duplicated line, say) are an error naming both. Frames are
+//! in timestamp order; the timestamp is the depth image's, and the depth
+//! name its `depth.txt` path. The colour image is the nearest `rgb.txt`
+//! entry within the same 0.02 s.
 //!
-//! Intrinsics come from `intrinsics.txt` (3x3) when present, else the
-//! Freiburg default ROS values fx = fy = 525, cx = 319.5, cy = 239.5 (the
-//! per-camera calibrations fr1/fr2/fr3 differ by up to 10 %: give them with
-//! an intrinsics file or override when it matters).
+//! Intrinsics come from `intrinsics.txt` (3x3) when present, else, for
+//! 640x480 images only, the Freiburg default ROS values fx = fy = 525,
+//! cx = 319.5, cy = 239.5, with a warning (the per-camera calibrations
+//! fr1/fr2/fr3 differ by up to 10 %: give them with an intrinsics file or
+//! override when it matters). Other sizes need the file or the override.
 
 use super::{text, ReadOptions};
 use crate::error::ReadError;
@@ -43,6 +47,7 @@ struct Entry {
 
 /// A groundtruth line.
 struct GroundTruth {
+    line: usize,
     timestamp: f64,
     translation: [f64; 3],
     rotation: [f64; 4],
@@ -71,7 +76,28 @@ fn parse_list(path: &Path) -> Result<Vec<Entry>, ReadError> {
         });
     }
     out.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
+    let lines: Vec<(usize, f64)> = out.iter().map(|e| (e.line, e.timestamp)).collect();
+    distinct_timestamps(path, &lines)?;
     Ok(out)
+}
+
+/// Refuses two lines with one timestamp (`lines` sorted by time): a
+/// duplicated line would be read as two frames, and two different entries
+/// at one time leave no way to tell which one is meant.
+fn distinct_timestamps(path: &Path, lines: &[(usize, f64)]) -> Result<(), ReadError> {
+    if let Some(w) = lines.windows(2).find(|w| w[0].1 == w[1].1) {
+        let (first, second) = (w[0].0.min(w[1].0), w[0].0.max(w[1].0));
+        return Err(text::parse_error(
+            path,
+            second,
+            format!(
+                "timestamp {} is also the one of line {first}: each line needs its own time \
+                 (remove the duplicate)",
+                w[0].1
+            ),
+        ));
+    }
+    Ok(())
 }
 
 fn parse_timestamp(path: &Path, line: usize, field: &str) -> Result<f64, ReadError> {
@@ -100,12 +126,15 @@ fn parse_groundtruth(path: &Path) -> Result<Vec<GroundTruth>, ReadError> {
         let translation = [v[1], v[2], v[3]];
         let rotation = text::checked_quaternion(path, line, translation, [v[4], v[5], v[6], v[7]])?;
         out.push(GroundTruth {
+            line,
             timestamp: v[0],
             translation,
             rotation,
         });
     }
     out.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
+    let lines: Vec<(usize, f64)> = out.iter().map(|g| (g.line, g.timestamp)).collect();
+    distinct_timestamps(path, &lines)?;
     Ok(out)
 }
 
@@ -134,14 +163,16 @@ pub(crate) fn read(dir: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError
     } else {
         Vec::new()
     };
-    let camera = super::camera(dir, "intrinsics.txt", Some(DEFAULT_CAMERA), opts)?;
+    let given = super::given_camera(dir, "intrinsics.txt", opts)?;
 
     let gt_times: Vec<f64> = gt.iter().map(|g| g.timestamp).collect();
     let rgb_times: Vec<f64> = rgb.iter().map(|e| e.timestamp).collect();
     let mut frames = Vec::with_capacity(depth.len());
     let mut paths: Vec<PathBuf> = Vec::with_capacity(depth.len());
+    let mut skipped: Vec<&Entry> = Vec::new();
     for entry in &depth {
         let Some(g) = nearest(&gt_times, entry.timestamp).map(|j| &gt[j]) else {
+            skipped.push(entry);
             continue;
         };
         let path = dir.join(&entry.path);
@@ -162,24 +193,74 @@ pub(crate) fn read(dir: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError
         });
         paths.push(path);
     }
-    if frames.is_empty() && !depth.is_empty() {
-        return Err(text::layout(
-            dir,
-            format!(
-                "none of the {} depth frames has groundtruth within {MAX_DIFFERENCE} s",
-                depth.len()
-            ),
-        ));
+    if !skipped.is_empty() {
+        let mut lines: Vec<usize> = skipped.iter().map(|e| e.line).collect();
+        lines.sort_unstable();
+        let shown: Vec<String> = lines.iter().take(10).map(|l| l.to_string()).collect();
+        let more = if lines.len() > shown.len() {
+            ", ..."
+        } else {
+            ""
+        };
+        let msg = format!(
+            "{}: {} of {} depth frames have no groundtruth within {MAX_DIFFERENCE} s \
+             (line{} {}{more})",
+            depth_list.display(),
+            skipped.len(),
+            depth.len(),
+            if lines.len() == 1 { "" } else { "s" },
+            shown.join(", ")
+        );
+        if frames.is_empty() {
+            return Err(text::layout(dir, msg));
+        }
+        super::warn(format!("{msg}: skipped"));
     }
+    let size = super::first_size(dir, &paths)?;
+    let camera = match given {
+        Some(k) => k,
+        None => default_camera(dir, size)?,
+    };
     super::assemble(
         dir,
         Format::Tum,
         camera,
         opts.depth_scale.unwrap_or(DEPTH_SCALE),
-        frames,
-        paths,
+        super::Found {
+            frames,
+            paths,
+            skipped: skipped.len(),
+        },
         false,
     )
+}
+
+/// [`DEFAULT_CAMERA`] for 640x480 images, with a warning that says so; for
+/// any other size an error asking for the intrinsics (the default's
+/// principal point would be off the image's centre, and its focal length
+/// for another sensor).
+fn default_camera(dir: &Path, size: (u16, u16)) -> Result<CameraModel, ReadError> {
+    let k = DEFAULT_CAMERA;
+    let default = format!(
+        "TUM's default intrinsics fx = fy = {}, cx = {}, cy = {}",
+        k.fx, k.cx, k.cy
+    );
+    if size == (640, 480) {
+        super::warn(format!(
+            "{}: no intrinsics.txt: using {default} (the Freiburg cameras' ROS default; \
+             write intrinsics.txt or give --intrinsics fx,fy,cx,cy when they differ)",
+            dir.display()
+        ));
+        return Ok(k);
+    }
+    Err(text::layout(
+        &dir.join("intrinsics.txt"),
+        format!(
+            "missing, and the depth images are {}x{}: {default} are for 640x480 images; \
+             write intrinsics.txt (3x3 K) or give --intrinsics fx,fy,cx,cy",
+            size.0, size.1
+        ),
+    ))
 }
 
 #[cfg(test)]

@@ -7,8 +7,10 @@
 //! other than `intrinsics.txt`. Each line is `tx ty tz qx qy qz qw`
 //! (camera to world), optionally preceded by a timestamp (8 numbers); all lines
 //! must have the same form. The timestamp is that column when present, else the
-//! frame index. The number of poses must equal the number of depth images, and
-//! a `color/` directory, when present, must hold as many images.
+//! frame index; timestamps must rise from line to line (a duplicated or
+//! reordered line would pair poses with the wrong images), else an error
+//! names both lines. The number of poses must equal the number of depth
+//! images, and a `color/` directory, when present, must hold as many images.
 
 use super::{text, ReadOptions};
 use crate::error::ReadError;
@@ -57,6 +59,8 @@ fn parse_poses(path: &Path) -> Result<Vec<PoseLine>, ReadError> {
     let content = text::read_text(path)?;
     let mut out = Vec::new();
     let mut columns: Option<(usize, usize)> = None;
+    // The previous timestamp and its line.
+    let mut previous: Option<(f64, usize)> = None;
     for (line, l) in text::data_lines(&content) {
         let v = text::numbers(path, line, l, &[7, 8], "[timestamp] tx ty tz qx qy qz qw")?;
         match columns {
@@ -81,6 +85,23 @@ fn parse_poses(path: &Path) -> Result<Vec<PoseLine>, ReadError> {
                     format!("timestamp {} is not finite", v[0]),
                 ));
             }
+            if let Some((before, before_line)) = previous.filter(|&(t, _)| v[0] <= t) {
+                let how = if v[0] == before {
+                    "equals"
+                } else {
+                    "is before"
+                };
+                return Err(text::parse_error(
+                    path,
+                    line,
+                    format!(
+                        "timestamp {} {how} the one of line {before_line} ({before}): \
+                         timestamps must rise, one line per depth image in depth/ order",
+                        v[0]
+                    ),
+                ));
+            }
+            previous = Some((v[0], line));
             (Some(v[0]), &v[1..])
         } else {
             (None, &v[..])
@@ -150,7 +171,7 @@ pub(crate) fn read(dir: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError
         }
     }
     let camera = super::camera(dir, "intrinsics.txt", None, opts)?;
-    let frames = poses
+    let frames: Vec<FrameInfo> = poses
         .iter()
         .zip(&depth)
         .enumerate()
@@ -169,8 +190,11 @@ pub(crate) fn read(dir: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError
         Format::Vprdb,
         camera,
         opts.depth_scale.unwrap_or(DEPTH_SCALE),
-        frames,
-        paths,
+        super::Found {
+            frames,
+            paths,
+            skipped: 0,
+        },
         false,
     )
 }

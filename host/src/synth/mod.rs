@@ -140,6 +140,7 @@ pub fn sequence(cfg: &SynthConfig) -> Sequence {
         depth_scale: DEPTH_SCALE,
         size,
         frames,
+        frames_skipped: 0,
         source: Box::new(SynthSource {
             scene,
             camera,

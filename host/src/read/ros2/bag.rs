@@ -162,23 +162,20 @@ pub fn scan(
         };
         match record {
             Record::Chunk { header, data } => {
-                let chunk = mcap::read::ChunkReader::new(header, &data)
-                    .map_err(|e| err(path, format!("chunk at byte {offset}: {e}")))?;
                 let mut ordinal = 0u32;
-                for inner in chunk {
-                    let inner =
-                        inner.map_err(|e| err(path, format!("chunk at byte {offset}: {e}")))?;
+                let bound = check_chunk(path, offset, &header, &data)?;
+                chunk_records(path, offset, &body, bound, &mut |inner| {
                     if let Record::Message { header, data } = &inner {
                         let at = Location {
                             in_chunk: Some(ordinal),
                             ..at
                         };
                         ordinal += 1;
-                        deliver(path, &channels, header, data, at, visit)?;
+                        deliver(path, &channels, header, data, at, visit)
                     } else {
-                        channels.note(path, &inner)?;
+                        channels.note(path, &inner)
                     }
-                }
+                })?;
             }
             Record::Message { header, data } => {
                 deliver(path, &channels, &header, &data, at, visit)?
@@ -186,6 +183,105 @@ pub fn scan(
             other => channels.note(path, &other)?,
         }
     }
+}
+
+/// Refuses a chunk whose claimed uncompressed size its data cannot hold:
+/// the chunk reader makes a buffer of that size before decompressing, and
+/// a damaged header (a few bytes) could ask for terabytes. No lz4 block
+/// expands more than 255 times, no zstd block more than 128 KiB from 4
+/// bytes; uncompressed data is its own size, and its records must tile it
+/// exactly (the chunk reader counts them off the chunk's size without a
+/// check, and overflows on a record that runs past the end). Returns the
+/// largest a record of the chunk can be.
+fn check_chunk(
+    path: &Path,
+    offset: u64,
+    header: &mcap::records::ChunkHeader,
+    data: &[u8],
+) -> Result<usize, BagError> {
+    let compressed = data.len();
+    let n = compressed as u64;
+    if header.compression.is_empty() {
+        let mut rest = data;
+        while !rest.is_empty() {
+            let len = rest
+                .get(1..9)
+                .and_then(|l| <[u8; 8]>::try_from(l).ok())
+                .map(u64::from_le_bytes);
+            match len.filter(|&l| l <= (rest.len() - 9) as u64) {
+                Some(l) => rest = &rest[9 + l as usize..],
+                None => {
+                    return Err(err(
+                        path,
+                        format!(
+                            "chunk at byte {offset}: a record at byte {} of its data runs past \
+                             its end",
+                            compressed - rest.len()
+                        ),
+                    ))
+                }
+            }
+        }
+    }
+    let most = match header.compression.as_str() {
+        "" => n,
+        "lz4" => n.saturating_mul(255).saturating_add(64),
+        _ => n.saturating_mul(32 * 1024).saturating_add(128 * 1024),
+    };
+    if header.uncompressed_size > most {
+        return Err(err(
+            path,
+            format!(
+                "chunk at byte {offset}: {} bytes cannot hold the {} bytes it claims \
+                 uncompressed (a damaged chunk header)",
+                compressed, header.uncompressed_size
+            ),
+        ));
+    }
+    Ok(usize::try_from(most.max(n)).unwrap_or(usize::MAX))
+}
+
+/// Hands the records of a chunk (`body`, the chunk record's body at
+/// `offset`) to `visit`, decompressed, CRC-checked, every record at most
+/// `bound` bytes: the reader reserves a record's claimed length before
+/// decompressing it, so a damaged length inside the chunk must be capped
+/// too (`mcap::read::ChunkReader` has no such cap).
+fn chunk_records(
+    path: &Path,
+    offset: u64,
+    body: &[u8],
+    bound: usize,
+    visit: &mut dyn FnMut(Record<'_>) -> Result<(), BagError>,
+) -> Result<(), BagError> {
+    use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
+    let bad = |e: mcap::McapError| err(path, format!("chunk at byte {offset}: {e}"));
+    let mut reader = LinearReader::new_with_options(
+        LinearReaderOptions::default()
+            .with_skip_start_magic(true)
+            .with_skip_end_magic(true)
+            .with_validate_chunk_crcs(true)
+            .with_record_length_limit(bound),
+    );
+    // The chunk as a record of its own, as the file holds it.
+    let mut framed = Vec::with_capacity(9 + body.len());
+    framed.push(op::CHUNK);
+    framed.extend_from_slice(&(body.len() as u64).to_le_bytes());
+    framed.extend_from_slice(body);
+    let mut rest = framed.as_slice();
+    while let Some(event) = reader.next_event() {
+        match event.map_err(bad)? {
+            LinearReadEvent::ReadRequest(need) => {
+                let n = need.min(rest.len());
+                reader.insert(n).copy_from_slice(&rest[..n]);
+                reader.notify_read(n);
+                rest = &rest[n..];
+            }
+            LinearReadEvent::Record { data, opcode } => {
+                visit(mcap::parse_record(opcode, data).map_err(bad)?)?
+            }
+        }
+    }
+    Ok(())
 }
 
 fn deliver(
@@ -229,19 +325,23 @@ pub fn fetch(path: &Path, at: Location) -> Result<Vec<u8>, BagError> {
     match (mcap::parse_record(op, &body).map_err(bad)?, at.in_chunk) {
         (Record::Message { data, .. }, None) => Ok(data.into_owned()),
         (Record::Chunk { header, data }, Some(k)) => {
-            let mut n = 0;
-            for inner in mcap::read::ChunkReader::new(header, &data).map_err(bad)? {
-                if let Record::Message { data, .. } = inner.map_err(bad)? {
-                    if n == k {
-                        return Ok(data.into_owned());
+            let bound = check_chunk(path, at.offset, &header, &data)?;
+            let (mut n, mut found) = (0, None);
+            chunk_records(path, at.offset, &body, bound, &mut |inner| {
+                if let Record::Message { data, .. } = inner {
+                    if n == k && found.is_none() {
+                        found = Some(data.into_owned());
                     }
                     n += 1;
                 }
-            }
-            Err(err(
-                path,
-                format!("chunk at byte {} has no message {k}", at.offset),
-            ))
+                Ok(())
+            })?;
+            found.ok_or_else(|| {
+                err(
+                    path,
+                    format!("chunk at byte {} has no message {k}", at.offset),
+                )
+            })
         }
         _ => Err(err(
             path,

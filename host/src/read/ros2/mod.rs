@@ -71,6 +71,59 @@ pub fn looks_like_bag(path: &Path) -> bool {
         || text::list_dir(path).is_ok_and(|names| names.iter().any(|n| n.ends_with(".mcap")))
 }
 
+/// What the reader needs of a bag folder's `metadata.yaml` (rosbag2 writes
+/// more: topics, counts, times, which are in the MCAP files too).
+#[derive(Debug, Default, serde::Deserialize)]
+struct Metadata {
+    #[serde(default)]
+    rosbag2_bagfile_information: BagInfo,
+}
+
+/// The `rosbag2_bagfile_information` mapping. A key can be absent or empty
+/// (`compression_mode:`), and rosbag2's writers leave `''` or `""` for
+/// "none": all three mean not set.
+#[derive(Debug, Default, serde::Deserialize)]
+#[serde(default)]
+struct BagInfo {
+    storage_identifier: Option<String>,
+    compression_mode: Option<String>,
+    compression_format: Option<String>,
+}
+
+/// A set value: `None` for an absent, empty (null) or `''` one.
+fn set(value: &Option<String>) -> Option<&str> {
+    value.as_deref().map(str::trim).filter(|v| !v.is_empty())
+}
+
+/// Parses a bag folder's `metadata.yaml` (`path`, holding `yaml`) and
+/// refuses what the reader cannot read: another storage than MCAP, bag
+/// compression (whole files or each message).
+pub fn check_metadata(path: &Path, yaml: &str) -> Result<(), ReadError> {
+    let meta: Metadata = serde_saphyr::from_str(yaml)
+        .map_err(|e| text::layout(path, format!("not a readable rosbag2 metadata.yaml: {e}")))?;
+    let info = &meta.rosbag2_bagfile_information;
+    if let Some(storage) = set(&info.storage_identifier).filter(|s| *s != "mcap") {
+        return Err(text::layout(
+            path,
+            format!(
+                "storage `{storage}` is not supported, only mcap \
+                 (convert with `ros2 bag convert`)"
+            ),
+        ));
+    }
+    if let Some(mode) = set(&info.compression_mode).filter(|m| !m.eq_ignore_ascii_case("none")) {
+        let format = set(&info.compression_format).unwrap_or("unnamed");
+        return Err(text::layout(
+            path,
+            format!(
+                "bag compression (mode `{mode}`, format `{format}`) is not supported: \
+                 decompress it with `ros2 bag decompress`; MCAP chunk compression is fine"
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// The MCAP files of the recording at `path`, in name order.
 fn bag_files(path: &Path) -> Result<Vec<PathBuf>, ReadError> {
     if path.is_file() {
@@ -78,30 +131,7 @@ fn bag_files(path: &Path) -> Result<Vec<PathBuf>, ReadError> {
     }
     let meta = path.join("metadata.yaml");
     if meta.is_file() {
-        let yaml = text::read_text(&meta)?;
-        let field = |key: &str| {
-            yaml.lines()
-                .find_map(|l| l.trim().strip_prefix(key))
-                .map(|v| v.trim().trim_matches('"').to_string())
-        };
-        if let Some(storage) = field("storage_identifier:").filter(|s| s != "mcap") {
-            return Err(text::layout(
-                &meta,
-                format!(
-                    "storage `{storage}` is not supported, only mcap \
-                     (convert with `ros2 bag convert`)"
-                ),
-            ));
-        }
-        if let Some(mode) = field("compression_mode:").filter(|m| !m.is_empty()) {
-            return Err(text::layout(
-                &meta,
-                format!(
-                    "bag compression mode `{mode}` (compressed files) is not supported: \
-                     decompress it with `ros2 bag decompress`; MCAP chunk compression is fine"
-                ),
-            ));
-        }
+        check_metadata(&meta, &text::read_text(&meta)?)?;
     }
     let mut names: Vec<String> = text::list_dir(path)?
         .into_iter()
@@ -488,8 +518,11 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadErro
             text::layout(
                 path,
                 format!(
-                    "{pose_topic} at t={:.6}: bad pose {:?} {:?}: {reason:?}",
-                    poses[j].stamp, p.translation, p.rotation
+                    "{pose_topic} at t={:.6}: bad pose {:?} {:?}: {}",
+                    poses[j].stamp,
+                    p.translation,
+                    p.rotation,
+                    super::camera_error_words(reason)
                 ),
             )
         })?;
@@ -535,6 +568,7 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadErro
         depth_scale: opts.depth_scale.unwrap_or(DEPTH_SCALE),
         size,
         frames,
+        frames_skipped: skipped.len(),
         source: Box::new(BagSource {
             files,
             depth: refs,
