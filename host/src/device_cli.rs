@@ -67,7 +67,9 @@ pub struct StreamOptions {
     pub rows_per_message: u16,
     /// Messages sent ahead of their replies (1 = stop-and-wait).
     pub in_flight: usize,
-    /// Longest wait for one reply.
+    /// Longest wait for one reply. The default outlasts the longest flash
+    /// stall of a Pico reply at the datasheet's maximum timing
+    /// ([`crate::flash_timing::WorstStall`]).
     pub reply_timeout: Duration,
     /// Reset the device before the Hello (a new scan).
     pub reset: bool,
@@ -94,7 +96,7 @@ impl Default for StreamOptions {
         StreamOptions {
             rows_per_message: 0,
             in_flight: 4,
-            reply_timeout: Duration::from_secs(30),
+            reply_timeout: Duration::from_secs(60),
             reset: true,
             resume: false,
             finish: true,

@@ -91,6 +91,12 @@ struct StreamArgs {
     /// Leave the scan open (no Finish): more frames can follow with --resume.
     #[arg(long)]
     no_finish: bool,
+    /// Replay at the sequence's recorded rate, as a live camera delivers it:
+    /// a frame due while the device is still busy with earlier ones is
+    /// skipped (named in the output and in skipped.csv with -o; it has no
+    /// label) instead of waiting.
+    #[arg(long, conflicts_with_all = ["resume", "no_finish", "drop_chance", "corrupt_chance", "retries"])]
+    realtime: bool,
 }
 
 /// One line about a written dataset.
@@ -162,6 +168,11 @@ struct DeviceArgs {
     /// missing and kept across runs, so a restarted board restores its scan.
     #[arg(long)]
     flash: Option<PathBuf>,
+    /// With --rp2040: how long the Pico's flash is busy per sector erase and
+    /// page program, in emulated time (W25Q16JV datasheet: typical 45 ms and
+    /// 0.4 ms, max 400 ms and 3 ms; none: no time).
+    #[arg(long, default_value = "typical", requires = "rp2040")]
+    flash_timing: placedb_host::flash_timing::FlashTiming,
 }
 
 /// Where the frames come from and how they become voxel sets.
@@ -1299,6 +1310,10 @@ fn main() -> ExitCode {
                 sketch_margin: SolverParams::default().sketch_margin,
             };
             let out = a.out.as_deref();
+            if a.realtime {
+                placedb_host::pacing::realtime_cmd(&a.port, &seq, &v, sel, &a.profile, out)?;
+                return Ok(());
+            }
             let recovery = device_cli::Recovery {
                 faults: placedb_host::fault::FaultConfig::new(
                     a.drop_chance,
@@ -1315,7 +1330,8 @@ fn main() -> ExitCode {
         }),
         Command::Export(a) => export(a),
         Command::Device(a) if a.rp2040 => {
-            placedb_host::rp2040::device_cmd(a.firmware, a.port, a.flash).map_err(Into::into)
+            placedb_host::rp2040::device_cmd(a.firmware, a.port, a.flash, a.flash_timing)
+                .map_err(Into::into)
         }
         Command::Device(a) => {
             device_cli::qemu_device_cmd(a.firmware, a.port, !a.no_icount, a.flash)

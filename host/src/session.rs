@@ -71,8 +71,8 @@ pub struct DepthFrame<'a> {
 /// One scan on a device: configure, push frames, read decisions and status,
 /// finish, export. Owns the protocol client ([`Client`]) of its link.
 pub struct Session<L: Link> {
-    client: Client<L>,
-    state: ScanState,
+    pub(crate) client: Client<L>,
+    pub(crate) state: ScanState,
 }
 
 impl Session<Box<dyn Link>> {
@@ -438,16 +438,40 @@ impl ScanState {
 
     /// Handles replies until the oldest outstanding message is answered.
     fn pump<L: Link>(&mut self, client: &mut Client<L>) -> Result<(), DeviceError> {
+        while !self.answered(client, self.opts.reply_timeout)? {}
+        Ok(())
+    }
+
+    /// Messages sent and not answered yet.
+    pub(crate) fn unanswered(&self) -> usize {
+        self.outstanding.len()
+    }
+
+    /// Handles what the device sent, waiting at most `wait` for each
+    /// reply, until the oldest outstanding message is answered (true), or
+    /// nothing more came within `wait` (false: only when `wait` is shorter
+    /// than the reply timeout; at the reply timeout that is an error).
+    pub(crate) fn answered<L: Link>(
+        &mut self,
+        client: &mut Client<L>,
+        wait: Duration,
+    ) -> Result<bool, DeviceError> {
         let Some((want, what)) = self.outstanding.front().cloned() else {
-            return Ok(());
+            return Ok(true);
         };
         loop {
-            let item = client.recv(self.opts.reply_timeout).map_err(|e| {
-                DeviceError::Io(io::Error::new(
-                    e.kind(),
-                    format!("waiting for the reply to {what}: {e}"),
-                ))
-            })?;
+            let item = match client.recv(wait) {
+                Ok(item) => item,
+                Err(e) if e.kind() == io::ErrorKind::TimedOut && wait < self.opts.reply_timeout => {
+                    return Ok(false)
+                }
+                Err(e) => {
+                    return Err(DeviceError::Io(io::Error::new(
+                        e.kind(),
+                        format!("waiting for the reply to {what}: {e}"),
+                    )))
+                }
+            };
             self.note(&item);
             match &item {
                 Received::Message(DeviceMessage::Error { seq, kind }) => {
@@ -467,7 +491,7 @@ impl ScanState {
             match item.terminal_seq() {
                 Some(s) if s == want => {
                     self.outstanding.pop_front();
-                    return Ok(());
+                    return Ok(true);
                 }
                 Some(s) => {
                     return Err(DeviceError::Protocol(format!(
