@@ -22,9 +22,11 @@ use placedb::protocol::{Phase, Status};
 use placedb::SelectorConfig;
 use placedb_host::device_cli::{self, ExportOptions, StreamOptions, StreamReport};
 use placedb_host::fault::{FaultConfig, FaultInjector};
+use placedb_host::device::flash_timing::FlashTiming;
 use placedb_host::link::{Client, Link};
 use placedb_host::pixelcost;
 use placedb_host::rp2040::{Rp2040, Rp2040Options};
+use placedb_host::session::{DepthFrame, Session};
 use placedb_host::testing::rp2040_firmware as firmware;
 use placedb_host::testing::{selector as sel, voxel_config as stride};
 use placedb_host::{Sequence, VoxelConfig};
@@ -271,4 +273,139 @@ fn the_emulated_pico_recovers_from_5_percent_faults_over_usb() {
         report.retransmissions,
         started.elapsed().as_secs_f64()
     );
+}
+
+/// The harness's exit line of frame answer latencies ("latency frames=N
+/// median_us=M worst_us=W answers_after_erase=K ...") as (N, M, W, K).
+fn latency_line(console: &str) -> (u64, u64, u64, u64) {
+    let line = console
+        .lines()
+        .find(|l| l.starts_with("latency "))
+        .unwrap_or_else(|| panic!("no latency line: {console}"));
+    let field = |name: &str| -> u64 {
+        line.split_whitespace()
+            .find_map(|w| w.strip_prefix(name)?.strip_prefix('=')?.parse().ok())
+            .unwrap_or_else(|| panic!("no {name} in {line}"))
+    };
+    (
+        field("frames"),
+        field("median_us"),
+        field("worst_us"),
+        field("answers_after_erase"),
+    )
+}
+
+fn boot_timed(flash: Option<&Path>, timing: FlashTiming, cut: Option<u32>) -> Rp2040 {
+    let options = Rp2040Options {
+        flash: flash.map(Path::to_path_buf),
+        deadline: Duration::from_secs(300),
+        flash_timing: timing,
+        cut_during_erase: cut,
+        ..Rp2040Options::default()
+    };
+    Rp2040::start_with(&firmware(), &options).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// At the datasheet's maximum flash timing (400 ms a sector erase, 3 ms a
+/// page, the core held that long in emulated time) the host neither gives
+/// up nor resends (its reply timeout outlasts the worst stall:
+/// `placedb_host::device::flash_timing`), and the export equals the host replay.
+#[test]
+fn the_emulated_pico_at_max_flash_timing_matches_the_host_replay() {
+    let started = Instant::now();
+    let seq = demo(40);
+    let (vcfg, sel) = (stride(8), sel(8));
+    let mut client = Client::new(boot_timed(None, FlashTiming::Max, None));
+    let report = stream(&mut client, &seq, &vcfg, sel, &StreamOptions::default());
+    assert_eq!(report.status.frames_seen as usize, seq.frames.len());
+    assert_eq!(report.retransmissions, 0);
+    let csv = export_csv(&mut client, &ExportOptions::default());
+    assert_eq!(csv, host_replay(PROFILE, &seq, &vcfg, sel));
+    let console = client.into_link().stop();
+    let stats = console.lines().find(|l| l.starts_with("stats")).unwrap();
+    assert!(!stats.contains("sectors_erased=0 "), "{stats}");
+    let (frames, median, worst, waited) = latency_line(&console);
+    assert_eq!(frames as usize, seq.frames.len());
+    println!(
+        "pico at max flash timing, {} frames: identical to the host replay, no resend; \
+         answer latency median {median} us, worst {worst} us of emulated time, {waited} \
+         answers waited for an erase; {stats}; {:.1} s",
+        seq.frames.len(),
+        started.elapsed().as_secs_f64()
+    );
+}
+
+/// A power cut in the middle of a sector erase (the harness leaves the
+/// sector half erased and dies), at max flash timing: booted again on the
+/// same flash the Pico restores every decision it had sent, the host
+/// resumes, and the export equals an uninterrupted run's.
+#[test]
+fn a_pico_cut_during_an_erase_restores_and_resumes() {
+    let started = Instant::now();
+    let dir = std::env::temp_dir().join(format!("placedb-pico-erase-cut-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let flash = dir.join("flash.bin");
+    let _ = std::fs::remove_file(&flash);
+    let seq = demo(40);
+    let (vcfg, sel) = (stride(8), sel(8));
+    let scan = device_cli::scan_config(&seq, &vcfg).unwrap();
+    let cfg = device_cli::device_config(&scan, &sel).unwrap();
+    // Erase 1 readies the head sector at boot, 2 the next one after the
+    // Hello: the third is in the middle of the scan.
+    let board = boot_timed(Some(&flash), FlashTiming::Max, Some(3));
+    let mut session = Session::new(Client::new(board), StreamOptions::default());
+    session.start(&cfg, Some(PROFILE)).unwrap();
+    let mut acknowledged = Vec::new();
+    let mut cut = false;
+    for i in 0..seq.frames.len() {
+        let img = seq.depth(i).unwrap();
+        let frame = DepthFrame {
+            timestamp: seq.frames[i].timestamp,
+            pose: seq.frames[i].pose().unwrap(),
+            intrinsics: cfg.intrinsics,
+            depth: &img.data,
+        };
+        let pushed = session.push_frame(&frame);
+        acknowledged.extend(session.take_decisions());
+        if pushed.is_err() {
+            cut = true;
+            break;
+        }
+    }
+    let mut board = session.into_client().into_link();
+    let console = board.console();
+    assert!(
+        cut && board.wait_console("power cut during the erase", Duration::from_secs(10)),
+        "the power was not cut: {console}"
+    );
+    let _ = board.try_wait();
+    drop(board);
+
+    let mut client = Client::new(boot_timed(Some(&flash), FlashTiming::Max, None));
+    let st = device_cli::status(&mut client, REPLY).unwrap();
+    assert!(st.frames_decided as usize >= acknowledged.len());
+    let (_, labels) = export_csv(&mut client, &ExportOptions::default());
+    for &(frame, kind) in &acknowledged {
+        let class = kind.class(frame).unwrap();
+        let label = labels.lines().nth(frame as usize + 1).unwrap();
+        assert!(
+            label.ends_with(&format!(",{class}")),
+            "frame {frame}: {label}"
+        );
+    }
+    let resume = StreamOptions {
+        resume: true,
+        ..StreamOptions::default()
+    };
+    stream(&mut client, &seq, &vcfg, sel, &resume);
+    let csv = export_csv(&mut client, &ExportOptions::default());
+    assert_eq!(csv, host_replay(PROFILE, &seq, &vcfg, sel));
+    println!(
+        "pico cut during its third erase at max flash timing: {} decisions acknowledged \
+         before, all restored; resumed at frame {}; export identical to the host replay; {:.1} s",
+        acknowledged.len(),
+        st.frames_seen,
+        started.elapsed().as_secs_f64()
+    );
+    let _ = std::fs::remove_dir_all(&dir);
 }

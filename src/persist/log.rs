@@ -284,6 +284,16 @@ impl<F: NorFlash> Log<F> {
         self.live.map_or(0, |l| l.sectors)
     }
 
+    /// Flash offset of the sector this log erases next: the one after the
+    /// live generation, where its next sector or the next generation goes
+    /// (the range's first sector without one). Never a sector of the live
+    /// generation nor one whose first record voids any of its records
+    /// (those are in the live generation), so erasing it early only does
+    /// what the next erase here would do: see [`super::erase_ahead`].
+    pub fn next_sector(&self) -> u32 {
+        self.sector_offset(self.live.map_or(0, |l| l.head + l.sectors))
+    }
+
     fn sector_len(&self) -> u32 {
         F::ERASE_SIZE as u32
     }

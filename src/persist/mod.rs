@@ -9,6 +9,7 @@
 //!
 //! A device without flash uses [`NoJournal`] and keeps everything in RAM.
 
+pub mod erase_ahead;
 pub mod keys;
 pub mod log;
 pub mod record;
@@ -17,6 +18,7 @@ mod room_tests;
 #[cfg(feature = "sim-flash")]
 pub mod sim;
 
+pub use erase_ahead::EraseAhead;
 pub use log::{Cursor, FlashErrorKind, Log, LogError};
 pub use record::{Record, RecordError};
 

@@ -6,13 +6,19 @@
 //
 //   node harness.mjs --elf FIRMWARE.elf --bootrom bootrom-b1.bin
 //                    [--port N] [--flash FILE] [--deadline SECONDS]
+//                    [--flash-timing none|typical|max] [--cut-during-erase N]
 //
 // stdout, one line each (tests and `placedb device --rp2040` read them):
 //   "listening tcp:127.0.0.1:PORT"     ready for the host (one client at a time)
 //   "usb configured ..."               enumeration done, descriptors parsed
 //   "client connected" / "client closed"
 //   "stats cycles=N ..."               on exit (SIGTERM, SIGINT, deadline)
+//   "latency frames=N ..."             on exit: frame answer latencies (below)
 // A fatal condition prints "error: ..." on stderr and exits 2 (3: deadline).
+// --cut-during-erase N: the power goes during the firmware's N-th sector
+// erase (counted from 1): the sector's first half is erased, the rest left
+// as it was (a torn erase), and the harness exits at once with code 4 after
+// "power cut during the erase of flash offset 0x..." on stdout (no stats).
 //
 // Flash: rp2040js does not model the QSPI flash chip; the boot ROM's flash
 // functions run but change nothing. This harness stops the core at the
@@ -25,6 +31,25 @@
 // program, flash_flush_cache, flash_enter_cmd_xip) made from outside the ROM
 // must return into RAM: on silicon XIP is off during these calls, so code in
 // flash cannot run; a call that would return into XIP flash ends the run.
+//
+// Flash timing (--flash-timing, default typical): the W25Q16JV is busy for
+// tSE per 4 KiB sector erased and tPP per 256-byte page programmed (Winbond
+// W25Q16JV datasheet, AC electrical characteristics: tSE 45 ms typical,
+// 400 ms max; tPP 0.4 ms typical, 3 ms max), and the ROM call returns only
+// then. The harness holds the core for that long in emulated time: no
+// instruction runs and the firmware services nothing (USB included), while
+// the emulated clock, and with it the RP2040 timer the firmware reads, goes
+// on; the USB controller's own transfers already under way complete, as on
+// silicon. `none`: flash operations take no time (the call's 50 cycles).
+//
+// Latency: the harness reads the protocol's frames on both endpoints (COBS,
+// then the postcard header: a host frame's sequence number and message
+// kind, a reply's kind and sequence number). For every FrameEnd it takes the
+// emulated time at which the frame's last DepthRows was handed to the
+// firmware and the time at which the FrameEnd's terminal reply (its answer)
+// left on the IN endpoint; the exit line gives their median and worst, in
+// microseconds of emulated time, and how many answers waited for a sector
+// erase (one was done between those two moments).
 
 import { RP2040, BasePeripheral } from 'rp2040js';
 import fs from 'node:fs';
@@ -39,17 +64,24 @@ const SECTOR = 4096;
 const PAGE = 256;
 const NANOS_PER_CYCLE = 8; // clk_sys 125 MHz, as rp2040-hal's init_clocks_and_plls sets it
 const CHUNK = 200000; // instructions between looks at the event loop
+/** Busy time per sector erase and per page program, nanoseconds (see the
+ * header: Winbond W25Q16JV datasheet, tSE and tPP). */
+const FLASH_TIMING = {
+  none: { erase: 0, program: 0 },
+  typical: { erase: 45e6, program: 0.4e6 },
+  max: { erase: 400e6, program: 3e6 },
+};
 
 function usage(msg) {
   if (msg) process.stderr.write(`error: ${msg}\n`);
   process.stderr.write(
-    'usage: node harness.mjs --elf FIRMWARE.elf --bootrom bootrom-b1.bin [--port N] [--flash FILE] [--deadline SECONDS]\n',
+    'usage: node harness.mjs --elf FIRMWARE.elf --bootrom bootrom-b1.bin [--port N] [--flash FILE] [--deadline SECONDS] [--flash-timing none|typical|max]\n',
   );
   process.exit(2);
 }
 
 function parseArgs(argv) {
-  const opts = { port: 0, flash: null, deadline: 0, elf: null, bootrom: null, quiet: false };
+  const opts = { port: 0, flash: null, deadline: 0, elf: null, bootrom: null, quiet: false, timing: 'typical', cutErase: 0 };
   for (let i = 0; i < argv.length; i++) {
     const a = argv[i];
     const value = () => {
@@ -76,6 +108,18 @@ function parseArgs(argv) {
         const d = Number(value());
         if (!(d >= 0)) usage('--deadline takes seconds');
         opts.deadline = d;
+        break;
+      }
+      case '--flash-timing': {
+        const t = value();
+        if (!(t in FLASH_TIMING)) usage('--flash-timing takes none, typical or max');
+        opts.timing = t;
+        break;
+      }
+      case '--cut-during-erase': {
+        const n = Number(value());
+        if (!Number.isInteger(n) || n < 1) usage('--cut-during-erase takes an erase number from 1');
+        opts.cutErase = n;
         break;
       }
       case '--quiet':
@@ -375,6 +419,7 @@ const stats = {
   romFlashCalls: 0,
   bytesIn: 0,
   bytesOut: 0,
+  flashBusyNs: 0,
 };
 
 const inRam = (a) => a >= 0x20000000 && a < 0x20042000;
@@ -406,9 +451,19 @@ function flashCall(code) {
       fatal(`flash_range_erase(${hex(addr)}, ${count}): not whole 4 KiB sectors inside the 2 MiB flash`);
       return true;
     }
+    if (opts.cutErase && stats.erases + count / SECTOR >= opts.cutErase) {
+      const at = addr + (opts.cutErase - 1 - stats.erases) * SECTOR;
+      mcu.flash.fill(0xff, addr, at + SECTOR / 2);
+      persist(addr, at + SECTOR / 2 - addr);
+      if (flashFd !== null) fs.fsyncSync(flashFd);
+      process.stdout.write(`power cut during the erase of flash offset ${hex(at)}\n`);
+      process.exit(4);
+    }
     mcu.flash.fill(0xff, addr, addr + count);
     persist(addr, count);
     stats.erases += count / SECTOR;
+    latency.erased();
+    hold((count / SECTOR) * FLASH_TIMING[opts.timing].erase);
   } else if (code === 'RP') {
     const [addr, data, count] = [r[0] >>> 0, r[1] >>> 0, r[2] >>> 0];
     if (addr % PAGE || count % PAGE || addr + count > FLASH_SIZE) {
@@ -424,13 +479,113 @@ function flashCall(code) {
     }
     persist(addr, count);
     stats.programs += count / PAGE;
+    hold((count / PAGE) * FLASH_TIMING[opts.timing].program);
   } else {
     return false; // the others run in the ROM (they change nothing here)
   }
   core.PC = ret;
-  core.cycles += 50; // the call itself; flash busy time is not modelled
+  core.cycles += 50; // the call itself; the flash's busy time is the hold
   return true;
 }
+
+/** The flash is busy for `ns`: the core runs nothing that long, the clock
+ * (timer alarms, the USB controller's own delays) goes on. */
+function hold(ns) {
+  if (ns <= 0) return;
+  stats.flashBusyNs += ns;
+  mcu.clock.tick(ns);
+}
+
+// ---------------------------------------------------------------- latency
+
+/** One direction's byte stream cut into COBS frames at each 0x00; `onFrame`
+ * gets the decoded body (null if it does not decode). */
+function frameSplitter(onFrame) {
+  let buf = [];
+  return (bytes) => {
+    for (const b of bytes) {
+      if (b !== 0) {
+        if (buf.length < 4096) buf.push(b);
+        continue;
+      }
+      if (buf.length) onFrame(cobsDecode(buf));
+      buf = [];
+    }
+  };
+}
+
+function cobsDecode(enc) {
+  const out = [];
+  for (let i = 0; i < enc.length; ) {
+    const code = enc[i++];
+    if (code === 0 || i + code - 1 > enc.length) return null;
+    for (let j = 1; j < code; j++) out.push(enc[i++]);
+    if (code < 0xff && i < enc.length) out.push(0);
+  }
+  return out;
+}
+
+/** A postcard varint at `at`: [value, next offset] or null. */
+function varint(bytes, at) {
+  let v = 0;
+  for (let shift = 0; shift < 35 && at < bytes.length; shift += 7) {
+    const b = bytes[at++];
+    v += (b & 0x7f) * 2 ** shift;
+    if (!(b & 0x80)) return [v, at];
+  }
+  return null;
+}
+
+const HOST_DEPTH_ROWS = 2; // HostMessage variant indices
+const HOST_FRAME_END = 3;
+const DEVICE_ACK = 0; // DeviceMessage variant indices
+const DEVICE_ERROR = 1;
+
+const latency = {
+  lastRows: null, // when the last DepthRows so far was handed over
+  pending: new Map(), // FrameEnd seq -> { rows: time, erases: count then }
+  erases: 0,
+  samples: [], // microseconds
+  waited: 0, // answers that waited for an erase
+  erased() {
+    this.erases++;
+  },
+  hostFrame(body) {
+    if (!body) return;
+    const seq = varint(body, 0);
+    const kind = seq && varint(body, seq[1]);
+    if (!kind) return;
+    const now = mcu.clock.nanos;
+    if (kind[0] === HOST_DEPTH_ROWS) this.lastRows = now;
+    else if (kind[0] === HOST_FRAME_END && this.lastRows !== null && !this.pending.has(seq[0])) {
+      this.pending.set(seq[0], { rows: this.lastRows, erases: this.erases });
+    }
+  },
+  deviceFrame(body) {
+    if (!body) return;
+    const kind = varint(body, 0);
+    if (!kind) return;
+    let seq = null;
+    if (kind[0] === DEVICE_ACK) seq = varint(body, kind[1]);
+    else if (kind[0] === DEVICE_ERROR && body[kind[1]] === 1) seq = varint(body, kind[1] + 1);
+    const p = seq && this.pending.get(seq[0]);
+    if (!p) return;
+    this.pending.delete(seq[0]);
+    this.samples.push((mcu.clock.nanos - p.rows) / 1000);
+    if (this.erases > p.erases) this.waited++;
+  },
+  line() {
+    const s = [...this.samples].sort((a, b) => a - b);
+    const median = s.length ? s[(s.length - 1) >> 1] : 0;
+    const worst = s.length ? s[s.length - 1] : 0;
+    return (
+      `latency frames=${s.length} median_us=${median.toFixed(0)} worst_us=${worst.toFixed(0)} ` +
+      `answers_after_erase=${this.waited} flash_timing=${opts.timing}`
+    );
+  },
+};
+const hostFrames = frameSplitter((body) => latency.hostFrame(body));
+const deviceFrames = frameSplitter((body) => latency.deviceFrame(body));
 
 // ---------------------------------------------------------------- USB host
 
@@ -579,6 +734,7 @@ usb.onEndpointWrite = (ep, buffer) => {
   }
   if (ep === host.bulkIn) {
     stats.bytesOut += buffer.length;
+    deviceFrames(buffer);
     if (client && !client.destroyed) client.write(Buffer.from(buffer));
   }
 };
@@ -630,7 +786,9 @@ function feedOut() {
   host.rxBytes -= n;
   host.outArmed = 0;
   stats.bytesIn += n;
-  usb.endpointReadDone(host.bulkOut, new Uint8Array(Buffer.concat(chunks)));
+  const packet = new Uint8Array(Buffer.concat(chunks));
+  usb.endpointReadDone(host.bulkOut, packet);
+  hostFrames(packet);
   if (client && client.isPaused() && host.rxBytes < 64 * 1024) client.resume();
 }
 
@@ -744,8 +902,10 @@ function finish(code = 0) {
     `stats pc=${hex(mcu.core.PC)} cycles=${cycles} emulated_ms=${(mcu.clock.nanos / 1e6).toFixed(1)} ` +
       `wall_ms=${Date.now() - started} rom_flash_calls=${stats.romFlashCalls} ` +
       `sectors_erased=${stats.erases} pages_programmed=${stats.programs} ` +
+      `flash_busy_ms=${(stats.flashBusyNs / 1e6).toFixed(1)} ` +
       `usb_bytes_in=${stats.bytesIn} usb_bytes_out=${stats.bytesOut}\n`,
   );
+  process.stdout.write(latency.line() + '\n');
   if (flashFd !== null) {
     try {
       fs.fsyncSync(flashFd);

@@ -11,6 +11,11 @@
 //! to a log in the second MiB of flash ([`flash`]) before it acknowledges
 //! them, and restores the scan from it at boot, so a board that lost power
 //! goes on where it was (`placedb stream --resume`).
+//!
+//! Erases happen off the request path: a sector erase stalls the chip for
+//! 45 ms (400 ms at worst) with USB unserviced, so whenever a turn of the
+//! loop finds no host byte waiting, the sector the log will need next is
+//! erased then ([`EraseAhead`]), and the append that opens it only writes.
 #![no_std]
 #![no_main]
 
@@ -21,7 +26,7 @@ use core::cell::{Cell, RefCell};
 use critical_section::Mutex;
 use embedded_hal::digital::StatefulOutputPin;
 use placedb::device::Device256K;
-use placedb::persist::Log;
+use placedb::persist::{EraseAhead, Log};
 use rp2040_hal::{self as hal, pac, usb::UsbBus};
 use usb_device::class_prelude::UsbBusAllocator;
 
@@ -79,7 +84,7 @@ fn main() -> ! {
     // SAFETY: this firmware never starts core 1 and uses no DMA, so nothing
     // but PicoFlash accesses flash during its erases and writes.
     let storage = unsafe { flash::PicoFlash::new() };
-    let Ok(mut log) = Log::open(storage, 0, flash::REGION_LEN as u32) else {
+    let Ok(mut log) = Log::open(EraseAhead::new(storage), 0, flash::REGION_LEN as u32) else {
         halt()
     };
     // A log that does not restore leaves the device empty: the host sees an
@@ -115,6 +120,10 @@ fn main() -> ! {
         let n = link.read(&usb, &mut rx);
         let bytes = rx.get(..n).unwrap_or_default();
         if bytes.is_empty() {
+            // Nothing from the host: the time to erase what the log needs
+            // next (a failed erase is the log's own erase's to retry).
+            let next = log.next_sector();
+            let _ = log.flash().erase_ahead(next);
             continue;
         }
         critical_section::with(|cs| {

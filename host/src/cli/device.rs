@@ -31,12 +31,17 @@ pub struct DeviceArgs {
     /// missing and kept across runs, so a restarted board restores its scan.
     #[arg(long)]
     flash: Option<PathBuf>,
+    /// With --rp2040: how long the Pico's flash is busy per sector erase and
+    /// page program, in emulated time (W25Q16JV datasheet: typical 45 ms and
+    /// 0.4 ms, max 400 ms and 3 ms; none: no time).
+    #[arg(long, default_value = "typical", requires = "rp2040")]
+    flash_timing: crate::device::flash_timing::FlashTiming,
 }
 
 /// Runs `placedb device`.
 pub fn run(a: DeviceArgs) -> Result<(), Error> {
     if a.rp2040 {
-        rp2040::device_cmd(a.firmware, a.port, a.flash)?;
+        rp2040::device_cmd(a.firmware, a.port, a.flash, a.flash_timing)?;
     } else {
         qemu::device_cmd(a.firmware, a.port, !a.no_icount, a.flash)?;
     }

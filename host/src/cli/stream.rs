@@ -65,6 +65,12 @@ pub struct StreamArgs {
     /// Leave the scan open (no Finish): more frames can follow with --resume.
     #[arg(long)]
     no_finish: bool,
+    /// Replay at the sequence's recorded rate, as a live camera delivers it:
+    /// a frame due while the device is still busy with earlier ones is
+    /// skipped (named in the output and in skipped.csv with -o; it has no
+    /// label) instead of waiting.
+    #[arg(long, conflicts_with_all = ["resume", "no_finish", "drop_chance", "corrupt_chance", "retries"])]
+    realtime: bool,
 }
 
 /// Runs `placedb stream`.
@@ -77,6 +83,10 @@ pub fn run(a: StreamArgs) -> Result<(), Error> {
         sketch_margin: SolverParams::default().sketch_margin,
     };
     let out = a.out.as_deref();
+    if a.realtime {
+        crate::device::pacing::realtime_cmd(&a.port, &seq, &v, sel, &a.profile, out)?;
+        return Ok(());
+    }
     let recovery = Recovery {
         faults: FaultConfig::new(a.drop_chance, a.corrupt_chance, a.fault_seed),
         retries: a.retries,

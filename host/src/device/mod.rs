@@ -9,7 +9,9 @@ pub mod client;
 pub mod emulator;
 pub mod error;
 pub mod export;
+pub mod flash_timing;
 pub mod link;
+pub mod pacing;
 pub mod scan;
 pub mod session;
 

@@ -43,7 +43,9 @@ pub struct StreamOptions {
     pub rows_per_message: u16,
     /// Messages sent ahead of their replies (1 = stop-and-wait).
     pub in_flight: usize,
-    /// Longest wait for one reply.
+    /// Longest wait for one reply. The default outlasts the longest flash
+    /// stall of a Pico reply at the datasheet's maximum timing
+    /// ([`crate::device::flash_timing::WorstStall`]).
     pub reply_timeout: Duration,
     /// Reset the device before the Hello (a new scan).
     pub reset: bool,
@@ -84,7 +86,7 @@ impl Default for StreamOptions {
         StreamOptions {
             rows_per_message: 0,
             in_flight: 4,
-            reply_timeout: Duration::from_secs(30),
+            reply_timeout: Duration::from_secs(60),
             reset: true,
             resume: false,
             finish: true,
@@ -591,16 +593,40 @@ impl ScanState {
 
     /// Handles replies until the oldest outstanding message is answered.
     fn pump<L: Link>(&mut self, client: &mut Client<L>) -> Result<(), DeviceError> {
+        while !self.answered(client, self.opts.reply_timeout)? {}
+        Ok(())
+    }
+
+    /// Messages sent and not answered yet.
+    pub(crate) fn unanswered(&self) -> usize {
+        self.outstanding.len()
+    }
+
+    /// Handles what the device sent, waiting at most `wait` for each
+    /// reply, until the oldest outstanding message is answered (true), or
+    /// nothing more came within `wait` (false: only when `wait` is shorter
+    /// than the reply timeout; at the reply timeout that is an error).
+    pub(crate) fn answered<L: Link>(
+        &mut self,
+        client: &mut Client<L>,
+        wait: Duration,
+    ) -> Result<bool, DeviceError> {
         let Some((want, what)) = self.outstanding.front().cloned() else {
-            return Ok(());
+            return Ok(true);
         };
         loop {
-            let item = client.recv(self.opts.reply_timeout).map_err(|e| {
-                DeviceError::Io(io::Error::new(
-                    e.kind(),
-                    format!("waiting for the reply to {what}: {e}"),
-                ))
-            })?;
+            let item = match client.recv(wait) {
+                Ok(item) => item,
+                Err(e) if e.kind() == io::ErrorKind::TimedOut && wait < self.opts.reply_timeout => {
+                    return Ok(false)
+                }
+                Err(e) => {
+                    return Err(DeviceError::Io(io::Error::new(
+                        e.kind(),
+                        format!("waiting for the reply to {what}: {e}"),
+                    )))
+                }
+            };
             self.note(&item);
             match &item {
                 Received::Message(DeviceMessage::Error { seq, kind }) => {
@@ -620,7 +646,7 @@ impl ScanState {
             match item.terminal_seq() {
                 Some(s) if s == want => {
                     self.outstanding.pop_front();
-                    return Ok(());
+                    return Ok(true);
                 }
                 Some(s) => {
                     return Err(DeviceError::Protocol(format!(

@@ -52,8 +52,8 @@ pub use crate::device::scan::DepthFrame;
 /// One scan on a device: configure, push frames, read decisions and status,
 /// finish, export. Owns the protocol client ([`Client`]) of its link.
 pub struct Session<L: Link> {
-    client: Client<L>,
-    state: ScanState,
+    pub(crate) client: Client<L>,
+    pub(crate) state: ScanState,
 }
 
 impl Session<Box<dyn Link>> {

@@ -12,6 +12,7 @@
 //! `cd boards/rp-pico/emulator && npm ci`.
 
 use crate::device::error::DeviceError;
+use crate::device::flash_timing::FlashTiming;
 use crate::device::link::{Link, TcpLink};
 use std::io::{self, BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
@@ -85,6 +86,12 @@ pub struct Rp2040Options {
     pub deadline: Duration,
     /// How long booting and enumerating may take.
     pub connect_timeout: Duration,
+    /// How long the flash is busy per erase and program, in emulated time
+    /// (default: the datasheet's typical figures).
+    pub flash_timing: FlashTiming,
+    /// A power cut during the firmware's `n`-th sector erase (from 1): the
+    /// sector is left half erased and the emulator exits at once (code 4).
+    pub cut_during_erase: Option<u32>,
 }
 
 impl Default for Rp2040Options {
@@ -96,6 +103,8 @@ impl Default for Rp2040Options {
             port: 0,
             deadline: Duration::from_secs(600),
             connect_timeout: Duration::from_secs(30),
+            flash_timing: FlashTiming::default(),
+            cut_during_erase: None,
         }
     }
 }
@@ -110,9 +119,14 @@ pub fn harness_command(firmware: &Path, options: &Rp2040Options) -> Command {
         .arg("--bootrom")
         .arg(&options.bootrom)
         .arg("--port")
-        .arg(options.port.to_string());
+        .arg(options.port.to_string())
+        .arg("--flash-timing")
+        .arg(options.flash_timing.name());
     if let Some(flash) = &options.flash {
         command.arg("--flash").arg(flash);
+    }
+    if let Some(n) = options.cut_during_erase {
+        command.arg("--cut-during-erase").arg(n.to_string());
     }
     if !options.deadline.is_zero() {
         command
@@ -376,16 +390,23 @@ pub fn device_cmd(
     firmware: Option<PathBuf>,
     port: u16,
     flash: Option<PathBuf>,
+    flash_timing: FlashTiming,
 ) -> Result<(), DeviceError> {
     let firmware = firmware.unwrap_or_else(default_firmware);
     let options = Rp2040Options {
         flash: flash.clone(),
         port,
         deadline: Duration::ZERO,
+        flash_timing,
         ..Rp2040Options::default()
     };
     check_setup(&firmware, &options).map_err(|e| DeviceError::Input(e.to_string()))?;
     println!("emulated Raspberry Pi Pico (rp2040js, profile ram256k), USB CDC-ACM bridged to TCP");
+    println!(
+        "  flash timing {flash_timing}: {:?} per sector erase, {:?} per page program (W25Q16JV datasheet), in emulated time",
+        flash_timing.sector_erase(),
+        flash_timing.page_program()
+    );
     println!("  e.g. placedb stream --port tcp:127.0.0.1:PORT --profile ram256k --demo --stride 8 --max-frames 30");
     println!("       placedb export --port tcp:127.0.0.1:PORT -o out");
     match &flash {
@@ -421,6 +442,7 @@ mod tests {
         assert!(args.windows(2).any(|w| w == ["--port", "4321"]));
         assert!(args.windows(2).any(|w| w == ["--flash", "out/pico.flash"]));
         assert!(args.windows(2).any(|w| w == ["--deadline", "90"]));
+        assert!(args.windows(2).any(|w| w == ["--flash-timing", "typical"]));
         assert!(args
             .windows(2)
             .any(|w| w[0] == "--bootrom" && w[1].ends_with("bootrom-b1.bin")));

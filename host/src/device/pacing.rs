@@ -1,0 +1,384 @@
+//! Live pacing: a robot's camera does not wait for the device. A callback
+//! that gets a frame every 33 ms asks [`Session::busy`] whether the device
+//! is still working on earlier frames and, if so, skips this one instead of
+//! blocking or queueing frames without bound; [`Session::try_push_frame`]
+//! does both in one call. [`stream_realtime`] (`placedb stream
+//! --realtime`) replays a recorded sequence so, at its recorded rate, and
+//! names every frame it skipped.
+
+use super::client::Client;
+use super::error::DeviceError;
+use super::link::{self, Link};
+use super::scan::{device_config, scan_config, DepthFrame, StreamOptions};
+use super::session::Session;
+use crate::{Sequence, VoxelConfig};
+use placedb::protocol::{Config, Status};
+use placedb::SelectorConfig;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+/// The longest [`Session::busy`] waits for a reply that is on its way.
+pub const POLL: Duration = Duration::from_millis(1);
+
+impl<L: Link> Session<L> {
+    /// Whether the device is still busy with earlier frames: a message sent
+    /// to it is not answered yet. Takes the replies that have arrived (their
+    /// decisions land in [`Session::take_decisions`]); never waits for the
+    /// device, only up to [`POLL`] for bytes already on their way.
+    pub fn busy(&mut self) -> Result<bool, DeviceError> {
+        while self.state.unanswered() > 0 {
+            if !self.state.answered(&mut self.client, POLL)? {
+                return Ok(true);
+            }
+        }
+        Ok(false)
+    }
+
+    /// Sends `frame` unless the device is [`busy`](Session::busy): its
+    /// index if sent, `None` if skipped (the device never sees it, and the
+    /// next sent frame takes the next index). A sent frame's messages go
+    /// out without waiting for their replies (at most this one frame is
+    /// unanswered, as the device was not busy), so this does not wait for
+    /// the device either. With [`StreamOptions::retries`] > 0 every message
+    /// waits for its reply (stop-and-wait), so the call takes as long as the
+    /// device takes for the frame.
+    pub fn try_push_frame(&mut self, frame: &DepthFrame<'_>) -> Result<Option<u32>, DeviceError> {
+        if self.busy()? {
+            return Ok(None);
+        }
+        let in_flight = self.state.opts.in_flight;
+        self.state.opts.in_flight = usize::MAX;
+        let pushed = self.push_frame(frame);
+        self.state.opts.in_flight = in_flight;
+        pushed.map(Some)
+    }
+}
+
+/// What a real-time replay did.
+#[derive(Debug, Clone)]
+pub struct RealtimeReport {
+    /// Sequence frames sent, in order: the device's frame `k` is sequence
+    /// frame `sent[k]`.
+    pub sent: Vec<usize>,
+    /// Sequence frames skipped because the device was busy when they were
+    /// due: they have no label.
+    pub skipped: Vec<usize>,
+    /// The recorded rate, frames per second (from the timestamps).
+    pub rate: f64,
+    /// Wall time from the first frame's due time to the last reply.
+    pub wall: Duration,
+    /// The device's status after Finish.
+    pub status: Status,
+}
+
+/// Replays `seq` on `session` at its recorded rate (frame `i` is due
+/// `timestamp[i] - timestamp[0]` seconds after the first, divided by
+/// `speed`), skipping every frame that finds the device busy, then ends the
+/// scan with Finish. Frames are read from disk before they are due (as a
+/// camera driver delivers them ready); a host that falls behind offers each
+/// frame as soon as it has it.
+pub fn stream_realtime<L: Link>(
+    session: &mut Session<L>,
+    seq: &Sequence,
+    cfg: &Config,
+    profile: &str,
+    speed: f64,
+) -> Result<RealtimeReport, DeviceError> {
+    if !(speed > 0.0 && speed.is_finite()) {
+        return Err(DeviceError::Input(format!(
+            "replay speed {speed}: must be a positive number"
+        )));
+    }
+    session.start(cfg, Some(profile))?;
+    let first = seq.frames.first().map_or(0.0, |f| f.timestamp);
+    let mut sent = Vec::new();
+    let mut skipped = Vec::new();
+    let start = Instant::now();
+    for (i, info) in seq.frames.iter().enumerate() {
+        let img = seq
+            .depth(i)
+            .map_err(|e| DeviceError::Input(format!("frame {i}: {e}")))?;
+        let pose = info
+            .pose()
+            .map_err(|e| DeviceError::Input(format!("frame {i}: pose: {e:?}")))?;
+        let offset = ((info.timestamp - first) / speed).max(0.0);
+        let due = start + Duration::from_secs_f64(offset);
+        // Until it is due, take the replies (decisions) as they come.
+        while let Some(left) = due.checked_duration_since(Instant::now()) {
+            if left.is_zero() || !session.busy()? {
+                std::thread::sleep(left.min(POLL));
+            }
+        }
+        let frame = DepthFrame {
+            timestamp: info.timestamp,
+            pose,
+            intrinsics: cfg.intrinsics,
+            depth: &img.data,
+        };
+        match session.try_push_frame(&frame)? {
+            Some(_) => sent.push(i),
+            None => skipped.push(i),
+        }
+    }
+    let status = session.finish()?;
+    let duration = match (seq.frames.first(), seq.frames.last()) {
+        (Some(a), Some(b)) if seq.frames.len() > 1 => b.timestamp - a.timestamp,
+        _ => 0.0,
+    };
+    Ok(RealtimeReport {
+        rate: if duration > 0.0 {
+            (seq.frames.len() - 1) as f64 / duration
+        } else {
+            0.0
+        },
+        sent,
+        skipped,
+        wall: start.elapsed(),
+        status,
+    })
+}
+
+/// Frame indices as ranges: `3, 7-9, 12`.
+pub fn index_ranges(frames: &[usize]) -> String {
+    let mut out: Vec<String> = Vec::new();
+    let mut i = 0;
+    while let Some(&a) = frames.get(i) {
+        let mut j = i;
+        while frames.get(j + 1) == Some(&(frames[j] + 1)) {
+            j += 1;
+        }
+        out.push(if j == i {
+            a.to_string()
+        } else {
+            format!("{a}-{}", frames[j])
+        });
+        i = j + 1;
+    }
+    out.join(", ")
+}
+
+/// `placedb stream --realtime`: replays `seq` to the device on `port` at
+/// its recorded rate ([`stream_realtime`]), prints what was skipped and
+/// the database the device got, and with `out` exports it there, with
+/// `skipped.csv` (sequence frame and timestamp of every skipped frame).
+pub fn realtime_cmd(
+    port: &str,
+    seq: &Sequence,
+    vcfg: &VoxelConfig,
+    sel: SelectorConfig,
+    profile: &str,
+    out: Option<&Path>,
+) -> Result<RealtimeReport, DeviceError> {
+    if placedb::profile::by_name(profile).is_none() {
+        return Err(DeviceError::Input(format!(
+            "unknown --profile {profile:?}; see `placedb budget`"
+        )));
+    }
+    let scan = scan_config(seq, vcfg)?;
+    let sel = SelectorConfig {
+        window: sel.window.max(1),
+        ..sel
+    };
+    let cfg = device_config(&scan, &sel)?;
+    let link = link::open(port, Duration::from_secs(10))?;
+    let mut session = Session::new(Client::new(link), StreamOptions::default());
+    let report = stream_realtime(&mut session, seq, &cfg, profile, 1.0)?;
+    let n = seq.frames.len();
+    println!(
+        "{}: {n} frames replayed at the recorded {:.1} frames/s in {:.1} s: {} sent, {} skipped \
+         (the device was busy when they were due; they have no label)",
+        seq.name,
+        report.rate,
+        report.wall.as_secs_f64(),
+        report.sent.len(),
+        report.skipped.len(),
+    );
+    if !report.skipped.is_empty() {
+        println!("  skipped frames: {}", index_ranges(&report.skipped));
+    }
+    println!(
+        "  database: {} frames on the device ({profile} profile, mu {}, window {}, stride {}); \
+         the device numbers the {} sent frames 0..{}",
+        report.status.database_size,
+        sel.mu,
+        sel.window,
+        scan.stride,
+        report.sent.len(),
+        report.sent.len(),
+    );
+    match out {
+        Some(dir) => {
+            session.export_to(dir)?;
+            let mut csv = String::from("frame,timestamp\n");
+            for &i in &report.skipped {
+                csv.push_str(&format!("{i},{:.6}\n", seq.frames[i].timestamp));
+            }
+            let path = dir.join("skipped.csv");
+            std::fs::write(&path, csv)
+                .map_err(|e| DeviceError::Input(format!("cannot write {}: {e}", path.display())))?;
+            println!(
+                "  {} skipped frames listed in {}",
+                report.skipped.len(),
+                path.display()
+            );
+        }
+        None => println!("  pull the result with: placedb export --port {port} -o DIR"),
+    }
+    Ok(report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::device::link::LocalLink;
+    use crate::synth::{self, SynthConfig};
+    use std::io;
+
+    fn demo(frames: usize) -> Sequence {
+        let mut seq = synth::sequence(&SynthConfig::demo());
+        seq.frames.truncate(frames);
+        seq
+    }
+
+    fn config(seq: &Sequence) -> Config {
+        let vcfg = VoxelConfig {
+            stride: 8,
+            ..VoxelConfig::default()
+        };
+        let sel = SelectorConfig {
+            mu: 0.3,
+            window: 8,
+            sketch_margin: 0.05,
+        };
+        device_config(&scan_config(seq, &vcfg).unwrap(), &sel).unwrap()
+    }
+
+    /// A device that has answered the Hello and then goes silent: every
+    /// byte sent is kept, nothing more comes back.
+    struct Silent {
+        inner: LocalLink,
+        mute: bool,
+        sent: Vec<u8>,
+    }
+
+    impl Link for Silent {
+        fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+            if self.mute {
+                self.sent.extend_from_slice(bytes);
+                return Ok(());
+            }
+            self.inner.send(bytes)
+        }
+
+        fn recv(&mut self, timeout: Duration) -> io::Result<Vec<u8>> {
+            if self.mute {
+                return Err(io::ErrorKind::TimedOut.into());
+            }
+            self.inner.recv(timeout)
+        }
+    }
+
+    #[test]
+    fn a_busy_device_makes_the_next_frame_skip_without_waiting() {
+        let seq = demo(2);
+        let cfg = config(&seq);
+        let link = Silent {
+            inner: LocalLink::start("ram256k").unwrap(),
+            mute: false,
+            sent: Vec::new(),
+        };
+        // Two rows a message: the 30 strided rows take 15 DepthRows.
+        let opts = StreamOptions {
+            rows_per_message: 2,
+            ..StreamOptions::default()
+        };
+        let mut session = Session::new(Client::new(link), opts);
+        session.start(&cfg, Some("ram256k")).unwrap();
+        assert!(!session.busy().unwrap(), "the Hello was answered");
+        session.client().link().mute = true;
+        let img = seq.depth(0).unwrap();
+        let frame = DepthFrame {
+            timestamp: 1.0,
+            pose: seq.frames[0].pose().unwrap(),
+            intrinsics: cfg.intrinsics,
+            depth: &img.data,
+        };
+        assert_eq!(session.try_push_frame(&frame).unwrap(), Some(0));
+        // The whole frame went out though nothing was answered (more
+        // messages than the in-flight window of 4).
+        let frames = session
+            .client()
+            .link()
+            .sent
+            .iter()
+            .filter(|&&b| b == 0)
+            .count();
+        let messages = 2 + 15;
+        assert_eq!(frames, messages);
+        assert!(messages > StreamOptions::default().in_flight);
+        assert!(session.busy().unwrap());
+        assert_eq!(session.try_push_frame(&frame).unwrap(), None, "skipped");
+        assert_eq!(session.next_frame(), 1, "a skipped frame takes no index");
+    }
+
+    #[test]
+    fn a_device_that_answered_takes_the_next_frame() {
+        let seq = demo(3);
+        let cfg = config(&seq);
+        let link = LocalLink::start("ram256k").unwrap();
+        let mut session = Session::new(Client::new(link), StreamOptions::default());
+        session.start(&cfg, Some("ram256k")).unwrap();
+        for i in 0..3 {
+            let img = seq.depth(i).unwrap();
+            let frame = DepthFrame {
+                timestamp: seq.frames[i].timestamp,
+                pose: seq.frames[i].pose().unwrap(),
+                intrinsics: cfg.intrinsics,
+                depth: &img.data,
+            };
+            while session.busy().unwrap() {}
+            assert_eq!(session.try_push_frame(&frame).unwrap(), Some(i as u32));
+        }
+        let st = session.finish().unwrap();
+        assert_eq!(st.frames_seen, 3);
+    }
+
+    #[test]
+    fn a_realtime_replay_names_every_frame_it_skipped() {
+        // Ten times the recorded rate: whatever the device keeps up with,
+        // every frame is either sent (and labelled) or named as skipped.
+        let seq = demo(20);
+        let cfg = config(&seq);
+        let link = LocalLink::start("ram256k").unwrap();
+        let mut session = Session::new(Client::new(link), StreamOptions::default());
+        let report = stream_realtime(&mut session, &seq, &cfg, "ram256k", 10.0).unwrap();
+        let mut all: Vec<usize> = report.sent.iter().chain(&report.skipped).copied().collect();
+        all.sort_unstable();
+        assert_eq!(all, (0..20).collect::<Vec<_>>());
+        assert_eq!(
+            report.sent.first(),
+            Some(&0),
+            "the first frame finds the device idle"
+        );
+        assert_eq!(report.status.frames_seen as usize, report.sent.len());
+        let export = session.export().unwrap();
+        let (timestamps, _) = export.labels();
+        let sent: Vec<f64> = report
+            .sent
+            .iter()
+            .map(|&i| seq.frames[i].timestamp)
+            .collect();
+        assert_eq!(
+            timestamps, sent,
+            "a label for every sent frame, none for a skipped one"
+        );
+        assert!((report.rate - 30.0).abs() < 0.5, "{}", report.rate);
+        assert!(stream_realtime(&mut session, &seq, &cfg, "ram256k", 0.0).is_err());
+    }
+
+    #[test]
+    fn index_ranges_are_compact() {
+        assert_eq!(index_ranges(&[]), "");
+        assert_eq!(index_ranges(&[3, 7, 8, 9, 12]), "3, 7-9, 12");
+    }
+}
