@@ -23,8 +23,11 @@
 //!
 //! The measure: exact keys when RAM or the store has them (exact IoU, an
 //! overlap above mu), else the bottom-k sketches (an overlap above mu +
-//! margin), the estimate capped by the bound: it cannot exceed what the
-//! exact sets allow, and a capped estimate is one RAM and the store agree on.
+//! margin). A resident frame is measured whenever the boxes touch (it costs
+//! no read), so a sketched frame (no exact keys anywhere) whose estimate
+//! exceeds mu + margin while its bound is at most mu covers a frame while
+//! resident and not once stored: sketch noise above a proven bound, the one
+//! case where RAM still matters. Frames compared exactly never differ.
 
 use super::database::{DbEntry, DbIndex, FrameStore, NOWHERE};
 use super::{better, Best, SelectorConfig, Stored};
@@ -102,15 +105,18 @@ pub(super) fn against_database<const POOL: usize, const DB: usize, const K: usiz
         }
         for e in db.index.entries() {
             let b = bound(e);
-            let wanted = if pass == 0 {
-                b > mu
-            } else {
-                b > 0.0 && b <= mu
-            };
+            // A resident frame costs no read: measured whenever the boxes
+            // touch, as the sketch model of the selector has it.
+            let near = new
+                .aabb
+                .as_ref()
+                .is_some_and(|a| e.len > 0 && e.bbox.touches(a));
+            let first = b > mu || (e.resident && near);
+            let wanted = if pass == 0 { first } else { !first && b > 0.0 };
             if !wanted {
                 continue;
             }
-            match measure(cfg, pool, &mut db, e, new, keys, b) {
+            match measure(cfg, pool, &mut db, e, new, keys) {
                 Some((x, overlaps)) => {
                     m.nearest = better(m.nearest, x, e.index);
                     if overlaps {
@@ -133,13 +139,9 @@ fn measure<const POOL: usize, const DB: usize, const K: usize>(
     e: &DbEntry,
     new: &Stored<K>,
     keys: &[u64],
-    bound: f32,
 ) -> Option<(f32, bool)> {
     let exact = |x: f32| (x, x > cfg.mu);
-    let sketched = |x: f32| {
-        let x = x.min(bound);
-        (x, x > cfg.mu + cfg.sketch_margin)
-    };
+    let sketched = |x: f32| (x, x > cfg.mu + cfg.sketch_margin);
     let resident = db.resident.iter().find(|r| r.meta.index == e.index);
     if let Some(run) = resident.and_then(|r| r.keys.as_ref()) {
         let len = resident.map_or(0, |r| r.len);
