@@ -52,6 +52,17 @@
 //! write that failed yet landed harmless: its retry opens the next sector
 //! with the same number and voids it.
 //!
+//! Erasing a dropped sector must not bring back what its head voided in
+//! the sector before it (records an earlier drop left there, or a write
+//! that failed yet landed). When the sectors from the first dropped one on
+//! hold such records, the drop copies the kept records into a new
+//! generation outside the live one instead, its record 0 written last:
+//! until that write lands the old generation is live and whole, after it
+//! the new one holds exactly the kept records (complete at once, no record
+//! needs to follow). It costs a copy of the kept records, and it is refused
+//! ([`LogError::Full`], nothing changed) when they do not fit beside the
+//! live generation.
+//!
 //! # Generation numbers never wrap into the past
 //!
 //! A new generation is numbered one more than the highest number at the
@@ -597,6 +608,9 @@ impl<F: NorFlash> Log<F> {
     /// write that failed yet landed), which must stay void. Dropping nothing
     /// is a no-op; `keep` 0 (nothing to keep: start a new generation
     /// instead) and more records than there are are [`LogError::NoRecord`].
+    /// Where erasing would bring back records voided before, the kept
+    /// records are copied into a new generation instead (see "Dropping a
+    /// tail"); [`LogError::Full`] when that copy does not fit.
     /// On a flash error the log is read again from the flash.
     pub fn truncate(&mut self, keep: u32) -> Result<(), LogError> {
         let live = self.live.ok_or(LogError::NotStarted)?;
@@ -613,6 +627,9 @@ impl<F: NorFlash> Log<F> {
         let (first_dropped, _) = self.next(&mut cursor)?.ok_or(LogError::NoRecord)?;
         let sector = first_dropped / self.sector_len();
         let kept_sectors = (sector + self.sectors - live.head % self.sectors) % self.sectors + 1;
+        if self.hides_records(live, kept_sectors - 1)? {
+            return self.truncate_by_copy(live, keep);
+        }
         for s in (kept_sectors..live.sectors).rev() {
             let at = self.sector_offset(live.head + s);
             if let Err(e) = self.flash.erase(at, at + self.sector_len()) {
@@ -627,6 +644,139 @@ impl<F: NorFlash> Log<F> {
             ..live
         });
         Ok(())
+    }
+
+    /// Whether a sector of `live` from the `from`-th on (counted from its
+    /// head) holds records that the head of the sector after it voids (left
+    /// by an earlier drop, or a write that failed yet landed): erasing that
+    /// next sector would bring them back.
+    fn hides_records(&mut self, live: Live, from: u32) -> Result<bool, LogError> {
+        let sector_len = self.sector_len();
+        for y in from..live.sectors.saturating_sub(1) {
+            let next = self
+                .read_record(live.head + y + 1, 0)?
+                .filter(|h| h.generation == live.generation)
+                .map_or(u32::MAX, |h| h.seq);
+            // The records this sector holds, whether void or not.
+            let (mut offset, mut end) = (0u32, None::<u32>);
+            while offset < sector_len {
+                let found = self
+                    .read_record(live.head + y, offset)?
+                    .filter(|h| h.generation == live.generation)
+                    .filter(|h| end.is_none_or(|e| h.seq == e));
+                let Some(h) = found else { break };
+                end = Some(h.seq.saturating_add(1));
+                offset += align_up(HEADER_LEN + h.len, self.align) as u32;
+            }
+            if end.is_some_and(|e| e > next) {
+                return Ok(true);
+            }
+        }
+        Ok(false)
+    }
+
+    /// [`Self::truncate`] where erasing the dropped sectors would bring back
+    /// records voided before: the first `keep` records are copied into a new
+    /// generation outside the live one, its head record written last, so
+    /// that until that write lands the live generation is the old one,
+    /// whole, and after it the new one, exactly the kept records (see
+    /// "Dropping a tail"). [`LogError::Full`] (nothing changed) when the
+    /// sectors outside the live generation cannot hold the copy.
+    fn truncate_by_copy(&mut self, live: Live, keep: u32) -> Result<(), LogError> {
+        if self.newest == u32::MAX {
+            self.renumber()?;
+        }
+        let wraps = self.newest == u32::MAX;
+        let generation = if wraps { 0 } else { self.newest + 1 };
+        let sector_len = self.sector_len() as usize;
+        let free = self.sectors.saturating_sub(live.sectors);
+        // Where each record goes: (sector from the new head, offset), and
+        // the extent; first without writing, to refuse before erasing.
+        let place = |at: &mut (u32, usize), total: usize| {
+            if at.1 + total > sector_len {
+                *at = (at.0 + 1, 0);
+            }
+            let here = *at;
+            at.1 += total;
+            here
+        };
+        let mut at = (0u32, 0usize);
+        let mut cursor = Cursor::START;
+        for _ in 0..keep {
+            let (_, p) = self.next(&mut cursor)?.ok_or(LogError::NoRecord)?;
+            place(&mut at, align_up(HEADER_LEN + p.len(), self.align));
+        }
+        if at.0 + 1 > free {
+            return Err(LogError::Full);
+        }
+        // A cut from here on may leave sectors of this number: never reuse it.
+        if !wraps {
+            self.newest = generation;
+        }
+        let head = live.head + live.sectors;
+        let (mut at, mut cursor, mut erased) = ((0u32, 0usize), Cursor::START, None::<u32>);
+        for seq in 0..keep {
+            let len = self.next(&mut cursor)?.ok_or(LogError::NoRecord)?.1.len();
+            let (sector, offset) = place(&mut at, align_up(HEADER_LEN + len, self.align));
+            if erased != Some(sector) {
+                let start = self.sector_offset(head + sector);
+                self.flash
+                    .erase(start, start + self.sector_len())
+                    .map_err(flash_err)?;
+                erased = Some(sector);
+            }
+            if seq > 0 {
+                self.write_copy(generation, seq, len, head + sector, offset)?;
+            }
+        }
+        // The head record last: the new generation exists from this write on.
+        let mut first = Cursor::START;
+        let len = self.next(&mut first)?.ok_or(LogError::NoRecord)?.1.len();
+        self.write_copy(generation, 0, len, head, 0)?;
+        if wraps {
+            // As in `start`: generation 0 ranks below the old one until its
+            // head record is gone.
+            let old = self.sector_offset(live.head);
+            self.flash
+                .erase(old, old + self.sector_len())
+                .map_err(flash_err)?;
+        }
+        self.live = Some(Live {
+            generation,
+            head: head % self.sectors,
+            sectors: at.0 + 1,
+            records: keep,
+            offset: Some(at.1 as u32),
+        });
+        Ok(())
+    }
+
+    /// Writes the payload left in `buf` by the last read as record `seq` of
+    /// `generation`, `offset` bytes into `sector`.
+    fn write_copy(
+        &mut self,
+        generation: u32,
+        seq: u32,
+        len: usize,
+        sector: u32,
+        offset: usize,
+    ) -> Result<(), LogError> {
+        let total = align_up(HEADER_LEN + len, self.align);
+        let at = self.sector_offset(sector) + offset as u32;
+        let payload = self
+            .buf
+            .get(HEADER_LEN..HEADER_LEN + len)
+            .ok_or(LogError::TooLarge)?;
+        let head = header(generation, seq, payload);
+        let record = self.buf.get_mut(..total).ok_or(LogError::TooLarge)?;
+        for (b, v) in record.iter_mut().zip(head) {
+            *b = v;
+        }
+        record
+            .get_mut(HEADER_LEN + len..)
+            .unwrap_or_default()
+            .fill(0xFF);
+        self.flash.write(at, record).map_err(flash_err)
     }
 
     /// Bytes the live generation occupies (whole sectors), and the most one
@@ -985,12 +1135,24 @@ mod tests {
             let (mut log, found) = reboot(log);
             assert_eq!(found, with(kept, &[b"again"]), "{ctx}");
             assert_eq!(read_all(&mut log), with(kept, &[b"again"]), "{ctx}");
-            // Dropping again, inside what was kept, works the same way.
+            // Dropping again, inside what was kept, works the same way, or,
+            // where the first drop left void records that erasing would
+            // bring back and the copy does not fit beside the live
+            // generation, is refused with nothing changed.
             if keep > 1 {
-                log.truncate(keep as u32 - 1).unwrap();
-                log.append(b"again").unwrap();
-                let (_, found) = reboot(log);
-                assert_eq!(found, with(&written[..keep - 1], &[b"again"]), "{ctx}");
+                match log.truncate(keep as u32 - 1) {
+                    Ok(()) => {
+                        log.append(b"again").unwrap();
+                        let (_, found) = reboot(log);
+                        let expected = with(&written[..keep - 1], &[b"again"]);
+                        assert_eq!(found, expected, "{ctx}");
+                    }
+                    Err(LogError::Full) => {
+                        let (_, found) = reboot(log);
+                        assert_eq!(found, with(kept, &[b"again"]), "{ctx}");
+                    }
+                    Err(e) => panic!("{ctx}: {e:?}"),
+                }
             }
         }
     }

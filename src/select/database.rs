@@ -65,35 +65,63 @@ impl<const K: usize> FrameStore<K> for NoStore {
     }
 }
 
-/// A box in voxel coordinates clamped to `i16` (±9.8 km at 0.3 m voxels).
-/// Clamping keeps every pair of boxes that touch touching (it is monotone),
-/// so the index never misses a candidate; far-away boxes may merely touch
-/// where the exact ones do not, which costs a comparison, not a decision.
+/// A frame's box in 12 bytes, exact over the whole voxel key range
+/// (±2^20 voxels per axis: ±314 km at 0.3 m voxels, ±52 km at 0.05 m).
+///
+/// Per axis one word: the low corner in the key's 21 bits, and the extent
+/// in the 11 bits above it. An extent of [`CoarseBox::OPEN`] or more is
+/// stored as "to the end of the key range": such a box is looser than the
+/// exact one, never tighter, so the index never skips a frame whose set may
+/// share a voxel with a new frame; it may merely compare one more frame.
+/// (An earlier entry clamped the corners to `i16`, ±9.8 km at 0.3 m, and
+/// its key lookup then missed every frame beyond that on x.)
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct CoarseBox {
-    min: [i16; 3],
-    max: [i16; 3],
+    axes: [u32; 3],
 }
 
 impl CoarseBox {
-    fn clamp(v: i32) -> i16 {
-        v.clamp(i16::MIN.into(), i16::MAX.into()) as i16
+    /// Bits of the low corner: a voxel key's bits per axis.
+    const MIN_BITS: u32 = 21;
+    /// The stored extent meaning "to [`VoxelKey::MAX`]" (the 11 high bits all set).
+    pub const OPEN: u32 = (1 << (32 - Self::MIN_BITS)) - 1;
+
+    /// The box of `aabb` (its corners in the key range, as every box of
+    /// voxel keys is; a corner outside it is clamped into it).
+    pub fn of(aabb: &Aabb) -> CoarseBox {
+        let bias = 1i64 << (Self::MIN_BITS - 1);
+        let mut axes = [0u32; 3];
+        for (word, (&lo, &hi)) in axes.iter_mut().zip(aabb.min.iter().zip(&aabb.max)) {
+            let lo = lo.clamp(VoxelKey::MIN, VoxelKey::MAX);
+            let extent = (i64::from(hi) - i64::from(lo)).clamp(0, i64::from(Self::OPEN));
+            *word = ((extent as u32) << Self::MIN_BITS) | (i64::from(lo) + bias) as u32;
+        }
+        CoarseBox { axes }
     }
 
-    /// The clamped box of `aabb`.
-    pub fn of(aabb: &Aabb) -> CoarseBox {
-        CoarseBox {
-            min: aabb.min.map(Self::clamp),
-            max: aabb.max.map(Self::clamp),
+    /// Low and high corner on each axis (the high one [`VoxelKey::MAX`]
+    /// when the extent was too large to store).
+    pub fn corners(&self) -> ([i32; 3], [i32; 3]) {
+        let bias = 1i32 << (Self::MIN_BITS - 1);
+        let (mut lo, mut hi) = ([0i32; 3], [0i32; 3]);
+        for ((&word, l), h) in self.axes.iter().zip(&mut lo).zip(&mut hi) {
+            let min = (word & ((1 << Self::MIN_BITS) - 1)) as i32 - bias;
+            let extent = word >> Self::MIN_BITS;
+            *l = min;
+            *h = if extent >= Self::OPEN {
+                VoxelKey::MAX
+            } else {
+                min.saturating_add(extent as i32).min(VoxelKey::MAX)
+            };
         }
+        (lo, hi)
     }
 
     /// How many of `keys` (ascending packed voxel keys) lie in the box: at
     /// least as many as a set with this box shares with them, so with the
-    /// set sizes a bound on the IoU (clamping only loosens it).
+    /// set sizes a bound on the IoU.
     pub fn count_in(&self, keys: &[u64]) -> u32 {
-        let [x0, y0, z0] = self.min.map(i32::from);
-        let [x1, y1, z1] = self.max.map(i32::from);
+        let ([x0, y0, z0], [x1, y1, z1]) = self.corners();
         // Packed keys order by x first: the keys with x in range are one run.
         let lo = VoxelKey::new(x0, VoxelKey::MIN, VoxelKey::MIN).to_bits();
         let hi = VoxelKey::new(x1, VoxelKey::MAX, VoxelKey::MAX).to_bits();
@@ -103,7 +131,6 @@ impl CoarseBox {
         let inside = |k: &&u64| {
             VoxelKey::from_bits(**k).is_some_and(|key| {
                 let (_, y, z) = key.coords();
-                let (y, z) = (i32::from(Self::clamp(y)), i32::from(Self::clamp(z)));
                 (y0..=y1).contains(&y) && (z0..=z1).contains(&z)
             })
         };
@@ -112,14 +139,16 @@ impl CoarseBox {
 
     /// Whether the box may share a voxel with `aabb`.
     pub fn touches(&self, aabb: &Aabb) -> bool {
-        let other = CoarseBox::of(aabb);
-        (0..3).all(|a| match (self.min.get(a), self.max.get(a)) {
-            (Some(&lo), Some(&hi)) => {
-                other.min.get(a).is_some_and(|&m| m <= hi)
-                    && other.max.get(a).is_some_and(|&m| lo <= m)
-            }
-            _ => false,
-        })
+        let (lo, hi) = self.corners();
+        let other = CoarseBox::of(aabb).corners();
+        (0..3).all(
+            |a| match (lo.get(a), hi.get(a), other.0.get(a), other.1.get(a)) {
+                (Some(lo), Some(hi), Some(other_lo), Some(other_hi)) => {
+                    other_lo <= hi && lo <= other_hi
+                }
+                _ => false,
+            },
+        )
     }
 }
 
@@ -215,10 +244,7 @@ impl<const N: usize> DbIndex<N> {
 
 /// The entry of `frame`, stored at `at`, not resident.
 pub fn entry_of<const K: usize>(frame: &DbSnapshot<K>, at: u32) -> DbEntry {
-    let empty = CoarseBox {
-        min: [0; 3],
-        max: [0; 3],
-    };
+    let empty = CoarseBox { axes: [0; 3] };
     DbEntry {
         index: frame.meta.index,
         at,
@@ -230,5 +256,89 @@ pub fn entry_of<const K: usize>(frame: &DbSnapshot<K>, at: u32) -> DbEntry {
         },
         resident: false,
         keyed: false,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    extern crate std;
+    use std::vec::Vec;
+
+    /// Ascending packed keys of `coords`, and their box.
+    fn set(coords: impl Iterator<Item = (i32, i32, i32)>) -> (Vec<u64>, Aabb) {
+        let mut keys: Vec<u64> = coords
+            .map(|(x, y, z)| VoxelKey::new(x, y, z).to_bits())
+            .collect();
+        keys.sort_unstable();
+        keys.dedup();
+        let aabb = Aabb::of_sorted(&keys).unwrap();
+        (keys, aabb)
+    }
+
+    /// Corners where the old `i16` box broke (its edges and past them),
+    /// and the edges of the key range, on every axis.
+    const CORNERS: [i32; 9] = [
+        0,
+        32_700,
+        32_767,
+        32_768,
+        -32_769,
+        40_000,
+        -40_000,
+        VoxelKey::MAX - 20,
+        VoxelKey::MIN,
+    ];
+
+    #[test]
+    fn the_box_and_its_count_are_exact_over_the_whole_key_range() {
+        for axis in 0..3 {
+            for &c in &CORNERS {
+                // A 10 x 4 x 3 block with its low corner at `c` on `axis`.
+                let at = |i: i32, j: i32, k: i32| {
+                    let mut p = [i, j + 5, k + 2];
+                    p[axis] += c;
+                    (p[0], p[1], p[2])
+                };
+                let (keys, aabb) = set((0..10)
+                    .flat_map(|i| (0..4).flat_map(move |j| (0..3).map(move |k| at(i, j, k)))));
+                let b = CoarseBox::of(&aabb);
+                assert_eq!(b.corners(), (aabb.min, aabb.max), "axis {axis} at {c}");
+                assert_eq!(b.count_in(&keys), 120, "axis {axis} at {c}");
+                assert!(b.touches(&aabb), "axis {axis} at {c}");
+                // One voxel past the box on the axis: not inside, not touching.
+                let mut past = aabb;
+                past.min[axis] = aabb.max[axis].saturating_add(1);
+                past.max[axis] = past.min[axis];
+                if aabb.max[axis] < VoxelKey::MAX {
+                    assert!(!b.touches(&past), "axis {axis} at {c}");
+                    let mut p = [aabb.min[0], aabb.min[1], aabb.min[2]];
+                    p[axis] = past.min[axis];
+                    let outside = [VoxelKey::new(p[0], p[1], p[2]).to_bits()];
+                    assert_eq!(b.count_in(&outside), 0, "axis {axis} at {c}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_box_too_long_to_store_reaches_the_end_of_the_key_range() {
+        // Two voxels 5,000 apart on y: more than the 11-bit extent holds.
+        let (keys, aabb) = set([(3, -2_000, 1), (3, 3_000, 1)].into_iter());
+        let b = CoarseBox::of(&aabb);
+        let (lo, hi) = b.corners();
+        assert_eq!((lo, hi[1]), (aabb.min, VoxelKey::MAX));
+        assert_eq!(hi[0], 3);
+        assert_eq!(b.count_in(&keys), 2);
+        let far = set([(3, VoxelKey::MAX, 1)].into_iter());
+        assert!(b.touches(&far.1), "looser, never tighter");
+        // The longest extent stored exactly.
+        let (_, aabb) = set([(0, 0, 0), (CoarseBox::OPEN as i32 - 1, 0, 0)].into_iter());
+        assert_eq!(CoarseBox::of(&aabb).corners(), (aabb.min, aabb.max));
+    }
+
+    #[test]
+    fn an_entry_is_24_bytes() {
+        assert_eq!(core::mem::size_of::<DbEntry>(), 24);
     }
 }

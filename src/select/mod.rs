@@ -32,11 +32,13 @@ use crate::key_pool::{Aabb, KeyPool, KeyRun};
 use crate::sketch::Sketch;
 use crate::voxel::iou;
 
+mod against_db;
 pub mod database;
 mod restore;
 pub use database::{FrameStore, NoStore};
 pub use restore::{DbSnapshot, RestoreError};
 
+use against_db::{against_database, DbView, Measured};
 use database::{entry_of, DbIndex, KEY_BUDGET, NOWHERE};
 
 /// Tuning of the selection rule.
@@ -346,13 +348,6 @@ struct WindowView {
     slot: usize,
 }
 
-/// The database as the overlap step reads it.
-struct DbView<'a, const DB: usize, const K: usize> {
-    resident: &'a [Stored<K>],
-    index: &'a DbIndex<DB>,
-    store: &'a mut dyn FrameStore<K>,
-}
-
 /// Measures the overlap of a new frame (exact `keys` in hand) with every
 /// database frame near it and every open window frame, records the window
 /// relations in both directions, and returns the new frame's window slot and
@@ -388,80 +383,11 @@ fn overlaps<const POOL: usize, const DB: usize, const W: usize, const K: usize>(
             }
         }
     };
-    let (mut cover, mut nearest): (Best, Best) = (None, None);
-    if let Some(first) = db.index.entries().first() {
-        // The lowest frame index, in case nothing overlaps at all: `better`
-        // keeps the highest IoU, ties to the lowest index.
-        nearest = better(nearest, 0.0, first.index);
-    }
-    let mut note = |x: f32, overlaps: bool, index: u32| {
-        nearest = better(nearest, x, index);
-        if overlaps {
-            cover = better(cover, x, index);
-        }
-    };
-    // Exact from the store, for a frame whose keys it kept.
-    let from_store = |at: u32, store: &mut dyn FrameStore<K>| {
-        store
-            .intersect(at, keys)
-            .map(|(common, len)| iou(new.len, len, common))
-    };
-    let keyed = |index: u32| {
-        db.index
-            .find(index)
-            .and_then(|i| db.index.entries().get(i))
-            .filter(|e| e.keyed)
-            .map(|e| e.at)
-    };
-    for other in db.resident {
-        let exact = match (&other.keys, keyed(other.meta.index)) {
-            (None, Some(at)) if touching(&new.aabb, &other.aabb) => from_store(at, db.store),
-            _ => None,
-        };
-        match exact {
-            Some(x) => note(x, x > mu, other.meta.index),
-            None => {
-                let (x, overlaps) = overlap(other);
-                note(x, overlaps, other.meta.index);
-            }
-        }
-    }
-    // Stored frames near the new one, loaded one at a time. Frames whose box
-    // does not touch have IoU 0: only their index can matter, as the nearest
-    // frame of a frame that overlaps nothing.
-    let mut unreadable = 0u32;
-    for e in db.index.entries() {
-        let near = e.len > 0 && new.aabb.as_ref().is_some_and(|a| e.bbox.touches(a));
-        if e.resident || !near {
-            continue;
-        }
-        // Reading a stored frame back costs more than bounding its IoU from
-        // what RAM knows: it shares at most the new frame's voxels inside its
-        // box. A frame that provably cannot overlap is left where it is.
-        let bound = iou(new.len, u32::from(e.len), e.bbox.count_in(keys));
-        if bound <= mu {
-            continue;
-        }
-        if e.keyed {
-            if let Some(x) = from_store(e.at, db.store) {
-                note(x, x > mu, e.index);
-                continue;
-            }
-        }
-        match db.store.load(e.at) {
-            Some(f) if f.meta.index == e.index => {
-                let (x, overlaps) = overlap(&Stored {
-                    meta: f.meta,
-                    len: f.voxels,
-                    aabb: f.aabb,
-                    keys: None,
-                    sketch: f.sketch,
-                });
-                note(x, overlaps, e.index);
-            }
-            _ => unreadable = unreadable.saturating_add(1),
-        }
-    }
+    let Measured {
+        cover,
+        nearest,
+        unreadable,
+    } = against_database(cfg, pool, db, &new, keys, window.len);
     let s = window.slot;
     let mut slot = Slot {
         frame: new.clone(),
@@ -714,6 +640,7 @@ impl<
         };
         let db = DbView {
             resident: &self.resident,
+            resident_capacity: R,
             index: &self.db,
             store,
         };

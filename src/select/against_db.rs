@@ -1,0 +1,162 @@
+//! A new frame measured against the database: the database frame that
+//! covers it (IoU > mu), and the nearest one (highest IoU), the label of a
+//! frame left uncovered by a full database. Both are the same whether a
+//! database frame is resident in RAM or only in the store, so that neither
+//! depends on what RAM holds: not on the profile's resident count, not on
+//! whether the database was just restored from flash (which restores it
+//! with nothing resident).
+//!
+//! Every database frame is measured the same way, from its index entry: its
+//! box and voxel count bound its IoU with the new frame (the new frame's
+//! voxels inside that box, over the union of the two counts). A frame whose
+//! bound is at most mu cannot cover the new one. Reading a stored frame
+//! back costs flash reads, so a first pass measures only the frames whose
+//! bound is above mu (all that can cover). The nearest frame matters only
+//! when the new frame will be decided [`super::Decision::Uncovered`], which
+//! needs a database that can take no frame before that decision; then a
+//! second pass measures the frames with a bound in (0, mu] too. That pass
+//! costs, per such frame, one store read of every database frame whose box
+//! holds some of its voxels and whose bound is at most mu (a database
+//! record, plus its key chunks when the store kept its keys), and no
+//! memory: the best frame so far is all it keeps. A frame with bound 0
+//! shares no voxel with the new one (IoU 0), so it is never read.
+//!
+//! The measure: exact keys when RAM or the store has them (exact IoU, an
+//! overlap above mu), else the bottom-k sketches (an overlap above mu +
+//! margin). A resident frame is measured whenever the boxes touch (it costs
+//! no read), so a sketched frame (no exact keys anywhere) whose estimate
+//! exceeds mu + margin while its bound is at most mu covers a frame while
+//! resident and not once stored: sketch noise above a proven bound, the one
+//! case where RAM still matters. Frames compared exactly never differ.
+
+use super::database::{DbEntry, DbIndex, FrameStore, NOWHERE};
+use super::{better, Best, SelectorConfig, Stored};
+use crate::store::KeyPool;
+use crate::voxel::iou;
+
+/// The database as the overlap step reads it.
+pub(super) struct DbView<'a, const DB: usize, const K: usize> {
+    /// Database frames held whole in RAM.
+    pub resident: &'a [Stored<K>],
+    /// How many the resident set holds at most.
+    pub resident_capacity: usize,
+    /// Every database frame.
+    pub index: &'a DbIndex<DB>,
+    /// Where the database frames not resident are.
+    pub store: &'a mut dyn FrameStore<K>,
+}
+
+/// What the database says about a new frame.
+pub(super) struct Measured {
+    /// The best database frame it overlaps (IoU > mu), if any.
+    pub cover: Best,
+    /// The database frame with the highest IoU; exact (over every database
+    /// frame) whenever `cover` is `None` and the frame can end uncovered.
+    pub nearest: Best,
+    /// Stored frames that could not be read back.
+    pub unreadable: u32,
+}
+
+/// Whether the frame being measured, `ahead` frames behind the oldest in
+/// the window, can be decided uncovered: at its decision the database can
+/// take no frame. Until then at most `ahead` frames are taken (one per
+/// decision), so that needs an index with at most `ahead` free entries, or
+/// a resident set that fills with frames the store does not hold (they
+/// cannot leave RAM). Otherwise some frame can be taken at its decision.
+fn may_end_uncovered<const DB: usize, const K: usize>(
+    db: &DbView<'_, DB, K>,
+    ahead: usize,
+) -> bool {
+    let free = DB.saturating_sub(db.index.len());
+    let entries = db.index.entries().iter();
+    let pinned = entries.filter(|e| e.resident && e.at == NOWHERE).count();
+    free <= ahead || pinned.saturating_add(ahead) >= db.resident_capacity
+}
+
+/// Measures the new frame (`new`, its ascending packed `keys` in hand)
+/// against every database frame that can matter (see the module docs).
+pub(super) fn against_database<const POOL: usize, const DB: usize, const K: usize>(
+    cfg: &SelectorConfig,
+    pool: &KeyPool<POOL>,
+    mut db: DbView<'_, DB, K>,
+    new: &Stored<K>,
+    keys: &[u64],
+    ahead: usize,
+) -> Measured {
+    let mu = cfg.mu;
+    let mut m = Measured {
+        cover: None,
+        // The lowest frame index, in case nothing overlaps at all: `better`
+        // keeps the highest IoU, ties to the lowest index.
+        nearest: db.index.entries().first().map(|e| (0.0, e.index)),
+        unreadable: 0,
+    };
+    let bound = |e: &DbEntry| match &new.aabb {
+        Some(a) if e.len > 0 && e.bbox.touches(a) => {
+            iou(new.len, u32::from(e.len), e.bbox.count_in(keys))
+        }
+        _ => 0.0,
+    };
+    // First pass: the frames that can cover; second: the rest that can be
+    // nearest, when the frame may end uncovered.
+    for pass in 0..2 {
+        if pass == 1 && (m.cover.is_some() || !may_end_uncovered(&db, ahead)) {
+            break;
+        }
+        for e in db.index.entries() {
+            let b = bound(e);
+            // A resident frame costs no read: measured whenever the boxes
+            // touch, as the sketch model of the selector has it.
+            let near = new
+                .aabb
+                .as_ref()
+                .is_some_and(|a| e.len > 0 && e.bbox.touches(a));
+            let first = b > mu || (e.resident && near);
+            let wanted = if pass == 0 { first } else { !first && b > 0.0 };
+            if !wanted {
+                continue;
+            }
+            match measure(cfg, pool, &mut db, e, new, keys) {
+                Some((x, overlaps)) => {
+                    m.nearest = better(m.nearest, x, e.index);
+                    if overlaps {
+                        m.cover = better(m.cover, x, e.index);
+                    }
+                }
+                None => m.unreadable = m.unreadable.saturating_add(1),
+            }
+        }
+    }
+    m
+}
+
+/// The IoU of the new frame with database frame `e` and whether it counts
+/// as an overlap; `None` when the store cannot read the frame back.
+fn measure<const POOL: usize, const DB: usize, const K: usize>(
+    cfg: &SelectorConfig,
+    pool: &KeyPool<POOL>,
+    db: &mut DbView<'_, DB, K>,
+    e: &DbEntry,
+    new: &Stored<K>,
+    keys: &[u64],
+) -> Option<(f32, bool)> {
+    let exact = |x: f32| (x, x > cfg.mu);
+    let sketched = |x: f32| (x, x > cfg.mu + cfg.sketch_margin);
+    let resident = db.resident.iter().find(|r| r.meta.index == e.index);
+    if let Some(run) = resident.and_then(|r| r.keys.as_ref()) {
+        let len = resident.map_or(0, |r| r.len);
+        return Some(exact(iou(new.len, len, pool.intersect(run, keys))));
+    }
+    if e.keyed {
+        if let Some((common, len)) = db.store.intersect(e.at, keys) {
+            return Some(exact(iou(new.len, len, common)));
+        }
+    }
+    if let Some(r) = resident {
+        return Some(sketched(new.sketch.jaccard(&r.sketch)));
+    }
+    match db.store.load(e.at) {
+        Some(f) if f.meta.index == e.index => Some(sketched(new.sketch.jaccard(&f.sketch))),
+        _ => None,
+    }
+}
