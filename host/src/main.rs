@@ -12,6 +12,8 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
+mod pico_bench;
+
 #[derive(Parser)]
 #[command(
     name = "placedb",
@@ -822,6 +824,14 @@ struct BenchArgs {
     /// With --device: frames of 7scenes-1000 (twice as many synthetic ones).
     #[arg(long, default_value_t = 3)]
     device_frames: usize,
+    /// Instead: the Pico's Cortex-M0+ under the RP2040 emulator: cycles per
+    /// valid pixel and per frame (the --device frames at strides 2 and 4),
+    /// and the frames/s it sustains beside what USB full speed carries.
+    #[arg(long)]
+    pico: bool,
+    /// With --pico: print one JSON object instead of the tables.
+    #[arg(long, requires = "pico")]
+    json: bool,
     /// Instead: count with callgrind the instructions of one frame decided
     /// against a database of 10 frames and of ~900 (a synthetic building at
     /// mu 0.5 on the ram256k device, its database restored from flash).
@@ -855,6 +865,9 @@ fn bench(a: BenchArgs) -> Result<(), Error> {
     }
     if a.device {
         return device_cost(&a);
+    }
+    if a.pico {
+        return pico_bench::run(&a.data, a.device_frames, a.json);
     }
     if let Some(flash) = &a.db_probe {
         return Ok(placedb_host::dbscale::run_probe(flash, a.building_frames)?);
