@@ -10,8 +10,15 @@
 use crate::voxel::{VoxelGrid, VoxelKey, AXIS_BIAS};
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 
+mod narrow;
 #[cfg(target_pointer_width = "64")]
 pub mod wide;
+
+/// Whether rows take [`narrow::narrow_loop`]: on ARMv6-M (Cortex-M0/M0+),
+/// which has no 32x32->64-bit multiply, so `fast_loop`'s multiply-accumulates
+/// are library calls. ARMv6-M is also the ARM profile without LDREX/STREX,
+/// which is how `cfg` tells it from ARMv7-M (no 32-bit atomics).
+const NARROW: bool = cfg!(all(target_arch = "arm", not(target_has_atomic = "32")));
 
 /// Why a camera or pose description was refused.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -450,7 +457,11 @@ impl FrameProjector {
         let mut invalid = 0u32;
         if self.shift == MAX_SHIFT {
             let t = self.biased_translation();
-            invalid = fast_loop(samples, ray, step, t, (lo, span), &mut emit_new);
+            invalid = if NARROW && narrow::fits(&ray, &step, seen, hi) {
+                narrow::narrow_loop(samples, ray, step, t, (lo, span), &mut emit_new)
+            } else {
+                fast_loop(samples, ray, step, t, (lo, span), &mut emit_new)
+            };
         } else {
             let (shift, t) = (self.shift, self.translation);
             for raw in samples {

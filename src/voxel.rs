@@ -225,8 +225,12 @@ impl<const CAP: usize> FrameVoxels<CAP> {
         if bits == self.last {
             return true;
         }
-        // Fibonacci hashing: the top bits of the product spread neighbouring voxels.
-        let mut i = (bits.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 32) as usize & Self::MASK;
+        // Fibonacci hashing of the key folded to 32 bits (x, y and z each
+        // reach the low word): the product's top half, rotated down, spreads
+        // neighbouring voxels. A 32-bit multiply, because a Cortex-M0+ has no
+        // 64-bit one; the slots a key lands in never show in [`Self::sorted`].
+        let folded = bits as u32 ^ (bits >> 32) as u32 ^ (bits >> 21) as u32;
+        let mut i = folded.wrapping_mul(0x9E37_79B9).rotate_left(16) as usize & Self::MASK;
         loop {
             // `i` is masked to `CAP - 1`, so the slot always exists and the
             // compiler drops the check; the `else` is never taken.

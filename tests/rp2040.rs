@@ -140,7 +140,15 @@ fn the_emulated_pico_matches_the_host_replay() {
 /// besides its pixels cancels out).
 #[test]
 fn cortex_m0_cycles_per_valid_pixel() {
-    let mut client = Client::new(boot(None, Duration::from_secs(600)));
+    // CPU cycles only: the flash's busy time would stop the timer's clock
+    // for the CPU too, and `placedb bench --pico` adds it separately.
+    let options = Rp2040Options {
+        deadline: Duration::from_secs(600),
+        flash_timing: FlashTiming::None,
+        ..Rp2040Options::default()
+    };
+    let board = Rp2040::start_with(&firmware(), &options).unwrap_or_else(|e| panic!("{e}"));
+    let mut client = Client::new(board);
     for (name, seq) in [("7scenes-1000", seven_scenes(3)), ("synthetic", demo(6))] {
         let cost = pixelcost::measure(
             &mut client,
@@ -170,6 +178,15 @@ fn cortex_m0_cycles_per_valid_pixel() {
             c.bytes,
         );
         assert!(per_pixel > 0.0 && f.ticks > c.ticks);
+        // The 32-bit projection loop (src/camera/narrow.rs): 231.5 and 253.5
+        // cycles per valid pixel when it landed, against 442 and 488 before.
+        // The goal is 240 on both (issue 24); these bounds catch a return
+        // to the 64-bit multiplies.
+        let bound = if name == "synthetic" { 260.0 } else { 240.0 };
+        assert!(
+            per_pixel <= bound,
+            "{name}: {per_pixel:.1} cycles per valid pixel, above {bound}"
+        );
         // At 133 MHz, every pixel valid (the worst case), and what USB full
         // speed carries: ~1.1 MB/s of bulk payload at best; the host sends
         // 2 bytes per sampled pixel plus ~1 % framing.

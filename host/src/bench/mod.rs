@@ -5,6 +5,7 @@
 
 pub mod db_scaling;
 pub mod instructions;
+pub mod pico;
 pub mod pixel_cost;
 pub mod timing;
 

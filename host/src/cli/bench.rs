@@ -1,6 +1,6 @@
 //! `placedb bench`: its arguments; the measurements are in [`crate::bench`].
 
-use crate::bench::{db_scaling, instructions, timing, BenchOptions};
+use crate::bench::{db_scaling, instructions, pico, timing, BenchOptions};
 use crate::error::CommandError as Error;
 use crate::pipeline::Solver;
 use clap::Args;
@@ -40,6 +40,14 @@ pub struct BenchArgs {
     /// With --device: frames of 7scenes-1000 (twice as many synthetic ones).
     #[arg(long, default_value_t = 3)]
     device_frames: usize,
+    /// Instead: the Pico's Cortex-M0+ under the RP2040 emulator: cycles per
+    /// valid pixel and per frame (the --device frames at strides 2 and 4),
+    /// and the frames/s it sustains beside what USB full speed carries.
+    #[arg(long)]
+    pico: bool,
+    /// With --pico: print one JSON object instead of the tables.
+    #[arg(long, requires = "pico")]
+    json: bool,
     /// Instead: count with callgrind the instructions of one frame decided
     /// against a database of 10 frames and of ~900 (a synthetic building at
     /// mu 0.5 on the ram256k device, its database restored from flash).
@@ -80,6 +88,9 @@ pub fn run(a: BenchArgs) -> Result<(), Error> {
     }
     if a.device {
         return instructions::device_cost(&opts);
+    }
+    if a.pico {
+        return pico::run(&a.data, a.device_frames, a.json);
     }
     if let Some(flash) = &a.db_probe {
         return Ok(db_scaling::run_probe(flash, a.building_frames)?);
