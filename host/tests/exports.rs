@@ -6,8 +6,8 @@
 
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use placedb_host::device_cli::{self, StreamOptions};
-use placedb_host::output::exports::{self, vpr_eval, ExportFlags, StreamedWith};
 use placedb_host::link::{Client, LocalLink};
+use placedb_host::output::exports::{self, vpr_eval, ExportFlags, StreamedWith};
 use placedb_host::pipeline::{self, SolverParams};
 use placedb_host::read::{self, ReadOptions};
 use placedb_host::{synth, VoxelConfig};

@@ -4,8 +4,8 @@
 use super::{open_sequence, open_test, print_dataset, solver_params, voxel_config};
 use super::{ParamArgs, SeqArgs};
 use crate::error::CommandError as Error;
-use crate::output::{annotate, exports};
 use crate::output::{self, dataset, metrics_json, topview};
+use crate::output::{annotate, exports};
 use crate::pipeline::{self, Solver};
 use clap::Args;
 use std::path::PathBuf;

@@ -6,7 +6,9 @@
 
 pub mod font;
 
-use crate::output::topview::{Frame, Image, Projection, TopView, BACKGROUND, GREY_DARK, GREY_LIGHT};
+use crate::output::topview::{
+    Frame, Image, Projection, TopView, BACKGROUND, GREY_DARK, GREY_LIGHT,
+};
 use font::{draw_text, text_height, text_width};
 use std::collections::HashMap;
 

@@ -3,8 +3,8 @@
 //! and the host's replay of it export alike.
 
 use super::{write_all, ExportFlags, Selection, StreamedWith};
-use crate::output::dataset::DatasetError;
 use crate::device::export::Export;
+use crate::output::dataset::DatasetError;
 use crate::read::{self, ReadOptions};
 use crate::sequence::Sequence;
 use crate::VoxelConfig;

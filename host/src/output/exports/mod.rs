@@ -13,10 +13,10 @@ pub mod replace;
 pub mod vpr_eval;
 
 use crate::output::dataset::DatasetError;
-use crate::yardstick::graph::CoObservation;
-use crate::output::DbRow;
 use crate::output::topview::Projection;
+use crate::output::DbRow;
 use crate::sequence::Sequence;
+use crate::yardstick::graph::CoObservation;
 use std::path::{Path, PathBuf};
 
 /// The export options shared by `select` and `export`.
