@@ -6,9 +6,7 @@ use crate::device::client::Client;
 use crate::device::error::DeviceError;
 use crate::device::export;
 use crate::device::link::{self, fault::FaultConfig, fault::FaultInjector};
-use crate::device::scan::{
-    device_config, scan_config, status_line, stream, Recovery, StreamReport,
-};
+use crate::device::scan::{status_line, stream, stream_config, Recovery, StreamReport};
 use crate::error::CommandError as Error;
 use crate::pipeline::SolverParams;
 use crate::sequence::Sequence;
@@ -114,17 +112,7 @@ pub fn stream_cmd(
     recovery: &Recovery,
 ) -> Result<StreamReport, DeviceError> {
     recovery.faults.validate().map_err(DeviceError::Input)?;
-    if placedb::profile::by_name(profile).is_none() {
-        return Err(DeviceError::Input(format!(
-            "unknown --profile {profile:?}; see `placedb budget`"
-        )));
-    }
-    let scan = scan_config(seq, vcfg)?;
-    let sel = SelectorConfig {
-        window: sel.window.max(1),
-        ..sel
-    };
-    let cfg = device_config(&scan, &sel)?;
+    let (scan, sel, cfg) = stream_config(seq, vcfg, sel, profile)?;
     let link = link::open(port, Duration::from_secs(10))?;
     let mut client = Client::new(FaultInjector::new(link, recovery.faults));
     let pb = (!quiet).then(|| {

@@ -9,7 +9,7 @@
 use super::client::Client;
 use super::error::DeviceError;
 use super::link::{self, Link};
-use super::scan::{device_config, scan_config, DepthFrame, StreamOptions};
+use super::scan::{stream_config, DepthFrame, StreamOptions};
 use super::session::Session;
 use crate::{Sequence, VoxelConfig};
 use placedb::protocol::{Config, Status};
@@ -169,17 +169,7 @@ pub fn realtime_cmd(
     profile: &str,
     out: Option<&Path>,
 ) -> Result<RealtimeReport, DeviceError> {
-    if placedb::profile::by_name(profile).is_none() {
-        return Err(DeviceError::Input(format!(
-            "unknown --profile {profile:?}; see `placedb budget`"
-        )));
-    }
-    let scan = scan_config(seq, vcfg)?;
-    let sel = SelectorConfig {
-        window: sel.window.max(1),
-        ..sel
-    };
-    let cfg = device_config(&scan, &sel)?;
+    let (scan, sel, cfg) = stream_config(seq, vcfg, sel, profile)?;
     let link = link::open(port, Duration::from_secs(10))?;
     let mut session = Session::new(Client::new(link), StreamOptions::default());
     let report = stream_realtime(&mut session, seq, &cfg, profile, 1.0)?;
@@ -250,7 +240,11 @@ mod tests {
             window: 8,
             sketch_margin: 0.05,
         };
-        device_config(&scan_config(seq, &vcfg).unwrap(), &sel).unwrap()
+        crate::device::scan::device_config(
+            &crate::device::scan::scan_config(seq, &vcfg).unwrap(),
+            &sel,
+        )
+        .unwrap()
     }
 
     /// A device that has answered the Hello and then goes silent: every

@@ -167,6 +167,30 @@ pub fn device_config(scan: &ScanConfig, sel: &SelectorConfig) -> Result<Config, 
     Ok(cfg)
 }
 
+/// What a scan of `seq` on a `profile` device sends: the scan
+/// configuration, the selector's (its window at least 1) and the Hello they
+/// make, checked before a port is opened. `placedb stream`, with or
+/// without `--realtime`.
+pub fn stream_config(
+    seq: &Sequence,
+    vcfg: &VoxelConfig,
+    sel: SelectorConfig,
+    profile: &str,
+) -> Result<(ScanConfig, SelectorConfig, Config), DeviceError> {
+    if placedb::profile::by_name(profile).is_none() {
+        return Err(DeviceError::Input(format!(
+            "unknown --profile {profile:?}; see `placedb budget`"
+        )));
+    }
+    let scan = scan_config(seq, vcfg)?;
+    let sel = SelectorConfig {
+        window: sel.window.max(1),
+        ..sel
+    };
+    let cfg = device_config(&scan, &sel)?;
+    Ok((scan, sel, cfg))
+}
+
 /// One line about the device's state, for a live status display.
 pub fn status_line(st: &Status) -> String {
     let c = |slot| {
