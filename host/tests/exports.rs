@@ -271,6 +271,35 @@ fn a_failed_export_leaves_the_one_before() {
     ]);
     assert!(!refused.status.success());
     assert!(String::from_utf8_lossy(&refused.stderr).contains("is not a COLMAP export"));
+    // Refused before the work: select's own directory was not written.
+    assert!(!root.join("out3").exists());
+    // A file where a directory goes, and a directory where the pairs go:
+    // refused in words, before the work.
+    let file = root.join("file.txt");
+    std::fs::write(&file, "keep").unwrap();
+    for (flag, target, says) in [
+        ("--vpr-eval", &file, "is not a directory"),
+        ("--pairs", &other, "is a directory"),
+    ] {
+        let refused = placedb(&[
+            "select",
+            "--demo",
+            "--demo-frames",
+            "20",
+            "-q",
+            "-o",
+            root.join("out4").to_str().unwrap(),
+            flag,
+            target.to_str().unwrap(),
+        ]);
+        let err = String::from_utf8_lossy(&refused.stderr);
+        assert!(
+            !refused.status.success() && err.contains(says),
+            "{flag}: {err}"
+        );
+        assert!(!root.join("out4").exists(), "{flag}");
+    }
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "keep");
     std::fs::remove_dir_all(&root).ok();
 }
 

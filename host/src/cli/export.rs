@@ -70,6 +70,7 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
             "--colmap, --vpr-eval and --pairs need --sequence SEQ (the streamed sequence)".into(),
         );
     }
+    a.exports.check_targets()?;
     let export = export_cmd(&a.port, &a.out, a.from, a.quiet)?;
     if let Some(seq) = &seq {
         let (timestamps, labels) = export.labels();

@@ -37,6 +37,8 @@ pub struct SelectArgs {
 /// Runs `placedb select`.
 pub fn run(a: SelectArgs) -> Result<(), Error> {
     let t0 = Instant::now();
+    // A refused export target fails the run before anything is written.
+    a.exports.check_targets()?;
     let seq = open_sequence(&a.seq)?;
     let params = solver_params(&a.params)?;
     let prep = pipeline::prepare(&seq, voxel_config(&a.seq), a.params.quiet)?;

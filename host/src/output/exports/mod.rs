@@ -41,7 +41,25 @@ impl ExportFlags {
     pub fn any(&self) -> bool {
         self.colmap.is_some() || self.vpr_eval.is_some() || self.pairs.is_some()
     }
+
+    /// Refuses, before any work, a target [`write_all`] would refuse.
+    pub fn check_targets(&self) -> Result<(), DatasetError> {
+        if let Some(dir) = &self.colmap {
+            replace::check_dir(dir, COLMAP, colmap::is_export)?;
+        }
+        if let Some(dir) = &self.vpr_eval {
+            replace::check_dir(dir, VPR_EVAL, vpr_eval::is_export)?;
+        }
+        if let Some(file) = &self.pairs {
+            replace::check_file(file)?;
+        }
+        Ok(())
+    }
 }
+
+/// The exports' names in a refusal.
+const COLMAP: &str = "a COLMAP export";
+const VPR_EVAL: &str = "a VPR-evaluation export";
 
 /// What `export --sequence` needs to know of the stream for the exports
 /// (the device does not report it).
@@ -148,19 +166,16 @@ pub fn write_all(flags: &ExportFlags, sel: &Selection) -> Result<Vec<String>, Da
     }
     sel.check()?;
     if let Some(dir) = &flags.colmap {
-        let n = replace::replace_dir(dir, "a COLMAP export", colmap::is_export, |d| {
-            colmap::write(d, sel)
-        })?;
+        let n = replace::replace_dir(dir, COLMAP, colmap::is_export, |d| colmap::write(d, sel))?;
         said.push(format!(
             "  colmap: {n} images with their poses in {}/{{sparse/0,images}}",
             dir.display()
         ));
     }
     if let Some(dir) = &flags.vpr_eval {
-        let (db, q) =
-            replace::replace_dir(dir, "a VPR-evaluation export", vpr_eval::is_export, |d| {
-                vpr_eval::write(d, sel)
-            })?;
+        let (db, q) = replace::replace_dir(dir, VPR_EVAL, vpr_eval::is_export, |d| {
+            vpr_eval::write(d, sel)
+        })?;
         said.push(format!(
             "  vpr-eval: {db} database and {q} query images in {}/{{database,queries}}",
             dir.display()

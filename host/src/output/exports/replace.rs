@@ -32,18 +32,23 @@ fn sibling(target: &Path, what: &str) -> Result<(PathBuf, PathBuf), DatasetError
     Ok((parent, other))
 }
 
-/// Writes directory `target` whole: `fill` writes into an empty temporary
-/// directory beside it, which then replaces `target`. An existing `target`
-/// is replaced only when it is empty or `is_ours` says it holds an earlier
-/// export of the same kind (a mistyped path never replaces other files);
-/// `kind` names the export in that refusal.
-pub fn replace_dir<T>(
+/// Whether [`replace_dir`] may write `target`: a new name, an empty
+/// directory, or one that `is_ours` says holds an earlier export of the
+/// same kind. Also called before a command's work, so that a refused
+/// target fails the run before anything is written.
+pub fn check_dir(
     target: &Path,
     kind: &str,
     is_ours: impl Fn(&Path) -> bool,
-    fill: impl FnOnce(&Path) -> Result<T, DatasetError>,
-) -> Result<T, DatasetError> {
+) -> Result<(), DatasetError> {
+    sibling(target, "partial")?;
     if target.exists() {
+        if !target.is_dir() {
+            return Err(DatasetError::Mismatch(format!(
+                "{} exists and is not a directory: give a directory for {kind}",
+                target.display()
+            )));
+        }
         let empty = std::fs::read_dir(target)
             .map_err(io_err(target))?
             .next()
@@ -55,6 +60,32 @@ pub fn replace_dir<T>(
             )));
         }
     }
+    Ok(())
+}
+
+/// Whether [`replace_file`] may write `target` (not a directory, a name).
+pub fn check_file(target: &Path) -> Result<(), DatasetError> {
+    if target.is_dir() {
+        return Err(DatasetError::Mismatch(format!(
+            "{} is a directory: give a file name",
+            target.display()
+        )));
+    }
+    sibling(target, "partial").map(|_| ())
+}
+
+/// Writes directory `target` whole: `fill` writes into an empty temporary
+/// directory beside it, which then replaces `target`. An existing `target`
+/// is replaced only when it is empty or `is_ours` says it holds an earlier
+/// export of the same kind (a mistyped path never replaces other files);
+/// `kind` names the export in that refusal.
+pub fn replace_dir<T>(
+    target: &Path,
+    kind: &str,
+    is_ours: impl Fn(&Path) -> bool,
+    fill: impl FnOnce(&Path) -> Result<T, DatasetError>,
+) -> Result<T, DatasetError> {
+    check_dir(target, kind, &is_ours)?;
     let (parent, partial) = sibling(target, "partial")?;
     std::fs::create_dir_all(&parent).map_err(io_err(&parent))?;
     let _ = std::fs::remove_dir_all(&partial);
@@ -83,12 +114,7 @@ pub fn replace_dir<T>(
 /// Writes file `target` whole: `text` into a temporary file beside it,
 /// renamed over it.
 pub fn replace_file(target: &Path, text: &str) -> Result<(), DatasetError> {
-    if target.is_dir() {
-        return Err(DatasetError::Mismatch(format!(
-            "{} is a directory: give a file name",
-            target.display()
-        )));
-    }
+    check_file(target)?;
     let (parent, partial) = sibling(target, "partial")?;
     std::fs::create_dir_all(&parent).map_err(io_err(&parent))?;
     let written = std::fs::write(&partial, text)
