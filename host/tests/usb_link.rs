@@ -14,7 +14,7 @@
 #[path = "../../boards/rp-pico/src/link.rs"]
 mod link;
 
-use link::{Link, RX_HEADROOM, TX_QUEUE_LEN};
+use link::{Link, FLUSH_POLLS, RX_HEADROOM, TX_QUEUE_LEN};
 use placedb::protocol::MAX_REPLY_LEN;
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -528,4 +528,50 @@ fn reply_queue_backpressure() {
     }
     assert_eq!(wire.lock().unwrap().received.len(), replies.len());
     assert_eq!(link.read(&usb, &mut rx), 0);
+}
+
+/// `Link::flush` (what the firmware calls before a flash erase stalls the
+/// chip): with a host that does not read it gives up after `FLUSH_POLLS`
+/// polls, the replies still queued; with one that reads it returns once
+/// every reply byte has left the queue and usbd-serial's buffer (the last
+/// packet may still sit in the endpoint, which the controller sends alone).
+#[test]
+fn flush_waits_for_the_host_and_gives_up_on_one_that_does_not_read() {
+    let wire = Arc::new(Mutex::new(Wire::default()));
+    let bus = UsbBusAllocator::new(WireBus(wire.clone()));
+    let mut link = Link::new(&bus);
+    let mut usb = link::device(&bus).unwrap();
+    wire.lock().unwrap().setup = Some([0x00, 0x09, 1, 0, 0, 0, 0, 0]);
+    for _ in 0..4 {
+        link.poll(&mut usb);
+    }
+    assert_eq!(usb.state(), UsbDeviceState::Configured);
+    let in_ep = bulk_index(&wire, UsbDirection::In);
+
+    wire.lock().unwrap().reading = false;
+    let replies: Vec<u8> = (0..3).flat_map(frame).collect();
+    for i in 0..3 {
+        link.send(&mut usb, &frame(i));
+    }
+    let polls = wire.lock().unwrap().polls;
+    assert!(
+        !link.flush(&mut usb),
+        "flushed to a host that does not read"
+    );
+    {
+        let w = wire.lock().unwrap();
+        assert!(w.polls >= polls + u64::from(FLUSH_POLLS));
+        assert!(w.received.is_empty());
+    }
+
+    wire.lock().unwrap().reading = true;
+    assert!(link.flush(&mut usb));
+    let w = wire.lock().unwrap();
+    let mut sent = w.received.clone();
+    sent.extend(w.in_packet[in_ep].iter().flatten());
+    assert_eq!(
+        sent, replies,
+        "a reply byte had not left when flush returned"
+    );
+    assert!(w.polls < polls + u64::from(FLUSH_POLLS) + 100);
 }

@@ -35,6 +35,12 @@ pub const TX_QUEUE_LEN: usize = 16 * MAX_REPLY_LEN;
 /// replies), so the replies to it usually fit without waiting.
 pub const RX_HEADROOM: usize = 8 * MAX_REPLY_LEN;
 
+/// Most polls [`Link::flush`] waits for the host to take the queued
+/// replies: some tens of milliseconds of polling on the Pico, far more than
+/// the few 1 ms USB frames a reply of a few packets needs from a host that
+/// reads, and a bound on the wait for one that does not.
+pub const FLUSH_POLLS: u32 = 20_000;
+
 /// Shared VID/PID for CDC-ACM test devices (not for products).
 pub const USB_VID_PID: UsbVidPid = UsbVidPid(0x16c0, 0x27dd);
 pub const MANUFACTURER: &str = "placedb";
@@ -105,6 +111,20 @@ impl<'a, B: UsbBus> Link<'a, B> {
                 Err(_) => break,
             }
         }
+    }
+
+    /// Polls USB until every reply byte queued so far is in the USB
+    /// controller's buffers (which it sends by itself, even while the CPU
+    /// is stalled by a flash erase), or [`FLUSH_POLLS`] polls have passed (a
+    /// host that does not read). True if it all went.
+    pub fn flush(&mut self, usb: &mut UsbDevice<'a, B>) -> bool {
+        for _ in 0..FLUSH_POLLS {
+            if self.tx.is_empty() && self.serial.flush().is_ok() {
+                return true;
+            }
+            self.poll(usb);
+        }
+        false
     }
 
     /// Reads what the host sent into `buf`: 0 bytes unless configured, data

@@ -12,10 +12,12 @@
 //! them, and restores the scan from it at boot, so a board that lost power
 //! goes on where it was (`placedb stream --resume`).
 //!
-//! Erases happen off the request path: a sector erase stalls the chip for
-//! 45 ms (400 ms at worst) with USB unserviced, so whenever a turn of the
-//! loop finds no host byte waiting, the sector the log will need next is
-//! erased then ([`EraseAhead`]), and the append that opens it only writes.
+//! Erases happen off the frame path: a sector erase stalls the chip for
+//! 45 ms (400 ms at worst) with USB unserviced, so the sector the log will
+//! need next is erased ahead ([`EraseAhead`]) whenever a turn of the loop
+//! finds no host byte waiting, or between two frames (after a frame's
+//! answer has left, before the next frame is read), and the append that
+//! opens it only writes.
 #![no_std]
 #![no_main]
 
@@ -27,6 +29,7 @@ use critical_section::Mutex;
 use embedded_hal::digital::StatefulOutputPin;
 use placedb::device::Device256K;
 use placedb::persist::{EraseAhead, Log};
+use placedb::protocol::Phase;
 use rp2040_hal::{self as hal, pac, usb::UsbBus};
 use usb_device::class_prelude::UsbBusAllocator;
 
@@ -122,19 +125,50 @@ fn main() -> ! {
         if bytes.is_empty() {
             // Nothing from the host: the time to erase what the log needs
             // next (a failed erase is the log's own erase's to retry).
-            let next = log.next_sector();
-            let _ = log.flash().erase_ahead(next);
+            erase_ahead(&mut log);
             continue;
         }
-        critical_section::with(|cs| {
-            DEVICE
-                .borrow_ref_mut(cs)
-                .receive_logged(bytes, &mut log, &mut |frame| {
+        // One host message at a time (each ends with the frame delimiter
+        // 0x00), so that the gap after a frame's answer is seen even when
+        // the next frame's first bytes came in the same packet.
+        for part in bytes.split_inclusive(|&b| b == 0) {
+            let between_frames = critical_section::with(|cs| {
+                let mut device = DEVICE.borrow_ref_mut(cs);
+                device.receive_logged(part, &mut log, &mut |frame| {
                     let Ok(()) = led.toggle();
                     link.send(&mut usb, frame);
                 });
-        });
+                device.phase() != Phase::InFrame
+            });
+            // A host that keeps the link busy (a pipelined stream: the next
+            // frame is always waiting) leaves no idle turn, so the sector is
+            // also erased between two frames: after a message that leaves no
+            // frame open, once its answers are out of the chip (`flush`
+            // waits, boundedly, until the USB controller holds them: it sends
+            // them from its own buffers during the erase). The erase then
+            // delays the next frame's start, not a frame's answer.
+            if part.last() == Some(&0) && between_frames && !erased_ahead(&mut log) {
+                link.flush(&mut usb);
+                erase_ahead(&mut log);
+            }
+        }
     }
+}
+
+/// The log's flash, with its next sector erased ahead of need.
+type LogFlash = EraseAhead<flash::PicoFlash>;
+
+/// Whether the sector the log's next erase goes to is erased already.
+fn erased_ahead(log: &mut Log<LogFlash>) -> bool {
+    let next = log.next_sector();
+    log.flash().is_erased(next)
+}
+
+/// Erases the sector the log's next erase goes to, unless it is erased
+/// already (a failed erase is the log's own erase's to retry).
+fn erase_ahead(log: &mut Log<LogFlash>) {
+    let next = log.next_sector();
+    let _ = log.flash().erase_ahead(next);
 }
 
 fn halt() -> ! {

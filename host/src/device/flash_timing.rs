@@ -97,7 +97,8 @@ impl FromStr for FlashTiming {
 /// sector, 6 pages when it straddles page boundaries). The sectors are the
 /// ones those records fill, one more for the sector left part-filled (a new
 /// record never straddles sectors), and one erase ahead that may have just
-/// begun when the message arrived (the firmware erases ahead when idle).
+/// begun when the message arrived (the firmware erases ahead when idle and
+/// between frames).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct WorstStall {
     /// Records written.
