@@ -7,6 +7,7 @@
 //   node harness.mjs --elf FIRMWARE.elf --bootrom bootrom-b1.bin
 //                    [--port N] [--flash FILE] [--deadline SECONDS]
 //                    [--flash-timing none|typical|max] [--cut-during-erase N]
+//                    [--cut-during-program N]
 //
 // stdout, one line each (tests and `placedb device --rp2040` read them):
 //   "listening tcp:127.0.0.1:PORT"     ready for the host (one client at a time)
@@ -19,6 +20,10 @@
 // erase (counted from 1): the sector's first half is erased, the rest left
 // as it was (a torn erase), and the harness exits at once with code 4 after
 // "power cut during the erase of flash offset 0x..." on stdout (no stats).
+// --cut-during-program N: the same during the N-th 256-byte page programmed
+// (counted from 1): the page's first half is programmed, the rest left as
+// it was (a torn program), then "power cut during the program of flash
+// offset 0x..." and exit code 4.
 //
 // Flash: rp2040js does not model the QSPI flash chip; the boot ROM's flash
 // functions run but change nothing. This harness stops the core at the
@@ -49,7 +54,9 @@
 // firmware and the time at which the FrameEnd's terminal reply (its answer)
 // left on the IN endpoint; the exit line gives their median and worst, in
 // microseconds of emulated time, and how many answers waited for a sector
-// erase (one was done between those two moments).
+// erase (one ended between those two moments: an answer the firmware had
+// handed to the USB controller before the erase began leaves during it,
+// as on silicon, and did not wait).
 
 import { RP2040, BasePeripheral } from 'rp2040js';
 import fs from 'node:fs';
@@ -75,13 +82,13 @@ const FLASH_TIMING = {
 function usage(msg) {
   if (msg) process.stderr.write(`error: ${msg}\n`);
   process.stderr.write(
-    'usage: node harness.mjs --elf FIRMWARE.elf --bootrom bootrom-b1.bin [--port N] [--flash FILE] [--deadline SECONDS] [--flash-timing none|typical|max]\n',
+    'usage: node harness.mjs --elf FIRMWARE.elf --bootrom bootrom-b1.bin [--port N] [--flash FILE] [--deadline SECONDS] [--flash-timing none|typical|max] [--cut-during-erase N] [--cut-during-program N]\n',
   );
   process.exit(2);
 }
 
 function parseArgs(argv) {
-  const opts = { port: 0, flash: null, deadline: 0, elf: null, bootrom: null, quiet: false, timing: 'typical', cutErase: 0 };
+  const opts = { port: 0, flash: null, deadline: 0, elf: null, bootrom: null, quiet: false, timing: 'typical', cutErase: 0, cutProgram: 0 };
   for (let i = 0; i < argv.length; i++) {
     const a = argv[i];
     const value = () => {
@@ -120,6 +127,12 @@ function parseArgs(argv) {
         const n = Number(value());
         if (!Number.isInteger(n) || n < 1) usage('--cut-during-erase takes an erase number from 1');
         opts.cutErase = n;
+        break;
+      }
+      case '--cut-during-program': {
+        const n = Number(value());
+        if (!Number.isInteger(n) || n < 1) usage('--cut-during-program takes a page number from 1');
+        opts.cutProgram = n;
         break;
       }
       case '--quiet':
@@ -454,16 +467,13 @@ function flashCall(code) {
     if (opts.cutErase && stats.erases + count / SECTOR >= opts.cutErase) {
       const at = addr + (opts.cutErase - 1 - stats.erases) * SECTOR;
       mcu.flash.fill(0xff, addr, at + SECTOR / 2);
-      persist(addr, at + SECTOR / 2 - addr);
-      if (flashFd !== null) fs.fsyncSync(flashFd);
-      process.stdout.write(`power cut during the erase of flash offset ${hex(at)}\n`);
-      process.exit(4);
+      powerCut('erase', addr, at, at + SECTOR / 2);
     }
     mcu.flash.fill(0xff, addr, addr + count);
     persist(addr, count);
     stats.erases += count / SECTOR;
-    latency.erased();
     hold((count / SECTOR) * FLASH_TIMING[opts.timing].erase);
+    latency.erased(); // when it ends (see the header: Latency)
   } else if (code === 'RP') {
     const [addr, data, count] = [r[0] >>> 0, r[1] >>> 0, r[2] >>> 0];
     if (addr % PAGE || count % PAGE || addr + count > FLASH_SIZE) {
@@ -474,9 +484,15 @@ function flashCall(code) {
       fatal(`flash_range_program source ${hex(data)} is not in RAM (XIP is off during the call)`);
       return true;
     }
-    for (let i = 0; i < count; i++) {
+    let end = addr + count;
+    if (opts.cutProgram && stats.programs + count / PAGE >= opts.cutProgram) {
+      const at = addr + (opts.cutProgram - 1 - stats.programs) * PAGE;
+      end = at + PAGE / 2;
+    }
+    for (let i = 0; i < end - addr; i++) {
       mcu.flash[addr + i] &= mcu.readUint8(data + i);
     }
+    if (end < addr + count) powerCut('program', addr, end - PAGE / 2, end);
     persist(addr, count);
     stats.programs += count / PAGE;
     hold((count / PAGE) * FLASH_TIMING[opts.timing].program);
@@ -486,6 +502,16 @@ function flashCall(code) {
   core.PC = ret;
   core.cycles += 50; // the call itself; the flash's busy time is the hold
   return true;
+}
+
+/** The power goes in the middle of a flash operation: what it did to
+ * `from..to` (the torn `what` at flash offset `at` ends there) is written
+ * through to the flash file, and the harness dies at once (code 4). */
+function powerCut(what, from, at, to) {
+  persist(from, to - from);
+  if (flashFd !== null) fs.fsyncSync(flashFd);
+  process.stdout.write(`power cut during the ${what} of flash offset ${hex(at)}\n`);
+  process.exit(4);
 }
 
 /** The flash is busy for `ns`: the core runs nothing that long, the clock

@@ -92,6 +92,10 @@ pub struct Rp2040Options {
     /// A power cut during the firmware's `n`-th sector erase (from 1): the
     /// sector is left half erased and the emulator exits at once (code 4).
     pub cut_during_erase: Option<u32>,
+    /// A power cut during the `n`-th 256-byte page programmed (from 1): the
+    /// page's first half is programmed and the emulator exits at once
+    /// (code 4).
+    pub cut_during_program: Option<u32>,
 }
 
 impl Default for Rp2040Options {
@@ -105,6 +109,7 @@ impl Default for Rp2040Options {
             connect_timeout: Duration::from_secs(30),
             flash_timing: FlashTiming::default(),
             cut_during_erase: None,
+            cut_during_program: None,
         }
     }
 }
@@ -127,6 +132,9 @@ pub fn harness_command(firmware: &Path, options: &Rp2040Options) -> Command {
     }
     if let Some(n) = options.cut_during_erase {
         command.arg("--cut-during-erase").arg(n.to_string());
+    }
+    if let Some(n) = options.cut_during_program {
+        command.arg("--cut-during-program").arg(n.to_string());
     }
     if !options.deadline.is_zero() {
         command
