@@ -10,8 +10,10 @@
 //! frames).
 //! Whether an answer waited for an erase is counted by the harness from
 //! emulated-time events (an erase that ended between a frame's last
-//! `DepthRows` handed to the firmware and its answer leaving), so the
-//! counts asserted here do not depend on the machine's speed.
+//! `DepthRows` handed to the firmware and its answer leaving), not from
+//! wall time: the 0 asserted here holds whatever the machine's speed (only
+//! the idle turns the firmware gets while the host is slow vary, and the
+//! erases between frames do not need them).
 //!
 //! Needs what tests/rp2040.rs needs (Node 20, `npm ci` in
 //! `boards/rp-pico/emulator`, the firmware built). Run with `--nocapture`
