@@ -40,7 +40,8 @@ pub enum CameraError {
     NonFinitePose,
     /// The rotation part is not a rotation (not orthonormal, or a reflection).
     NotARotation,
-    /// The voxel size is zero, negative or not finite, or the grid origin is not finite.
+    /// The voxel size is outside [`VoxelGrid::SIZE_RANGE`] (or NaN), or the
+    /// grid origin is not finite.
     BadVoxelSize,
     /// Depth scale, voxel size, image size or camera position are so extreme
     /// that projected coordinates would not fit the fixed-point range.

@@ -77,6 +77,7 @@ pub mod protocol;
 pub mod select;
 pub mod sketch;
 pub mod voxel;
+mod words;
 
 pub use camera::{CameraError, DepthRange, FrameProjector, Intrinsics, Pose};
 pub use frame::{FrameError, FrameMeta, ScanConfig};

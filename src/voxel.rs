@@ -138,9 +138,14 @@ impl VoxelGrid {
         Ok(grid)
     }
 
-    /// Checks a voxel size from 1 mm to 100 m and a finite origin.
+    /// Voxel sizes the grid accepts, metres: from 1 mm (finer is below any
+    /// depth sensor's noise) to 100 m.
+    pub const SIZE_RANGE: core::ops::RangeInclusive<f32> = 1e-3..=100.0;
+
+    /// Checks a voxel size within [`Self::SIZE_RANGE`] and a finite origin.
     pub fn validate(&self) -> Result<(), CameraError> {
-        if !(1e-3..=100.0).contains(&self.voxel_size) || self.origin.iter().any(|c| !c.is_finite())
+        if !Self::SIZE_RANGE.contains(&self.voxel_size)
+            || self.origin.iter().any(|c| !c.is_finite())
         {
             return Err(CameraError::BadVoxelSize);
         }

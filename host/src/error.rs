@@ -37,7 +37,7 @@ pub enum ReadError {
         reason: String,
     },
     /// A pose is not finite or not a rotation.
-    #[error("{path}:{line}: bad pose: {}", crate::read::camera_error_words(*reason))]
+    #[error("{path}:{line}: bad pose: {reason}")]
     Pose {
         /// The file.
         path: PathBuf,
@@ -70,4 +70,28 @@ pub enum ReadError {
         /// What is missing or inconsistent.
         reason: String,
     },
+}
+
+/// A duration in an error message, in plain seconds ("30 s", "2.5 s"):
+/// rounded to the millisecond, so a deadline computed by subtraction
+/// (29.999999642 s) reads as the timeout the user knows.
+pub fn seconds(d: std::time::Duration) -> String {
+    let ms = d.as_secs_f64() * 1e3;
+    let s = format!("{:.3}", ms.round() / 1e3);
+    let s = s.trim_end_matches('0').trim_end_matches('.');
+    format!("{s} s")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::seconds;
+    use std::time::Duration;
+
+    #[test]
+    fn durations_read_as_plain_seconds() {
+        assert_eq!(seconds(Duration::from_nanos(29_999_999_642)), "30 s");
+        assert_eq!(seconds(Duration::from_millis(2500)), "2.5 s");
+        assert_eq!(seconds(Duration::from_millis(45)), "0.045 s");
+        assert_eq!(seconds(Duration::ZERO), "0 s");
+    }
 }

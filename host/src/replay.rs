@@ -13,7 +13,6 @@ use placedb::select::{DbSnapshot, FrameStore};
 use placedb::{
     DbRecord, Decision, FrameMeta, ScanConfig, SelectError, Selector, SelectorConfig, Status,
 };
-use rayon::prelude::*;
 use std::time::{Duration, Instant};
 
 /// Result of a replay.
@@ -40,7 +39,7 @@ pub enum ReplayError {
     #[error(transparent)]
     Read(#[from] VoxelizeError),
     /// The core refused a step.
-    #[error("frame {frame}: the core refused it: {reason:?}")]
+    #[error("frame {frame}: the core refused it: {reason}")]
     Core {
         /// Frame index.
         frame: usize,
@@ -299,12 +298,11 @@ fn run<
     // batch k + 1 is voxelized while batch k is decided.
     let batch = 8 * rayon::current_num_threads().max(1);
     let voxelize_batch = |start: usize| -> Result<Vec<Ingested<FV>>, ReplayError> {
-        (start..(start + batch).min(n))
-            .into_par_iter()
-            .map_init(DepthImage::default, |img, i| {
-                ingest(seq, sets, i, &scan, rows_per_chunk, img)
-            })
-            .collect()
+        crate::voxelize::in_order::try_map_init(
+            start..(start + batch).min(n),
+            DepthImage::default,
+            |img, i| ingest(seq, sets, i, &scan, rows_per_chunk, img),
+        )
     };
     let mut ready = voxelize_batch(0)?;
     let mut start = 0;

@@ -432,6 +432,36 @@ fn bad_bags_get_errors_naming_topic_and_time() {
         e.contains("/other/depth") && e.contains("--depth-topic"),
         "{e}"
     );
+    // --color-topic: refused for what is wrong with the topic, in words
+    // that do not contradict themselves (an Image topic is one).
+    let e = err(
+        "color-is-depth",
+        Bag::default(),
+        Ros2Options {
+            color_topic: Some(DEPTH.into()),
+            ..Ros2Options::default()
+        },
+    );
+    assert!(
+        e.contains("--color-topic") && e.contains("is the depth topic"),
+        "{e}"
+    );
+    let e = err(
+        "color-encoding",
+        Bag {
+            extra: vec![("/camera/ir/image", msgs::IMAGE)],
+            ..Bag::default()
+        },
+        Ros2Options {
+            depth_topic: Some(DEPTH.into()),
+            color_topic: Some("/camera/ir/image".into()),
+            ..Ros2Options::default()
+        },
+    );
+    assert!(
+        e.contains("/camera/ir/image") && e.contains("`16UC1`") && !e.contains("topic is not"),
+        "{e}"
+    );
     let e = err(
         "no-pose",
         Bag {

@@ -95,7 +95,9 @@ impl Building {
         let rows = row_chunks(w, &values, per_msg).collect();
         Ok(Probe {
             timestamp: self.seq.frames[i].timestamp,
-            pose: self.seq.frames[i].pose().map_err(|e| format!("{e:?}"))?,
+            pose: self.seq.frames[i]
+                .pose()
+                .map_err(|e| format!("frame {i}: pose: {e}"))?,
             rows,
         })
     }

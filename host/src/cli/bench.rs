@@ -19,8 +19,8 @@ pub struct BenchArgs {
         default_value = "in-order,greedy,exact,online"
     )]
     solvers: Vec<Solver>,
-    /// Pixel stride.
-    #[arg(long, default_value_t = 1)]
+    /// Pixel stride, from 1 to 64 (as select's).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=64))]
     stride: u16,
     /// Frames of the synthetic scan.
     #[arg(long, default_value_t = 5000)]

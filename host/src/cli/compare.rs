@@ -12,8 +12,8 @@ use clap::Args;
 pub struct CompareArgs {
     #[command(flatten)]
     seq: SeqArgs,
-    /// IoU thresholds, comma separated.
-    #[arg(long, default_value = "0.3", value_delimiter = ',')]
+    /// IoU thresholds, comma separated, each from 0 to below 1.
+    #[arg(long, default_value = "0.3", value_delimiter = ',', value_parser = super::params::mu, allow_hyphen_values = true)]
     mu: Vec<f32>,
     #[command(flatten)]
     params: ParamArgs,
@@ -21,8 +21,9 @@ pub struct CompareArgs {
 
 /// Runs `placedb compare`.
 pub fn run(a: CompareArgs) -> Result<(), Error> {
-    let seq = open_sequence(&a.seq)?;
     let params = solver_params(&a.params)?;
+    let seq = open_sequence(&a.seq)?;
+    super::warn_voxel_memory(&seq, &a.seq);
     let prep = pipeline::prepare(&seq, voxel_config(&a.seq), a.params.quiet)?;
     let test = match &a.params.test {
         Some(t) => Some(pipeline::prepare_test(

@@ -2,12 +2,16 @@
 //! prints; `main.rs` defines the command line from them and dispatches. This
 //! file holds what several share: where the frames come from
 //! ([`SeqArgs`], [`Ros2Args`]) and the solver parameters ([`ParamArgs`]).
+//! Every numeric option is checked by one value parser of [`params`] while
+//! the command line is parsed, before any work: a value out of range is
+//! refused with the range, the same way in every command.
 
 pub mod bench;
 pub mod budget;
 pub mod compare;
 pub mod device;
 pub mod export;
+pub mod params;
 pub mod select;
 pub mod stream;
 pub mod synth;
@@ -37,20 +41,21 @@ pub struct SeqArgs {
     /// Sequence layout; detected from the directory's files when omitted.
     #[arg(long, value_enum)]
     format: Option<Format>,
-    /// Depth units per metre (TUM 5000, 7-Scenes and the reference layout 1000).
-    #[arg(long)]
+    /// Depth units per metre, from 1 to 1e6 (TUM 5000, 7-Scenes and the reference layout 1000).
+    #[arg(long, value_parser = params::depth_scale, allow_negative_numbers = true)]
     depth_scale: Option<f64>,
     /// Pinhole intrinsics "fx,fy,cx,cy" in pixels, replacing the sequence's.
-    #[arg(long, value_parser = parse_intrinsics)]
+    #[arg(long, value_parser = params::intrinsics, allow_hyphen_values = true)]
     intrinsics: Option<CameraModel>,
-    /// Voxel edge in metres.
-    #[arg(long, default_value_t = 0.3)]
+    /// Voxel edge in metres, from 0.001 to 100 (below about 0.01 the voxel sets take
+    /// megabytes a frame: a warning says how much).
+    #[arg(long, default_value_t = 0.3, value_parser = params::voxel, allow_negative_numbers = true)]
     voxel: f32,
     /// Use every s-th pixel in u and v (1 = exact voxel sets).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=64))]
     stride: u16,
     /// Valid depths "min,max" in metres: min < z <= max ("0.1,inf" keeps far points).
-    #[arg(long, default_value = "0.1,10", value_parser = parse_range)]
+    #[arg(long, default_value = "0.1,10", value_parser = params::depth_range, allow_hyphen_values = true)]
     depth_range: (f32, f32),
     /// Anchor of the voxel grid: the world origin (as the device) or the scene's minimum corner (as the reference code).
     #[arg(long, value_enum, default_value_t = GridOrigin::World)]
@@ -81,7 +86,7 @@ pub struct Ros2Args {
     #[arg(long)]
     pose_frame: Option<String>,
     /// ROS 2 bag: largest time difference between a depth frame and its pose, seconds.
-    #[arg(long, default_value_t = read::ros2::POSE_TOLERANCE)]
+    #[arg(long, default_value_t = read::ros2::POSE_TOLERANCE, value_parser = params::non_negative_seconds, allow_negative_numbers = true)]
     pose_tolerance: f64,
 }
 
@@ -101,23 +106,24 @@ impl Ros2Args {
 /// Solver parameters shared by select and compare.
 #[derive(Args, Clone)]
 pub struct ParamArgs {
-    /// every-nth: take every N-th frame.
-    #[arg(long, default_value_t = 10)]
+    /// every-nth: take every N-th frame (N >= 1).
+    #[arg(long, default_value_t = 10, value_parser = params::count, allow_negative_numbers = true)]
     every_nth: usize,
-    /// distance: take a frame each D metres of camera path.
-    #[arg(long, default_value_t = 0.5)]
+    /// distance: take a frame each D metres of camera path (D > 0).
+    #[arg(long, default_value_t = 0.5, value_parser = params::positive, allow_negative_numbers = true)]
     distance: f64,
-    /// cube: take the frame nearest the centre of each C-metre cube of the trajectory's box.
-    #[arg(long, default_value_t = 1.0)]
+    /// cube: take the frame nearest the centre of each C-metre cube of the trajectory's box (C > 0).
+    #[arg(long, default_value_t = 1.0, value_parser = params::positive, allow_negative_numbers = true)]
     cube: f64,
-    /// exact: time limit in seconds; past it the best set and a proven lower bound are reported.
-    #[arg(long, default_value_t = 60.0)]
+    /// exact: time limit in seconds (> 0); past it the best set and a proven lower bound are reported.
+    #[arg(long, default_value_t = 60.0, value_parser = params::positive, allow_negative_numbers = true)]
     time_limit: f64,
-    /// online: device capacity profile (ram256k, ram512k, ram1m; see `placedb budget`).
-    #[arg(long, default_value = "ram512k")]
+    /// online: device capacity profile (see `placedb budget`).
+    #[arg(long, default_value = "ram512k", value_parser = params::profile())]
     profile: String,
-    /// online: frames held undecided (1 reproduces in-order; capped by the profile's window).
-    #[arg(long, default_value_t = 32)]
+    /// online: frames held undecided, from 1 (reproduces in-order) to the profile's
+    /// window (`placedb budget` lists it).
+    #[arg(long, default_value_t = 32, value_parser = params::window(), allow_negative_numbers = true)]
     window: u16,
     /// online: decode every frame again and push its rows, as a board
     /// receives them, instead of reusing the voxel sets (same decisions;
@@ -133,27 +139,6 @@ pub struct ParamArgs {
     /// No progress bars.
     #[arg(long, short)]
     quiet: bool,
-}
-
-fn parse_intrinsics(s: &str) -> Result<CameraModel, String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|x| x.trim().parse::<f64>().map_err(|e| format!("{x:?}: {e}")))
-        .collect::<Result<_, _>>()?;
-    match v[..] {
-        [fx, fy, cx, cy] => Ok(CameraModel { fx, fy, cx, cy }),
-        _ => Err("expected four numbers fx,fy,cx,cy".into()),
-    }
-}
-
-fn parse_range(s: &str) -> Result<(f32, f32), String> {
-    let (a, b) = s.split_once(',').ok_or("expected min,max in metres")?;
-    let min: f32 = a.trim().parse().map_err(|e| format!("{a:?}: {e}"))?;
-    let max: f32 = b.trim().parse().map_err(|e| format!("{b:?}: {e}"))?;
-    if !(min >= 0.0 && max > min) {
-        return Err(format!("need 0 <= min < max, got {min},{max}"));
-    }
-    Ok((min, max))
 }
 
 pub(crate) fn open_sequence(a: &SeqArgs) -> Result<Sequence, Error> {
@@ -185,6 +170,56 @@ pub(crate) fn open_full_sequence(a: &SeqArgs) -> Result<Sequence, Error> {
     Ok(read::open(path, &opts)?)
 }
 
+/// Bytes the host holds per voxel of a frame while the overlaps are counted:
+/// the frame's set (a `u64` key), the inverted index's entry for it (its
+/// voxel id and frame, two `u32`), and at worst (every voxel distinct, as
+/// with millimetre voxels) a slot of the index's key map (`u64` key, `u32`
+/// id, padded, one control byte, 7/8 full) and the voxel's start (`u32`).
+const BYTES_PER_VOXEL: f64 = 8.0 + 2.0 * 4.0 + (16.0 + 1.0) * 8.0 / 7.0 + 4.0;
+
+/// Above this many bytes a frame, [`warn_voxel_memory`] warns (the default
+/// 0.3 m voxels take tens of kilobytes a frame).
+const LARGE_FRAME_BYTES: f64 = 1e6;
+
+/// Warns, before the work starts, when the voxel sets of `seq` will take
+/// megabytes a frame (a small `--voxel`): a few frames are voxelized and
+/// the whole sequence's memory estimated from them. Frames that cannot be
+/// voxelized are left for the run itself to report.
+pub(crate) fn warn_voxel_memory(seq: &Sequence, a: &SeqArgs) {
+    let n = seq.frames.len();
+    if n == 0 {
+        return;
+    }
+    let mut sample = vec![0, n / 2, n - 1];
+    sample.dedup();
+    let Ok(counts) = crate::voxelize::voxel_counts(seq, &voxel_config(a), &sample) else {
+        return;
+    };
+    let voxels = counts.iter().sum::<usize>() as f64 / counts.len() as f64;
+    let per_frame = voxels * BYTES_PER_VOXEL;
+    if per_frame >= LARGE_FRAME_BYTES {
+        read::warn(format!(
+            "--voxel {}: about {:.1} MB a frame ({:.0} voxels a frame, {:.0} bytes each while \
+             the overlaps are counted), about {} for the {n} frames; a larger --voxel \
+             or --stride takes less",
+            a.voxel,
+            per_frame / 1e6,
+            voxels,
+            BYTES_PER_VOXEL,
+            megabytes_or_gigabytes(per_frame * n as f64)
+        ));
+    }
+}
+
+/// `bytes` as "12.3 MB" or, from a gigabyte, "1.2 GB".
+fn megabytes_or_gigabytes(bytes: f64) -> String {
+    if bytes < 1e9 {
+        format!("{:.0} MB", bytes / 1e6)
+    } else {
+        format!("{:.1} GB", bytes / 1e9)
+    }
+}
+
 pub(crate) fn open_test(path: &Path, a: &SeqArgs) -> Result<Sequence, Error> {
     let opts = ReadOptions {
         format: None,
@@ -207,20 +242,18 @@ pub(crate) fn voxel_config(a: &SeqArgs) -> VoxelConfig {
     }
 }
 
+/// The solver parameters of `p`, refused when `--window` is more than
+/// `--profile` holds (the one check that needs two options; the others are
+/// their parsers'). Commands call it first, before reading the sequence.
 pub(crate) fn solver_params(p: &ParamArgs) -> Result<SolverParams, Error> {
-    if !(p.time_limit.is_finite() && p.time_limit > 0.0) {
-        return Err("--time-limit must be a positive number of seconds".into());
-    }
-    if placedb::profile::by_name(&p.profile).is_none() {
-        return Err(format!("unknown --profile {:?}; see `placedb budget`", p.profile).into());
-    }
+    params::check_window(&p.profile, p.window)?;
     Ok(SolverParams {
         every_nth: p.every_nth,
         distance: p.distance,
         cube: p.cube,
         time_limit: Duration::from_secs_f64(p.time_limit),
         profile: p.profile.clone(),
-        window: p.window.max(1),
+        window: p.window,
         push_rows: p.push_rows,
         ..SolverParams::default()
     })

@@ -25,8 +25,8 @@ pub struct SelectArgs {
     /// Which solver or baseline.
     #[arg(long, value_enum, default_value_t = Solver::Online)]
     solver: Solver,
-    /// IoU threshold: frames overlap when IoU > mu.
-    #[arg(long, default_value_t = 0.3)]
+    /// IoU threshold, from 0 to below 1: frames overlap when IoU > mu.
+    #[arg(long, default_value_t = 0.3, value_parser = super::params::mu, allow_negative_numbers = true)]
     mu: f32,
     #[command(flatten)]
     params: ParamArgs,
@@ -37,10 +37,11 @@ pub struct SelectArgs {
 /// Runs `placedb select`.
 pub fn run(a: SelectArgs) -> Result<(), Error> {
     let t0 = Instant::now();
+    let params = solver_params(&a.params)?;
     // A refused export target fails the run before anything is written.
     a.exports.check_targets()?;
     let seq = open_sequence(&a.seq)?;
-    let params = solver_params(&a.params)?;
+    super::warn_voxel_memory(&seq, &a.seq);
     let prep = pipeline::prepare(&seq, voxel_config(&a.seq), a.params.quiet)?;
     // The top view's map and trajectory do not depend on the solver: they
     // are projected on the other thread while it solves.

@@ -25,14 +25,14 @@ pub struct StreamArgs {
     /// Device: a serial port (/dev/ttyACM0), tcp:HOST:PORT (the emulator) or local:PROFILE.
     #[arg(long)]
     port: String,
-    /// IoU threshold: frames overlap when IoU > mu.
-    #[arg(long, default_value_t = 0.3)]
+    /// IoU threshold, from 0 to below 1: frames overlap when IoU > mu.
+    #[arg(long, default_value_t = 0.3, value_parser = super::params::mu, allow_negative_numbers = true)]
     mu: f32,
-    /// Frames held undecided (capped by the device's window).
-    #[arg(long, default_value_t = 32)]
+    /// Frames held undecided, from 1 to the profile's window (`placedb budget` lists it).
+    #[arg(long, default_value_t = 32, value_parser = super::params::window(), allow_negative_numbers = true)]
     window: u16,
     /// Capacity profile the device's firmware was built with (checked).
-    #[arg(long, default_value = "ram512k")]
+    #[arg(long, default_value = "ram512k", value_parser = super::params::profile())]
     profile: String,
     /// Also export the result into this directory (as `placedb export -o`).
     #[arg(short, long)]
@@ -41,10 +41,10 @@ pub struct StreamArgs {
     #[arg(long, short)]
     quiet: bool,
     /// Fault injection: chance that a frame is dropped, each direction (0..1).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, value_parser = super::params::chance, allow_negative_numbers = true)]
     drop_chance: f64,
     /// Fault injection: chance that a frame has one bit flipped, each direction (0..1).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, value_parser = super::params::chance, allow_negative_numbers = true)]
     corrupt_chance: f64,
     /// Seed of the fault injector's PRNG (a run is reproducible).
     #[arg(long, default_value_t = 1)]
@@ -73,6 +73,7 @@ pub struct StreamArgs {
 
 /// Runs `placedb stream`.
 pub fn run(a: StreamArgs) -> Result<(), Error> {
+    super::params::check_window(&a.profile, a.window)?;
     let seq = open_sequence(&a.seq)?;
     let v = voxel_config(&a.seq);
     let sel = placedb::SelectorConfig {

@@ -140,7 +140,10 @@ impl<L: Link> Client<L> {
             if left.is_zero() {
                 return Err(io::Error::new(
                     io::ErrorKind::TimedOut,
-                    format!("no complete frame from the device within {timeout:?}"),
+                    format!(
+                        "no complete frame from the device within {}",
+                        crate::error::seconds(timeout)
+                    ),
                 ));
             }
             let bytes = self.link.recv(left)?;
@@ -299,7 +302,8 @@ pub fn exchange<L: Link>(
         }
     }
     Err(DeviceError::Protocol(format!(
-        "no reply to {what} (seq {seq}) after {retries} retransmissions, {resend_after:?} apart"
+        "no reply to {what} (seq {seq}) after {retries} retransmissions, {} apart",
+        crate::error::seconds(resend_after)
     )))
 }
 

@@ -100,7 +100,7 @@ pub fn stream_realtime<L: Link>(
             .map_err(|e| DeviceError::Input(format!("frame {i}: {e}")))?;
         let pose = info
             .pose()
-            .map_err(|e| DeviceError::Input(format!("frame {i}: pose: {e:?}")))?;
+            .map_err(|e| DeviceError::Input(format!("frame {i}: pose: {e}")))?;
         let offset = ((info.timestamp - first) / speed).max(0.0);
         let due = start + Duration::from_secs_f64(offset);
         // Until it is due, take the replies (decisions) as they come.

@@ -137,7 +137,7 @@ impl StreamReport {
 pub fn scan_config(seq: &Sequence, vcfg: &VoxelConfig) -> Result<ScanConfig, DeviceError> {
     let grid = match vcfg.origin {
         GridOrigin::World => VoxelGrid::new(vcfg.voxel, [0.0; 3])
-            .map_err(|e| DeviceError::Input(format!("voxel grid: {e:?}")))?,
+            .map_err(|e| DeviceError::Input(format!("--voxel {}: {e}", vcfg.voxel)))?,
         // The scene's corner needs every frame first, as select does.
         GridOrigin::SceneMin => {
             voxelize::voxelize(seq, vcfg, None)
@@ -286,7 +286,7 @@ fn send_frames<L: Link>(
             .map_err(|e| DeviceError::Input(format!("frame {i}: {e}")))?;
         let pose = seq.frames[i]
             .pose()
-            .map_err(|e| DeviceError::Input(format!("frame {i}: pose: {e:?}")))?;
+            .map_err(|e| DeviceError::Input(format!("frame {i}: pose: {e}")))?;
         scan.push(
             client,
             &DepthFrame {
@@ -484,9 +484,16 @@ impl ScanState {
             .ok_or_else(|| DeviceError::Input("push_frame before configure".into()))?;
         let frame = self.next_frame;
         if f.intrinsics != cfg.intrinsics {
+            let words = |k: &placedb::Intrinsics| {
+                format!(
+                    "{}x{} fx {} fy {} cx {} cy {}",
+                    k.width, k.height, k.fx, k.fy, k.cx, k.cy
+                )
+            };
             return Err(DeviceError::Input(format!(
-                "frame {frame}: intrinsics {:?} differ from the scan's {:?} (one camera per scan)",
-                f.intrinsics, cfg.intrinsics
+                "frame {frame}: intrinsics {} differ from the scan's {} (one camera per scan)",
+                words(&f.intrinsics),
+                words(&cfg.intrinsics)
             )));
         }
         let (w, h) = (f.intrinsics.width, f.intrinsics.height);

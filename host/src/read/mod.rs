@@ -137,32 +137,6 @@ pub fn detect(path: &Path) -> Result<Format, ReadError> {
     }
 }
 
-/// What the core's camera check refused, in words for a user (its variant
-/// names mean nothing outside the code).
-pub fn camera_error_words(e: placedb::CameraError) -> &'static str {
-    use placedb::CameraError as E;
-    match e {
-        E::BadIntrinsics => {
-            "the intrinsics are out of range (focal lengths must be finite and within the \
-             supported range, the principal point within an image side of the image)"
-        }
-        E::BadImageSize => "the image size is zero or too large",
-        E::BadDepthScale => "the depth scale (units per metre) is out of the supported range",
-        E::BadDepthRange => "the depth range is empty, negative or not a number",
-        E::BadStride => "the pixel stride is zero or larger than the image",
-        E::NonFinitePose => "a pose value is not a finite number (NaN or infinity)",
-        E::NotARotation => {
-            "the rotation is not a rotation (not orthonormal, a reflection, or a quaternion \
-             far from unit length)"
-        }
-        E::BadVoxelSize => "the voxel size or grid origin is not a positive finite number",
-        E::ScaleOutOfRange => {
-            "depth scale, voxel size, image size or camera position are too extreme for the \
-             fixed-point key range"
-        }
-    }
-}
-
 /// Prints a reader's warning (a default taken, frames skipped) on stderr,
 /// where the command line's own warnings go.
 pub(crate) fn warn(msg: impl std::fmt::Display) {
@@ -239,7 +213,7 @@ pub fn parse_intrinsics_file(path: &Path) -> Result<CameraModel, ReadError> {
 }
 
 /// Why a camera model cannot back-project, if it cannot.
-fn check_camera(k: &CameraModel) -> Result<(), String> {
+pub(crate) fn check_camera(k: &CameraModel) -> Result<(), String> {
     let finite = [k.fx, k.fy, k.cx, k.cy].iter().all(|v| v.is_finite());
     if !finite {
         return Err("intrinsics must be finite".into());
@@ -254,7 +228,8 @@ fn check_camera(k: &CameraModel) -> Result<(), String> {
 }
 
 /// The camera of a sequence: the override, else `dir/file` when it exists,
-/// else `default` (an error naming the file when there is none).
+/// else `default` with a warning naming it (a default is never silent), else
+/// an error naming the file.
 fn camera(
     dir: &Path,
     file: &str,
@@ -262,7 +237,20 @@ fn camera(
     opts: &ReadOptions,
 ) -> Result<CameraModel, ReadError> {
     match (given_camera(dir, file, opts)?, default) {
-        (Some(k), _) | (None, Some(k)) => Ok(k),
+        (Some(k), _) => Ok(k),
+        (None, Some(k)) => {
+            warn(format!(
+                "{}: no {file}: using the format's default intrinsics fx = {}, fy = {}, \
+                 cx = {}, cy = {} (write {file} or give --intrinsics fx,fy,cx,cy when they \
+                 differ)",
+                dir.display(),
+                k.fx,
+                k.fy,
+                k.cx,
+                k.cy
+            ));
+            Ok(k)
+        }
         (None, None) => Err(text::layout(
             &dir.join(file),
             "intrinsics file missing: write it (3x3 K) or give --intrinsics fx,fy,cx,cy",

@@ -3,6 +3,7 @@
 //! would see at the same stride.
 
 pub mod frame_keys;
+pub mod in_order;
 pub(crate) mod key_cells;
 
 use crate::error::ReadError;
@@ -11,7 +12,6 @@ use crate::voxelize::frame_keys::{frame_keys, VectorUnit};
 use crate::voxelize::key_cells::{axes, BoxCells};
 use indicatif::ProgressBar;
 use placedb::{DepthRange, FrameProjector, VoxelGrid};
-use rayon::prelude::*;
 use std::time::{Duration, Instant};
 
 /// Where voxel (0, 0, 0) starts.
@@ -74,7 +74,7 @@ pub enum VoxelizeError {
     #[error(transparent)]
     Read(#[from] ReadError),
     /// A frame's pose or the configuration was refused by the core.
-    #[error("frame {frame} ({name}): {reason:?}")]
+    #[error("frame {frame} ({name}): {reason}")]
     Camera {
         /// Frame index.
         frame: usize,
@@ -113,45 +113,13 @@ pub fn voxelize_on(
 ) -> Result<VoxelSets, VoxelizeError> {
     let k = seq.intrinsics();
     let unit = VectorUnit::best();
-    let per_frame: Vec<_> = (0..seq.frames.len())
-        .into_par_iter()
-        // One image, one row of keys and one bitmap per worker, reused frame
-        // after frame.
-        .map_init(
-            <(DepthImage, Vec<u64>, Vec<u64>)>::default,
-            |(img, row_keys, bitmap), i| {
-                let camera_err = |reason| VoxelizeError::Camera {
-                    frame: i,
-                    name: seq.frames[i].depth_name.clone(),
-                    reason,
-                };
-                let t0 = Instant::now();
-                seq.depth_into(i, img)?;
-                let t1 = Instant::now();
-                let pose = seq.frames[i].pose().map_err(camera_err)?;
-                let proj = FrameProjector::new(
-                    &k,
-                    seq.depth_scale as f32,
-                    cfg.range,
-                    cfg.stride,
-                    &grid,
-                    &pose,
-                )
-                .map_err(camera_err)?;
-                // Neighbouring pixels mostly fall in the same voxel: dropping
-                // repeats there keeps the sort below small.
-                let mut keys = Vec::new();
-                let (valid, oor) = frame_keys(unit, &proj, img, &mut keys, row_keys);
-                sort_unique(&mut keys, bitmap);
-                keys.shrink_to_fit();
-                let t2 = Instant::now();
-                if let Some(p) = progress {
-                    p.inc(1);
-                }
-                Ok((keys, valid, oor, t1 - t0, t2 - t1))
-            },
-        )
-        .collect::<Result<_, VoxelizeError>>()?;
+    let per_frame = in_order::try_map_init(0..seq.frames.len(), Scratch::default, |scratch, i| {
+        let set = frame_set(seq, &k, cfg, &grid, unit, i, scratch)?;
+        if let Some(p) = progress {
+            p.inc(1);
+        }
+        Ok::<_, VoxelizeError>(set)
+    })?;
     let mut out = VoxelSets {
         grid,
         sets: Vec::with_capacity(per_frame.len()),
@@ -161,7 +129,14 @@ pub fn voxelize_on(
         read_time: Duration::ZERO,
         voxelize_time: Duration::ZERO,
     };
-    for (keys, valid, oor, read, vox) in per_frame {
+    for FrameSet {
+        keys,
+        valid,
+        out_of_range: oor,
+        read,
+        voxelize: vox,
+    } in per_frame
+    {
         out.sets.push(keys);
         out.valid_pixels.push(valid);
         out.out_of_range += oor as u64;
@@ -170,6 +145,84 @@ pub fn voxelize_on(
         out.voxelize_time += vox;
     }
     Ok(out)
+}
+
+/// One image, one row of keys and one bitmap per worker, reused frame after
+/// frame.
+type Scratch = (DepthImage, Vec<u64>, Vec<u64>);
+
+/// One frame voxelized, with its counts and times.
+struct FrameSet {
+    keys: Vec<u64>,
+    valid: u32,
+    out_of_range: u32,
+    read: Duration,
+    voxelize: Duration,
+}
+
+/// Frame `i` of `seq` voxelized on `grid` (`k` its intrinsics).
+fn frame_set(
+    seq: &Sequence,
+    k: &placedb::Intrinsics,
+    cfg: &VoxelConfig,
+    grid: &VoxelGrid,
+    unit: VectorUnit,
+    i: usize,
+    (img, row_keys, bitmap): &mut Scratch,
+) -> Result<FrameSet, VoxelizeError> {
+    let camera_err = |reason| VoxelizeError::Camera {
+        frame: i,
+        name: seq.frames[i].depth_name.clone(),
+        reason,
+    };
+    let t0 = Instant::now();
+    seq.depth_into(i, img)?;
+    let t1 = Instant::now();
+    let pose = seq.frames[i].pose().map_err(camera_err)?;
+    let proj = FrameProjector::new(
+        k,
+        seq.depth_scale as f32,
+        cfg.range,
+        cfg.stride,
+        grid,
+        &pose,
+    )
+    .map_err(camera_err)?;
+    // Neighbouring pixels mostly fall in the same voxel: dropping repeats
+    // there keeps the sort below small.
+    let mut keys = Vec::new();
+    let (valid, out_of_range) = frame_keys(unit, &proj, img, &mut keys, row_keys);
+    sort_unique(&mut keys, bitmap);
+    keys.shrink_to_fit();
+    Ok(FrameSet {
+        keys,
+        valid,
+        out_of_range,
+        read: t1 - t0,
+        voxelize: Instant::now() - t1,
+    })
+}
+
+/// The number of distinct voxels of each of `frames` (world-anchored
+/// grid), voxelized as [`voxelize`] does: what a few frames cost, before
+/// all of them are voxelized.
+pub fn voxel_counts(
+    seq: &Sequence,
+    cfg: &VoxelConfig,
+    frames: &[usize],
+) -> Result<Vec<usize>, VoxelizeError> {
+    let grid = VoxelGrid::new(cfg.voxel, [0.0; 3]).map_err(|reason| VoxelizeError::Camera {
+        frame: 0,
+        name: "configuration".into(),
+        reason,
+    })?;
+    let k = seq.intrinsics();
+    let unit = VectorUnit::best();
+    let mut scratch = Scratch::default();
+    frames
+        .iter()
+        .map(|&i| frame_set(seq, &k, cfg, &grid, unit, i, &mut scratch).map(|s| s.keys.len()))
+        .collect()
 }
 
 /// Cells of the largest key box [`sort_unique`] marks in a bitmap (256 KiB
@@ -237,11 +290,10 @@ fn key_box_portable(keys: &[u64]) -> ([u64; 3], [u64; 3]) {
 /// buffer reuse) and does nothing else with them: the floor under
 /// voxelizing, which `placedb bench` prints.
 pub fn decode_all(seq: &Sequence) -> Result<(), VoxelizeError> {
-    (0..seq.frames.len())
-        .into_par_iter()
-        .try_for_each_init(DepthImage::default, |img, i| {
-            seq.depth_into(i, img).map_err(VoxelizeError::from)
-        })
+    in_order::try_map_init(0..seq.frames.len(), DepthImage::default, |img, i| {
+        seq.depth_into(i, img).map_err(VoxelizeError::from)
+    })
+    .map(drop)
 }
 
 /// Minimum corner of all valid points of the sequence (the reference code's
@@ -252,9 +304,10 @@ fn scene_min(
     progress: Option<&ProgressBar>,
 ) -> Result<[f32; 3], VoxelizeError> {
     let c = seq.camera;
-    let mins = (0..seq.frames.len())
-        .into_par_iter()
-        .map(|i| {
+    let mins = in_order::try_map_init(
+        0..seq.frames.len(),
+        || (),
+        |(), i| {
             let img = seq.depth(i)?;
             let f = &seq.frames[i];
             let pose = f.pose().map_err(|reason| VoxelizeError::Camera {
@@ -288,9 +341,9 @@ fn scene_min(
             if let Some(p) = progress {
                 p.inc(1);
             }
-            Ok(m)
-        })
-        .collect::<Result<Vec<_>, VoxelizeError>>()?;
+            Ok::<_, VoxelizeError>(m)
+        },
+    )?;
     let mut m = [f64::INFINITY; 3];
     for fm in mins {
         for a in 0..3 {

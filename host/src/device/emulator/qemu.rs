@@ -449,7 +449,7 @@ fn accept_within(
         if Instant::now() >= end {
             return Err(io::Error::new(
                 io::ErrorKind::TimedOut,
-                format!("no connection within {timeout:?}"),
+                format!("no connection within {}", crate::error::seconds(timeout)),
             ));
         }
         thread::sleep(Duration::from_millis(5));

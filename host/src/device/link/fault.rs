@@ -234,7 +234,10 @@ impl<L: Link> Link for FaultInjector<L> {
             if left.is_zero() {
                 return Err(io::Error::new(
                     io::ErrorKind::TimedOut,
-                    format!("no bytes from the device within {timeout:?}"),
+                    format!(
+                        "no bytes from the device within {}",
+                        crate::error::seconds(timeout)
+                    ),
                 ));
             }
             let bytes = self.inner.recv(left)?;

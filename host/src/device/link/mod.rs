@@ -136,7 +136,10 @@ pub(crate) fn recv_channel(
             Err(RecvTimeoutError::Timeout) => {
                 return Err(io::Error::new(
                     io::ErrorKind::TimedOut,
-                    format!("no bytes from the device within {timeout:?}"),
+                    format!(
+                        "no bytes from the device within {}",
+                        crate::error::seconds(timeout)
+                    ),
                 ))
             }
             Err(RecvTimeoutError::Disconnected) => {

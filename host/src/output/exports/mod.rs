@@ -66,10 +66,12 @@ const VPR_EVAL: &str = "a VPR-evaluation export";
 #[derive(clap::Args, Debug, Clone)]
 pub struct StreamedWith {
     /// With --pairs: the IoU threshold the sequence was streamed with.
-    #[arg(long, default_value_t = 0.3)]
+    // The command line's one parser of each parameter (the only use of
+    // `cli` below it: these two are options of `placedb export`).
+    #[arg(long, default_value_t = 0.3, value_parser = crate::cli::params::mu, allow_negative_numbers = true)]
     pub mu: f32,
     /// With --pairs: the voxel edge in metres the sequence was streamed with.
-    #[arg(long, default_value_t = 0.3)]
+    #[arg(long, default_value_t = 0.3, value_parser = crate::cli::params::voxel, allow_negative_numbers = true)]
     pub voxel: f32,
     /// With --vpr-eval: a test sequence of the same place, whose frames are
     /// the queries (otherwise the non-database frames are).

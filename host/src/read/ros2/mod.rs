@@ -309,6 +309,19 @@ fn choose(
                 ),
             )),
             Some(_) if candidates.contains(&t) => Ok(t.to_string()),
+            // An Image topic in another encoding is refused for its
+            // encoding, not its kind (which is the one asked for).
+            Some(_) if topics.images.contains_key(t) => Err(text::layout(
+                dir,
+                format!(
+                    "{flag} {t}: its images are encoded `{}`, which is not a {what}",
+                    topics
+                        .images
+                        .get(t)
+                        .and_then(|v| v.first())
+                        .map_or("(no message)", |i| i.encoding.as_str())
+                ),
+            )),
             Some(kind) => Err(text::layout(
                 dir,
                 format!("{flag} {t}: a {kind} topic is not a {what}"),
@@ -463,6 +476,16 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadErro
     // Colour (optional).
     let color_candidates = topics.images_in(&COLOR_ENCODINGS);
     let color_topic = match (&ros.color_topic, color_candidates.as_slice()) {
+        (Some(t), _) if *t == depth_topic => {
+            return Err(text::layout(
+                path,
+                format!(
+                    "--color-topic {t} is the depth topic: give the colour images' topic \
+                     (sensor_msgs/msg/Image, rgb8, bgr8, rgba8, bgra8 or mono8), or leave \
+                     --color-topic out"
+                ),
+            ))
+        }
         (Some(t), _) => Some(choose(
             path,
             "colour topic (sensor_msgs/msg/Image, rgb8, bgr8, rgba8, bgra8 or mono8)",
@@ -519,10 +542,7 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadErro
                 path,
                 format!(
                     "{pose_topic} at t={:.6}: bad pose {:?} {:?}: {}",
-                    poses[j].stamp,
-                    p.translation,
-                    p.rotation,
-                    super::camera_error_words(reason)
+                    poses[j].stamp, p.translation, p.rotation, reason
                 ),
             )
         })?;

@@ -1,0 +1,203 @@
+//! The value parsers of the command line's numeric options: one per kind of
+//! parameter, shared by every command that takes it, so a value out of range
+//! is refused while the command line is parsed (before any file is read or
+//! written) with the same words everywhere. The ranges are the core's where
+//! the core has one ([`VoxelGrid::SIZE_RANGE`],
+//! [`FrameProjector::DEPTH_SCALE_RANGE`], the profiles' windows).
+//!
+//! Options that take a negative number are declared with
+//! `allow_negative_numbers` (or `allow_hyphen_values` for comma lists), so
+//! `--mu -1` reaches its parser as `--mu=-1` does and both get the range.
+
+use crate::error::CommandError as Error;
+use crate::CameraModel;
+use clap::builder::{PossibleValuesParser, RangedI64ValueParser};
+use placedb::{FrameProjector, VoxelGrid};
+
+/// A number, or words saying it is not one.
+fn number<T: std::str::FromStr>(s: &str) -> Result<T, String> {
+    s.trim()
+        .parse()
+        .map_err(|_| format!("`{}` is not a number", s.trim()))
+}
+
+/// `--mu`: the IoU threshold, from 0 to below 1 (two frames overlap when
+/// their IoU is above it, so at 1 no frame would overlap another).
+pub fn mu(s: &str) -> Result<f32, String> {
+    let mu: f32 = number(s)?;
+    if !(0.0..1.0).contains(&mu) {
+        return Err(format!(
+            "mu must be from 0 to below 1 (frames overlap when their IoU is above mu), got {mu}"
+        ));
+    }
+    Ok(mu)
+}
+
+/// `--voxel`: the voxel edge, metres, within the core's
+/// [`VoxelGrid::SIZE_RANGE`].
+pub fn voxel(s: &str) -> Result<f32, String> {
+    let v: f32 = number(s)?;
+    let r = VoxelGrid::SIZE_RANGE;
+    if !r.contains(&v) {
+        return Err(format!(
+            "the voxel edge must be from {} to {} metres, got {v}",
+            r.start(),
+            r.end()
+        ));
+    }
+    Ok(v)
+}
+
+/// `--depth-scale`: depth units per metre, within the core's
+/// [`FrameProjector::DEPTH_SCALE_RANGE`].
+pub fn depth_scale(s: &str) -> Result<f64, String> {
+    let scale: f64 = number(s)?;
+    let r = FrameProjector::DEPTH_SCALE_RANGE;
+    if !(f64::from(*r.start())..=f64::from(*r.end())).contains(&scale) {
+        return Err(format!(
+            "the depth scale must be from {} to {} units per metre (1000 for millimetres), \
+             got {scale}",
+            r.start(),
+            r.end()
+        ));
+    }
+    Ok(scale)
+}
+
+/// `--depth-range`: "min,max" in metres with `0 <= min < max` (max may be
+/// `inf`).
+pub fn depth_range(s: &str) -> Result<(f32, f32), String> {
+    let (a, b) = s
+        .split_once(',')
+        .ok_or("expected min,max in metres, e.g. 0.1,10")?;
+    let (min, max): (f32, f32) = (number(a)?, number(b)?);
+    if !(min >= 0.0 && max > min) {
+        return Err(format!(
+            "the depth range must be min,max with 0 <= min < max metres, got {min},{max}"
+        ));
+    }
+    Ok((min, max))
+}
+
+/// `--intrinsics`: "fx,fy,cx,cy" in pixels, checked as an intrinsics file is.
+pub fn intrinsics(s: &str) -> Result<CameraModel, String> {
+    let v: Vec<f64> = s.split(',').map(number).collect::<Result<_, _>>()?;
+    let k = match v[..] {
+        [fx, fy, cx, cy] => CameraModel { fx, fy, cx, cy },
+        _ => return Err("expected four numbers fx,fy,cx,cy (pixels)".into()),
+    };
+    crate::read::check_camera(&k)?;
+    Ok(k)
+}
+
+/// A length or a duration that must be above zero (`--distance`, `--cube`,
+/// metres; `--time-limit`, seconds).
+pub fn positive(s: &str) -> Result<f64, String> {
+    let x: f64 = number(s)?;
+    if !(x.is_finite() && x > 0.0) {
+        return Err(format!("must be a finite number above 0, got {x}"));
+    }
+    Ok(x)
+}
+
+/// A time tolerance, seconds, that may be zero (`--pose-tolerance`).
+pub fn non_negative_seconds(s: &str) -> Result<f64, String> {
+    let x: f64 = number(s)?;
+    if !(x.is_finite() && x >= 0.0) {
+        return Err(format!(
+            "must be a finite number of seconds, 0 or more, got {x}"
+        ));
+    }
+    Ok(x)
+}
+
+/// A count of at least 1 (`--every-nth`).
+pub fn count(s: &str) -> Result<usize, String> {
+    match number::<i64>(s)? {
+        n if n >= 1 => usize::try_from(n).map_err(|_| format!("{n} is too large")),
+        n => Err(format!("must be 1 or more, got {n}")),
+    }
+}
+
+/// A chance from 0 to 1 (`stream --drop-chance`, `--corrupt-chance`).
+pub fn chance(s: &str) -> Result<f64, String> {
+    let p: f64 = number(s)?;
+    if !(0.0..=1.0).contains(&p) {
+        return Err(format!("must be a chance from 0 to 1, got {p}"));
+    }
+    Ok(p)
+}
+
+/// `--profile`: one of the core's capacity profiles, by name.
+pub fn profile() -> PossibleValuesParser {
+    PossibleValuesParser::new(placedb::profile::PROFILES.iter().map(|p| p.name))
+}
+
+/// `--window`: frames held undecided, at least 1; [`check_window`] then
+/// holds it to the chosen profile's window, naming it.
+pub fn window() -> RangedI64ValueParser<u16> {
+    RangedI64ValueParser::<u16>::new().range(1..)
+}
+
+/// Refuses a `--window` above what `profile` holds (the profile's window
+/// is the most frames a device of that profile keeps undecided), naming
+/// the cap, so the window printed and recorded is the one used.
+pub fn check_window(profile: &str, window: u16) -> Result<(), Error> {
+    let caps = placedb::profile::by_name(profile)
+        .ok_or_else(|| format!("unknown --profile `{profile}`; see `placedb budget`"))?;
+    if window == 0 || usize::from(window) > caps.window {
+        return Err(format!(
+            "--window {window}: the {profile} profile holds from 1 to {} frames undecided; \
+             give --window {} or less (or a larger --profile, see `placedb budget`)",
+            caps.window, caps.window
+        )
+        .into());
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ranges_refuse_their_edges_and_nan() {
+        assert_eq!(mu("0"), Ok(0.0));
+        assert!(mu("0.999").is_ok());
+        for bad in ["1", "1.5", "-1", "nan", "inf", "x"] {
+            assert!(mu(bad).is_err(), "{bad}");
+        }
+        assert_eq!(voxel("0.001"), Ok(0.001));
+        assert_eq!(voxel("100"), Ok(100.0));
+        for bad in ["0.0005", "0", "-0.3", "nan", "101"] {
+            let e = voxel(bad).unwrap_err();
+            assert!(e.contains("from 0.001 to 100 metres"), "{e}");
+        }
+        for bad in ["0", "-1", "nan", "0.5", "2e6"] {
+            assert!(depth_scale(bad).is_err(), "{bad}");
+        }
+        assert_eq!(depth_range("0.1,inf"), Ok((0.1, f32::INFINITY)));
+        for bad in ["1,1", "2,1", "-1,3", "nan,3", "1"] {
+            assert!(depth_range(bad).is_err(), "{bad}");
+        }
+        for bad in ["0", "-1", "nan", "inf"] {
+            assert!(positive(bad).is_err(), "{bad}");
+        }
+        assert_eq!(non_negative_seconds("0"), Ok(0.0));
+        assert!(non_negative_seconds("-0.1").is_err());
+        assert_eq!(count("1"), Ok(1));
+        assert!(count("0").is_err() && count("-3").is_err());
+        assert!(chance("1").is_ok() && chance("1.1").is_err() && chance("nan").is_err());
+        assert!(intrinsics("0,525,320,240").is_err());
+        assert!(intrinsics("525,525,320").is_err());
+    }
+
+    #[test]
+    fn the_window_is_held_to_the_profile() {
+        for p in placedb::profile::PROFILES {
+            assert!(check_window(p.name, p.window as u16).is_ok());
+            let e = check_window(p.name, p.window as u16 + 1).unwrap_err();
+            assert!(e.to_string().contains(&p.window.to_string()), "{e}");
+        }
+    }
+}

@@ -1,0 +1,82 @@
+//! What the command-line tests share: running the real `placedb` binary,
+//! a temporary directory removed on drop, and a copy of the first frames of
+//! the 7-Scenes sample to run on (the sample itself is never written).
+
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+/// The 7-Scenes sample of `../shared/data`.
+pub const SEVEN_SCENES: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../../shared/data/7scenes-1000"
+);
+
+/// Runs `placedb args`.
+pub fn placedb<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_placedb"))
+        .args(args)
+        .output()
+        .expect("the placedb binary runs")
+}
+
+/// What a run wrote on stderr.
+pub fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// A fresh empty directory under the system temp dir, removed on drop.
+pub struct TempDir(PathBuf);
+
+impl TempDir {
+    pub fn new(name: &str) -> TempDir {
+        static COUNTER: AtomicUsize = AtomicUsize::new(0);
+        let n = COUNTER.fetch_add(1, Ordering::Relaxed);
+        let p = std::env::temp_dir().join(format!("placedb-cli-{}-{n}-{name}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&p);
+        std::fs::create_dir_all(&p).unwrap();
+        TempDir(p)
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.0
+    }
+
+    /// `self/name` as a string, for an argument.
+    pub fn arg(&self, name: &str) -> String {
+        self.0.join(name).to_string_lossy().into_owned()
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// Copies the first `frames` frames of the 7-Scenes sample (depth, pose and
+/// the intrinsics file when `intrinsics`) into `dir`.
+pub fn seven_scenes_copy(dir: &Path, frames: usize, intrinsics: bool) {
+    let src = Path::new(SEVEN_SCENES);
+    assert!(
+        src.is_dir(),
+        "test data {} is missing: the command-line tests need ../shared/data",
+        src.display()
+    );
+    std::fs::create_dir_all(dir).unwrap();
+    for i in 0..frames {
+        for kind in ["depth.png", "pose.txt"] {
+            let name = format!("frame-{i:06}.{kind}");
+            std::fs::copy(src.join(&name), dir.join(&name)).unwrap();
+        }
+    }
+    if intrinsics {
+        std::fs::copy(
+            src.join("camera-intrinsics.txt"),
+            dir.join("camera-intrinsics.txt"),
+        )
+        .unwrap();
+    }
+}
