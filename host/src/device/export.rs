@@ -329,10 +329,19 @@ pub fn export_to_with<L: Link>(
     quiet: bool,
     opts: &ExportOptions,
 ) -> Result<Export, DeviceError> {
-    std::fs::create_dir_all(out)?;
-    let partial = out.join(PARTIAL_EXPORT);
     client.resync()?;
     let (now, _) = ask_status(client, opts.wait())?;
+    // Empty CSVs would pass for a scan that saw nothing: refused, before
+    // the directory is made.
+    if now.frames_seen == 0 && now.export_records() == 0 {
+        return Err(DeviceError::Input(
+            "the device holds no scan (no frame seen since its last reset): nothing to export; \
+             a local:PROFILE device is new in every command, so export it with `placedb stream -o DIR`"
+                .into(),
+        ));
+    }
+    std::fs::create_dir_all(out)?;
+    let partial = out.join(PARTIAL_EXPORT);
     let have = match from {
         Some(k) => {
             let (was, mut records) = read_partial(out)?;

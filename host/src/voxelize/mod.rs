@@ -74,7 +74,7 @@ pub enum VoxelizeError {
     #[error(transparent)]
     Read(#[from] ReadError),
     /// A frame's pose or the configuration was refused by the core.
-    #[error("frame {frame} ({name}): {reason:?}")]
+    #[error("frame {frame} ({name}): {}", crate::read::camera_error_words(*reason))]
     Camera {
         /// Frame index.
         frame: usize,
@@ -83,6 +83,9 @@ pub enum VoxelizeError {
         /// The core's verdict.
         reason: placedb::CameraError,
     },
+    /// No frame, no valid depth pixel, or every point out of key range.
+    #[error(transparent)]
+    NothingMeasured(#[from] crate::degradation::NothingMeasured),
 }
 
 /// Voxelizes every frame; frames are processed in parallel, results are in order.
