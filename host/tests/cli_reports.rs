@@ -284,6 +284,22 @@ fn every_solver_reports_its_losses() {
             "{solver}: {text}"
         );
     }
+    // compare --json: the same keys in every solver's object.
+    let json = succeeds(&placedb(&[
+        "compare",
+        "--demo",
+        "--demo-frames",
+        "30",
+        "--json",
+        "-q",
+    ]));
+    let all: Vec<serde_json::Value> = serde_json::from_str(&json).unwrap();
+    assert_eq!(all.len(), SOLVERS.len());
+    for m in &all {
+        for key in ["frames_skipped", "empty_frames", "out_of_range_points"] {
+            assert_eq!(m[key], 0, "{key} in {m}");
+        }
+    }
 }
 
 /// Items 1 and 6: a frame without a valid pixel in an otherwise good run
@@ -350,6 +366,26 @@ fn a_far_camera_drops_its_points_or_fails_in_words() {
             "{err}"
         );
     }
+    // stream: the device's count, in its summary, warning and export.
+    let r = placedb(&[
+        "stream",
+        &seq,
+        "--port",
+        "local:ram512k",
+        "-q",
+        "-o",
+        &t.arg("streamed"),
+    ]);
+    succeeds(&r);
+    let points = metrics(&t.join("streamed"))["out_of_range_points"]
+        .as_u64()
+        .unwrap();
+    assert!(points > 1000, "{points}");
+    assert!(
+        stderr(&r).contains(&format!("warning: {points} points dropped")),
+        "{}",
+        stderr(&r)
+    );
     move_camera(&seq, 3, 1e12);
     for solver in ["in-order", "online"] {
         let r = placedb(&[

@@ -5,6 +5,7 @@
 //! the files of [`crate::output`], byte-identical to `placedb select
 //! --solver online`'s with the same profile and configuration.
 
+use crate::degradation::plural;
 use crate::device::client::{ask_status, device_profile, Client, Received, Wait};
 use crate::device::error::DeviceError;
 use crate::device::link::Link;
@@ -392,10 +393,10 @@ pub fn export_to_with<L: Link>(
     std::fs::remove_file(&partial)?;
     if !quiet {
         println!(
-            "exported {} records ({} database frames, {} labels), checked by count and CRC{}; wrote {}/{{database.csv,labels.csv,metrics.json}}",
-            export.records.len(),
-            export.status.database_size,
-            export.status.capacity(CapacitySlot::Labels).used,
+            "exported {} ({}, {}), checked by count and CRC{}; wrote {}/{{database.csv,labels.csv,metrics.json}}",
+            plural(export.records.len() as u64, "record", "records"),
+            plural(export.status.database_size.into(), "database frame", "database frames"),
+            plural(export.status.capacity(CapacitySlot::Labels).used.into(), "label", "labels"),
             if export.retried > 0 {
                 format!(" ({} batches retried)", export.retried)
             } else {
