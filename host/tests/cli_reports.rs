@@ -386,6 +386,21 @@ fn a_far_camera_drops_its_points_or_fails_in_words() {
         "{}",
         stderr(&r)
     );
+    // Every camera that far: nothing measured, an error saying why.
+    let all_far = seven_scenes_copy(&t, "all-far", 3);
+    for i in 0..3 {
+        move_camera(&all_far, i, 4e5);
+    }
+    let r = placedb(&["select", &all_far, "-q", "-o", &t.arg("all-far-out")]);
+    fails_with(
+        &r,
+        &[
+            "every point of its 3 frames fell outside the voxel key range",
+            "(400000, ",
+            "--grid-origin scene-min",
+        ],
+    );
+    assert!(!t.join("all-far-out").exists());
     move_camera(&seq, 3, 1e12);
     for solver in ["in-order", "online"] {
         let r = placedb(&[
