@@ -10,6 +10,7 @@
 
 pub mod bench;
 pub mod cli;
+pub mod degradation;
 pub mod device;
 pub mod error;
 pub mod output;

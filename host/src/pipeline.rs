@@ -2,6 +2,7 @@
 //! then any solver, labels and metrics. `select`, `compare` and `bench` all
 //! go through here, so they time and score the same way.
 
+use crate::degradation::{self, Losses};
 use crate::replay::{self as online, OnlineRun, ReplayError};
 use crate::sequence::Sequence;
 use crate::voxelize::{voxelize, voxelize_on, VoxelConfig, VoxelSets, VoxelizeError};
@@ -111,6 +112,8 @@ pub struct Prepared {
     pub voxelize_wall: Duration,
     /// Wall time of the co-observation count.
     pub graph_wall: Duration,
+    /// What the input lost (skipped and empty frames, points out of key range).
+    pub losses: Losses,
 }
 
 impl Prepared {
@@ -136,17 +139,23 @@ fn bar(len: usize, what: &str, quiet: bool) -> Option<ProgressBar> {
     Some(pb)
 }
 
-/// Voxelizes `seq` and counts co-observations (with progress bars unless `quiet`).
+/// Voxelizes `seq` and counts co-observations (with progress bars unless
+/// `quiet`). A sequence without frames, or whose frames have no voxel (no
+/// valid depth pixel, or every point out of key range), is refused: a run
+/// that measured nothing is an error.
 pub fn prepare(
     seq: &Sequence,
     config: VoxelConfig,
     quiet: bool,
 ) -> Result<Prepared, VoxelizeError> {
+    degradation::check_frames(seq)?;
     let n = seq.frames.len();
     let t = Instant::now();
     let pb = bar(n, "voxelizing", quiet);
     let sets = voxelize(seq, &config, pb.as_ref())?;
     pb.inspect(|p| p.finish_and_clear());
+    degradation::check_measured(seq, config.range, config.voxel, &sets)?;
+    let losses = Losses::of(seq, &sets);
     let voxelize_wall = t.elapsed();
     let t = Instant::now();
     let pb = bar(n, "overlaps", quiet);
@@ -173,6 +182,7 @@ pub fn prepare(
         exact,
         voxelize_wall,
         graph_wall,
+        losses,
     })
 }
 
@@ -334,6 +344,32 @@ pub fn solve(
     })
 }
 
+impl Outcome {
+    /// What the input lost for this outcome: the prepared sequence's
+    /// losses, with the online core's own count of points out of key range
+    /// (the device's figure, which the replay reports).
+    pub fn losses(&self, prep: &Prepared) -> Losses {
+        match &self.online {
+            Some(run) => Losses {
+                out_of_range_points: run.status.out_of_range_points.into(),
+                ..prep.losses
+            },
+            None => prep.losses,
+        }
+    }
+
+    /// Every non-zero degradation of this outcome, as warning lines.
+    pub fn warnings(&self, prep: &Prepared) -> Vec<String> {
+        let mut w = self.losses(prep).warnings();
+        if let Some(run) = &self.online {
+            w.extend(degradation::device_warnings(
+                &degradation::DeviceCounters::of_selector(&run.status),
+            ));
+        }
+        w
+    }
+}
+
 /// Adds `oracle_recall@0.3` of `outcome`'s database on a test sequence's sets.
 pub fn add_oracle_recall(outcome: &mut Outcome, prep: &Prepared, test_sets: &VoxelSets) {
     let (eval_sets, _) = prep.eval();
@@ -356,7 +392,9 @@ pub fn prepare_test(
         stride: 1,
         ..prep.config
     };
-    let sets = voxelize_on(seq, &cfg, prep.sets.grid, pb.as_ref());
+    let sets = voxelize_on(seq, &cfg, prep.sets.grid, pb.as_ref())?;
     pb.inspect(|p| p.finish_and_clear());
-    sets
+    // A test sequence that measured nothing would score any database 0.
+    degradation::check_measured(seq, cfg.range, cfg.voxel, &sets)?;
+    Ok(sets)
 }

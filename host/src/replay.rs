@@ -223,9 +223,18 @@ fn ingest<const FV: usize>(
     rows_per_chunk: usize,
     img: &mut DepthImage,
 ) -> Result<Ingested<FV>, ReplayError> {
-    let core_err = |reason: FrameError| ReplayError::Core {
-        frame: i,
-        reason: SelectError::Frame(reason),
+    // The camera refused for this frame (a pose too far for the
+    // fixed-point keys) in the words the offline solvers use.
+    let core_err = |reason: FrameError| match reason {
+        FrameError::Camera(reason) => ReplayError::Read(VoxelizeError::Camera {
+            frame: i,
+            name: seq.frames[i].depth_name.clone(),
+            reason,
+        }),
+        reason => ReplayError::Core {
+            frame: i,
+            reason: SelectError::Frame(reason),
+        },
     };
     let pose = seq.frames[i]
         .pose()

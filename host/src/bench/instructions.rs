@@ -3,7 +3,7 @@
 //! instructions per valid pixel (`--device`), and one frame against a small
 //! and a large database (`--db-scaling`).
 
-use super::{db_scaling, pixel_cost, BenchOptions};
+use super::{db_scaling, figure, pixel_cost, BenchOptions};
 use crate::device::client::Client;
 use crate::device::emulator::qemu::{self, Qemu, QemuOptions};
 use crate::error::CommandError as Error;
@@ -96,10 +96,10 @@ pub fn core_cost(a: &BenchOptions) -> Result<(), Error> {
     let frames = meta["frames"].as_f64().unwrap_or(f64::NAN);
     let pixels = meta["valid_pixels"].as_f64().unwrap_or(f64::NAN);
     println!(
-        "core instructions (callgrind, x86-64), {} frames of 7scenes-1000 at stride {}, {:.0} valid pixels per frame:",
-        frames,
+        "core instructions (callgrind, x86-64), {} frames of 7scenes-1000 at stride {}, {} valid pixels per frame:",
+        figure(frames, 0),
         a.stride,
-        pixels / frames
+        figure(pixels / frames, 0)
     );
     println!("{:<10} {:>14} {:>12}", "part", "instr/frame", "instr/pixel");
     let mut total = 0.0;
@@ -108,13 +108,18 @@ pub fn core_cost(a: &BenchOptions) -> Result<(), Error> {
         if !part.starts_with('-') {
             total += n;
         }
-        println!("{:<10} {:>14.0} {:>12.2}", part, n / frames, n / pixels);
+        println!(
+            "{:<10} {:>14} {:>12}",
+            part,
+            figure(n / frames, 0),
+            figure(n / pixels, 2)
+        );
     }
     println!(
-        "{:<10} {:>14.0} {:>12.2}",
+        "{:<10} {:>14} {:>12}",
         "all",
-        total / frames,
-        total / pixels
+        figure(total / frames, 0),
+        figure(total / pixels, 2)
     );
     println!(
         "end frame = sort the frame's voxels, sketch, overlaps with database and window, select"
@@ -165,15 +170,15 @@ pub fn device_cost(a: &BenchOptions) -> Result<(), Error> {
         let vcfg = VoxelConfig::default();
         let cost = pixel_cost::measure(&mut client, seq, &vcfg, SELECTOR, "ram512k", STRIDES)?;
         println!(
-            "{:<14} {:>6} {:>10.0} {:>10.0} {:>9.1} {:>9.1} {:>9.1} {:>12.0}",
+            "{:<14} {:>6} {:>10} {:>10} {:>9} {:>9} {:>9} {:>12}",
             seq.name,
             cost.fine.frames,
-            cost.fine.pixels,
-            cost.coarse.pixels,
-            cost.per_pixel(),
-            cost.core_per_pixel(),
-            cost.protocol_per_pixel(),
-            cost.per_frame()
+            figure(cost.fine.pixels, 0),
+            figure(cost.coarse.pixels, 0),
+            figure(cost.per_pixel(), 1),
+            figure(cost.core_per_pixel(), 1),
+            figure(cost.protocol_per_pixel(), 1),
+            figure(cost.per_frame(), 0)
         );
     }
     println!(
@@ -210,7 +215,7 @@ pub fn db_scaling(a: &BenchOptions) -> Result<(), Error> {
     for ((n, what), db) in counts.iter().zip([small, big]) {
         println!("  against {db:>4} database frames: {n:>12.0} instructions  ({what})");
     }
-    println!("  ratio: {:.2}", counts[1].0 / counts[0].0);
+    println!("  ratio: {}", figure(counts[1].0 / counts[0].0, 2));
     let _ = std::fs::remove_dir_all(&dir);
     Ok(())
 }

@@ -33,3 +33,13 @@ pub struct BenchOptions {
     /// Rounds of the timing table.
     pub repeat: u32,
 }
+
+/// `x` with `decimals` decimals, or "-" where it does not apply (NaN, or
+/// infinite: a figure the run did not report, or a ratio to nothing).
+pub fn figure(x: f64, decimals: usize) -> String {
+    if x.is_finite() {
+        format!("{x:.decimals$}")
+    } else {
+        "-".to_string()
+    }
+}

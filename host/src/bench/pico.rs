@@ -12,6 +12,7 @@
 //! erase 45 ms, 256-byte page program 0.4 ms): the erases and programs of
 //! the measured frames spread over them.
 
+use super::figure;
 use super::pixel_cost::{self as pixelcost, PixelCost, SELECTOR, STRIDES};
 use crate::device::client::Client;
 use crate::device::emulator::rp2040::{self, Rp2040, Rp2040Options};
@@ -181,15 +182,15 @@ pub fn run(data: &Path, frames: usize, json: bool) -> Result<(), Error> {
     );
     for m in &runs {
         println!(
-            "{:<14} {:>6} {:>10.1} {:>9.1} {:>11.0} {:>8} {:>8} {:>11.2}",
+            "{:<14} {:>6} {:>10} {:>9} {:>11} {:>8} {:>8} {:>11}",
             m.name,
             m.frames,
-            m.per_pixel(),
-            m.core_per_pixel(),
-            m.per_frame(),
+            figure(m.per_pixel(), 1),
+            figure(m.core_per_pixel(), 1),
+            figure(m.per_frame(), 0),
             m.erases,
             m.programs,
-            m.flash_s * 1e3
+            figure(m.flash_s * 1e3, 2)
         );
     }
     println!(
@@ -206,13 +207,13 @@ pub fn run(data: &Path, frames: usize, json: bool) -> Result<(), Error> {
     );
     for (w, h, s, m, pico, cpu, usb) in &rows {
         println!(
-            "{:<8} {:>6} {:<14} {:>10.1} {:>14.1} {:>9.1}",
+            "{:<8} {:>6} {:<14} {:>10} {:>14} {:>9}",
             format!("{w}x{h}"),
             s,
             m.name,
-            pico,
-            cpu,
-            usb
+            figure(*pico, 1),
+            figure(*cpu, 1),
+            figure(*usb, 1)
         );
     }
     Ok(())

@@ -2,7 +2,7 @@
 //! memory on the synthetic scan and the recorded samples, each run in a
 //! child process, beside a floor that only decodes the depth images.
 
-use super::BenchOptions;
+use super::{figure, BenchOptions};
 use crate::error::CommandError as Error;
 use crate::output::metrics_json;
 use crate::pipeline::Solver;
@@ -133,21 +133,23 @@ pub fn table(a: &BenchOptions) -> Result<(), Error> {
             let Some((wall, cpu, m)) = median_by(row_runs, |run| run.0) else {
                 continue;
             };
+            // A figure the row's run does not report (the floor has no
+            // solve time) is NaN here, and printed "-".
             let f = |k: &str| m[k].as_f64().unwrap_or(f64::NAN);
             println!(
-                "{:<16} {:<11} {:>6} {:>7.3} {:>7.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.1}",
+                "{:<16} {:<11} {:>6} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
                 name,
                 row,
-                f("frames"),
-                wall,
-                cpu,
-                f("total_s"),
-                f("read_cpu_s"),
-                f("voxelize_cpu_s"),
-                f("voxelize_s"),
-                f("graph_s"),
-                f("solve_s"),
-                f("peak_rss_mb")
+                figure(f("frames"), 0),
+                figure(*wall, 3),
+                figure(*cpu, 3),
+                figure(f("total_s"), 3),
+                figure(f("read_cpu_s"), 3),
+                figure(f("voxelize_cpu_s"), 3),
+                figure(f("voxelize_s"), 3),
+                figure(f("graph_s"), 3),
+                figure(f("solve_s"), 3),
+                figure(f("peak_rss_mb"), 1)
             );
             if has_floor && r > 0 {
                 // Per run, against the floor's run beside it.
@@ -160,21 +162,21 @@ pub fn table(a: &BenchOptions) -> Result<(), Error> {
                     median_by(&ratios, |r| *r).copied().unwrap_or(f64::NAN)
                 };
                 println!(
-                    "{:<16} {:<11} {:.2}x the decode-only wall time, {:.2}x its CPU time, medians of the runs beside a floor run (target <= 1.3x)",
+                    "{:<16} {:<11} {}x the decode-only wall time, {}x its CPU time, medians of the runs beside a floor run (target <= 1.3x)",
                     "",
                     "",
-                    ratio(|(wall, _)| wall),
-                    ratio(|(_, cpu)| cpu)
+                    figure(ratio(|(wall, _)| wall), 2),
+                    figure(ratio(|(_, cpu)| cpu), 2)
                 );
             }
             if *name == "7scenes-1000" && a.stride == 1 && *row == Solver::InOrder.name() {
                 let (s, mb) = PAPER_7SCENES;
                 println!(
-                    "{:<16} {:<11} paper's code: {s} s, {mb} MB -> {:.0}x faster, {:.1}x less memory (target 100x, 10x)",
+                    "{:<16} {:<11} paper's code: {s} s, {mb} MB -> {}x faster, {}x less memory (target 100x, 10x)",
                     "",
                     "",
-                    s / wall,
-                    mb / f("peak_rss_mb")
+                    figure(s / wall, 0),
+                    figure(mb / f("peak_rss_mb"), 1)
                 );
             }
         }

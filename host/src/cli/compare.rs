@@ -3,6 +3,7 @@
 
 use super::{open_sequence, open_test, solver_params, voxel_config};
 use super::{ParamArgs, SeqArgs};
+use crate::degradation::{self, plural, DeviceCounters};
 use crate::error::CommandError as Error;
 use crate::output::metrics_json;
 use crate::pipeline::{self, Solver};
@@ -34,11 +35,19 @@ pub fn run(a: CompareArgs) -> Result<(), Error> {
         None => None,
     };
     let mut all = Vec::new();
+    // The input's losses are every solver's: warned once; the online
+    // core's own, once per mu.
+    degradation::warn_all(&prep.losses.warnings());
     for &mu in &a.mu {
         for solver in Solver::ALL {
             let mut o = pipeline::solve(&seq, &prep, solver, mu, &params, true)?;
             if let Some(t) = &test {
                 pipeline::add_oracle_recall(&mut o, &prep, t);
+            }
+            if let Some(run) = &o.online {
+                let w = degradation::device_warnings(&DeviceCounters::of_selector(&run.status));
+                let w: Vec<String> = w.iter().map(|l| format!("at mu {mu}: {l}")).collect();
+                degradation::warn_all(&w);
             }
             all.push((mu, o));
         }
@@ -52,14 +61,15 @@ pub fn run(a: CompareArgs) -> Result<(), Error> {
         return Ok(());
     }
     println!(
-        "{}: {} frames, voxel {} m, stride {}, voxelize {:.3} s, overlaps {:.3} s",
+        "{}: {}, voxel {} m, stride {}, voxelize {:.3} s, overlaps {:.3} s",
         seq.name,
-        seq.frames.len(),
+        plural(seq.frames.len() as u64, "frame", "frames"),
         prep.config.voxel,
         prep.config.stride,
         prep.voxelize_wall.as_secs_f64(),
         prep.graph_wall.as_secs_f64()
     );
+    println!("{}", prep.losses.summary_line());
     println!(
         "{:>5} {:<10} {:>6} {:>9} {:>9} {:>8} {:>8} {:>8} {:>8} {:>8} {:>9}",
         "mu",
@@ -97,6 +107,20 @@ pub fn run(a: CompareArgs) -> Result<(), Error> {
             recall,
             o.solve_time.as_secs_f64()
         );
+    }
+    for (mu, o) in &all {
+        if let Some(run) = &o.online {
+            let st = &run.status;
+            println!(
+                "online at mu {mu}: profile {}, window {}, {} by sketch, {} truncated, {} uncovered by capacity, {} outside the key range",
+                params.profile,
+                params.window,
+                plural(st.sketched_frames.into(), "frame", "frames"),
+                st.truncated_frames,
+                st.uncovered_frames,
+                plural(st.out_of_range_points.into(), "point", "points"),
+            );
+        }
     }
     if all.iter().any(|(_, o)| matches!(o.exact, Some((false, _)))) {
         println!("* exact hit its time limit: best set found, not proven minimum");

@@ -87,6 +87,13 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
             .into());
         }
         if let Some(dir) = &a.dataset {
+            if labels.is_empty() {
+                return Err(format!(
+                    "--dataset {}: the device's export has no labelled frame (its scan decided none yet): no dataset written",
+                    dir.display()
+                )
+                .into());
+            }
             let d = dataset::write(dir, seq, &labels)?;
             print_dataset(dir, &d);
         }

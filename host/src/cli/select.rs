@@ -3,6 +3,7 @@
 
 use super::{open_sequence, open_test, print_dataset, solver_params, voxel_config};
 use super::{ParamArgs, SeqArgs};
+use crate::degradation::{self, plural};
 use crate::error::CommandError as Error;
 use crate::output::{self, dataset, metrics_json, topview};
 use crate::output::{annotate, exports};
@@ -50,6 +51,7 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
         || topview::project(&seq, &prep.sets.sets, prep.sets.grid),
     );
     let mut o = solved?;
+    degradation::warn_all(&o.warnings(&prep));
     let test_seq = match &a.params.test {
         Some(test) => Some(open_test(test, &a.seq)?),
         None => None,
@@ -112,14 +114,15 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
     } else {
         let m = &o.metrics;
         println!(
-            "{}: {} frames -> {} database frames ({:.1}x reduction) with solver {} at mu {}",
+            "{}: {} -> {} ({:.1}x reduction) with solver {} at mu {}",
             seq.name,
-            seq.frames.len(),
-            m.size,
+            plural(seq.frames.len() as u64, "frame", "frames"),
+            plural(m.size as u64, "database frame", "database frames"),
             m.reduction,
             o.solver.name(),
             a.mu
         );
+        println!("{}", o.losses(&prep).summary_line());
         println!(
             "  uncovered {}  spatial coverage {:.3}  frame coverage mean {:.3} min {:.3} (<0.3: {:.1}%)",
             m.uncovered,
@@ -144,8 +147,12 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
         if let Some(run) = &o.online {
             let st = &run.status;
             println!(
-                "  online core: profile {}, window {}, {} frames by sketch, {} truncated, {} uncovered by capacity",
-                params.profile, params.window, st.sketched_frames, st.truncated_frames, st.uncovered_frames
+                "  online core: profile {}, window {}, {} by sketch, {} truncated, {} uncovered by capacity",
+                params.profile,
+                params.window,
+                plural(st.sketched_frames.into(), "frame", "frames"),
+                st.truncated_frames,
+                st.uncovered_frames
             );
         }
         println!("  database frames: {:?}", o.database);

@@ -2,6 +2,7 @@
 //! emulator or `local:PROFILE`), with a live status line and a summary.
 
 use super::{open_sequence, voxel_config, SeqArgs};
+use crate::degradation::{self, plural, DeviceCounters};
 use crate::device::client::Client;
 use crate::device::error::DeviceError;
 use crate::device::export;
@@ -82,6 +83,18 @@ pub fn run(a: StreamArgs) -> Result<(), Error> {
         sketch_margin: SolverParams::default().sketch_margin,
     };
     let out = a.out.as_deref();
+    // The in-process device ends with this command: its result is only
+    // kept in the directory of -o.
+    if out.is_none() && a.port.starts_with("local:") {
+        return Err(format!(
+            "--port {}: the in-process device ends with this command, and its result with it: give -o DIR to export it",
+            a.port
+        )
+        .into());
+    }
+    // A sequence that would measure nothing is refused before the device
+    // is touched.
+    degradation::check_depth(&seq, v.range, v.stride)?;
     if a.realtime {
         crate::device::pacing::realtime_cmd(&a.port, &seq, &v, sel, &a.profile, out)?;
         return Ok(());
@@ -137,11 +150,17 @@ pub fn stream_cmd(
         pb.finish_and_clear();
     }
     let st = &report.status;
+    if report.frames > 0 && st.valid_pixels == 0 {
+        return Err(DeviceError::Input(format!(
+            "the device found no valid depth pixel in any frame: {}",
+            degradation::no_valid_pixel(seq, vcfg.range)
+        )));
+    }
     println!(
-        "{}: {} frames -> {} database frames on the device ({} profile, mu {}, window {}, stride {})",
+        "{}: {} -> {} on the device ({} profile, mu {}, window {}, stride {})",
         seq.name,
-        report.frames,
-        st.database_size,
+        plural(report.frames as u64, "frame", "frames"),
+        plural(st.database_size.into(), "database frame", "database frames"),
         profile,
         sel.mu,
         sel.window,
@@ -205,6 +224,19 @@ pub fn stream_cmd(
         );
     }
     println!("  {}", status_line(st));
+    println!(
+        "  input: {} skipped by the reader, {} outside the voxel key range (device count)",
+        plural(seq.frames_skipped as u64, "frame", "frames"),
+        plural(st.out_of_range_points.into(), "point", "points"),
+    );
+    let mut warnings = degradation::Losses {
+        frames_skipped: seq.frames_skipped,
+        out_of_range_points: st.out_of_range_points.into(),
+        ..Default::default()
+    }
+    .warnings();
+    warnings.extend(degradation::device_warnings(&DeviceCounters::of_device(st)));
+    degradation::warn_all(&warnings);
     match out {
         Some(dir) => {
             export::export_to_with(&mut client, dir, None, quiet, &recovery.export_options())?;

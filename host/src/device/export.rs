@@ -5,6 +5,7 @@
 //! the files of [`crate::output`], byte-identical to `placedb select
 //! --solver online`'s with the same profile and configuration.
 
+use crate::degradation::plural;
 use crate::device::client::{ask_status, device_profile, Client, Received, Wait};
 use crate::device::error::DeviceError;
 use crate::device::link::Link;
@@ -329,10 +330,19 @@ pub fn export_to_with<L: Link>(
     quiet: bool,
     opts: &ExportOptions,
 ) -> Result<Export, DeviceError> {
-    std::fs::create_dir_all(out)?;
-    let partial = out.join(PARTIAL_EXPORT);
     client.resync()?;
     let (now, _) = ask_status(client, opts.wait())?;
+    // Empty CSVs would pass for a scan that saw nothing: refused, before
+    // the directory is made.
+    if now.frames_seen == 0 && now.export_records() == 0 {
+        return Err(DeviceError::Input(
+            "the device holds no scan (no frame seen since its last reset): nothing to export; \
+             a local:PROFILE device is new in every command, so export it with `placedb stream -o DIR`"
+                .into(),
+        ));
+    }
+    std::fs::create_dir_all(out)?;
+    let partial = out.join(PARTIAL_EXPORT);
     let have = match from {
         Some(k) => {
             let (was, mut records) = read_partial(out)?;
@@ -383,10 +393,10 @@ pub fn export_to_with<L: Link>(
     std::fs::remove_file(&partial)?;
     if !quiet {
         println!(
-            "exported {} records ({} database frames, {} labels), checked by count and CRC{}; wrote {}/{{database.csv,labels.csv,metrics.json}}",
-            export.records.len(),
-            export.status.database_size,
-            export.status.capacity(CapacitySlot::Labels).used,
+            "exported {} ({}, {}), checked by count and CRC{}; wrote {}/{{database.csv,labels.csv,metrics.json}}",
+            plural(export.records.len() as u64, "record", "records"),
+            plural(export.status.database_size.into(), "database frame", "database frames"),
+            plural(export.status.capacity(CapacitySlot::Labels).used.into(), "label", "labels"),
             if export.retried > 0 {
                 format!(" ({} batches retried)", export.retried)
             } else {

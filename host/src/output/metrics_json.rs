@@ -50,11 +50,11 @@ pub fn of_select(
     put("mu", decimal(mu).into());
     put("voxel", decimal(c.voxel).into());
     put("stride", c.stride.into());
-    put("depth_min", f64::from(c.range.min).into());
+    put("depth_min", decimal(c.range.min).into());
     put(
         "depth_max",
         if c.range.max.is_finite() {
-            f64::from(c.range.max).into()
+            decimal(c.range.max).into()
         } else {
             "inf".into()
         },
@@ -69,7 +69,10 @@ pub fn of_select(
         serde_json::to_value(seq.format).unwrap_or_default(),
     );
     put("frames", seq.frames.len().into());
-    put("frames_skipped", seq.frames_skipped.into());
+    let losses = o.losses(prep);
+    put("frames_skipped", losses.frames_skipped.into());
+    put("empty_frames", losses.empty_frames.into());
+    put("out_of_range_points", losses.out_of_range_points.into());
     put("voxelize_s", prep.voxelize_wall.as_secs_f64().into());
     put("read_cpu_s", prep.sets.read_time.as_secs_f64().into());
     put(
@@ -118,6 +121,7 @@ pub fn of_device(st: &Status, export_records: usize, profile: Option<&str>) -> s
         "truncated_frames": st.truncated_frames,
         "uncovered_by_capacity": st.uncovered_frames,
         "labels_dropped": st.labels_dropped,
+        "out_of_range_points": st.out_of_range_points,
         "degradation_flags": st.degradation,
         "pool_peak_words": st.capacity(CapacitySlot::Pool).peak,
         "frame_voxels_peak": st.capacity(CapacitySlot::FrameVoxels).peak,

@@ -83,6 +83,9 @@ pub enum VoxelizeError {
         /// The core's verdict.
         reason: placedb::CameraError,
     },
+    /// No frame, no valid depth pixel, or every point out of key range.
+    #[error(transparent)]
+    NothingMeasured(#[from] crate::degradation::NothingMeasured),
 }
 
 /// Voxelizes every frame; frames are processed in parallel, results are in order.
