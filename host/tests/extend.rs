@@ -604,3 +604,53 @@ fn seeding_from_the_file_restores_the_state_the_first_session_ended_in() {
     let want: Vec<_> = run.database.iter().copied().map(Some).collect();
     assert_eq!(records, want);
 }
+
+#[test]
+fn database_frames_without_voxel_sets_extend_online_and_refuse_offline_solvers() {
+    // A device keeps the keys only of the frames it compares exactly: an
+    // extension file like a device's, made from a host one.
+    let root = temp("sketch-only");
+    let a = seven_scenes(&root.join("a"), 0..150);
+    let b = seven_scenes(&root.join("b"), 150..300);
+    let strip = |dir: &Path| -> usize {
+        let file = dir.join("extension.bin");
+        let mut ext = extension::read(&file).unwrap();
+        let mut stripped = 0;
+        for f in ext.database.iter_mut().filter(|f| !f.keyed) {
+            f.keys = None;
+            stripped += 1;
+        }
+        ext.all_voxels = None;
+        extension::write(&file, &ext).unwrap();
+        stripped
+    };
+    let (a_s, b_s) = (a.to_str().unwrap(), b.to_str().unwrap());
+    for solver in ["online", "in-order"] {
+        let out_a = root.join(format!("{solver}-a"));
+        let out_ab = root.join(format!("{solver}-ab"));
+        let (oa, oab) = (out_a.to_str().unwrap(), out_ab.to_str().unwrap());
+        ok(&[
+            "select", a_s, "-o", oa, "--solver", solver, "--mu", "0.7", "--quiet",
+        ]);
+        let stripped = strip(&out_a);
+        // Frames taken at the end of a scan keep no keys (no later frame of
+        // the scan is compared with them); offline runs keep none.
+        assert!(stripped > 0, "{solver}: every frame keyed");
+        let args = [
+            "select", b_s, "--extend", oa, "-o", oab, "--solver", solver, "--mu", "0.7", "--quiet",
+        ];
+        if solver == "online" {
+            ok(&args);
+            let m = metrics(&out_ab);
+            assert_eq!(m["database_frames_without_voxels"], stripped, "{m}");
+            let old = database(&out_a);
+            let new = database(&out_ab);
+            assert!(old.iter().all(|f| new.contains(f)));
+        } else {
+            let msg = refused(&args);
+            assert!(msg.contains("has no voxel set"), "{msg}");
+            assert!(msg.contains("--solver online"), "{msg}");
+            assert!(!out_ab.exists());
+        }
+    }
+}
