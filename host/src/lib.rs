@@ -13,6 +13,7 @@ pub mod cli;
 pub mod degradation;
 pub mod device;
 pub mod error;
+pub mod extend;
 pub mod output;
 pub mod pipeline;
 pub mod read;

@@ -12,6 +12,8 @@ use clap::Args;
 use std::path::PathBuf;
 use std::time::Instant;
 
+mod extend;
+
 #[derive(Args)]
 pub struct SelectArgs {
     #[command(flatten)]
@@ -33,10 +35,19 @@ pub struct SelectArgs {
     params: ParamArgs,
     #[command(flatten)]
     exports: exports::ExportFlags,
+    /// Add this sequence as a new session to the database in this earlier
+    /// output directory (its extension file; the earlier sequences need not
+    /// be present): its database frames are kept, only what the new frames
+    /// need is added (docs/SESSIONS.md).
+    #[arg(long, value_name = "OUT_A")]
+    extend: Option<PathBuf>,
 }
 
 /// Runs `placedb select`.
 pub fn run(a: SelectArgs) -> Result<(), Error> {
+    if let Some(from) = a.extend.clone() {
+        return extend::run(a, &from);
+    }
     let t0 = Instant::now();
     let params = solver_params(&a.params)?;
     // A refused export target fails the run before anything is written.
@@ -94,6 +105,7 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
     );
     written?;
     drawn?;
+    extend::write_first(&a.out, &seq, &prep, &o, &params, a.mu, &rows)?;
     let dataset = match &a.dataset {
         Some(dir) => Some((dir, dataset::write(dir, &seq, &o.labels)?)),
         None => None,
@@ -164,7 +176,7 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
             t0.elapsed().as_secs_f64()
         );
         println!(
-            "  wrote {}/{{database.csv,labels.csv,metrics.json,topview.png}}",
+            "  wrote {}/{{database.csv,labels.csv,metrics.json,topview.png,extension.bin}}",
             a.out.display()
         );
         if let Some((dir, d)) = &dataset {
