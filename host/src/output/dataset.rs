@@ -50,7 +50,7 @@ pub enum DatasetError {
 }
 
 /// The dataset's name in a refusal.
-pub const DATASET: &str = "a dataset (classes.csv, poses.txt)";
+pub const DATASET: &str = "a dataset";
 
 /// Whether `dir` holds an earlier dataset, which a run replaces whole: its
 /// `classes.csv` and `poses.txt`.

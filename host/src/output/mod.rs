@@ -90,7 +90,7 @@ pub fn run_csv(
 }
 
 /// The database directory's name in a refusal.
-pub const DATABASE_DIR: &str = "a database directory (database.csv, labels.csv)";
+pub const DATABASE_DIR: &str = "a database directory";
 
 /// Whether `dir` holds an earlier database directory, which a run replaces
 /// whole: its `database.csv` and `labels.csv`.

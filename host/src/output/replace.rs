@@ -106,7 +106,7 @@ pub fn check_dir(
     if target.exists() {
         if !target.is_dir() {
             return Err(refused(format!(
-                "{} exists and is not a directory: give a directory for {kind}",
+                "{} exists and is not a directory: give a new or empty directory",
                 target.display()
             )));
         }
