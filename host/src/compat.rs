@@ -44,7 +44,7 @@ pub mod device_cli {
     pub use crate::device::emulator::qemu::device_cmd as qemu_device_cmd;
     pub use crate::device::error::DeviceError;
     pub use crate::device::export::{
-        export, export_to, export_to_with, read_partial, Export, ExportOptions, PARTIAL_EXPORT,
+        export, export_to, export_to_with, read_partial, resume_file, Export, ExportOptions,
     };
     pub use crate::device::scan::{
         device_config, scan_config, status_line, stream, Recovery, StreamOptions, StreamReport,

@@ -8,6 +8,7 @@ use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use placedb_host::device_cli::{self, StreamOptions};
 use placedb_host::link::{Client, LocalLink};
 use placedb_host::output::exports::{self, vpr_eval, ExportFlags, StreamedWith};
+use placedb_host::output::replace;
 use placedb_host::pipeline::{self, SolverParams};
 use placedb_host::read::{self, ReadOptions};
 use placedb_host::{synth, VoxelConfig};
@@ -385,7 +386,10 @@ fn a_devices_exports_are_selects() {
         voxel: 0.3,
         test: None,
     };
-    exports::device::write_from_device(&flags, &streamed, &seq, &export, true).unwrap();
+    replace::together(|outputs| {
+        exports::device::write_from_device(&flags, &streamed, &seq, &export, true, outputs)
+    })
+    .unwrap();
     assert_eq!(
         std::fs::read(root.join("select/out/database.csv")).unwrap(),
         std::fs::read(root.join("device/out/database.csv")).unwrap()

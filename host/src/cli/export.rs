@@ -5,10 +5,9 @@
 use super::{print_dataset, Ros2Args};
 use crate::device::client::connect;
 use crate::device::error::DeviceError;
-use crate::device::export::{export_to, Export};
+use crate::device::export::{self, export_to, Export, ExportOptions};
 use crate::error::CommandError as Error;
-use crate::output::dataset;
-use crate::output::exports;
+use crate::output::{self, dataset, exports, replace};
 use crate::read::{self, ReadOptions};
 use crate::Format;
 use clap::Args;
@@ -70,10 +69,18 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
             "--colmap, --vpr-eval and --pairs need --sequence SEQ (the streamed sequence)".into(),
         );
     }
-    a.exports.check_targets()?;
-    let export = export_cmd(&a.port, &a.out, a.from, a.quiet)?;
+    // A refused or unwritable output fails before the device is asked.
+    output::check_outputs(&a.out, a.dataset.as_deref(), &a.exports)?;
+    let mut client = connect(&a.port)?;
+    let export = export::pull(
+        &mut client,
+        &a.out,
+        a.from,
+        a.quiet,
+        &ExportOptions::default(),
+    )?;
     if let Some(seq) = &seq {
-        let (timestamps, labels) = export.labels();
+        let (timestamps, _) = export.labels();
         // The device's timestamps are the sequence's: a different sequence shows.
         if let Some(i) = timestamps
             .iter()
@@ -87,21 +94,41 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
             .into());
         }
         if let Some(dir) = &a.dataset {
-            if labels.is_empty() {
+            if export.labels().1.is_empty() {
                 return Err(format!(
                     "--dataset {}: the device's export has no labelled frame (its scan decided none yet): no dataset written",
                     dir.display()
                 )
                 .into());
             }
-            let d = dataset::write(dir, seq, &labels)?;
-            print_dataset(dir, &d);
         }
-        let exported =
-            exports::device::write_from_device(&a.exports, &a.streamed, seq, &export, a.quiet)?;
-        for line in exported {
-            println!("{line}");
-        }
+    }
+    // The export, its dataset and exports appear together, or none does.
+    let (dataset, exported) = replace::together(|outputs| {
+        export::stage(outputs, &a.out, &export, &[])?;
+        let Some(seq) = &seq else {
+            return Ok((None, Vec::new()));
+        };
+        let dataset = match &a.dataset {
+            Some(dir) => Some((dir, dataset::stage(outputs, dir, seq, &export.labels().1)?)),
+            None => None,
+        };
+        let exported = exports::device::write_from_device(
+            &a.exports,
+            &a.streamed,
+            seq,
+            &export,
+            a.quiet,
+            outputs,
+        )?;
+        Ok((dataset, exported))
+    })?;
+    export::finished(&a.out, &export, a.quiet)?;
+    if let Some((dir, d)) = &dataset {
+        print_dataset(dir, d);
+    }
+    for line in exported {
+        println!("{line}");
     }
     Ok(())
 }
@@ -109,13 +136,15 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
 /// `placedb export`: pulls every record from the device on `port` and
 /// writes `database.csv`, `labels.csv` and `metrics.json` to `out`.
 /// `from = Some(k)` resumes an interrupted export of the same device state
-/// from record `k` (the checked records before it are kept in `out`).
+/// from record `k` (the checked records before it are kept beside `out`,
+/// [`export::resume_file`]).
 pub fn export_cmd(
     port: &str,
     out: &Path,
     from: Option<u32>,
     quiet: bool,
 ) -> Result<Export, DeviceError> {
+    output::check_database_dir(out)?;
     let mut client = connect(port)?;
     export_to(&mut client, out, from, quiet)
 }

@@ -6,7 +6,7 @@ use super::{ParamArgs, SeqArgs};
 use crate::degradation::{self, plural};
 use crate::error::CommandError as Error;
 use crate::output::{self, dataset, metrics_json, topview};
-use crate::output::{annotate, exports};
+use crate::output::{annotate, exports, replace};
 use crate::pipeline::{self, Solver};
 use clap::Args;
 use std::path::PathBuf;
@@ -50,8 +50,8 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
     }
     let t0 = Instant::now();
     let params = solver_params(&a.params)?;
-    // A refused export target fails the run before anything is written.
-    a.exports.check_targets()?;
+    // A refused or unwritable output fails the run before the work.
+    output::check_outputs(&a.out, a.dataset.as_deref(), &a.exports)?;
     let seq = open_sequence(&a.seq)?;
     super::warn_voxel_memory(&seq, &a.seq);
     let prep = pipeline::prepare(&seq, voxel_config(&a.seq), a.params.quiet)?;
@@ -92,35 +92,41 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
         seq.frames.len(),
         topview::horizontal(&seq.frames),
     );
-    // The picture is drawn and encoded while the tables are written, into
-    // the directory both need, made first.
-    std::fs::create_dir_all(&a.out)?;
-    let (written, drawn) = rayon::join(
-        || output::write_database_dir(&a.out, &rows, &timestamps, &o.labels, &json),
-        || {
-            annotate::render(&view, &caption)
-                .image
-                .write_png(&a.out.join("topview.png"))
-        },
-    );
-    written?;
-    drawn?;
-    extend::write_first(&a.out, &seq, &prep, &o, &params, a.mu, &rows)?;
-    let dataset = match &a.dataset {
-        Some(dir) => Some((dir, dataset::write(dir, &seq, &o.labels)?)),
-        None => None,
-    };
-    let exported = exports::write_all(
-        &a.exports,
-        &exports::Selection {
-            seq: &seq,
-            rows: &rows,
-            labels: &o.labels,
-            overlaps: Some(&prep.co),
-            mu: a.mu,
-            test: test_seq.as_ref(),
-        },
-    )?;
+    // Every output of the run appears together, or none does.
+    let (dataset, exported) = replace::together(|outputs| {
+        let dir = output::stage_database_dir(outputs, &a.out)?;
+        // The picture is drawn and encoded while the tables are written.
+        let (written, drawn) = rayon::join(
+            || output::write_database_dir(&dir, &rows, &timestamps, &o.labels, &json),
+            || {
+                let path = dir.join("topview.png");
+                annotate::render(&view, &caption)
+                    .image
+                    .write_png(&path)
+                    .map_err(|source| dataset::DatasetError::Write { path, source })
+            },
+        );
+        written?;
+        drawn?;
+        extend::write_first(&dir, &seq, &prep, &o, &params, a.mu, &rows)?;
+        let dataset = match &a.dataset {
+            Some(dir) => Some((dir, dataset::stage(outputs, dir, &seq, &o.labels)?)),
+            None => None,
+        };
+        let exported = exports::write_all(
+            &a.exports,
+            &exports::Selection {
+                seq: &seq,
+                rows: &rows,
+                labels: &o.labels,
+                overlaps: Some(&prep.co),
+                mu: a.mu,
+                test: test_seq.as_ref(),
+            },
+            outputs,
+        )?;
+        Ok((dataset, exported))
+    })?;
     if a.params.json {
         println!("{}", serde_json::to_string_pretty(&json)?);
     } else {

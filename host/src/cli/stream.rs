@@ -75,6 +75,10 @@ pub struct StreamArgs {
 /// Runs `placedb stream`.
 pub fn run(a: StreamArgs) -> Result<(), Error> {
     super::params::check_window(&a.profile, a.window)?;
+    // A refused or unwritable -o fails before the sequence is read.
+    if let Some(dir) = &a.out {
+        crate::output::check_database_dir(dir)?;
+    }
     let seq = open_sequence(&a.seq)?;
     let v = voxel_config(&a.seq);
     let sel = placedb::SelectorConfig {
@@ -126,6 +130,9 @@ pub fn stream_cmd(
     recovery: &Recovery,
 ) -> Result<StreamReport, DeviceError> {
     recovery.faults.validate().map_err(DeviceError::Input)?;
+    if let Some(dir) = out {
+        crate::output::check_database_dir(dir)?;
+    }
     let (scan, sel, cfg) = stream_config(seq, vcfg, sel, profile)?;
     let link = link::open(port, Duration::from_secs(10))?;
     let mut client = Client::new(FaultInjector::new(link, recovery.faults));
@@ -239,7 +246,8 @@ pub fn stream_cmd(
     degradation::warn_all(&warnings);
     match out {
         Some(dir) => {
-            export::export_to_with(&mut client, dir, None, quiet, &recovery.export_options())?;
+            let opts = recovery.export_options();
+            export::export_to_with(&mut client, dir, None, quiet, &opts, &[])?;
         }
         None => println!("  pull the result with: placedb export --port {port} -o DIR"),
     }

@@ -1,7 +1,8 @@
 //! `placedb synth`: the built-in synthetic office (or a building) written
-//! as a TUM RGB-D sequence.
+//! as a TUM RGB-D sequence, all or nothing.
 
 use crate::error::CommandError as Error;
+use crate::output::replace;
 use crate::synth::{self, SynthConfig};
 use clap::Args;
 use std::path::PathBuf;
@@ -36,9 +37,16 @@ pub fn run(a: SynthArgs) -> Result<(), Error> {
         seed: a.seed,
         rooms: a.rooms,
     };
+    // An impossible configuration or a refused target fails before
+    // anything is made.
+    cfg.check()?;
+    replace::check_dir(&a.out, synth::SYNTH_OUTPUT, synth::is_synth_output)?;
     let seq = synth::sequence(&cfg);
     let pb = indicatif::ProgressBar::new(seq.frames.len() as u64);
-    synth::write_tum(&seq, &a.out, Some(&pb))?;
+    replace::together(|outputs| {
+        let dir = outputs.dir(&a.out, synth::SYNTH_OUTPUT, synth::is_synth_output)?;
+        Ok(synth::write_tum(&seq, &dir, Some(&pb))?)
+    })?;
     pb.finish_and_clear();
     println!(
         "wrote {} frames of {}x{} to {} (TUM layout)",

@@ -29,4 +29,7 @@ pub enum DeviceError {
     /// Bad input on the host side (sequence, options, files).
     #[error("{0}")]
     Input(String),
+    /// An output (directory or file) refused or not written; names it.
+    #[error(transparent)]
+    Output(#[from] crate::output::dataset::DatasetError),
 }

@@ -2,13 +2,15 @@
 //! in batches checked by count and CRC and asked again, shorter, when they
 //! fail ([`export`]); the checked batches kept in a partial-export file so
 //! that an interrupted export resumes ([`export_to_with`] with `from`); and
-//! the files of [`crate::output`], byte-identical to `placedb select
+//! the files of [`crate::output`], all or nothing, byte-identical to `placedb select
 //! --solver online`'s with the same profile and configuration.
 
 use crate::degradation::plural;
 use crate::device::client::{ask_status, device_profile, Client, Received, Wait};
 use crate::device::error::DeviceError;
 use crate::device::link::Link;
+use crate::output::dataset::DatasetError;
+use crate::output::replace::{self, Outputs};
 use crate::output::{self, metrics_json};
 use indicatif::ProgressBar;
 use placedb::protocol::{
@@ -17,7 +19,7 @@ use placedb::protocol::{
 };
 use placedb::DbRecord;
 use std::io;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 /// How to export.
@@ -133,7 +135,7 @@ pub fn export<L: Link>(
     mut have: Vec<ExportRecord>,
     opts: &ExportOptions,
     progress: Option<&ProgressBar>,
-    saved: &mut dyn FnMut(&[ExportRecord]) -> io::Result<()>,
+    saved: &mut dyn FnMut(&[ExportRecord]) -> Result<(), DeviceError>,
 ) -> Result<Export, DeviceError> {
     let timeout = opts.reply_timeout;
     client.resync()?;
@@ -266,16 +268,30 @@ impl Export {
     }
 }
 
-/// Name of the file holding the checked batches of an unfinished export.
-pub const PARTIAL_EXPORT: &str = ".export-partial";
+/// The file holding the checked batches of an unfinished export into
+/// directory `out`: `.NAME.export-partial` beside it (not inside it, which
+/// an export replaces whole only when complete). Kept after a failed
+/// export, for `--from`; removed by a complete one.
+pub fn resume_file(out: &Path) -> PathBuf {
+    let name = out.file_name().unwrap_or_default().to_string_lossy();
+    let parent = match out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    parent.join(format!(".{name}.export-partial"))
+}
 
-/// The records of an unfinished export in `dir` and the status it began
-/// with: COBS frames of a `Status` then `ExportRecord`s, as the device sent
-/// them (so timestamps and poses survive bit for bit).
-pub fn read_partial(dir: &Path) -> Result<(Status, Vec<ExportRecord>), DeviceError> {
-    let path = dir.join(PARTIAL_EXPORT);
+/// The records of an unfinished export into `out` ([`resume_file`]) and the
+/// status it began with: COBS frames of a `Status` then `ExportRecord`s, as
+/// the device sent them (so timestamps and poses survive bit for bit).
+pub fn read_partial(out: &Path) -> Result<(Status, Vec<ExportRecord>), DeviceError> {
+    let path = resume_file(out);
     let bytes = std::fs::read(&path).map_err(|e| {
-        DeviceError::Input(format!("no unfinished export in {}: {e}", path.display()))
+        DeviceError::Input(format!(
+            "no unfinished export into {} ({}: {e})",
+            out.display(),
+            path.display()
+        ))
     })?;
     let mut decoder = Box::new(FrameDecoder::<MAX_FRAME_LEN>::new());
     let mut rest: &[u8] = &bytes;
@@ -310,26 +326,47 @@ pub(crate) fn append_frames(path: &Path, msgs: &[DeviceMessage<'_>]) -> io::Resu
 }
 
 /// `placedb export` over an open link: pulls every record from the device
-/// and writes `database.csv`, `labels.csv` and `metrics.json` to `out`.
-/// `from = Some(k)` resumes an interrupted export of the same device state
-/// from record `k` (the checked records before it are kept in `out`).
+/// and writes `database.csv`, `labels.csv` and `metrics.json` to `out`, all
+/// or nothing. `from = Some(k)` resumes an interrupted export of the same
+/// device state from record `k` (the checked records before it are kept in
+/// [`resume_file`]).
 pub fn export_to<L: Link>(
     client: &mut Client<L>,
     out: &Path,
     from: Option<u32>,
     quiet: bool,
 ) -> Result<Export, DeviceError> {
-    export_to_with(client, out, from, quiet, &ExportOptions::default())
+    export_to_with(client, out, from, quiet, &ExportOptions::default(), &[])
 }
 
-/// [`export_to`] with `opts`.
+/// [`export_to`] with `opts`, and `extra` files (name, text) written into
+/// `out` with the export's.
 pub fn export_to_with<L: Link>(
     client: &mut Client<L>,
     out: &Path,
     from: Option<u32>,
     quiet: bool,
     opts: &ExportOptions,
+    extra: &[(&str, String)],
 ) -> Result<Export, DeviceError> {
+    output::check_database_dir(out)?;
+    let export = pull(client, out, from, quiet, opts)?;
+    replace::together(|outputs| stage(outputs, out, &export, extra))?;
+    finished(out, &export, quiet)?;
+    Ok(export)
+}
+
+/// Pulls every record from the device, saving the checked batches in
+/// `out`'s [`resume_file`]; `from = Some(k)` starts after the first `k`
+/// saved there by an interrupted export of the same device state.
+pub fn pull<L: Link>(
+    client: &mut Client<L>,
+    out: &Path,
+    from: Option<u32>,
+    quiet: bool,
+    opts: &ExportOptions,
+) -> Result<Export, DeviceError> {
+    let partial = resume_file(out);
     client.resync()?;
     let (now, _) = ask_status(client, opts.wait())?;
     // Empty CSVs would pass for a scan that saw nothing: refused, before
@@ -341,8 +378,6 @@ pub fn export_to_with<L: Link>(
                 .into(),
         ));
     }
-    std::fs::create_dir_all(out)?;
-    let partial = out.join(PARTIAL_EXPORT);
     let have = match from {
         Some(k) => {
             let (was, mut records) = read_partial(out)?;
@@ -364,33 +399,72 @@ pub fn export_to_with<L: Link>(
         }
         None => Vec::new(),
     };
-    // Rewrite the partial file with exactly what is kept.
-    let _ = std::fs::remove_file(&partial);
+    let saving = |e: io::Error| {
+        DeviceError::Output(DatasetError::Write {
+            path: partial.clone(),
+            source: e,
+        })
+    };
+    // Rewrite the resume file with exactly what is kept.
+    remove_if_there(&partial).map_err(saving)?;
     let mut head = vec![DeviceMessage::Status(now)];
     head.extend(have.iter().map(|r| DeviceMessage::ExportRecord(*r)));
-    append_frames(&partial, &head)?;
+    if let Some(parent) = partial.parent() {
+        std::fs::create_dir_all(parent).map_err(saving)?;
+    }
+    append_frames(&partial, &head).map_err(saving)?;
     let pb = (!quiet).then(|| ProgressBar::new(0));
     let export = export(client, have, opts, pb.as_ref(), &mut |batch| {
         let msgs: Vec<_> = batch
             .iter()
             .map(|r| DeviceMessage::ExportRecord(*r))
             .collect();
-        append_frames(&partial, &msgs)
+        append_frames(&partial, &msgs).map_err(saving)
     })
     .map_err(|e| match e {
         DeviceError::Io(io) => DeviceError::Io(io::Error::new(
             io.kind(),
-            format!("{io}; resume with --from N (checked records are saved)"),
+            format!(
+                "{io}; resume with --from N (checked records are saved in {})",
+                partial.display()
+            ),
         )),
         other => other,
     })?;
     if let Some(pb) = &pb {
         pb.finish_and_clear();
     }
+    Ok(export)
+}
+
+/// Writes `export` as output `out` of the run writing `outputs`:
+/// `database.csv`, `labels.csv`, `metrics.json`, and the `extra` files.
+pub fn stage(
+    outputs: &mut Outputs,
+    out: &Path,
+    export: &Export,
+    extra: &[(&str, String)],
+) -> Result<(), DatasetError> {
+    let dir = output::stage_database_dir(outputs, out)?;
     let (timestamps, labels) = export.labels();
     let rows = output::rows_from_records(&export.database());
-    output::write_database_dir(out, &rows, &timestamps, &labels, &export.metrics())?;
-    std::fs::remove_file(&partial)?;
+    output::write_database_dir(&dir, &rows, &timestamps, &labels, &export.metrics())?;
+    for (name, text) in extra {
+        replace::write_text(&dir.join(name), text)?;
+    }
+    Ok(())
+}
+
+/// After `export` is in place in `out`: its resume file removed, a line
+/// printed unless `quiet`.
+pub fn finished(out: &Path, export: &Export, quiet: bool) -> Result<(), DeviceError> {
+    let partial = resume_file(out);
+    remove_if_there(&partial).map_err(|source| {
+        DeviceError::Output(DatasetError::Write {
+            path: partial.clone(),
+            source,
+        })
+    })?;
     if !quiet {
         println!(
             "exported {} ({}, {}), checked by count and CRC{}; wrote {}/{{database.csv,labels.csv,metrics.json}}",
@@ -405,5 +479,13 @@ pub fn export_to_with<L: Link>(
             out.display()
         );
     }
-    Ok(export)
+    Ok(())
+}
+
+/// Removes file `path` if it is there.
+fn remove_if_there(path: &Path) -> io::Result<()> {
+    match std::fs::remove_file(path) {
+        Err(e) if e.kind() != io::ErrorKind::NotFound => Err(e),
+        _ => Ok(()),
+    }
 }

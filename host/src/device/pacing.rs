@@ -170,6 +170,9 @@ pub fn realtime_cmd(
     out: Option<&Path>,
 ) -> Result<RealtimeReport, DeviceError> {
     let (scan, sel, cfg) = stream_config(seq, vcfg, sel, profile)?;
+    if let Some(dir) = out {
+        crate::output::check_database_dir(dir)?;
+    }
     let link = link::open(port, Duration::from_secs(10))?;
     let mut session = Session::new(Client::new(link), StreamOptions::default());
     let report = stream_realtime(&mut session, seq, &cfg, profile, 1.0)?;
@@ -198,14 +201,13 @@ pub fn realtime_cmd(
     );
     match out {
         Some(dir) => {
-            session.export_to(dir)?;
             let mut csv = String::from("frame,timestamp\n");
             for &i in &report.skipped {
                 csv.push_str(&format!("{i},{:.6}\n", seq.frames[i].timestamp));
             }
+            // skipped.csv is part of the export's directory: both or neither.
+            session.export_to_with(dir, &[("skipped.csv", csv)])?;
             let path = dir.join("skipped.csv");
-            std::fs::write(&path, csv)
-                .map_err(|e| DeviceError::Input(format!("cannot write {}: {e}", path.display())))?;
             println!(
                 "  {} skipped frames listed in {}",
                 report.skipped.len(),

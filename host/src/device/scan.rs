@@ -713,7 +713,7 @@ impl ScanState {
 mod tests {
     use super::*;
     use crate::device::client::status;
-    use crate::device::export::{append_frames, export_to, read_partial, PARTIAL_EXPORT};
+    use crate::device::export::{append_frames, export_to, read_partial, resume_file};
     use crate::device::link::LocalLink;
     use crate::output;
     use crate::testing::{demo, selector, voxel_config};
@@ -755,9 +755,9 @@ mod tests {
             std::fs::read_to_string(dir.join("database.csv")).unwrap(),
             want.0
         );
-        assert!(!dir.join(PARTIAL_EXPORT).exists());
+        assert!(!resume_file(&dir).exists());
         // An interrupted export leaves its checked records; --from resumes.
-        let partial = dir.join(PARTIAL_EXPORT);
+        let partial = resume_file(&dir);
         let mut head = vec![DeviceMessage::Status(full.status)];
         head.extend(
             full.records[..20]

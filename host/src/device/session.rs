@@ -162,8 +162,19 @@ impl<L: Link> Session<L> {
     /// [`Session::export`] into directory `dir`: `database.csv`,
     /// `labels.csv`, `metrics.json`, as `placedb export -o DIR` writes them.
     pub fn export_to(&mut self, dir: &std::path::Path) -> Result<Export, DeviceError> {
+        self.export_to_with(dir, &[])
+    }
+
+    /// [`Session::export_to`] with `extra` files (name, text) written into
+    /// `dir` with the export's, all or nothing.
+    pub fn export_to_with(
+        &mut self,
+        dir: &std::path::Path,
+        extra: &[(&str, String)],
+    ) -> Result<Export, DeviceError> {
         self.state.drain(&mut self.client)?;
-        export::export_to(&mut self.client, dir, None, true)
+        let opts = ExportOptions::default();
+        export::export_to_with(&mut self.client, dir, None, true, &opts, extra)
     }
 
     /// After a push refused with `StorageFull` (the device's flash log is

@@ -10,7 +10,7 @@
 //!   poses.txt               "timestamp tx ty tz qx qy qz qw" per frame, camera to world
 //!   intrinsics.txt          3x3 K
 //!   classes.csv             name,index,timestamp,class_index,in_database
-//!   database/               the database frames alone, same layout (no classes.csv)
+//!   database/               the database frames alone, same layout (its classes.csv: its frames)
 //! ```
 //!
 //! `NNNNNN` is the frame's index in the sequence, so names sort in frame
@@ -47,6 +47,32 @@ pub enum DatasetError {
     /// Labels or database that do not fit the sequence.
     #[error("{0}")]
     Mismatch(String),
+}
+
+/// The dataset's name in a refusal.
+pub const DATASET: &str = "a dataset";
+
+/// Whether `dir` holds an earlier dataset, which a run replaces whole: its
+/// `classes.csv` and `poses.txt`.
+pub fn is_dataset(dir: &Path) -> bool {
+    dir.join("classes.csv").is_file() && dir.join("poses.txt").is_file()
+}
+
+/// Refuses, before the work, a target [`stage`] would refuse.
+pub fn check(dir: &Path) -> Result<(), DatasetError> {
+    crate::output::replace::check_dir(dir, DATASET, is_dataset)
+}
+
+/// Writes the dataset (as [`write`]) as output `dir` of the run writing
+/// `outputs`: it appears with the run's other outputs, or not at all.
+pub fn stage(
+    outputs: &mut crate::output::replace::Outputs,
+    dir: &Path,
+    seq: &Sequence,
+    labels: &[usize],
+) -> Result<DatasetSummary, DatasetError> {
+    let d = outputs.dir(dir, DATASET, is_dataset)?;
+    write(&d, seq, labels)
 }
 
 /// What was written.
@@ -145,7 +171,13 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
                         let ext = src.extension().and_then(|e| e.to_str()).unwrap_or("png");
                         for t in &targets {
                             let path = t.join("color").join(format!("{}.{ext}", name(i)));
-                            std::fs::copy(src, &path).map_err(write_err(&path))?;
+                            std::fs::copy(src, &path).map_err(|e| DatasetError::Write {
+                                source: std::io::Error::new(
+                                    e.kind(),
+                                    format!("copying {}: {e}", src.display()),
+                                ),
+                                path: path.clone(),
+                            })?;
                         }
                     }
                     _ => {
@@ -173,28 +205,30 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
         }
         s
     };
-    let mut classes = String::from("name,index,timestamp,class_index,in_database\n");
-    for &i in &frames {
-        let _ = writeln!(
-            classes,
-            "{},{i},{:.6},{},{}",
-            name(i),
-            seq.frames[i].timestamp,
-            labels[i],
-            u8::from(labels[i] == i)
-        );
-    }
+    let classes = |which: &[usize]| {
+        let mut s = String::from("name,index,timestamp,class_index,in_database\n");
+        for &i in which {
+            let _ = writeln!(
+                s,
+                "{},{i},{:.6},{},{}",
+                name(i),
+                seq.frames[i].timestamp,
+                labels[i],
+                u8::from(labels[i] == i)
+            );
+        }
+        s
+    };
     for (d, which) in [(dir, &frames), (&database_dir, &database)] {
         for (file, text) in [
             ("poses.txt", poses(which)),
             ("intrinsics.txt", intrinsics.clone()),
+            ("classes.csv", classes(which)),
         ] {
             let path = d.join(file);
             std::fs::write(&path, text).map_err(write_err(&path))?;
         }
     }
-    let path = dir.join("classes.csv");
-    std::fs::write(&path, classes).map_err(write_err(&path))?;
     Ok(DatasetSummary {
         frames: frames.len(),
         database: database.len(),
@@ -233,18 +267,20 @@ fn write_png(
     depth: png::BitDepth,
     bytes: &[u8],
 ) -> Result<(), DatasetError> {
-    let file = std::fs::File::create(path).map_err(write_err(path))?;
-    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), w, h);
-    enc.set_color(color);
-    enc.set_depth(depth);
-    // Fast compression: a dataset of thousands of frames is written once.
-    enc.set_compression(png::Compression::Fast);
     let png_err = |e: png::EncodingError| DatasetError::Write {
         path: path.to_path_buf(),
         source: std::io::Error::other(e),
     };
-    enc.write_header()
-        .map_err(png_err)?
-        .write_image_data(bytes)
-        .map_err(png_err)
+    // Encoded in memory and written in one call, so that a failing write
+    // (a full disk) is an error, not a file cut short when a buffer drops.
+    let mut out = Vec::with_capacity(bytes.len() / 2 + 1024);
+    let mut enc = png::Encoder::new(&mut out, w, h);
+    enc.set_color(color);
+    enc.set_depth(depth);
+    // Fast compression: a dataset of thousands of frames is written once.
+    enc.set_compression(png::Compression::Fast);
+    let mut writer = enc.write_header().map_err(png_err)?;
+    writer.write_image_data(bytes).map_err(png_err)?;
+    writer.finish().map_err(png_err)?;
+    std::fs::write(path, out).map_err(write_err(path))
 }

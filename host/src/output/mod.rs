@@ -2,7 +2,8 @@
 //! `metrics.json` ([`metrics_json`]) and `topview.png` ([`topview`]), and the
 //! training dataset ([`dataset`]). The one writer of each: `placedb select`,
 //! `placedb export` and the tests all go through it. Scripts read these: the
-//! column sets and key names are stable.
+//! column sets and key names are stable. Every output is all or nothing
+//! ([`replace`]).
 
 pub mod annotate;
 pub mod dataset;
@@ -10,12 +11,14 @@ pub mod exports;
 pub mod extension;
 pub mod metrics_json;
 pub mod sessions;
+pub mod replace;
 pub mod topview;
 
+use crate::output::dataset::DatasetError;
+use crate::output::replace::Outputs;
 use crate::sequence::Sequence;
 use std::fmt::Write as _;
-use std::io;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// One database row: frame index, timestamp and pose `[tx ty tz qx qy qz qw]`.
 pub type DbRow = (usize, f64, [f64; 7]);
@@ -88,17 +91,62 @@ pub fn run_csv(
     )
 }
 
-/// Writes the database directory; `metrics` must be a flat JSON object.
+/// The database directory's name in a refusal.
+pub const DATABASE_DIR: &str = "a database directory";
+
+/// Whether `dir` holds an earlier database directory, which a run replaces
+/// whole: its `database.csv` and `labels.csv`.
+pub fn is_database_dir(dir: &Path) -> bool {
+    dir.join("database.csv").is_file() && dir.join("labels.csv").is_file()
+}
+
+/// Refuses, before the work, a database directory `dir` that
+/// [`stage_database_dir`] would refuse.
+pub fn check_database_dir(dir: &Path) -> Result<(), DatasetError> {
+    replace::check_dir(dir, DATABASE_DIR, is_database_dir)
+}
+
+/// Refuses, before the work, what a run writing database directory `out`,
+/// the dataset `dataset` and the exports `exports` would refuse at its end
+/// ([`replace`]'s rule), or two of them in one place.
+pub fn check_outputs(
+    out: &Path,
+    dataset: Option<&Path>,
+    exports: &exports::ExportFlags,
+) -> Result<(), DatasetError> {
+    check_database_dir(out)?;
+    if let Some(dir) = dataset {
+        dataset::check(dir)?;
+    }
+    exports.check_targets()?;
+    let mut all = vec![out];
+    all.extend(dataset);
+    all.extend(exports.targets());
+    replace::check_apart(&all)
+}
+
+/// The temporary directory, beside `dir`, to write the database directory
+/// into; it becomes `dir` with the run's other outputs.
+pub fn stage_database_dir(outputs: &mut Outputs, dir: &Path) -> Result<PathBuf, DatasetError> {
+    outputs.dir(dir, DATABASE_DIR, is_database_dir)
+}
+
+/// Writes `database.csv`, `labels.csv` and `metrics.json` into directory
+/// `dir` (one from [`stage_database_dir`]); `metrics` must be a flat JSON
+/// object.
 pub fn write_database_dir(
     dir: &Path,
     rows: &[DbRow],
     timestamps: &[f64],
     labels: &[usize],
     metrics: &serde_json::Value,
-) -> io::Result<()> {
-    std::fs::create_dir_all(dir)?;
-    std::fs::write(dir.join("database.csv"), database_csv(rows))?;
-    std::fs::write(dir.join("labels.csv"), labels_csv(timestamps, labels))?;
-    std::fs::write(dir.join("metrics.json"), metrics_json::text(metrics)?)?;
-    Ok(())
+) -> Result<(), DatasetError> {
+    let metrics_path = dir.join("metrics.json");
+    let metrics = metrics_json::text(metrics).map_err(|source| DatasetError::Write {
+        path: metrics_path.clone(),
+        source,
+    })?;
+    replace::write_text(&dir.join("database.csv"), &database_csv(rows))?;
+    replace::write_text(&dir.join("labels.csv"), &labels_csv(timestamps, labels))?;
+    replace::write_text(&metrics_path, &metrics)
 }

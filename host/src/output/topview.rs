@@ -8,7 +8,6 @@
 
 use crate::sequence::Sequence;
 use std::collections::HashMap;
-use std::io::BufWriter;
 use std::path::Path;
 
 /// White: nothing there.
@@ -115,16 +114,19 @@ impl Image {
     }
 
     /// Writes the image as an 8-bit RGB PNG.
+    /// Encoded in memory and written in one call, so that a failing write
+    /// (a full disk) is an error, not a file cut short when a buffer drops.
     pub fn write_png(&self, path: &Path) -> std::io::Result<()> {
-        let file = std::fs::File::create(path)?;
-        let mut enc = png::Encoder::new(BufWriter::new(file), self.width, self.height);
+        let mut bytes = Vec::new();
+        let mut enc = png::Encoder::new(&mut bytes, self.width, self.height);
         enc.set_color(png::ColorType::Rgb);
         enc.set_depth(png::BitDepth::Eight);
         let mut writer = enc.write_header().map_err(std::io::Error::other)?;
         writer
             .write_image_data(&self.rgb)
             .map_err(std::io::Error::other)?;
-        writer.finish().map_err(std::io::Error::other)
+        writer.finish().map_err(std::io::Error::other)?;
+        std::fs::write(path, bytes)
     }
 }
 

@@ -26,7 +26,7 @@ pub mod tum_writer;
 pub use path::{camera_path, FRAME_RATE};
 pub use render::{render, MAX_RANGE};
 pub use scene::{Material, Room, Scene, SceneBox, EYE_HEIGHT, FLOOR_Z};
-pub use tum_writer::write_tum;
+pub use tum_writer::{is_synth_output, write_tum, SYNTH_OUTPUT};
 
 use crate::error::ReadError;
 use crate::sequence::{CameraModel, DepthImage, DepthSource, Format, Sequence};
@@ -84,6 +84,30 @@ impl SynthConfig {
             rooms: 8,
             ..Self::default()
         }
+    }
+
+    /// Refuses, in words, a configuration whose sequence could not be read
+    /// back: no frame, no room, or an image side outside 2..=8192 (the
+    /// core's largest side; one pixel wide, the focal length 0.8 * width is
+    /// below the core's smallest).
+    pub fn check(&self) -> Result<(), String> {
+        let sides = 2..=placedb::Intrinsics::MAX_SIDE;
+        if !sides.contains(&self.width) || !sides.contains(&self.height) {
+            return Err(format!(
+                "an image of {}x{} pixels: give --width and --height from {} to {}",
+                self.width,
+                self.height,
+                sides.start(),
+                sides.end()
+            ));
+        }
+        if self.frames == 0 {
+            return Err("--frames 0: give at least 1 frame".into());
+        }
+        if self.rooms == 0 {
+            return Err("--rooms 0: give at least 1 room".into());
+        }
+        Ok(())
     }
 
     /// The pinhole model of this configuration.

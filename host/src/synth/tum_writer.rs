@@ -10,8 +10,19 @@ use indicatif::ProgressBar;
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
+/// A sequence `placedb synth` wrote, in a refusal.
+pub const SYNTH_OUTPUT: &str = "a sequence written by placedb synth";
+
+/// Whether `dir` holds a sequence `placedb synth` wrote (which a run
+/// replaces whole): a `depth.txt` that names the synthetic sequence, as
+/// [`write_tum`] writes it (a recorded TUM sequence names its bag).
+pub fn is_synth_output(dir: &Path) -> bool {
+    std::fs::read_to_string(dir.join("depth.txt"))
+        .is_ok_and(|t| t.lines().nth(1) == Some("# file: 'synthetic'"))
+}
+
 /// Writes `seq` under `dir` (created if needed; existing files of the same
-/// names are replaced). Frames are rendered and encoded in parallel;
+/// names are replaced; `placedb synth` gives it an empty directory). Frames are rendered and encoded in parallel;
 /// `progress` advances once per frame. Depth values are written as they are:
 /// the layout states 5000 units per metre, so `seq.depth_scale` should be 5000.
 pub fn write_tum(

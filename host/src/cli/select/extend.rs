@@ -8,8 +8,9 @@ use crate::cli::{open_sequence, solver_params, voxel_config};
 use crate::error::CommandError as Error;
 use crate::extend::fixed::{self, Missing};
 use crate::extend::{check_config, grid_of, measure, record};
+use crate::output::dataset::DatasetError;
 use crate::output::extension::{self, Extension, Measured};
-use crate::output::{self, annotate, metrics_json, sessions, topview, DbRow};
+use crate::output::{self, annotate, metrics_json, replace, sessions, topview, DbRow};
 use crate::pipeline::{self, Outcome, Prepared, Solver, SolverParams};
 use crate::replay::{self, OnlineRun};
 use crate::sequence::Sequence;
@@ -28,7 +29,7 @@ pub(super) fn write_first(
     params: &SolverParams,
     mu: f32,
     rows: &[DbRow],
-) -> Result<(), Error> {
+) -> Result<(), DatasetError> {
     let (eval_sets, eval_co) = prep.eval();
     let per = metrics::per_frame(&eval_sets.sets, eval_co, &o.database, mu);
     let measured: Vec<Measured> = per
@@ -53,8 +54,8 @@ pub(super) fn write_first(
         online: o.online.as_ref(),
     };
     let ext = record::extension(None, &run);
-    extension::write(&out.join(extension::FILE_NAME), &ext)?;
-    Ok(())
+    let path = out.join(extension::FILE_NAME);
+    extension::write(&path, &ext).map_err(|source| DatasetError::Write { path, source })
 }
 
 /// The earlier database and the new session's frames after solving.
@@ -110,6 +111,8 @@ pub(super) fn run(a: SelectArgs, from: &Path) -> Result<(), Error> {
         )
         .into());
     }
+    // A refused or unwritable output fails the run before the work.
+    output::check_database_dir(&a.out)?;
     let ext = extension::read(&path)?;
     let seq = open_sequence(&a.seq)?;
     let params = solver_params(&a.params)?;
@@ -227,20 +230,29 @@ pub(super) fn run(a: SelectArgs, from: &Path) -> Result<(), Error> {
         topview::horizontal(&seq.frames),
     );
     let timestamps: Vec<f64> = next.frames.iter().map(|f| f.timestamp).collect();
-    std::fs::create_dir_all(&a.out)?;
-    std::fs::write(
-        a.out.join("database.csv"),
-        sessions::database_csv(&rows, &session_of),
-    )?;
-    std::fs::write(
-        a.out.join("labels.csv"),
-        sessions::labels_csv(&timestamps, &o.labels, &session_of),
-    )?;
-    std::fs::write(a.out.join("metrics.json"), metrics_json::text(&json)?)?;
-    annotate::render(&view, &caption)
-        .image
-        .write_png(&a.out.join("topview.png"))?;
-    extension::write(&a.out.join(extension::FILE_NAME), &next)?;
+    // Every file of the run appears together, or none does.
+    replace::together(|outputs| {
+        let dir = output::stage_database_dir(outputs, &a.out)?;
+        let write = |name: &str, text: &str| replace::write_text(&dir.join(name), text);
+        write("database.csv", &sessions::database_csv(&rows, &session_of))?;
+        write(
+            "labels.csv",
+            &sessions::labels_csv(&timestamps, &o.labels, &session_of),
+        )?;
+        let path = dir.join("metrics.json");
+        let text = metrics_json::text(&json).map_err(|source| DatasetError::Write {
+            path: path.clone(),
+            source,
+        })?;
+        replace::write_text(&path, &text)?;
+        let path = dir.join("topview.png");
+        annotate::render(&view, &caption)
+            .image
+            .write_png(&path)
+            .map_err(|source| DatasetError::Write { path, source })?;
+        let path = dir.join(extension::FILE_NAME);
+        extension::write(&path, &next).map_err(|source| DatasetError::Write { path, source })
+    })?;
     if a.params.json {
         println!("{}", serde_json::to_string_pretty(&json)?);
         return Ok(());

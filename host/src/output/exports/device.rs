@@ -5,18 +5,20 @@
 use super::{write_all, ExportFlags, Selection, StreamedWith};
 use crate::device::export::Export;
 use crate::output::dataset::DatasetError;
+use crate::output::replace::Outputs;
 use crate::read::{self, ReadOptions};
 use crate::sequence::Sequence;
 use crate::VoxelConfig;
 
 /// Writes the exports `flags` asks for from `export`, the device's records
-/// of streamed sequence `seq`; returns a line about each.
+/// of streamed sequence `seq`, into `outputs`; returns a line about each.
 pub fn write_from_device(
     flags: &ExportFlags,
     streamed: &StreamedWith,
     seq: &Sequence,
     export: &Export,
     quiet: bool,
+    outputs: &mut Outputs,
 ) -> Result<Vec<String>, DatasetError> {
     if !flags.any() {
         return Ok(Vec::new());
@@ -51,5 +53,5 @@ pub fn write_from_device(
         mu: streamed.mu,
         test: test.as_ref(),
     };
-    write_all(flags, &sel)
+    write_all(flags, &sel, outputs)
 }

@@ -3,16 +3,17 @@
 //! VPR-methods-evaluation ([`vpr_eval`]) and hloc's retrieval pairs
 //! ([`pairs`]). `placedb select` writes them from its selection and
 //! `placedb export --sequence SEQ` from a device's labels, both through
-//! [`write_all`]. Each export is all or nothing ([`replace`]).
+//! [`write_all`]. Each export is all or nothing, with the run's other
+//! outputs ([`crate::output::replace`]).
 
 pub mod colmap;
 pub mod device;
 pub mod image;
 pub mod pairs;
-pub mod replace;
 pub mod vpr_eval;
 
 use crate::output::dataset::DatasetError;
+use crate::output::replace::{self, Outputs};
 use crate::output::topview::Projection;
 use crate::output::DbRow;
 use crate::sequence::Sequence;
@@ -40,6 +41,15 @@ impl ExportFlags {
     /// Whether any export was asked for.
     pub fn any(&self) -> bool {
         self.colmap.is_some() || self.vpr_eval.is_some() || self.pairs.is_some()
+    }
+
+    /// The paths asked for.
+    pub fn targets(&self) -> Vec<&Path> {
+        [&self.colmap, &self.vpr_eval, &self.pairs]
+            .into_iter()
+            .flatten()
+            .map(PathBuf::as_path)
+            .collect()
     }
 
     /// Refuses, before any work, a target [`write_all`] would refuse.
@@ -160,24 +170,29 @@ fn write_err(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
     }
 }
 
-/// Writes every export `flags` asks for; returns a line about each.
-pub fn write_all(flags: &ExportFlags, sel: &Selection) -> Result<Vec<String>, DatasetError> {
+/// Writes every export `flags` asks for into `outputs` (renamed into place
+/// with the run's other outputs); returns a line about each.
+pub fn write_all(
+    flags: &ExportFlags,
+    sel: &Selection,
+    outputs: &mut Outputs,
+) -> Result<Vec<String>, DatasetError> {
     let mut said = Vec::new();
     if !flags.any() {
         return Ok(said);
     }
     sel.check()?;
     if let Some(dir) = &flags.colmap {
-        let n = replace::replace_dir(dir, COLMAP, colmap::is_export, |d| colmap::write(d, sel))?;
+        let d = outputs.dir(dir, COLMAP, colmap::is_export)?;
+        let n = colmap::write(&d, sel)?;
         said.push(format!(
             "  colmap: {n} images with their poses in {}/{{sparse/0,images}}",
             dir.display()
         ));
     }
     if let Some(dir) = &flags.vpr_eval {
-        let (db, q) = replace::replace_dir(dir, VPR_EVAL, vpr_eval::is_export, |d| {
-            vpr_eval::write(d, sel)
-        })?;
+        let d = outputs.dir(dir, VPR_EVAL, vpr_eval::is_export)?;
+        let (db, q) = vpr_eval::write(&d, sel)?;
         said.push(format!(
             "  vpr-eval: {db} database and {q} query images in {}/{{database,queries}}",
             dir.display()
@@ -185,7 +200,7 @@ pub fn write_all(flags: &ExportFlags, sel: &Selection) -> Result<Vec<String>, Da
     }
     if let Some(file) = &flags.pairs {
         let text = pairs::text(sel)?;
-        replace::replace_file(file, &text)?;
+        replace::write_text(&outputs.file(file)?, &text)?;
         said.push(format!(
             "  pairs: {} query-database pairs above mu {} in {}",
             text.lines().count(),
