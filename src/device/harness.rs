@@ -281,12 +281,15 @@ pub fn durable_part(export: &[ExportRecord]) -> Vec<ExportRecord> {
         .iter()
         .filter_map(|r| match r.kind {
             RecordKind::Label { class } => Some(class),
-            RecordKind::Database { .. } => None,
+            RecordKind::Database { .. } | RecordKind::Session { .. } => None,
         })
         .collect();
-    let kept = export
-        .iter()
-        .filter(|r| matches!(r.kind, RecordKind::Label { .. }) || named.contains(&r.frame));
+    let kept = export.iter().filter(|r| {
+        matches!(
+            r.kind,
+            RecordKind::Label { .. } | RecordKind::Session { .. }
+        ) || named.contains(&r.frame)
+    });
     kept.zip(0u32..)
         .map(|(r, record)| ExportRecord { record, ..*r })
         .collect()

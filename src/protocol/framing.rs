@@ -118,7 +118,7 @@ pub trait WireMessage {
 
 impl WireMessage for HostFrame<'_> {
     const SEQ_PREFIX: bool = true;
-    const VARIANTS: u32 = 9;
+    const VARIANTS: u32 = 10;
 }
 
 impl WireMessage for DeviceMessage<'_> {

@@ -75,6 +75,7 @@ fn host_messages(data: &[u8]) -> Vec<HostMessage<'_>> {
         },
         HostMessage::Reset,
         HostMessage::FrameAbort { frame: 42 },
+        HostMessage::Extend(config()),
     ]
 }
 
@@ -97,6 +98,8 @@ fn device_messages() -> Vec<DeviceMessage<'static>> {
     let mut status = Status {
         frames_seen: 120,
         database_size: 17,
+        sessions: 2,
+        session_first: 100,
         degradation: degradation::POOL_FULL | degradation::LABELS_FULL,
         ..Status::new(9, Phase::InFrame)
     };
@@ -140,6 +143,12 @@ fn device_messages() -> Vec<DeviceMessage<'static>> {
         DeviceMessage::Status(status),
         DeviceMessage::ExportRecord(record(0)),
         DeviceMessage::ExportRecord(record(1)),
+        DeviceMessage::ExportRecord(ExportRecord {
+            record: 2,
+            frame: 120,
+            timestamp: 0.0,
+            kind: RecordKind::Session { session: 1 },
+        }),
         DeviceMessage::ExportEnd {
             seq: 3,
             from_record: 0,
@@ -298,6 +307,7 @@ fn host_tag(msg: &HostMessage<'_>) -> u32 {
         HostMessage::ExportRequest { .. } => 6,
         HostMessage::Reset => 7,
         HostMessage::FrameAbort { .. } => 8,
+        HostMessage::Extend(_) => 9,
     }
 }
 
@@ -349,7 +359,7 @@ fn variant_counts_match_the_enums() {
 /// (a serde variant index each), with 19 (`Unsupported`, retired) no kind.
 #[test]
 fn error_kinds_keep_their_wire_numbers() {
-    let pinned: [(ErrorKind, u8); 24] = [
+    let pinned: [(ErrorKind, u8); 26] = [
         (ErrorKind::BadCrc, 0),
         (ErrorKind::BadFraming, 1),
         (ErrorKind::Oversized, 2),
@@ -374,6 +384,8 @@ fn error_kinds_keep_their_wire_numbers() {
         (ErrorKind::MissingRows, 22),
         (ErrorKind::StorageFull, 23),
         (ErrorKind::StorageFailed, 24),
+        (ErrorKind::NothingToExtend, 25),
+        (ErrorKind::ExtendOtherConfig, 26),
     ];
     assert_eq!(ErrorKind::ALL, pinned.map(|(k, _)| k));
     for (kind, code) in pinned {
@@ -385,7 +397,7 @@ fn error_kinds_keep_their_wire_numbers() {
         assert_eq!(back, msg);
     }
     // The retired number and the next unused one are no kind.
-    for code in [19u8, 25] {
+    for code in [19u8, 27] {
         let raw = raw_frame(&[1, 1, 7, code], true);
         let mut decoder = FrameDecoder::<N>::new();
         let Feed::Frame { result, .. } = decoder.feed::<DeviceMessage>(&raw) else {
@@ -446,8 +458,8 @@ fn bad_crc_reports_the_claimed_sequence_number() {
 
 #[test]
 fn unknown_and_undecodable_messages_are_typed() {
-    // seq 9, variant 9 (one past FrameAbort), valid CRC.
-    let got = run_host(&[&raw_frame(&[9, 9], true)]);
+    // seq 9, variant 10 (one past Extend), valid CRC.
+    let got = run_host(&[&raw_frame(&[9, 10], true)]);
     assert_eq!(
         got,
         vec![Err(ProtocolError {
@@ -632,7 +644,7 @@ fn splitting_the_stream_anywhere_gives_the_same_frames() {
         stream.extend_from_slice(&encode_vec(&frame));
     }
     let whole = run_host(&[&stream]);
-    assert_eq!(whole.len(), 9);
+    assert_eq!(whole.len(), 10);
     assert!(whole.iter().all(|r| r.is_ok()));
     for cut in 0..=stream.len() {
         let (a, b) = stream.split_at(cut);
