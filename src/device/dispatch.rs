@@ -81,6 +81,9 @@ impl<
             } => {
                 return self.export(seq, from_record, max_records, journal, send);
             }
+            HostMessage::LogRead { record, offset } => {
+                return self.log_read(seq, (record, offset), journal, send);
+            }
             HostMessage::Reset => self.reset_logged(journal),
             HostMessage::FrameAbort { frame } => self.frame_abort(frame),
             HostMessage::Extend(cfg) => self.extend(cfg, journal),
@@ -123,6 +126,7 @@ impl<
         self.selector.reset();
         self.decisions.clear();
         self.export_cursor = (crate::persist::Cursor::START, 0);
+        self.log_cursor = crate::persist::Cursor::START;
         self.restored = false;
         self.configure(cfg)?;
         self.sessions.clear();

@@ -340,6 +340,7 @@ pub fn terminal(msg: &DeviceMessage<'_>) -> Option<Option<u32>> {
     match msg {
         DeviceMessage::Ack { seq } | DeviceMessage::ExportEnd { seq, .. } => Some(Some(*seq)),
         DeviceMessage::Status(s) => Some(Some(s.seq)),
+        DeviceMessage::LogBytes(b) => Some(Some(b.seq)),
         DeviceMessage::Error { seq, .. } => Some(*seq),
         DeviceMessage::Decision { .. } | DeviceMessage::ExportRecord(_) | DeviceMessage::Log(_) => {
             None

@@ -35,6 +35,7 @@
 //! | StatusRequest | always | `Status` | — |
 //! | ExportRequest | always | up to `max_records` `ExportRecord`s from `from_record`, then `ExportEnd` | `ExportPastEnd` (`from_record` beyond the last record + 1) |
 //! | Reset | always | forgets configuration, frames, database, labels, counters | `StorageFailed` |
+//! | LogRead | always | `LogBytes`: up to `LOG_CHUNK` bytes of log record `record` from `offset` | `ExportPastEnd` (no such record, or an offset past its end) |
 //! | Extend | a finished scan in the log, the same configuration, no frame open | writes a session boundary, then restores the scan from the log as at boot; the next frame is `frames_seen`; during a session begun so, a no-op Ack | `NothingToExtend` (no finished scan, no flash, a failed write), `ExtendOtherConfig`, `MidFrameReconfig`, `WrongVersion`, `BadConfig`, `StorageFull`, `StorageFailed`, `CapacityExhausted` (`MAX_SESSIONS`) |
 //!
 //! Durability ([`Device::receive_logged`] with a [`Log`]): the Hello, every
@@ -81,6 +82,7 @@ mod export;
 mod extend;
 #[cfg(feature = "sim-flash")]
 pub mod harness;
+mod log_read;
 mod reply;
 mod restore;
 mod retransmit;
@@ -171,6 +173,8 @@ struct Core<
     /// The first frame of each session of the scan, in order (empty until
     /// configured; `[0]` for a scan begun with a Hello).
     sessions: heapless::Vec<u32, MAX_SESSIONS>,
+    /// Where the last LogRead found its record (before it).
+    log_cursor: Cursor,
 }
 
 /// Most decisions one selection step makes: a full window and the Pending
@@ -242,6 +246,7 @@ impl<
                 restored: false,
                 tail_dropped: false,
                 sessions: heapless::Vec::new(),
+                log_cursor: Cursor::START,
             },
         }
     }
@@ -435,6 +440,7 @@ impl<
         self.restored = false;
         self.tail_dropped = false;
         self.sessions.clear();
+        self.log_cursor = Cursor::START;
     }
 
     fn phase(&self) -> Phase {

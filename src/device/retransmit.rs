@@ -76,7 +76,9 @@ impl MessageKey {
             HostMessage::Reset => key(6, 0, 0, 0),
             HostMessage::FrameAbort { frame } => key(7, frame, 0, 0),
             HostMessage::Extend(_) => key(8, 0, 0, 0),
-            HostMessage::StatusRequest | HostMessage::ExportRequest { .. } => return None,
+            HostMessage::StatusRequest
+            | HostMessage::ExportRequest { .. }
+            | HostMessage::LogRead { .. } => return None,
         })
     }
 }

@@ -103,6 +103,51 @@ pub enum HostMessage<'a> {
     /// configuration), `MidFrameReconfig`, `StorageFull`, `StorageFailed`,
     /// `CapacityExhausted` (more than [`MAX_SESSIONS`] sessions).
     Extend(Config),
+    /// Ask for the bytes of record `record` (0 = the first, the `Begin`) of
+    /// the scan's flash log from byte `offset` of its payload (protocol 6):
+    /// answered with one [`DeviceMessage::LogBytes`] of up to [`LOG_CHUNK`]
+    /// bytes. What a host needs to rebuild every database frame as the
+    /// device holds it (sketch, box, exact keys: `persist::Record`), e.g.
+    /// for the extension file of an export. Refused with
+    /// [`ErrorKind::ExportPastEnd`] past the last record (or its end).
+    LogRead {
+        /// Record number in the log's live generation.
+        record: u32,
+        /// First payload byte wanted.
+        offset: u32,
+    },
+}
+
+/// Most payload bytes one [`DeviceMessage::LogBytes`] carries.
+pub const LOG_CHUNK: usize = 192;
+
+/// Terminal reply to [`HostMessage::LogRead`]: `len` bytes of a log
+/// record's payload from `offset`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct LogBytes {
+    /// Sequence number of the request.
+    pub seq: u32,
+    /// The record's number in the live generation.
+    pub record: u32,
+    /// Its position in the log (what a `Database` record's key chunks name).
+    pub at: u32,
+    /// Bytes in its whole payload.
+    pub total: u32,
+    /// First payload byte here.
+    pub offset: u32,
+    /// Bytes here (at most [`LOG_CHUNK`]).
+    pub len: u8,
+    /// The bytes, in `len` first bytes (the rest 0); in arrays of 32,
+    /// which serde encodes without a length.
+    pub data: [[u8; 32]; LOG_CHUNK / 32],
+}
+
+impl LogBytes {
+    /// The payload bytes it carries.
+    pub fn bytes(&self) -> &[u8] {
+        let all = self.data.as_flattened();
+        all.get(..usize::from(self.len)).unwrap_or(all)
+    }
 }
 
 /// Most sessions one scan holds (the first and its extensions).
@@ -315,6 +360,8 @@ pub enum DeviceMessage<'a> {
     /// Free-form diagnostic text; never a reply, hosts may print or ignore it.
     #[serde(borrow)]
     Log(&'a str),
+    /// Terminal reply to [`HostMessage::LogRead`] (protocol 6).
+    LogBytes(LogBytes),
 }
 
 impl DeviceMessage<'_> {
@@ -340,6 +387,7 @@ impl DeviceMessage<'_> {
                 crc32,
             },
             M::Log(_) => return None,
+            M::LogBytes(b) => M::LogBytes(b),
         })
     }
 }

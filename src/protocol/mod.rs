@@ -30,7 +30,8 @@
 //! - Every host frame gets exactly one *terminal* reply carrying its sequence
 //!   number: [`DeviceMessage::Ack`] (Hello, FrameBegin, DepthRows, FrameEnd,
 //!   Finish, Reset, FrameAbort, Extend), [`DeviceMessage::Status`] (StatusRequest),
-//!   [`DeviceMessage::ExportEnd`] (ExportRequest), or [`DeviceMessage::Error`]
+//!   [`DeviceMessage::ExportEnd`] (ExportRequest), [`DeviceMessage::LogBytes`]
+//!   (LogRead), or [`DeviceMessage::Error`]
 //!   (anything refused). Decisions and export records caused by a message are sent
 //!   before its terminal reply, so a host may keep several messages in flight and
 //!   match replies by sequence number.
@@ -60,8 +61,8 @@
 //!   (Hello, FrameBegin, DepthRows, FrameEnd, Finish, Reset, FrameAbort, Extend) and its terminal
 //!   reply; the same message with the same sequence number gets that reply
 //!   again and is not applied twice (its decisions are not repeated: the export
-//!   is the record). StatusRequest and ExportRequest change nothing and are
-//!   answered afresh.
+//!   is the record). StatusRequest, ExportRequest and LogRead change nothing
+//!   and are answered afresh.
 //! - For a frame that fails CRC, [`DeviceMessage::Error::seq`] carries the sequence
 //!   number *claimed* by the damaged frame (its first varint) when one can be read;
 //!   it is a hint, not a verified value. Framing errors that lose the frame
@@ -88,8 +89,9 @@ pub use framing::{
 };
 pub use messages::{
     degradation, Capacity, CapacitySlot, Config, DecisionKind, DepthRows, DeviceMessage, ErrorKind,
-    ExportRecord, FrameCost, HostFrame, HostMessage, Phase, ProtocolError, RecordKind, Status,
-    UnknownErrorKind, CAPACITY_SLOTS, DEPTH_ROWS_OVERHEAD, MAX_ROW_VALUES, MAX_SESSIONS,
+    ExportRecord, FrameCost, HostFrame, HostMessage, LogBytes, Phase, ProtocolError, RecordKind,
+    Status, UnknownErrorKind, CAPACITY_SLOTS, DEPTH_ROWS_OVERHEAD, LOG_CHUNK, MAX_ROW_VALUES,
+    MAX_SESSIONS,
 };
 
 /// Version of this wire protocol; a device refuses a [`HostMessage::Hello`] whose
@@ -109,7 +111,9 @@ pub use messages::{
 ///   `TAIL_DROPPED` (a new bit, no change of encoding).
 /// - 6: sessions: `HostMessage::Extend`, `Status::sessions` and
 ///   `session_first`, `RecordKind::Session` (after the labels of a scan of
-///   several sessions), `ErrorKind::NothingToExtend` and `ExtendOtherConfig`.
+///   several sessions), `ErrorKind::NothingToExtend` and `ExtendOtherConfig`;
+///   `HostMessage::LogRead` and `DeviceMessage::LogBytes` (a log record's
+///   bytes).
 pub const PROTOCOL_VERSION: u16 = 6;
 
 /// Largest encoded frame (delimiter included) of any [`DeviceMessage`] but a

@@ -76,6 +76,10 @@ fn host_messages(data: &[u8]) -> Vec<HostMessage<'_>> {
         HostMessage::Reset,
         HostMessage::FrameAbort { frame: 42 },
         HostMessage::Extend(config()),
+        HostMessage::LogRead {
+            record: 70_000,
+            offset: 192,
+        },
     ]
 }
 
@@ -91,6 +95,28 @@ fn record(i: u32) -> ExportRecord {
                 class: 10 * (i - 1),
             }
         },
+    }
+}
+
+/// A LogBytes reply of `len` bytes (`0x00` and `0xFF` among them).
+fn log_bytes(len: u8, seq: u32) -> LogBytes {
+    let mut data = [[0u8; 32]; LOG_CHUNK / 32];
+    for (i, b) in data
+        .as_flattened_mut()
+        .iter_mut()
+        .take(len.into())
+        .enumerate()
+    {
+        *b = (i * 51) as u8;
+    }
+    LogBytes {
+        seq,
+        record: 3,
+        at: 4096 + 20,
+        total: 700,
+        offset: 192,
+        len,
+        data,
     }
 }
 
@@ -156,6 +182,7 @@ fn device_messages() -> Vec<DeviceMessage<'static>> {
             crc32: export_crc(&[record(0), record(1)]),
         },
         DeviceMessage::Log("boot ok"),
+        DeviceMessage::LogBytes(log_bytes(5, 0)),
     ]
 }
 
@@ -308,6 +335,7 @@ fn host_tag(msg: &HostMessage<'_>) -> u32 {
         HostMessage::Reset => 7,
         HostMessage::FrameAbort { .. } => 8,
         HostMessage::Extend(_) => 9,
+        HostMessage::LogRead { .. } => 10,
     }
 }
 
@@ -321,6 +349,7 @@ fn device_tag(msg: &DeviceMessage<'_>) -> u32 {
         DeviceMessage::ExportRecord(_) => 4,
         DeviceMessage::ExportEnd { .. } => 5,
         DeviceMessage::Log(_) => 6,
+        DeviceMessage::LogBytes(_) => 7,
     }
 }
 
@@ -458,8 +487,8 @@ fn bad_crc_reports_the_claimed_sequence_number() {
 
 #[test]
 fn unknown_and_undecodable_messages_are_typed() {
-    // seq 9, variant 10 (one past Extend), valid CRC.
-    let got = run_host(&[&raw_frame(&[9, 10], true)]);
+    // seq 9, variant 11 (one past LogRead), valid CRC.
+    let got = run_host(&[&raw_frame(&[9, 11], true)]);
     assert_eq!(
         got,
         vec![Err(ProtocolError {
@@ -533,6 +562,9 @@ fn the_largest_replies_fit_the_reply_buffer() {
             max: u32::MAX,
             core: u64::MAX,
         },
+        stored_records: u32::MAX,
+        sessions: u32::MAX,
+        session_first: u32::MAX,
         ..Status::new(u32::MAX, Phase::Finished)
     };
     let record = ExportRecord {
@@ -559,6 +591,18 @@ fn the_largest_replies_fit_the_reply_buffer() {
             seq: Some(u32::MAX),
             kind: ErrorKind::MissingRows,
         },
+        DeviceMessage::LogBytes(LogBytes {
+            seq: u32::MAX,
+            record: u32::MAX,
+            at: u32::MAX,
+            total: u32::MAX,
+            offset: u32::MAX,
+            ..log_bytes(LOG_CHUNK as u8, 0)
+        }),
+        DeviceMessage::LogBytes(LogBytes {
+            data: [[0; 32]; LOG_CHUNK / 32],
+            ..log_bytes(LOG_CHUNK as u8, u32::MAX)
+        }),
     ] {
         assert!(encode(&msg, &mut buf).is_ok(), "{msg:?} does not fit");
     }
@@ -644,7 +688,7 @@ fn splitting_the_stream_anywhere_gives_the_same_frames() {
         stream.extend_from_slice(&encode_vec(&frame));
     }
     let whole = run_host(&[&stream]);
-    assert_eq!(whole.len(), 10);
+    assert_eq!(whole.len(), 11);
     assert!(whole.iter().all(|r| r.is_ok()));
     for cut in 0..=stream.len() {
         let (a, b) = stream.split_at(cut);

@@ -348,3 +348,54 @@ fn a_log_of_format_2_restores_and_extends() {
         assert_eq!(fresh.export(), export);
     });
 }
+
+#[test]
+fn log_read_gives_every_record_byte_for_byte() {
+    on_big_stack(|| {
+        let cfg = config(8);
+        let mut b = bench::<Small>();
+        session_a(&mut b, cfg);
+        b.ok(HostMessage::Extend(cfg));
+        session_b(&mut b, 0);
+        let mut want = Vec::new();
+        b.log
+            .as_mut()
+            .unwrap()
+            .replay(&mut |at, p| want.push((at, p.to_vec())))
+            .unwrap();
+        assert_eq!(want.len() as u32, b.status().stored_records);
+        let read = |b: &mut Harness<Small>, record: u32, offset: u32| match b
+            .send(HostMessage::LogRead { record, offset })
+            .as_slice()
+        {
+            [DeviceMessage::LogBytes(c)] => {
+                assert_eq!((c.seq, c.record, c.offset), (b.seq, record, offset));
+                Ok(*c)
+            }
+            [DeviceMessage::Error { kind, .. }] => Err(*kind),
+            other => panic!("{other:?}"),
+        };
+        // In order, and again from the back (the cursor starts over).
+        let mut order: Vec<usize> = (0..want.len()).collect();
+        order.extend((0..want.len()).rev());
+        for r in order {
+            let (at, payload) = &want[r];
+            let mut got = Vec::new();
+            loop {
+                let c = read(&mut b, r as u32, got.len() as u32).unwrap();
+                assert_eq!((c.at, c.total as usize), (*at, payload.len()));
+                got.extend_from_slice(c.bytes());
+                if c.bytes().is_empty() || got.len() == payload.len() {
+                    break;
+                }
+            }
+            assert_eq!(&got, payload, "record {r}");
+        }
+        let (last, past) = (want.len() as u32 - 1, want.last().unwrap().1.len() as u32);
+        assert_eq!(read(&mut b, last, past).map(|c| c.len), Ok(0));
+        assert_eq!(read(&mut b, last, past + 1), Err(ErrorKind::ExportPastEnd));
+        assert_eq!(read(&mut b, last + 1, 0), Err(ErrorKind::ExportPastEnd));
+        let mut none = Harness::<Small>::without_flash();
+        assert_eq!(read(&mut none, 0, 0), Err(ErrorKind::ExportPastEnd));
+    });
+}
