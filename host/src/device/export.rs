@@ -200,10 +200,11 @@ pub fn export<L: Link>(
 }
 
 /// Checks the layout: database records in strictly increasing frame order,
-/// then one label per frame 0, 1, 2, ...
+/// then one label per frame 0, 1, 2, ..., then one record per session
+/// after the first (sessions 1, 2, ..., at increasing frames).
 fn check_records(records: &[ExportRecord], database: usize) -> Result<(), DeviceError> {
     let bad = |what: &str| Err(DeviceError::Protocol(format!("export: {what}")));
-    let (db, labels) = records.split_at(database.min(records.len()));
+    let (db, rest) = records.split_at(database.min(records.len()));
     if db.len() != database {
         return bad("fewer records than database frames");
     }
@@ -214,9 +215,23 @@ fn check_records(records: &[ExportRecord], database: usize) -> Result<(), Device
         }
         last = Some(r.frame);
     }
-    for (j, r) in labels.iter().enumerate() {
-        if !matches!(r.kind, RecordKind::Label { .. }) || r.frame as usize != j {
+    let labels = rest
+        .iter()
+        .take_while(|r| matches!(r.kind, RecordKind::Label { .. }))
+        .count();
+    for (j, r) in rest.iter().take(labels).enumerate() {
+        if r.frame as usize != j {
             return bad("label records out of order");
+        }
+    }
+    let mut first = 0;
+    for (k, r) in rest.iter().skip(labels).enumerate() {
+        let next = k as u32 + 1;
+        match r.kind {
+            RecordKind::Session { session } if session == next && r.frame > first => {
+                first = r.frame;
+            }
+            _ => return bad("session records out of order"),
         }
     }
     Ok(())
@@ -235,9 +250,18 @@ impl Export {
                     pose,
                     voxels: 0,
                 }),
-                RecordKind::Label { .. } => None,
+                RecordKind::Label { .. } | RecordKind::Session { .. } => None,
             })
             .collect()
+    }
+
+    /// The first frame of every session (`[0]` for a scan of one session).
+    pub fn sessions(&self) -> Vec<u32> {
+        let later = self.records.iter().filter_map(|r| match r.kind {
+            RecordKind::Session { .. } => Some(r.frame),
+            _ => None,
+        });
+        std::iter::once(0).chain(later).collect()
     }
 
     /// Timestamps and class labels of every labelled frame.
@@ -246,7 +270,7 @@ impl Export {
             .iter()
             .filter_map(|r| match r.kind {
                 RecordKind::Label { class } => Some((r.timestamp, class as usize)),
-                RecordKind::Database { .. } => None,
+                RecordKind::Database { .. } | RecordKind::Session { .. } => None,
             })
             .unzip()
     }
