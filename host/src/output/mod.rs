@@ -7,7 +7,9 @@
 pub mod annotate;
 pub mod dataset;
 pub mod exports;
+pub mod extension;
 pub mod metrics_json;
+pub mod sessions;
 pub mod topview;
 
 use crate::sequence::Sequence;
