@@ -3,16 +3,20 @@
 //! fail ([`export`]); the checked batches kept in a partial-export file so
 //! that an interrupted export resumes ([`export_to_with`] with `from`); and
 //! the files of [`crate::output`], byte-identical to `placedb select
-//! --solver online`'s with the same profile and configuration.
+//! --solver online`'s with the same profile and configuration (the session
+//! columns of a scan of several sessions, and the extension file of a
+//! finished scan, rebuilt from the device's flash log: [`log_records`]).
 
 use crate::device::client::{ask_status, device_profile, Client, Received, Wait};
 use crate::device::error::DeviceError;
 use crate::device::link::Link;
-use crate::output::{self, metrics_json};
+use crate::device::log_records;
+use crate::output::extension::{self, Extension};
+use crate::output::{self, metrics_json, sessions};
 use indicatif::ProgressBar;
 use placedb::protocol::{
     encode, export_crc, CapacitySlot, DeviceMessage, ExportRecord, Feed, FrameDecoder, HostMessage,
-    RecordKind, Status, MAX_FRAME_LEN,
+    Phase, RecordKind, Status, MAX_FRAME_LEN,
 };
 use placedb::DbRecord;
 use std::io;
@@ -401,23 +405,88 @@ pub fn export_to_with<L: Link>(
     if let Some(pb) = &pb {
         pb.finish_and_clear();
     }
+    let extension = extension_of(client, &export, opts)?;
     let (timestamps, labels) = export.labels();
     let rows = output::rows_from_records(&export.database());
     output::write_database_dir(out, &rows, &timestamps, &labels, &export.metrics())?;
+    let firsts = export.sessions();
+    if firsts.len() > 1 {
+        // A scan of several sessions: the session columns too.
+        let session_of = |g: usize| log_records::session_of(&firsts, g as u32);
+        std::fs::write(
+            out.join("database.csv"),
+            sessions::database_csv(&rows, &session_of),
+        )?;
+        std::fs::write(
+            out.join("labels.csv"),
+            sessions::labels_csv(&timestamps, &labels, &session_of),
+        )?;
+    }
+    if let Some(ext) = &extension {
+        extension::write(&out.join(extension::FILE_NAME), ext)?;
+    }
     std::fs::remove_file(&partial)?;
     if !quiet {
         println!(
-            "exported {} records ({} database frames, {} labels), checked by count and CRC{}; wrote {}/{{database.csv,labels.csv,metrics.json}}",
+            "exported {} records ({} database frames, {} labels{}), checked by count and CRC{}; wrote {}/{{database.csv,labels.csv,metrics.json{}}}",
             export.records.len(),
             export.status.database_size,
             export.status.capacity(CapacitySlot::Labels).used,
+            match firsts.len() {
+                1 => String::new(),
+                n => format!(", {n} sessions"),
+            },
             if export.retried > 0 {
                 format!(" ({} batches retried)", export.retried)
             } else {
                 String::new()
             },
-            out.display()
+            out.display(),
+            if extension.is_some() {
+                format!(",{}", extension::FILE_NAME)
+            } else {
+                String::new()
+            }
         );
     }
     Ok(export)
+}
+
+/// The extension file of the exported scan, from the device's flash log
+/// (every record read back and checked against the export); `None` when
+/// the device keeps no log or its scan is not finished (nothing to extend).
+fn extension_of<L: Link>(
+    client: &mut Client<L>,
+    export: &Export,
+    opts: &ExportOptions,
+) -> Result<Option<Extension>, DeviceError> {
+    let st = &export.status;
+    if st.stored_records == 0 || st.phase != Phase::Finished {
+        return Ok(None);
+    }
+    let records = log_records::read_log(client, st.stored_records, opts.wait())?;
+    let scan = log_records::scan_of(&records)?;
+    let (timestamps, labels) = export.labels();
+    let same = scan.sessions == export.sessions()
+        && scan.decisions.len() == labels.len()
+        && scan
+            .decisions
+            .iter()
+            .zip(0u32..)
+            .zip(timestamps.iter().zip(&labels))
+            .all(|(((t, kind), i), (ts, &class))| {
+                t.to_bits() == ts.to_bits() && kind.class(i) == Some(class as u32)
+            })
+        && scan
+            .database
+            .iter()
+            .map(|f| f.meta.index)
+            .eq(export.database().iter().map(|r| r.index));
+    if !same {
+        return Err(DeviceError::Protocol(
+            "the device's flash log does not hold the scan it exported".into(),
+        ));
+    }
+    let profile = device_profile(st).map_or("", |p| p.name);
+    Ok(Some(scan.extension(profile)))
 }

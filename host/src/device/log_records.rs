@@ -5,12 +5,13 @@
 //! database frames with what comparing new frames with them needs (sketch,
 //! box, voxel count, exact keys where the log kept them, and their share
 //! of the key budget). That is what the extension file of an export
-//! records, so that a later `select --extend` or `stream --extend` meets
-//! the database this device would restore.
+//! records ([`LoggedScan::extension`]), so that a later `select --extend`
+//! meets the database this device would restore.
 
 use crate::device::client::{send_and_wait, Client, Received, Wait};
 use crate::device::error::DeviceError;
 use crate::device::link::Link;
+use crate::output::extension::{DbFrame, Extension, Fate, FrameEntry, OnlineConfig, RunConfig};
 use placedb::frame::FrameMeta;
 use placedb::key_pool::{key_of, Aabb};
 use placedb::persist::Record;
@@ -232,6 +233,93 @@ pub fn scan_of(records: &[LogRecord]) -> Result<LoggedScan, DeviceError> {
     })
 }
 
+impl LoggedScan {
+    /// The session of global frame `index` and its index in that session.
+    pub fn session_of(&self, index: u32) -> (u32, u32) {
+        session_of(&self.sessions, index)
+    }
+
+    /// The extension file of this scan, selected online by a device of
+    /// capacity profile `profile`: every frame's decision, every database
+    /// frame as the log keeps it (the keys of a frame it kept only by
+    /// sketch are unknown: `keys` is `None`).
+    pub fn extension(&self, profile: &str) -> Extension {
+        let c = &self.config;
+        let origin = if c.grid_origin == [0.0; 3] {
+            "world"
+        } else {
+            "scene-min"
+        };
+        let config = RunConfig {
+            voxel: c.voxel_size,
+            grid_corner: c.grid_origin,
+            grid_origin: origin.to_string(),
+            stride: c.stride,
+            depth_range: [c.depth_range.min, c.depth_range.max],
+            mu: c.mu,
+            solver: "online".to_string(),
+            online: Some(OnlineConfig {
+                profile: profile.to_string(),
+                window: c.window,
+                sketch_margin: c.sketch_margin,
+            }),
+        };
+        let total = self.decisions.len() as u32;
+        let ends = self.sessions.iter().skip(1).copied().chain([total]);
+        let sessions = self.sessions.iter().zip(ends).map(|(a, b)| b - a).collect();
+        let frames = self
+            .decisions
+            .iter()
+            .zip(0u32..)
+            .map(|(&(timestamp, kind), i)| FrameEntry {
+                timestamp,
+                session: self.session_of(i).0,
+                fate: match kind {
+                    DecisionKind::Taken | DecisionKind::Pending => Fate::Taken,
+                    DecisionKind::DominatedBy(k) => Fate::Covered(k),
+                    DecisionKind::Uncovered(k) => Fate::Uncovered(k),
+                },
+                measured: None,
+            })
+            .collect();
+        let database = self
+            .database
+            .iter()
+            .map(|f| {
+                let (t, q) = (f.meta.pose.translation, f.meta.pose.rotation);
+                DbFrame {
+                    index: f.meta.index,
+                    session: self.session_of(f.meta.index).0,
+                    timestamp: f.meta.timestamp,
+                    pose: [t[0], t[1], t[2], q[0], q[1], q[2], q[3]].map(f64::from),
+                    voxels: f.voxels,
+                    aabb: f.aabb,
+                    sketch: Some(f.sketch.clone()),
+                    keyed: f.keys.is_some(),
+                    key_bytes: f.key_bytes,
+                    keys: f.keys.clone(),
+                    eval_keys: None,
+                }
+            })
+            .collect();
+        Extension {
+            config,
+            sessions,
+            frames,
+            database,
+            all_voxels: None,
+        }
+    }
+}
+
+/// The session of global frame `index` among sessions beginning at
+/// `firsts` (ascending, the first 0), and its index in that session.
+pub fn session_of(firsts: &[u32], index: u32) -> (u32, u32) {
+    let s = firsts.partition_point(|&f| f <= index).saturating_sub(1);
+    let first = firsts.get(s).copied().unwrap_or(0);
+    (s as u32, index.saturating_sub(first))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -263,5 +351,11 @@ mod tests {
         assert!(got.database.iter().all(|f| f.sketch.len() == 64));
         // Cut short: not a finished scan.
         assert!(scan_of(&log[..log.len() - 1]).is_err());
+        let ext = got.extension("ram256k");
+        assert_eq!(ext.contradiction(), None);
+        assert_eq!(ext.sessions, vec![30]);
+        assert_eq!(session_of(&[0, 30, 45], 29), (0, 29));
+        assert_eq!(session_of(&[0, 30, 45], 30), (1, 0));
+        assert_eq!(session_of(&[0, 30, 45], 50), (2, 5));
     }
 }
