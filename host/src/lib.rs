@@ -12,6 +12,7 @@ pub mod bench;
 pub mod cli;
 pub mod device;
 pub mod error;
+pub mod extend;
 pub mod output;
 pub mod pipeline;
 pub mod read;

@@ -9,7 +9,7 @@ use crate::yardstick::graph::CoObservation;
 use crate::yardstick::metrics::{self, Metrics};
 use crate::yardstick::solve;
 use indicatif::{ProgressBar, ProgressStyle};
-use placedb::{ScanConfig, SelectorConfig};
+use placedb::{ScanConfig, SelectorConfig, VoxelGrid};
 use std::time::{Duration, Instant};
 
 /// Solver names (DESIGN section 2).
@@ -142,10 +142,33 @@ pub fn prepare(
     config: VoxelConfig,
     quiet: bool,
 ) -> Result<Prepared, VoxelizeError> {
+    prepare_with(seq, config, None, quiet)
+}
+
+/// [`prepare`] on `grid` instead of the one `config.origin` picks: a later
+/// session voxelized on the grid of the sessions it extends.
+pub fn prepare_on(
+    seq: &Sequence,
+    config: VoxelConfig,
+    grid: VoxelGrid,
+    quiet: bool,
+) -> Result<Prepared, VoxelizeError> {
+    prepare_with(seq, config, Some(grid), quiet)
+}
+
+fn prepare_with(
+    seq: &Sequence,
+    config: VoxelConfig,
+    grid: Option<VoxelGrid>,
+    quiet: bool,
+) -> Result<Prepared, VoxelizeError> {
     let n = seq.frames.len();
     let t = Instant::now();
     let pb = bar(n, "voxelizing", quiet);
-    let sets = voxelize(seq, &config, pb.as_ref())?;
+    let sets = match grid {
+        Some(grid) => voxelize_on(seq, &config, grid, pb.as_ref())?,
+        None => voxelize(seq, &config, pb.as_ref())?,
+    };
     pb.inspect(|p| p.finish_and_clear());
     let voxelize_wall = t.elapsed();
     let t = Instant::now();
@@ -161,7 +184,10 @@ pub fn prepare(
             stride: 1,
             ..config
         };
-        let s1 = voxelize(seq, &cfg1, pb.as_ref())?;
+        let s1 = match grid {
+            Some(grid) => voxelize_on(seq, &cfg1, grid, pb.as_ref())?,
+            None => voxelize(seq, &cfg1, pb.as_ref())?,
+        };
         pb.inspect(|p| p.finish_and_clear());
         let c1 = CoObservation::new(&s1.sets, None);
         Some((s1, c1))
@@ -211,6 +237,29 @@ pub enum SolveError {
     Param(String),
 }
 
+/// The online core's scan and selection configuration for `seq` as
+/// `prep` voxelized it, at threshold `mu`.
+pub fn online_config(
+    seq: &Sequence,
+    prep: &Prepared,
+    mu: f32,
+    params: &SolverParams,
+) -> (ScanConfig, SelectorConfig) {
+    let scan = ScanConfig {
+        intrinsics: seq.intrinsics(),
+        depth_scale: seq.depth_scale as f32,
+        range: prep.config.range,
+        stride: prep.config.stride,
+        grid: prep.sets.grid,
+    };
+    let cfg = SelectorConfig {
+        mu,
+        window: params.window,
+        sketch_margin: params.sketch_margin,
+    };
+    (scan, cfg)
+}
+
 /// Runs `solver` at threshold `mu` on a prepared sequence.
 pub fn solve(
     seq: &Sequence,
@@ -258,18 +307,7 @@ pub fn solve(
             solve::cube(&seq.frames, params.cube)
         }
         Solver::Online => {
-            let scan = ScanConfig {
-                intrinsics: seq.intrinsics(),
-                depth_scale: seq.depth_scale as f32,
-                range: prep.config.range,
-                stride: prep.config.stride,
-                grid: prep.sets.grid,
-            };
-            let cfg = SelectorConfig {
-                mu,
-                window: params.window,
-                sketch_margin: params.sketch_margin,
-            };
+            let (scan, cfg) = online_config(seq, prep, mu, params);
             let pb = bar(n, "online", quiet);
             // The replay reuses the voxel sets computed above (same stride,
             // grid and camera): only frames the device would truncate are

@@ -2,16 +2,18 @@
 //! exactly as a board would receive it: frame by frame, sampled rows in
 //! chunks, one selector of a named capacity profile.
 
+use crate::output::extension::{Extension, Fate};
 use crate::row_chunks::row_spans;
 use crate::sequence::{DepthImage, Sequence};
 use crate::voxelize::{VoxelSets, VoxelizeError};
 use indicatif::ProgressBar;
 use placedb::frame::{FrameError, FrameIngest};
-use placedb::key_pool::{key_of, merge_count};
+use placedb::key_pool::{key_of, merge_count, Aabb};
 use placedb::profile::{Ram1M, Ram256K, Ram512K};
 use placedb::select::{DbSnapshot, FrameStore};
+use placedb::sketch::Sketch;
 use placedb::{
-    DbRecord, Decision, FrameMeta, ScanConfig, SelectError, Selector, SelectorConfig, Status,
+    DbRecord, Decision, FrameMeta, Pose, ScanConfig, SelectError, Selector, SelectorConfig, Status,
 };
 use rayon::prelude::*;
 use std::time::{Duration, Instant};
@@ -19,18 +21,34 @@ use std::time::{Duration, Instant};
 /// Result of a replay.
 #[derive(Debug, Clone)]
 pub struct OnlineRun {
-    /// Final decision of every frame, by frame index.
+    /// Final decision of every frame, by global frame index (an extended
+    /// replay's earlier sessions first, as the extension file has them).
     pub decisions: Vec<Decision>,
-    /// Class label (a frame index) of every frame.
+    /// Class label (a global frame index) of every frame.
     pub labels: Vec<usize>,
     /// Database entries in frame order.
     pub database: Vec<DbRecord>,
+    /// What the store keeps of each entry of `database`, in the same order.
+    pub stored: Vec<StoredFrame>,
     /// The selector's final counters.
     pub status: Status,
     /// Summed over threads: decoding depth.
     pub read_time: Duration,
     /// Wall time inside the core (voxelize + overlap + select).
     pub core_time: Duration,
+}
+
+/// What the replay's store keeps of a database frame, for the extension file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StoredFrame {
+    /// Box of its voxel set.
+    pub aabb: Option<Aabb>,
+    /// Its sketch's hashes, ascending.
+    pub sketch: Vec<u32>,
+    /// Its exact keys, when the store kept them.
+    pub keys: Option<Vec<u64>>,
+    /// Bytes of the key budget they took.
+    pub key_bytes: u32,
 }
 
 /// Why a replay stopped.
@@ -50,6 +68,9 @@ pub enum ReplayError {
     /// No such profile.
     #[error("unknown profile {0:?} (known: ram256k, ram512k, ram1m)")]
     UnknownProfile(String),
+    /// The earlier sessions' database cannot seed this selector.
+    #[error("the database to extend: {0}")]
+    Seed(String),
 }
 
 /// The rows a board receives for one frame: sampled rows of sampled columns.
@@ -82,7 +103,16 @@ pub fn replay(
     rows_per_chunk: usize,
     progress: Option<&ProgressBar>,
 ) -> Result<OnlineRun, ReplayError> {
-    replay_with(seq, None, profile, scan, cfg, rows_per_chunk, progress)
+    replay_with(
+        seq,
+        None,
+        None,
+        profile,
+        scan,
+        cfg,
+        rows_per_chunk,
+        progress,
+    )
 }
 
 /// [`replay`] of a sequence already voxelized with `scan` (its stride,
@@ -102,6 +132,7 @@ pub fn replay_voxelized(
 ) -> Result<OnlineRun, ReplayError> {
     replay_with(
         seq,
+        None,
         Some(sets),
         profile,
         scan,
@@ -111,8 +142,39 @@ pub fn replay_voxelized(
     )
 }
 
+/// [`replay`] (or [`replay_voxelized`] with `sets`) of a later session
+/// `seq` on top of the earlier sessions of `ext`: the selector is seeded
+/// with their database and decisions ([`seed`], as a device restores its
+/// flash log), then `seq`'s frames follow with global indices from
+/// [`Extension::next_index`]. The run's decisions, labels and database
+/// cover every session.
+#[allow(clippy::too_many_arguments)]
+pub fn extend_from(
+    ext: &Extension,
+    seq: &Sequence,
+    sets: Option<&VoxelSets>,
+    profile: &str,
+    scan: ScanConfig,
+    cfg: SelectorConfig,
+    rows_per_chunk: usize,
+    progress: Option<&ProgressBar>,
+) -> Result<OnlineRun, ReplayError> {
+    replay_with(
+        seq,
+        Some(ext),
+        sets,
+        profile,
+        scan,
+        cfg,
+        rows_per_chunk,
+        progress,
+    )
+}
+
+#[allow(clippy::too_many_arguments)]
 fn replay_with(
     seq: &Sequence,
+    ext: Option<&Extension>,
     sets: Option<&VoxelSets>,
     profile: &str,
     scan: ScanConfig,
@@ -126,6 +188,7 @@ fn replay_with(
             "ram256k" => run(
                 &mut Box::new(Ram256K::new()),
                 seq,
+                ext,
                 sets,
                 scan,
                 cfg,
@@ -135,6 +198,7 @@ fn replay_with(
             "ram512k" => run(
                 &mut Box::new(Ram512K::new()),
                 seq,
+                ext,
                 sets,
                 scan,
                 cfg,
@@ -144,6 +208,7 @@ fn replay_with(
             "ram1m" => run(
                 &mut Box::new(Ram1M::new()),
                 seq,
+                ext,
                 sets,
                 scan,
                 cfg,
@@ -181,26 +246,55 @@ impl<'scope, 'env> SpawnBig<'scope> for std::thread::Scope<'scope, 'env> {
 /// so the replay decides exactly as a board with flash does.
 #[derive(Debug, Default)]
 pub struct MemStore<const K: usize> {
-    frames: Vec<(DbSnapshot<K>, Option<Vec<u64>>)>,
+    /// Each frame saved, its exact keys if kept, and the bytes of the key
+    /// budget they took.
+    frames: Vec<(DbSnapshot<K>, Option<Vec<u64>>, u32)>,
+}
+
+impl<const K: usize> MemStore<K> {
+    /// Keeps `frame` (with its exact `keys`, which took `key_bytes` of the
+    /// key budget) as a store of an earlier session holds it; returns where.
+    pub fn put(&mut self, frame: DbSnapshot<K>, keys: Option<Vec<u64>>, key_bytes: u32) -> u32 {
+        self.frames.push((frame, keys, key_bytes));
+        (self.frames.len() - 1) as u32
+    }
+
+    /// What the store keeps of database frame `index` (its latest copy).
+    pub fn kept(&self, index: u32) -> Option<StoredFrame> {
+        let (f, keys, key_bytes) = self
+            .frames
+            .iter()
+            .rev()
+            .find(|(f, _, _)| f.meta.index == index)?;
+        Some(StoredFrame {
+            aabb: f.aabb,
+            sketch: f.sketch.hashes().to_vec(),
+            keys: keys.clone(),
+            key_bytes: *key_bytes,
+        })
+    }
 }
 
 impl<const K: usize> FrameStore<K> for MemStore<K> {
     fn save(&mut self, frame: &DbSnapshot<K>, keys: Option<&[u32]>) -> Option<(u32, bool)> {
         let base = frame.aabb.map(|a| a.min);
-        let keys = keys
+        let bytes = keys.map_or(0, |w| placedb::persist::keys::encoded_size(w).1 as u32);
+        let keys: Option<Vec<u64>> = keys
             .zip(base)
             .map(|(words, base)| words.iter().map(|&w| key_of(base, w)).collect());
         let kept = keys.is_some();
-        self.frames.push((*frame, keys));
-        Some((u32::try_from(self.frames.len() - 1).ok()?, kept))
+        let bytes = if kept { bytes } else { 0 };
+        let at = u32::try_from(self.frames.len()).ok()?;
+        self.frames.push((*frame, keys, bytes));
+        Some((at, kept))
     }
 
     fn load(&mut self, at: u32) -> Option<DbSnapshot<K>> {
-        self.frames.get(at as usize).map(|(f, _)| *f)
+        self.frames.get(at as usize).map(|(f, _, _)| *f)
     }
 
     fn intersect(&mut self, at: u32, keys: &[u64]) -> Option<(u32, u32)> {
-        let (frame, stored) = self.frames.get(at as usize)?;
+        let (frame, stored, _) = self.frames.get(at as usize)?;
         let stored = stored.as_ref()?;
         let common = merge_count(stored.iter().copied(), keys.iter().copied());
         Some((common, frame.voxels))
@@ -219,6 +313,7 @@ struct Ingested<const FV: usize> {
 fn ingest<const FV: usize>(
     seq: &Sequence,
     sets: Option<&VoxelSets>,
+    first: u32,
     i: usize,
     scan: &ScanConfig,
     rows_per_chunk: usize,
@@ -236,12 +331,13 @@ fn ingest<const FV: usize>(
             reason,
         })?;
     let mut ingest = Box::new(FrameIngest::<FV>::new());
+    let index = first + i as u32;
     let meta = FrameMeta {
-        index: i as u32,
+        index,
         timestamp: seq.frames[i].timestamp,
         pose,
     };
-    ingest.begin(meta, i as u32, scan).map_err(core_err)?;
+    ingest.begin(meta, index, scan).map_err(core_err)?;
     let known = sets.and_then(|s| {
         let oor = s.frame_out_of_range.get(i).copied().unwrap_or(0);
         Some((s.sets.get(i)?, *s.valid_pixels.get(i)?, oor))
@@ -274,6 +370,7 @@ fn run<
 >(
     sel: &mut Selector<FV, POOL, DB, W, K, R>,
     seq: &Sequence,
+    ext: Option<&Extension>,
     sets: Option<&VoxelSets>,
     scan: ScanConfig,
     cfg: SelectorConfig,
@@ -281,10 +378,23 @@ fn run<
     progress: Option<&ProgressBar>,
 ) -> Result<OnlineRun, ReplayError> {
     let n = seq.frames.len();
-    let core_err = |frame: usize| move |reason| ReplayError::Core { frame, reason };
-    sel.configure(scan, cfg).map_err(core_err(0))?;
-    let mut decisions = vec![Decision::Pending; n];
     let mut store = MemStore::<K>::default();
+    let first = match ext {
+        Some(ext) => seed(sel, &mut store, ext, scan, cfg)?,
+        None => {
+            sel.configure(scan, cfg)
+                .map_err(|reason| ReplayError::Core { frame: 0, reason })?;
+            0
+        }
+    };
+    let base = first as usize;
+    let core_err = |frame: usize| move |reason| ReplayError::Core { frame, reason };
+    let mut decisions = vec![Decision::Pending; base + n];
+    if let Some(ext) = ext {
+        for (d, f) in decisions.iter_mut().zip(&ext.frames) {
+            *d = decision_of(f.fate);
+        }
+    }
     let mut read_time = Duration::ZERO;
     let mut core_time = Duration::ZERO;
     let mut record = |d: placedb::FrameDecision| {
@@ -302,7 +412,7 @@ fn run<
         (start..(start + batch).min(n))
             .into_par_iter()
             .map_init(DepthImage::default, |img, i| {
-                ingest(seq, sets, i, &scan, rows_per_chunk, img)
+                ingest(seq, sets, first, i, &scan, rows_per_chunk, img)
             })
             .collect()
     };
@@ -315,7 +425,7 @@ fn run<
             for (k, mut frame) in frames.into_iter().enumerate() {
                 read_time += frame.read_time;
                 sel.end_frame_from(&mut frame.ingest, &mut store, &mut record)
-                    .map_err(core_err(start + k))?;
+                    .map_err(core_err(base + start + k))?;
                 if let Some(p) = progress {
                     p.inc(1);
                 }
@@ -333,7 +443,7 @@ fn run<
     }
     let t = Instant::now();
     sel.finish_with(&mut store, &mut record)
-        .map_err(core_err(n))?;
+        .map_err(core_err(base + n))?;
     core_time += t.elapsed();
     let labels = decisions
         .iter()
@@ -343,15 +453,113 @@ fn run<
             _ => i,
         })
         .collect();
-    let database = (0..sel.database_len())
+    let database: Vec<DbRecord> = (0..sel.database_len())
         .filter_map(|i| sel.database_record(i, &mut store))
+        .collect();
+    let stored = database
+        .iter()
+        .filter_map(|r| store.kept(r.index))
         .collect();
     Ok(OnlineRun {
         decisions,
         labels,
         database,
+        stored,
         status: sel.status(),
         read_time,
         core_time,
     })
+}
+
+/// The core's decision of a frame of an earlier session.
+fn decision_of(fate: Fate) -> Decision {
+    match fate {
+        Fate::Taken => Decision::Taken,
+        Fate::Covered(k) => Decision::DominatedBy(k),
+        Fate::Uncovered(k) => Decision::Uncovered(k),
+    }
+}
+
+/// Seeds a fresh selector and its store with the earlier sessions of
+/// `ext`, exactly as a device restores its flash log before it continues:
+/// configured with `scan` and `cfg`, every database frame put back
+/// (`Selector::restore_database`: in the store with its exact keys where
+/// the earlier run kept them, else compared by sketch) and every frame's
+/// decision restored in order (`Selector::restore_decided`). Returns the
+/// global index of the next frame. The one place an extended replay is
+/// seeded: `select --extend --solver online` and the tests that compare it
+/// with a device go through it.
+pub fn seed<
+    const FV: usize,
+    const POOL: usize,
+    const DB: usize,
+    const W: usize,
+    const K: usize,
+    const R: usize,
+>(
+    sel: &mut Selector<FV, POOL, DB, W, K, R>,
+    store: &mut MemStore<K>,
+    ext: &Extension,
+    scan: ScanConfig,
+    cfg: SelectorConfig,
+) -> Result<u32, ReplayError> {
+    let refused = |what: String| ReplayError::Seed(what);
+    sel.configure(scan, cfg)
+        .map_err(|reason| ReplayError::Core { frame: 0, reason })?;
+    for f in &ext.database {
+        let sketch = match (&f.sketch, &f.keys) {
+            (Some(hashes), _) => {
+                Sketch::<K>::from_hashes(hashes.iter().copied()).ok_or_else(|| {
+                    refused(format!(
+                        "frame {}: its sketch of {} hashes does not fit this profile's {K}",
+                        f.index,
+                        hashes.len()
+                    ))
+                })?
+            }
+            (None, Some(keys)) => Sketch::<K>::from_keys(keys.iter().copied()),
+            (None, None) => {
+                return Err(refused(format!(
+                    "frame {} has neither a sketch nor a voxel set",
+                    f.index
+                )))
+            }
+        };
+        let aabb = f
+            .aabb
+            .or_else(|| f.keys.as_deref().and_then(Aabb::of_sorted));
+        let [tx, ty, tz, qx, qy, qz, qw] = f.pose.map(|c| c as f32);
+        let snapshot = DbSnapshot {
+            meta: FrameMeta {
+                index: f.index,
+                timestamp: f.timestamp,
+                pose: Pose {
+                    translation: [tx, ty, tz],
+                    rotation: [qx, qy, qz, qw],
+                },
+            },
+            voxels: f.voxels,
+            aabb,
+            sketch,
+        };
+        let keys = f.keys.clone().filter(|_| f.keyed);
+        let key_bytes = if f.keyed { f.key_bytes } else { 0 };
+        let at = store.put(snapshot, keys, key_bytes);
+        sel.restore_database(&snapshot, at, f.keyed, key_bytes)
+            .map_err(|e| {
+                refused(match e {
+                    placedb::select::RestoreError::DatabaseFull => format!(
+                        "its {} database frames do not fit this profile's database ({} frames)",
+                        ext.database.len(),
+                        DB
+                    ),
+                    _ => format!("frame {} cannot be restored", f.index),
+                })
+            })?;
+    }
+    for (i, f) in ext.frames.iter().enumerate() {
+        sel.restore_decided(i as u32, decision_of(f.fate))
+            .map_err(|_| refused(format!("the decision of frame {i} cannot be restored")))?;
+    }
+    Ok(ext.next_index())
 }

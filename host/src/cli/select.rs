@@ -11,6 +11,8 @@ use clap::Args;
 use std::path::PathBuf;
 use std::time::Instant;
 
+mod extend;
+
 #[derive(Args)]
 pub struct SelectArgs {
     #[command(flatten)]
@@ -32,10 +34,19 @@ pub struct SelectArgs {
     params: ParamArgs,
     #[command(flatten)]
     exports: exports::ExportFlags,
+    /// Add this sequence as a new session to the database in this earlier
+    /// output directory (its extension file; the earlier sequences need not
+    /// be present): its database frames are kept, only what the new frames
+    /// need is added (docs/SESSIONS.md).
+    #[arg(long, value_name = "OUT_A")]
+    extend: Option<PathBuf>,
 }
 
 /// Runs `placedb select`.
 pub fn run(a: SelectArgs) -> Result<(), Error> {
+    if let Some(from) = a.extend.clone() {
+        return extend::run(a, &from);
+    }
     let t0 = Instant::now();
     // A refused export target fails the run before anything is written.
     a.exports.check_targets()?;
@@ -91,6 +102,7 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
     );
     written?;
     drawn?;
+    extend::write_first(&a.out, &seq, &prep, &o, &params, a.mu, &rows)?;
     let dataset = match &a.dataset {
         Some(dir) => Some((dir, dataset::write(dir, &seq, &o.labels)?)),
         None => None,
@@ -156,7 +168,7 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
             t0.elapsed().as_secs_f64()
         );
         println!(
-            "  wrote {}/{{database.csv,labels.csv,metrics.json,topview.png}}",
+            "  wrote {}/{{database.csv,labels.csv,metrics.json,topview.png,extension.bin}}",
             a.out.display()
         );
         if let Some((dir, d)) = &dataset {

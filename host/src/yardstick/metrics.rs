@@ -43,38 +43,21 @@ pub struct Metrics {
 /// When `co` was not built from `sets` (frame counts differ) or `db` holds an
 /// index out of range.
 pub fn evaluate(sets: &[Vec<u64>], co: &CoObservation, db: &[usize], mu: f32) -> Metrics {
-    let n = sets.len();
-    assert_eq!(co.len(), n, "co-observation of another sequence");
-    let mut in_db = vec![false; n];
-    for &b in db {
-        in_db[b] = true;
-    }
-    let size = in_db.iter().filter(|&&x| x).count();
-
-    // One pass over co-observing pairs: domination and best coverage.
-    let mut covered = in_db.clone();
-    let mut best_common = vec![0u32; n];
-    for (i, j, c) in co.pairs() {
-        for (f, b) in [(i, j), (j, i)] {
-            if in_db[b] && !in_db[f] {
-                covered[f] |= co.pair_iou(i, j, c) > mu;
-                best_common[f] = best_common[f].max(c);
-            }
-        }
-    }
-    let uncovered = covered.iter().filter(|&&c| !c).count();
-    let coverage: Vec<f64> = (0..n)
-        .map(|f| match (in_db[f], sets[f].len()) {
-            (true, _) => 1.0,
-            (false, 0) => 0.0,
-            (false, len) => best_common[f] as f64 / len as f64,
-        })
-        .collect();
-
+    let frames = per_frame(sets, co, db, mu);
+    let size = db_flags(sets.len(), db).iter().filter(|&&x| x).count();
     // The union of all sets is the co-observation count's own: its
     // inverted index numbers every distinct voxel.
     let all = co.distinct_keys();
     let kept = union(&db.iter().map(|&b| sets[b].as_slice()).collect::<Vec<_>>()).len();
+    summarize(&frames, size, kept, all)
+}
+
+/// The metrics of frames covered as `frames` says by a database of `size`
+/// frames whose sets hold `kept` of the `all` distinct voxels of every frame.
+pub fn summarize(frames: &PerFrame, size: usize, kept: usize, all: usize) -> Metrics {
+    let PerFrame { covered, coverage } = frames;
+    let n = coverage.len();
+    let uncovered = covered.iter().filter(|&&c| !c).count();
     Metrics {
         size,
         reduction: if size == 0 {
@@ -101,6 +84,53 @@ pub fn evaluate(sets: &[Vec<u64>], co: &CoObservation, db: &[usize], mu: f32) ->
         },
         oracle_recall_0_3: None,
     }
+}
+
+/// Each frame's coverage by a database (what [`evaluate`] sums up).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PerFrame {
+    /// In the database, or some database frame overlaps it (IoU > mu).
+    pub covered: Vec<bool>,
+    /// Frame coverage `max_{b∈D} s(frame, b)` (1 for a database frame).
+    pub coverage: Vec<f64>,
+}
+
+fn db_flags(n: usize, db: &[usize]) -> Vec<bool> {
+    let mut in_db = vec![false; n];
+    for &b in db {
+        in_db[b] = true;
+    }
+    in_db
+}
+
+/// The coverage of every frame of `sets` (co-observation counts `co`) by
+/// database `db` at threshold `mu`.
+///
+/// # Panics
+/// As [`evaluate`].
+pub fn per_frame(sets: &[Vec<u64>], co: &CoObservation, db: &[usize], mu: f32) -> PerFrame {
+    let n = sets.len();
+    assert_eq!(co.len(), n, "co-observation of another sequence");
+    let in_db = db_flags(n, db);
+    // One pass over co-observing pairs: domination and best coverage.
+    let mut covered = in_db.clone();
+    let mut best_common = vec![0u32; n];
+    for (i, j, c) in co.pairs() {
+        for (f, b) in [(i, j), (j, i)] {
+            if in_db[b] && !in_db[f] {
+                covered[f] |= co.pair_iou(i, j, c) > mu;
+                best_common[f] = best_common[f].max(c);
+            }
+        }
+    }
+    let coverage: Vec<f64> = (0..n)
+        .map(|f| match (in_db[f], sets[f].len()) {
+            (true, _) => 1.0,
+            (false, 0) => 0.0,
+            (false, len) => best_common[f] as f64 / len as f64,
+        })
+        .collect();
+    PerFrame { covered, coverage }
 }
 
 /// Share of test frames `q` with `max_b |d_q ∩ d_b| / |d_q| > threshold` over
@@ -146,7 +176,7 @@ pub fn oracle_recall(test_sets: &[Vec<u64>], db_sets: &[&[u64]], threshold: f64)
 /// The distinct keys of some sets, ascending: through a bitmap of the keys'
 /// bounding box where it has few cells (a scan's, mostly), with no copy of
 /// every key, whose sort also took most of the time; else sorted.
-pub(crate) fn union<S: AsRef<[u64]> + Sync>(sets: &[S]) -> Vec<u64> {
+pub fn union<S: AsRef<[u64]> + Sync>(sets: &[S]) -> Vec<u64> {
     let keys = || sets.iter().flat_map(|s| s.as_ref().iter().copied());
     let total = sets.iter().map(|s| s.as_ref().len()).sum();
     let Some(cells) = BoxCells::of(sets, total) else {
