@@ -483,7 +483,9 @@ impl ScanState {
                         .into(),
                 ));
             }
-            let seen = st.frames_seen as usize;
+            // In a later session (`--extend`), the sequence is that session.
+            self.first_index = st.session_first;
+            let seen = st.frames_seen.saturating_sub(st.session_first) as usize;
             if let Some(n) = frames.filter(|&n| seen > n) {
                 return Err(DeviceError::Input(format!(
                     "the device has seen {seen} frames, the sequence has {n}: not this sequence?"
