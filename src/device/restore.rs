@@ -198,6 +198,10 @@ fn current_version(cfg: Config) -> Config {
     }
 }
 
+/// A source of log records: hands each `(position, payload)` of a live
+/// generation, in order, to the visitor it is given; returns how many.
+pub(super) type Records<'a> = dyn FnMut(&mut dyn FnMut(u32, &[u8])) -> Result<u32, LogError> + 'a;
+
 /// Hands every record of `journal`'s live generation, in order, with its
 /// position, to `visit` (what [`crate::persist::Log::replay`] does, through
 /// the [`Journal`] a message handler holds); returns how many.
@@ -229,7 +233,7 @@ impl<
     /// failure the core is reset again.
     pub(super) fn replay(
         &mut self,
-        records: &mut dyn FnMut(&mut dyn FnMut(u32, &[u8])) -> Result<u32, LogError>,
+        records: &mut Records<'_>,
         usage: (u32, u32),
     ) -> Result<u32, RestoreFailure> {
         self.reset();

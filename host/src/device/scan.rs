@@ -524,13 +524,19 @@ impl ScanState {
         frames: Option<usize>,
     ) -> Result<Status, DeviceError> {
         match self.call(client, HostMessage::Extend(*cfg), "Extend") {
-            Err(DeviceError::Refused { kind, .. }) if kind == ErrorKind::NothingToExtend => {
+            Err(DeviceError::Refused {
+                kind: ErrorKind::NothingToExtend,
+                ..
+            }) => {
                 return Err(DeviceError::Input(
                     "--extend: the device holds no finished scan in its flash log to extend                      (stream a first session to it and let it finish, then extend it; a scan                      cut short is resumed with --resume)"
                         .into(),
                 ))
             }
-            Err(DeviceError::Refused { kind, .. }) if kind == ErrorKind::ExtendOtherConfig => {
+            Err(DeviceError::Refused {
+                kind: ErrorKind::ExtendOtherConfig,
+                ..
+            }) => {
                 return Err(DeviceError::Input(
                     "--extend: the device's scan was configured otherwise: every session of a                      scan needs the first one's camera, depth scale and range, stride, voxel                      size, grid, --mu and --window (Reset the device for a new scan)"
                         .into(),
