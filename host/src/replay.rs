@@ -103,16 +103,16 @@ pub fn replay(
     rows_per_chunk: usize,
     progress: Option<&ProgressBar>,
 ) -> Result<OnlineRun, ReplayError> {
-    replay_with(
+    let job = Job {
         seq,
-        None,
-        None,
-        profile,
+        ext: None,
+        sets: None,
         scan,
         cfg,
         rows_per_chunk,
         progress,
-    )
+    };
+    replay_with(job, profile)
 }
 
 /// [`replay`] of a sequence already voxelized with `scan` (its stride,
@@ -130,16 +130,16 @@ pub fn replay_voxelized(
     rows_per_chunk: usize,
     progress: Option<&ProgressBar>,
 ) -> Result<OnlineRun, ReplayError> {
-    replay_with(
+    let job = Job {
         seq,
-        None,
-        Some(sets),
-        profile,
+        ext: None,
+        sets: Some(sets),
         scan,
         cfg,
         rows_per_chunk,
         progress,
-    )
+    };
+    replay_with(job, profile)
 }
 
 /// [`replay`] (or [`replay_voxelized`] with `sets`) of a later session
@@ -159,62 +159,39 @@ pub fn extend_from(
     rows_per_chunk: usize,
     progress: Option<&ProgressBar>,
 ) -> Result<OnlineRun, ReplayError> {
-    replay_with(
+    let job = Job {
         seq,
-        Some(ext),
+        ext: Some(ext),
         sets,
-        profile,
         scan,
         cfg,
         rows_per_chunk,
         progress,
-    )
+    };
+    replay_with(job, profile)
 }
 
-#[allow(clippy::too_many_arguments)]
-fn replay_with(
-    seq: &Sequence,
-    ext: Option<&Extension>,
-    sets: Option<&VoxelSets>,
-    profile: &str,
+/// What one replay runs on.
+#[derive(Clone, Copy)]
+struct Job<'a> {
+    seq: &'a Sequence,
+    /// The earlier sessions to continue, if any.
+    ext: Option<&'a Extension>,
+    /// The sequence's voxel sets, to reuse.
+    sets: Option<&'a VoxelSets>,
     scan: ScanConfig,
     cfg: SelectorConfig,
     rows_per_chunk: usize,
-    progress: Option<&ProgressBar>,
-) -> Result<OnlineRun, ReplayError> {
+    progress: Option<&'a ProgressBar>,
+}
+
+fn replay_with(job: Job<'_>, profile: &str) -> Result<OnlineRun, ReplayError> {
     // The selectors are hundreds of KiB: build them on a thread with a stack to match.
     std::thread::scope(|s| {
         let job = s.spawn_scoped_big(move || match profile {
-            "ram256k" => run(
-                &mut Box::new(Ram256K::new()),
-                seq,
-                ext,
-                sets,
-                scan,
-                cfg,
-                rows_per_chunk,
-                progress,
-            ),
-            "ram512k" => run(
-                &mut Box::new(Ram512K::new()),
-                seq,
-                ext,
-                sets,
-                scan,
-                cfg,
-                rows_per_chunk,
-                progress,
-            ),
-            "ram1m" => run(
-                &mut Box::new(Ram1M::new()),
-                seq,
-                ext,
-                sets,
-                scan,
-                cfg,
-                rows_per_chunk,
-                progress,
-            ),
+            "ram256k" => run(&mut Box::new(Ram256K::new()), job),
+            "ram512k" => run(&mut Box::new(Ram512K::new()), job),
+            "ram1m" => run(&mut Box::new(Ram1M::new()), job),
             other => Err(ReplayError::UnknownProfile(other.to_string())),
         });
         job.join().expect("replay thread panicked")
@@ -369,14 +346,17 @@ fn run<
     const R: usize,
 >(
     sel: &mut Selector<FV, POOL, DB, W, K, R>,
-    seq: &Sequence,
-    ext: Option<&Extension>,
-    sets: Option<&VoxelSets>,
-    scan: ScanConfig,
-    cfg: SelectorConfig,
-    rows_per_chunk: usize,
-    progress: Option<&ProgressBar>,
+    job: Job<'_>,
 ) -> Result<OnlineRun, ReplayError> {
+    let Job {
+        seq,
+        ext,
+        sets,
+        scan,
+        cfg,
+        rows_per_chunk,
+        progress,
+    } = job;
     let n = seq.frames.len();
     let mut store = MemStore::<K>::default();
     let first = match ext {

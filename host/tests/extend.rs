@@ -10,7 +10,13 @@
 //! configuration and a damaged extension file refused in words with nothing
 //! written; a run without `--extend` writing the columns it always wrote.
 
+use placedb::profile::Ram512K;
+use placedb_host::extend::record::{self, SessionRun};
+use placedb_host::output::{self, extension};
+use placedb_host::pipeline::{self, Solver, SolverParams};
 use placedb_host::read::{self, ReadOptions};
+use placedb_host::replay::{self, MemStore};
+use placedb_host::yardstick::metrics;
 use placedb_host::{voxelize, VoxelConfig};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -423,6 +429,8 @@ fn a_mismatched_configuration_is_refused_naming_both_values() {
         assert!(msg.contains(oa), "{msg}");
         assert!(!out_ab.exists(), "{extra:?}: output written");
     }
+    let msg = refused(&["select", b_s, "--extend", oa, "-o", oa]);
+    assert!(msg.contains("is the directory being extended"), "{msg}");
     for (solver, words) in [
         ("every-nth", "makes no sense"),
         ("cube", "makes no sense"),
@@ -525,4 +533,124 @@ fn a_run_without_extend_writes_its_columns_and_the_extension_file() {
     );
     let m = metrics(&out);
     assert!(m.get("sessions").is_none(), "{m}");
+}
+
+#[test]
+fn seeding_from_the_file_restores_the_state_the_first_session_ended_in() {
+    // What `select --extend --solver online` starts from: the selector after
+    // session A, rebuilt from A's extension file (through its bytes) alone.
+    let seq = placedb_host::testing::sample("7scenes-1000", 300);
+    let prep = pipeline::prepare(&seq, VoxelConfig::default(), true).unwrap();
+    let params = SolverParams::default();
+    let mu = 0.7;
+    let o = pipeline::solve(&seq, &prep, Solver::Online, mu, &params, true).unwrap();
+    let run = o.online.as_ref().unwrap();
+    let rows = output::rows_from_records(&run.database);
+    let (eval, eval_co) = prep.eval();
+    let per = metrics::per_frame(&eval.sets, eval_co, &o.database, mu);
+    let measured: Vec<extension::Measured> = per
+        .coverage
+        .iter()
+        .zip(&per.covered)
+        .map(|(&coverage, &covered)| extension::Measured {
+            coverage: coverage as f32,
+            covered,
+        })
+        .collect();
+    let ext = record::extension(
+        None,
+        &SessionRun {
+            seq: &seq,
+            prep: &prep,
+            solver: Solver::Online,
+            mu,
+            params: &params,
+            database: &o.database,
+            rows: &rows,
+            labels: &o.labels,
+            measured: &measured,
+            online: Some(run),
+        },
+    );
+    let bytes = extension::encode(&ext).unwrap();
+    let ext = extension::decode(&bytes, Path::new("extension.bin")).unwrap();
+    assert!(
+        ext.database.iter().any(|f| f.keyed) && run.status.stored_key_bytes > 0,
+        "some frame keeps its keys"
+    );
+    let (scan, cfg) = pipeline::online_config(&seq, &prep, mu, &params);
+    let (status, records, next) = std::thread::Builder::new()
+        .stack_size(64 << 20)
+        .spawn(move || {
+            let mut sel = Box::new(Ram512K::new());
+            let mut store = MemStore::default();
+            let next = replay::seed(&mut *sel, &mut store, &ext, scan, cfg).unwrap();
+            let records: Vec<_> = (0..sel.database_len())
+                .map(|i| sel.database_record(i, &mut store))
+                .collect();
+            (sel.status(), records, next)
+        })
+        .unwrap()
+        .join()
+        .unwrap();
+    assert_eq!(next, 300);
+    let a = run.status;
+    // The key budget left for session B, the decisions and degradations so far.
+    assert_eq!(status.stored_key_bytes, a.stored_key_bytes);
+    assert_eq!(status.frames_decided, a.frames_decided);
+    assert_eq!(status.frames_seen, a.frames_seen);
+    assert_eq!(status.uncovered_frames, a.uncovered_frames);
+    assert_eq!(status.database.used, a.database.used);
+    let want: Vec<_> = run.database.iter().copied().map(Some).collect();
+    assert_eq!(records, want);
+}
+
+#[test]
+fn database_frames_without_voxel_sets_extend_online_and_refuse_offline_solvers() {
+    // A device keeps the keys only of the frames it compares exactly: an
+    // extension file like a device's, made from a host one.
+    let root = temp("sketch-only");
+    let a = seven_scenes(&root.join("a"), 0..150);
+    let b = seven_scenes(&root.join("b"), 150..300);
+    let strip = |dir: &Path| -> usize {
+        let file = dir.join("extension.bin");
+        let mut ext = extension::read(&file).unwrap();
+        let mut stripped = 0;
+        for f in ext.database.iter_mut().filter(|f| !f.keyed) {
+            f.keys = None;
+            stripped += 1;
+        }
+        ext.all_voxels = None;
+        extension::write(&file, &ext).unwrap();
+        stripped
+    };
+    let (a_s, b_s) = (a.to_str().unwrap(), b.to_str().unwrap());
+    for solver in ["online", "in-order"] {
+        let out_a = root.join(format!("{solver}-a"));
+        let out_ab = root.join(format!("{solver}-ab"));
+        let (oa, oab) = (out_a.to_str().unwrap(), out_ab.to_str().unwrap());
+        ok(&[
+            "select", a_s, "-o", oa, "--solver", solver, "--mu", "0.7", "--quiet",
+        ]);
+        let stripped = strip(&out_a);
+        // Frames taken at the end of a scan keep no keys (no later frame of
+        // the scan is compared with them); offline runs keep none.
+        assert!(stripped > 0, "{solver}: every frame keyed");
+        let args = [
+            "select", b_s, "--extend", oa, "-o", oab, "--solver", solver, "--mu", "0.7", "--quiet",
+        ];
+        if solver == "online" {
+            ok(&args);
+            let m = metrics(&out_ab);
+            assert_eq!(m["database_frames_without_voxels"], stripped, "{m}");
+            let old = database(&out_a);
+            let new = database(&out_ab);
+            assert!(old.iter().all(|f| new.contains(f)));
+        } else {
+            let msg = refused(&args);
+            assert!(msg.contains("has no voxel set"), "{msg}");
+            assert!(msg.contains("--solver online"), "{msg}");
+            assert!(!out_ab.exists());
+        }
+    }
 }

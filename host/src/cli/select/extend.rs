@@ -91,6 +91,16 @@ pub(super) fn run(a: SelectArgs, from: &Path) -> Result<(), Error> {
             .into())
         }
     }
+    // The earlier session's directory stays as it is: it is the record of
+    // that session (and `OUT_AB` may be extended again instead).
+    let same = |p: &Path| p.canonicalize().ok();
+    if same(&a.out).is_some() && same(&a.out) == same(from) {
+        return Err(format!(
+            "-o {} is the directory being extended: write the extended database to another directory",
+            a.out.display()
+        )
+        .into());
+    }
     let path = from.join(extension::FILE_NAME);
     if !path.exists() {
         return Err(format!(
