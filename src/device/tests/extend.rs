@@ -143,8 +143,12 @@ fn session_b<D: AnyDevice>(b: &mut Harness<D>, from: u32) -> Vec<(u32, DecisionK
     got
 }
 
-/// An export's labels (frame, class) and database frames.
-fn split(export: &[ExportRecord]) -> (Vec<(u32, u32)>, Vec<u32>, Vec<(u32, u32)>) {
+/// Pairs of frame indices: (frame, class) of labels, (session, first frame)
+/// of sessions.
+type Pairs = Vec<(u32, u32)>;
+
+/// An export's labels, database frames and sessions after the first.
+fn split(export: &[ExportRecord]) -> (Pairs, Vec<u32>, Pairs) {
     let (mut labels, mut db, mut sessions) = (Vec::new(), Vec::new(), Vec::new());
     for r in export {
         match r.kind {
