@@ -697,8 +697,8 @@ fn damaged_frames(scan: &Scan, t: &mut Table, would_apply: HostMessage<'_>) {
     // The CRC matches, the message is of a later protocol.
     let seq = t.seq();
     t.raw(
-        "message tag 9 (one past FrameAbort)",
-        with_crc(&seq_then(seq, &[9])),
+        "message tag 11 (one past LogRead)",
+        with_crc(&seq_then(seq, &[11])),
         Some(seq),
         UnknownMessage,
     );

@@ -402,6 +402,8 @@ fn parse(export: &[ExportRecord], scan: &Scan, ctx: &str) -> Parsed {
                 );
                 classes.push(class);
             }
+            // This scan has one session (sessions: tests/sessions.rs).
+            RecordKind::Session { .. } => panic!("{ctx}: a session record: {r:?}"),
         }
     }
     Parsed { db, classes }

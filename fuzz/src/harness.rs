@@ -416,6 +416,10 @@ impl Run {
                 assert!(matches!(r.kind, RecordKind::Database { .. }), "{r:?}");
                 assert!(last_frame < Some(r.frame), "database out of frame order");
                 last_frame = Some(r.frame);
+            } else if let RecordKind::Session { session } = r.kind {
+                // Sessions after the first, after every label.
+                let labels = st.capacity(CapacitySlot::Labels).used as usize;
+                assert_eq!(i, db + labels + session as usize - 1, "{r:?}");
             } else {
                 assert!(matches!(r.kind, RecordKind::Label { .. }), "{r:?}");
                 assert_eq!(r.frame as usize, i - db, "labels in frame order");
@@ -1022,6 +1026,11 @@ fn restore_image(flash: SimFlash, r: &mut Reader<'_>) {
         match rec.kind {
             RecordKind::Database { .. } => assert!(i < db, "{rec:?}"),
             RecordKind::Label { .. } => assert_eq!(rec.frame as usize, i - db, "{rec:?}"),
+            // Sessions after the first, after every label.
+            RecordKind::Session { session } => {
+                let labels = st.capacity(CapacitySlot::Labels).used as usize;
+                assert_eq!(i, db + labels + session as usize - 1, "{rec:?}");
+            }
         }
     }
     // A second boot on the same flash restores the same scan: a tail that

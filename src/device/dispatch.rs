@@ -40,7 +40,7 @@ impl<
         };
         let key = MessageKey::of(&msg);
         let same_hello = match msg {
-            HostMessage::Hello(cfg) => self.hello == Some(cfg),
+            HostMessage::Hello(cfg) | HostMessage::Extend(cfg) => self.hello == Some(cfg),
             _ => true,
         };
         if key == Some(self.last.key) && self.last.seq == seq && same_hello {
@@ -81,8 +81,12 @@ impl<
             } => {
                 return self.export(seq, from_record, max_records, journal, send);
             }
+            HostMessage::LogRead { record, offset } => {
+                return self.log_read(seq, (record, offset), journal, send);
+            }
             HostMessage::Reset => self.reset_logged(journal),
             HostMessage::FrameAbort { frame } => self.frame_abort(frame),
+            HostMessage::Extend(cfg) => self.extend(cfg, journal),
         };
         if result.is_err() {
             self.refused = self.refused.saturating_add(1);
@@ -122,8 +126,11 @@ impl<
         self.selector.reset();
         self.decisions.clear();
         self.export_cursor = (crate::persist::Cursor::START, 0);
+        self.log_cursor = crate::persist::Cursor::START;
         self.restored = false;
         self.configure(cfg)?;
+        self.sessions.clear();
+        let _ = self.sessions.push(0);
         self.stored = u32::from(journal.keeps());
         self.storage_failed = false;
         Ok(())
@@ -148,7 +155,6 @@ impl<
         Ok(())
     }
 
-    /// Replays log record number `n` at boot.
     /// Checks that frame messages are allowed now.
     fn scanning(&self) -> Result<(), ErrorKind> {
         if self.hello.is_none() {

@@ -1,8 +1,10 @@
 //! The export: record `r < database_size` is the `r`-th database frame in
 //! frame order (from RAM if resident, else read from the log); record
 //! `database_size + j` is the label of frame `j`, read back from the log's
-//! decision batches. A cursor remembers where the last request stopped, so
-//! exporting in consecutive requests reads the log once, not once per request.
+//! decision batches; after the labels, a scan of several sessions has one
+//! record per session after the first (its first frame). A cursor
+//! remembers where the last request stopped, so exporting in consecutive
+//! requests reads the log once, not once per request.
 
 use crate::persist::{Cursor, Journal, Record};
 use crate::protocol::{DeviceMessage, ErrorKind, ExportCrc, ExportRecord, RecordKind};
@@ -20,11 +22,13 @@ impl<
         const R: usize,
     > Core<FV, POOL, DB, W, K, R>
 {
-    /// Total export records now.
+    /// Total export records now: database frames, labels, and a record per
+    /// session after the first.
     pub(super) fn export_len(&self) -> usize {
         self.selector
             .database_len()
             .saturating_add(self.decisions.labels as usize)
+            .saturating_add(self.sessions.len().saturating_sub(1))
     }
 
     /// Answers an ExportRequest: up to `max` records from `from_record`, then
@@ -47,11 +51,13 @@ impl<
                 kind: ErrorKind::ExportPastEnd,
             });
         }
+        let labels = self.decisions.labels;
         let Core {
             selector,
             tx,
             clock,
             export_cursor,
+            sessions,
             ..
         } = self;
         let mut out = Out {
@@ -78,8 +84,8 @@ impl<
         }
         // Labels of frames `first_label .. last_label`, in log order.
         let (first_label, last_label) = (
-            to_u32(from.saturating_sub(db)),
-            to_u32(end.saturating_sub(db)),
+            to_u32(from.saturating_sub(db)).min(labels),
+            to_u32(end.saturating_sub(db)).min(labels),
         );
         if first_label < last_label {
             let (mut cursor, start) = *export_cursor;
@@ -115,6 +121,21 @@ impl<
                     *export_cursor = (before, first);
                     break;
                 }
+            }
+        }
+        // The sessions after the first, after the labels.
+        let before_sessions = db.saturating_add(labels as usize);
+        for r in from.max(before_sessions)..end {
+            let session = r.saturating_sub(before_sessions).saturating_add(1);
+            if let Some(&first) = sessions.get(session) {
+                emit(ExportRecord {
+                    record: to_u32(r),
+                    frame: first,
+                    timestamp: 0.0,
+                    kind: RecordKind::Session {
+                        session: to_u32(session),
+                    },
+                });
             }
         }
         let (count, crc32) = (crc.count(), crc.value());

@@ -281,12 +281,15 @@ pub fn durable_part(export: &[ExportRecord]) -> Vec<ExportRecord> {
         .iter()
         .filter_map(|r| match r.kind {
             RecordKind::Label { class } => Some(class),
-            RecordKind::Database { .. } => None,
+            RecordKind::Database { .. } | RecordKind::Session { .. } => None,
         })
         .collect();
-    let kept = export
-        .iter()
-        .filter(|r| matches!(r.kind, RecordKind::Label { .. }) || named.contains(&r.frame));
+    let kept = export.iter().filter(|r| {
+        matches!(
+            r.kind,
+            RecordKind::Label { .. } | RecordKind::Session { .. }
+        ) || named.contains(&r.frame)
+    });
     kept.zip(0u32..)
         .map(|(r, record)| ExportRecord { record, ..*r })
         .collect()
@@ -337,6 +340,7 @@ pub fn terminal(msg: &DeviceMessage<'_>) -> Option<Option<u32>> {
     match msg {
         DeviceMessage::Ack { seq } | DeviceMessage::ExportEnd { seq, .. } => Some(Some(*seq)),
         DeviceMessage::Status(s) => Some(Some(s.seq)),
+        DeviceMessage::LogBytes(b) => Some(Some(b.seq)),
         DeviceMessage::Error { seq, .. } => Some(*seq),
         DeviceMessage::Decision { .. } | DeviceMessage::ExportRecord(_) | DeviceMessage::Log(_) => {
             None

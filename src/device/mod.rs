@@ -35,6 +35,8 @@
 //! | StatusRequest | always | `Status` | — |
 //! | ExportRequest | always | up to `max_records` `ExportRecord`s from `from_record`, then `ExportEnd` | `ExportPastEnd` (`from_record` beyond the last record + 1) |
 //! | Reset | always | forgets configuration, frames, database, labels, counters | `StorageFailed` |
+//! | LogRead | always | `LogBytes`: up to `LOG_CHUNK` bytes of log record `record` from `offset` | `ExportPastEnd` (no such record, or an offset past its end) |
+//! | Extend | a finished scan in the log, the same configuration, no frame open | writes a session boundary, then restores the scan from the log as at boot; the next frame is `frames_seen`; during a session begun so, a no-op Ack | `NothingToExtend` (no finished scan, no flash, a failed write), `ExtendOtherConfig`, `MidFrameReconfig`, `WrongVersion`, `BadConfig`, `StorageFull`, `StorageFailed`, `CapacityExhausted` (`MAX_SESSIONS`) |
 //!
 //! Durability ([`Device::receive_logged`] with a [`Log`]): the Hello, every
 //! database frame and every final decision are written before the replies
@@ -77,8 +79,10 @@
 mod dispatch;
 mod durable;
 mod export;
+mod extend;
 #[cfg(feature = "sim-flash")]
 pub mod harness;
+mod log_read;
 mod reply;
 mod restore;
 mod retransmit;
@@ -90,13 +94,12 @@ pub use restore::RestoreFailure;
 use crate::persist::{Cursor, Journal, Log, NoJournal};
 use crate::protocol::{
     degradation, Capacity, CapacitySlot, Config, FrameCost, FrameDecoder, HostFrame, Phase, Push,
-    Status, CAPACITY_SLOTS, MAX_FRAME_LEN, MAX_REPLY_LEN, MAX_ROW_VALUES,
+    Status, CAPACITY_SLOTS, MAX_FRAME_LEN, MAX_REPLY_LEN, MAX_ROW_VALUES, MAX_SESSIONS,
 };
 use crate::select::{FrameDecision, Selector};
 
 use durable::{Decisions, MAX_RECORD_LEN};
 use reply::{now, to_u32, Out};
-use restore::Replay;
 use retransmit::Applied;
 
 pub use crate::profile::{Device1M, Device256K, Device512K};
@@ -167,6 +170,11 @@ struct Core<
     restored: bool,
     /// Records after the restored scan were dropped at boot.
     tail_dropped: bool,
+    /// The first frame of each session of the scan, in order (empty until
+    /// configured; `[0]` for a scan begun with a Hello).
+    sessions: heapless::Vec<u32, MAX_SESSIONS>,
+    /// Where the last LogRead found its record (before it).
+    log_cursor: Cursor,
 }
 
 /// Most decisions one selection step makes: a full window and the Pending
@@ -237,6 +245,8 @@ impl<
                 storage_failed: false,
                 restored: false,
                 tail_dropped: false,
+                sessions: heapless::Vec::new(),
+                log_cursor: Cursor::START,
             },
         }
     }
@@ -339,36 +349,13 @@ impl<
         &mut self,
         log: &mut Log<F>,
     ) -> Result<u32, RestoreFailure> {
-        self.reset();
-        let core = &mut self.core;
-        let (mut n, mut failure, mut replay) = (0u32, None, Replay::START);
-        let replayed = log.replay(&mut |at, payload| {
-            if failure.is_none() {
-                failure = core.apply(at, payload, n, &mut replay).err();
-                // A log cannot hold 2^32 records, but the count comes from
-                // flash contents: it stops at u32::MAX rather than wrap.
-                n = n.saturating_add(1);
-            }
-        });
-        match (replayed, failure) {
-            (Ok(records), None) => {
-                core.settle(&replay);
-                // A log holding only `Cleared` (a Reset) restores nothing.
-                let scan = core.hello.is_some();
-                core.stored = if scan { records } else { 0 };
-                core.restored = scan;
-                core.flash = Journal::usage(log);
-                Ok(records)
-            }
-            (Err(e), _) => {
-                self.reset();
-                Err(RestoreFailure::Log(e))
-            }
-            (_, Some(f)) => {
-                self.reset();
-                Err(f)
-            }
+        self.decoder.clear();
+        let usage = Journal::usage(log);
+        let replayed = self.core.replay(&mut |visit| log.replay(visit), usage);
+        if replayed.is_ok() {
+            self.core.restored = self.core.hello.is_some();
         }
+        replayed
     }
 
     /// The current status (with sequence number 0).
@@ -452,6 +439,8 @@ impl<
         self.storage_failed = false;
         self.restored = false;
         self.tail_dropped = false;
+        self.sessions.clear();
+        self.log_cursor = Cursor::START;
     }
 
     fn phase(&self) -> Phase {
@@ -525,6 +514,8 @@ impl<
             refused: self.refused,
             cost: self.cost,
             stored_records: self.stored,
+            sessions: to_u32(self.sessions.len()),
+            session_first: self.sessions.last().copied().unwrap_or(0),
         }
     }
 }

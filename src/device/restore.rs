@@ -2,8 +2,13 @@
 //! generation replayed in order, each checked against the record grammar
 //!
 //! ```text
-//! log := Cleared | Begin (Keys | Database | Decisions)* Finished?
+//! log     := Cleared | Begin session (Finished Session session)* Finished?
+//! session := (Keys | Database | Decisions)*
 //! ```
+//!
+//! (a log of format 2, written before sessions, has no `Session` record;
+//! each `Session` starts a new session of the finished scan before it, at
+//! the frame after its last: see [`super::extend`])
 //!
 //! and against the state before it (the selector refuses a decision for a
 //! frame out of order, or naming a frame not in the database). Every prefix
@@ -26,7 +31,8 @@
 
 use crate::persist::keys::MAX_KEY_CHUNKS;
 use crate::persist::record::DECISION_BATCH;
-use crate::persist::{LogError, Record};
+use crate::persist::{Cursor, Journal, LogError, Record};
+use crate::protocol::{Config, PROTOCOL_VERSION};
 use crate::select::{DbSnapshot, Decision, RestoreError};
 use crate::sketch::Sketch;
 
@@ -166,8 +172,49 @@ enum Grammar {
     Start,
     /// After `Begin`: database frames and decisions.
     Scan,
-    /// After `Cleared` or `Finished`: nothing may follow.
+    /// After `Finished`: only a `Session` may follow.
+    Finished,
+    /// After `Cleared`: nothing may follow.
     Closed,
+}
+
+/// The oldest protocol version whose firmware wrote a log (durable storage
+/// came with 3); the [`Config`] a log's `Begin` holds is encoded the same
+/// since version 2.
+const OLDEST_LOGGED_PROTOCOL: u16 = 3;
+
+/// A logged configuration as the Hello of this protocol version would carry
+/// it: a log written by an older firmware is restored as it is (and a host
+/// of this version resumes or extends its scan with an equal Hello); a
+/// version outside the range is left as it is, which `validate` refuses.
+fn current_version(cfg: Config) -> Config {
+    if (OLDEST_LOGGED_PROTOCOL..=PROTOCOL_VERSION).contains(&cfg.version) {
+        Config {
+            version: PROTOCOL_VERSION,
+            ..cfg
+        }
+    } else {
+        cfg
+    }
+}
+
+/// A source of log records: hands each `(position, payload)` of a live
+/// generation, in order, to the visitor it is given; returns how many.
+pub(super) type Records<'a> = dyn FnMut(&mut dyn FnMut(u32, &[u8])) -> Result<u32, LogError> + 'a;
+
+/// Hands every record of `journal`'s live generation, in order, with its
+/// position, to `visit` (what [`crate::persist::Log::replay`] does, through
+/// the [`Journal`] a message handler holds); returns how many.
+pub(super) fn journal_records(
+    journal: &mut dyn Journal,
+    visit: &mut dyn FnMut(u32, &[u8]),
+) -> Result<u32, LogError> {
+    let (mut cursor, mut n) = (Cursor::START, 0u32);
+    while let Some((at, payload)) = journal.next(&mut cursor)? {
+        visit(at, payload);
+        n = n.saturating_add(1);
+    }
+    Ok(n)
 }
 
 impl<
@@ -179,6 +226,46 @@ impl<
         const R: usize,
     > Core<FV, POOL, DB, W, K, R>
 {
+    /// Rebuilds the scan from the records `records` hands to its visitor
+    /// (the live generation of a log, in order; `usage`: the log's bytes in
+    /// use and limit), from a reset state: at boot, and when a finished scan
+    /// is extended (so that both restore its database the same way). On
+    /// failure the core is reset again.
+    pub(super) fn replay(
+        &mut self,
+        records: &mut Records<'_>,
+        usage: (u32, u32),
+    ) -> Result<u32, RestoreFailure> {
+        self.reset();
+        let (mut n, mut failure, mut replay) = (0u32, None, Replay::START);
+        let replayed = records(&mut |at, payload| {
+            if failure.is_none() {
+                failure = self.apply(at, payload, n, &mut replay).err();
+                // A log cannot hold 2^32 records, but the count comes from
+                // flash contents: it stops at u32::MAX rather than wrap.
+                n = n.saturating_add(1);
+            }
+        });
+        match (replayed, failure) {
+            (Ok(records), None) => {
+                self.settle(&replay);
+                // A log holding only `Cleared` (a Reset) restores nothing.
+                let scan = self.hello.is_some();
+                self.stored = if scan { records } else { 0 };
+                self.flash = usage;
+                Ok(records)
+            }
+            (Err(e), _) => {
+                self.reset();
+                Err(RestoreFailure::Log(e))
+            }
+            (_, Some(f)) => {
+                self.reset();
+                Err(f)
+            }
+        }
+    }
+
     /// Replays log record number `n`, found at `at`.
     pub(super) fn apply(
         &mut self,
@@ -193,10 +280,13 @@ impl<
         let grammar = &mut replay.grammar;
         match (*grammar, record) {
             (Grammar::Start, Record::Begin(cfg)) => {
+                let cfg = current_version(cfg);
                 cfg.validate()
                     .map_err(|_| RestoreFailure::BadConfig { record: n })?;
                 self.configure(cfg)
                     .map_err(|_| RestoreFailure::BadConfig { record: n })?;
+                self.sessions.clear();
+                self.sessions.push(0).map_err(|_| malformed)?;
                 *grammar = Grammar::Scan;
             }
             (Grammar::Start, Record::Cleared) => *grammar = Grammar::Closed,
@@ -283,7 +373,18 @@ impl<
             }
             (Grammar::Scan, Record::Finished) => {
                 self.finished = true;
-                *grammar = Grammar::Closed;
+                *grammar = Grammar::Finished;
+            }
+            (Grammar::Finished, Record::Session { first }) => {
+                // The next session begins with the frame after the last
+                // decided one: every frame seen was decided at Finish.
+                let decided = self.selector.status().frames_decided;
+                if first != self.decisions.labels || first != decided {
+                    return Err(malformed);
+                }
+                self.sessions.push(first).map_err(|_| malformed)?;
+                self.finished = false;
+                *grammar = Grammar::Scan;
             }
             _ => return Err(malformed),
         }

@@ -40,11 +40,11 @@ impl Applied {
 
 /// What identifies a state-changing message besides its sequence number (so
 /// that a restarted host reusing sequence numbers is not taken for a retry).
-/// A Hello is identified by its configuration: the one in force.
+/// A Hello (or an Extend) is identified by its configuration: the one in force.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) struct MessageKey {
     /// 0: none; 1 Hello, 2 FrameBegin, 3 DepthRows, 4 FrameEnd, 5 Finish,
-    /// 6 Reset, 7 FrameAbort.
+    /// 6 Reset, 7 FrameAbort, 8 Extend.
     tag: u8,
     frame: u32,
     first_row: u16,
@@ -75,7 +75,10 @@ impl MessageKey {
             HostMessage::Finish => key(5, 0, 0, 0),
             HostMessage::Reset => key(6, 0, 0, 0),
             HostMessage::FrameAbort { frame } => key(7, frame, 0, 0),
-            HostMessage::StatusRequest | HostMessage::ExportRequest { .. } => return None,
+            HostMessage::Extend(_) => key(8, 0, 0, 0),
+            HostMessage::StatusRequest
+            | HostMessage::ExportRequest { .. }
+            | HostMessage::LogRead { .. } => return None,
         })
     }
 }

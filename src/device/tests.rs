@@ -996,3 +996,5 @@ fn blank_log() -> Log<SimFlash> {
     let end = (BENCH_SECTORS * SimFlash::SECTOR) as u32;
     Log::open(SimFlash::new(BENCH_SECTORS), 0, end).unwrap()
 }
+
+mod extend;

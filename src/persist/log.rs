@@ -92,8 +92,15 @@ use crate::protocol::CRC;
 pub const HEADER_LEN: usize = 20;
 /// The largest payload a record can carry.
 pub const MAX_PAYLOAD: usize = 1024;
-/// Layout version in every header; records of another version are not read.
-pub const FORMAT: u16 = 2;
+/// Layout version this code writes in every header. 3: a record may be a
+/// session boundary ([`super::Record::Session`]); the layout is that of 2.
+pub const FORMAT: u16 = 3;
+/// The oldest version still read: a log of 2 (written before sessions) is
+/// read as it is, and a scan restored from it may be extended with records
+/// of the current version. Records of any other version are not read (a
+/// firmware of version 2 does not read a log of 3, so it never drops the
+/// session records it does not know as unusable).
+pub const OLDEST_FORMAT: u16 = 2;
 /// The coarsest write or read granularity the log supports.
 const MAX_ALIGN: usize = 32;
 const MAGIC: [u8; 4] = *b"PDBL";
@@ -334,7 +341,7 @@ impl<F: NorFlash> Log<F> {
         let len = usize::from(u16::from_le_bytes([l0, l1]));
         let total = align_up(HEADER_LEN + len, self.align);
         if magic != MAGIC
-            || u16::from_le_bytes([f0, f1]) != FORMAT
+            || !(OLDEST_FORMAT..=FORMAT).contains(&u16::from_le_bytes([f0, f1]))
             || len > MAX_PAYLOAD
             || offset as usize + total > sector_len
         {

@@ -58,6 +58,14 @@ pub enum Record {
     },
     /// Finish: every frame seen was decided.
     Finished,
+    /// A session boundary (log format 3): the finished scan before it goes
+    /// on with a new session (`HostMessage::Extend`) whose first frame is
+    /// `first`, the number of frames of every earlier session. Only after
+    /// [`Record::Finished`].
+    Session {
+        /// The first frame index of the new session.
+        first: u32,
+    },
 }
 
 /// Positions in the log of a database frame's key chunks, in key order.

@@ -118,12 +118,12 @@ pub trait WireMessage {
 
 impl WireMessage for HostFrame<'_> {
     const SEQ_PREFIX: bool = true;
-    const VARIANTS: u32 = 9;
+    const VARIANTS: u32 = 11;
 }
 
 impl WireMessage for DeviceMessage<'_> {
     const SEQ_PREFIX: bool = false;
-    const VARIANTS: u32 = 7;
+    const VARIANTS: u32 = 8;
 }
 
 /// Result of [`FrameDecoder::push`].

@@ -89,7 +89,69 @@ pub enum HostMessage<'a> {
         /// Index of the open frame.
         frame: u32,
     },
+    /// Continue the finished scan the device holds in its flash log with a
+    /// new session (protocol 6), configured as the Hello of that scan was:
+    /// the device writes a session boundary, rebuilds its state from the log
+    /// as at boot (the earlier sessions' database frames compared from
+    /// flash) and expects frame `Status::frames_seen` next, the frames of
+    /// every earlier session (frames keep global indices). Sent in place of
+    /// a Hello; during a session begun so (no Finish since), the same
+    /// configuration again is acknowledged without effect (a host resuming
+    /// it after a power cut). Refused with [`ErrorKind::NothingToExtend`]
+    /// (no finished scan in flash, or a device without flash),
+    /// [`ErrorKind::ExtendOtherConfig`] (the scan has another
+    /// configuration), `MidFrameReconfig`, `StorageFull`, `StorageFailed`,
+    /// `CapacityExhausted` (more than [`MAX_SESSIONS`] sessions).
+    Extend(Config),
+    /// Ask for the bytes of record `record` (0 = the first, the `Begin`) of
+    /// the scan's flash log from byte `offset` of its payload (protocol 6):
+    /// answered with one [`DeviceMessage::LogBytes`] of up to [`LOG_CHUNK`]
+    /// bytes. What a host needs to rebuild every database frame as the
+    /// device holds it (sketch, box, exact keys: `persist::Record`), e.g.
+    /// for the extension file of an export. Refused with
+    /// [`ErrorKind::ExportPastEnd`] past the last record (or its end).
+    LogRead {
+        /// Record number in the log's live generation.
+        record: u32,
+        /// First payload byte wanted.
+        offset: u32,
+    },
 }
+
+/// Most payload bytes one [`DeviceMessage::LogBytes`] carries.
+pub const LOG_CHUNK: usize = 192;
+
+/// Terminal reply to [`HostMessage::LogRead`]: `len` bytes of a log
+/// record's payload from `offset`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct LogBytes {
+    /// Sequence number of the request.
+    pub seq: u32,
+    /// The record's number in the live generation.
+    pub record: u32,
+    /// Its position in the log (what a `Database` record's key chunks name).
+    pub at: u32,
+    /// Bytes in its whole payload.
+    pub total: u32,
+    /// First payload byte here.
+    pub offset: u32,
+    /// Bytes here (at most [`LOG_CHUNK`]).
+    pub len: u8,
+    /// The bytes, in `len` first bytes (the rest 0); in arrays of 32,
+    /// which serde encodes without a length.
+    pub data: [[u8; 32]; LOG_CHUNK / 32],
+}
+
+impl LogBytes {
+    /// The payload bytes it carries.
+    pub fn bytes(&self) -> &[u8] {
+        let all = self.data.as_flattened();
+        all.get(..usize::from(self.len)).unwrap_or(all)
+    }
+}
+
+/// Most sessions one scan holds (the first and its extensions).
+pub const MAX_SESSIONS: usize = 32;
 
 /// Configuration carried by [`HostMessage::Hello`]: everything the device's
 /// [`ScanConfig`] and [`SelectorConfig`] hold (see [`Config::new`]).
@@ -298,6 +360,8 @@ pub enum DeviceMessage<'a> {
     /// Free-form diagnostic text; never a reply, hosts may print or ignore it.
     #[serde(borrow)]
     Log(&'a str),
+    /// Terminal reply to [`HostMessage::LogRead`] (protocol 6).
+    LogBytes(LogBytes),
 }
 
 impl DeviceMessage<'_> {
@@ -323,6 +387,7 @@ impl DeviceMessage<'_> {
                 crc32,
             },
             M::Log(_) => return None,
+            M::LogBytes(b) => M::LogBytes(b),
         })
     }
 }
@@ -557,6 +622,11 @@ pub struct Status {
     pub cost: FrameCost,
     /// Records of this scan durable in flash (0 on a device without flash).
     pub stored_records: u32,
+    /// Sessions of the scan (protocol 6): 1 for a scan begun with a Hello,
+    /// one more per [`HostMessage::Extend`]; 0 when unconfigured.
+    pub sessions: u32,
+    /// The first frame index of the latest session (0 for the first).
+    pub session_first: u32,
 }
 
 impl Status {
@@ -584,6 +654,8 @@ impl Status {
             refused: 0,
             cost: FrameCost::ZERO,
             stored_records: 0,
+            sessions: 0,
+            session_first: 0,
         }
     }
 
@@ -600,10 +672,12 @@ impl Status {
         self.capacities.get_mut(slot as usize)
     }
 
-    /// Records in a full export now: database records, then labels.
+    /// Records in a full export now: database records, labels, then one
+    /// session record per session after the first.
     pub fn export_records(&self) -> u32 {
         self.database_size
             .saturating_add(self.capacity(CapacitySlot::Labels).used)
+            .saturating_add(self.sessions.saturating_sub(1))
     }
 }
 
@@ -632,6 +706,14 @@ pub enum RecordKind {
     Label {
         /// Class index (a database frame index).
         class: u32,
+    },
+    /// Session `session` (1 for the first extension; protocol 6) began with
+    /// the record's `frame`; its `timestamp` is 0. Sent only for a scan of
+    /// more than one session, after the labels: a frame belongs to the
+    /// latest session beginning at or before it.
+    Session {
+        /// The session's number (the first session, 0, has no record).
+        session: u32,
     },
 }
 
@@ -702,6 +784,12 @@ pub enum ErrorKind {
     StorageFull = 23,
     /// The flash failed to erase or write; the message was not applied.
     StorageFailed = 24,
+    /// Extend, but the device holds no finished scan in its flash log to
+    /// continue (none, one not finished, one whose log writes failed, or a
+    /// device without flash).
+    NothingToExtend = 25,
+    /// Extend with another configuration than the scan it would continue.
+    ExtendOtherConfig = 26,
 }
 
 /// A number that is no [`ErrorKind`] (a retired one, or one from a newer
@@ -735,7 +823,7 @@ impl TryFrom<u32> for ErrorKind {
 
 impl ErrorKind {
     /// Every kind, in wire-number order.
-    pub const ALL: [ErrorKind; 24] = [
+    pub const ALL: [ErrorKind; 26] = [
         ErrorKind::BadCrc,
         ErrorKind::BadFraming,
         ErrorKind::Oversized,
@@ -760,6 +848,8 @@ impl ErrorKind {
         ErrorKind::MissingRows,
         ErrorKind::StorageFull,
         ErrorKind::StorageFailed,
+        ErrorKind::NothingToExtend,
+        ErrorKind::ExtendOtherConfig,
     ];
 
     /// The kind's number on the wire.
@@ -810,6 +900,8 @@ impl ErrorKind {
             ErrorKind::MissingRows => "frame end before all its rows",
             ErrorKind::StorageFull => "flash log full",
             ErrorKind::StorageFailed => "flash write failed",
+            ErrorKind::NothingToExtend => "no finished scan in the flash log to extend",
+            ErrorKind::ExtendOtherConfig => "the scan to extend has another configuration",
         }
     }
 }

@@ -29,8 +29,9 @@
 //!   opaque and echoes it back.
 //! - Every host frame gets exactly one *terminal* reply carrying its sequence
 //!   number: [`DeviceMessage::Ack`] (Hello, FrameBegin, DepthRows, FrameEnd,
-//!   Finish, Reset, FrameAbort), [`DeviceMessage::Status`] (StatusRequest),
-//!   [`DeviceMessage::ExportEnd`] (ExportRequest), or [`DeviceMessage::Error`]
+//!   Finish, Reset, FrameAbort, Extend), [`DeviceMessage::Status`] (StatusRequest),
+//!   [`DeviceMessage::ExportEnd`] (ExportRequest), [`DeviceMessage::LogBytes`]
+//!   (LogRead), or [`DeviceMessage::Error`]
 //!   (anything refused). Decisions and export records caused by a message are sent
 //!   before its terminal reply, so a host may keep several messages in flight and
 //!   match replies by sequence number.
@@ -39,11 +40,16 @@
 //!   and status requests are accepted at any time; Reset starts over;
 //!   FrameAbort drops a frame that cannot be completed (the next FrameBegin
 //!   reuses its index).
+//! - Sessions: a finished scan in a device's flash log goes on with a new
+//!   session when the host sends Extend (with the scan's configuration)
+//!   instead of a Hello, then the new session's frames, numbered on from
+//!   the earlier sessions' (`Status::frames_seen`), then Finish.
 //! - A device with a flash log (see [`crate::persist`]) replies only once
 //!   what it acknowledges is durable, and comes back from a power cut with
 //!   the scan it held: `Status::frames_seen` says where to resume.
 //! - An export is every database record (in frame order), then one label record
-//!   per decided frame (in frame order), numbered from 0; ExportRequest
+//!   per decided frame (in frame order), then (a scan of several sessions)
+//!   one session record per session after the first, numbered from 0; ExportRequest
 //!   `from_record = k, max_records = m` sends records `k..k+m` (as many as
 //!   exist) and an ExportEnd whose count and CRC ([`export_crc`]) cover
 //!   exactly the records sent.
@@ -52,11 +58,11 @@
 //!   an error saying the frame was damaged ([`ErrorKind::is_damage`]), sends the
 //!   *same* message with the *same* sequence number again (stop-and-wait: one
 //!   message in flight). The device remembers the last state-changing message
-//!   (Hello, FrameBegin, DepthRows, FrameEnd, Finish, Reset, FrameAbort) and its terminal
+//!   (Hello, FrameBegin, DepthRows, FrameEnd, Finish, Reset, FrameAbort, Extend) and its terminal
 //!   reply; the same message with the same sequence number gets that reply
 //!   again and is not applied twice (its decisions are not repeated: the export
-//!   is the record). StatusRequest and ExportRequest change nothing and are
-//!   answered afresh.
+//!   is the record). StatusRequest, ExportRequest and LogRead change nothing
+//!   and are answered afresh.
 //! - For a frame that fails CRC, [`DeviceMessage::Error::seq`] carries the sequence
 //!   number *claimed* by the damaged frame (its first varint) when one can be read;
 //!   it is a hint, not a verified value. Framing errors that lose the frame
@@ -83,8 +89,9 @@ pub use framing::{
 };
 pub use messages::{
     degradation, Capacity, CapacitySlot, Config, DecisionKind, DepthRows, DeviceMessage, ErrorKind,
-    ExportRecord, FrameCost, HostFrame, HostMessage, Phase, ProtocolError, RecordKind, Status,
-    UnknownErrorKind, CAPACITY_SLOTS, DEPTH_ROWS_OVERHEAD, MAX_ROW_VALUES,
+    ExportRecord, FrameCost, HostFrame, HostMessage, LogBytes, Phase, ProtocolError, RecordKind,
+    Status, UnknownErrorKind, CAPACITY_SLOTS, DEPTH_ROWS_OVERHEAD, LOG_CHUNK, MAX_ROW_VALUES,
+    MAX_SESSIONS,
 };
 
 /// Version of this wire protocol; a device refuses a [`HostMessage::Hello`] whose
@@ -102,7 +109,12 @@ pub use messages::{
 ///   final decisions are sent once durable (in batches, with a flash log).
 /// - 5: `FrameCost::core`, the core's share of the frame cost; degradation
 ///   `TAIL_DROPPED` (a new bit, no change of encoding).
-pub const PROTOCOL_VERSION: u16 = 5;
+/// - 6: sessions: `HostMessage::Extend`, `Status::sessions` and
+///   `session_first`, `RecordKind::Session` (after the labels of a scan of
+///   several sessions), `ErrorKind::NothingToExtend` and `ExtendOtherConfig`;
+///   `HostMessage::LogRead` and `DeviceMessage::LogBytes` (a log record's
+///   bytes).
+pub const PROTOCOL_VERSION: u16 = 6;
 
 /// Largest encoded frame (delimiter included) of any [`DeviceMessage`] but a
 /// [`DeviceMessage::Log`]: a device's transmit buffer. Longer logs are dropped.

@@ -75,6 +75,11 @@ fn host_messages(data: &[u8]) -> Vec<HostMessage<'_>> {
         },
         HostMessage::Reset,
         HostMessage::FrameAbort { frame: 42 },
+        HostMessage::Extend(config()),
+        HostMessage::LogRead {
+            record: 70_000,
+            offset: 192,
+        },
     ]
 }
 
@@ -93,10 +98,34 @@ fn record(i: u32) -> ExportRecord {
     }
 }
 
+/// A LogBytes reply of `len` bytes (`0x00` and `0xFF` among them).
+fn log_bytes(len: u8, seq: u32) -> LogBytes {
+    let mut data = [[0u8; 32]; LOG_CHUNK / 32];
+    for (i, b) in data
+        .as_flattened_mut()
+        .iter_mut()
+        .take(len.into())
+        .enumerate()
+    {
+        *b = (i * 51) as u8;
+    }
+    LogBytes {
+        seq,
+        record: 3,
+        at: 4096 + 20,
+        total: 700,
+        offset: 192,
+        len,
+        data,
+    }
+}
+
 fn device_messages() -> Vec<DeviceMessage<'static>> {
     let mut status = Status {
         frames_seen: 120,
         database_size: 17,
+        sessions: 2,
+        session_first: 100,
         degradation: degradation::POOL_FULL | degradation::LABELS_FULL,
         ..Status::new(9, Phase::InFrame)
     };
@@ -140,6 +169,12 @@ fn device_messages() -> Vec<DeviceMessage<'static>> {
         DeviceMessage::Status(status),
         DeviceMessage::ExportRecord(record(0)),
         DeviceMessage::ExportRecord(record(1)),
+        DeviceMessage::ExportRecord(ExportRecord {
+            record: 2,
+            frame: 120,
+            timestamp: 0.0,
+            kind: RecordKind::Session { session: 1 },
+        }),
         DeviceMessage::ExportEnd {
             seq: 3,
             from_record: 0,
@@ -147,6 +182,7 @@ fn device_messages() -> Vec<DeviceMessage<'static>> {
             crc32: export_crc(&[record(0), record(1)]),
         },
         DeviceMessage::Log("boot ok"),
+        DeviceMessage::LogBytes(log_bytes(5, 0)),
     ]
 }
 
@@ -298,6 +334,8 @@ fn host_tag(msg: &HostMessage<'_>) -> u32 {
         HostMessage::ExportRequest { .. } => 6,
         HostMessage::Reset => 7,
         HostMessage::FrameAbort { .. } => 8,
+        HostMessage::Extend(_) => 9,
+        HostMessage::LogRead { .. } => 10,
     }
 }
 
@@ -311,6 +349,7 @@ fn device_tag(msg: &DeviceMessage<'_>) -> u32 {
         DeviceMessage::ExportRecord(_) => 4,
         DeviceMessage::ExportEnd { .. } => 5,
         DeviceMessage::Log(_) => 6,
+        DeviceMessage::LogBytes(_) => 7,
     }
 }
 
@@ -349,7 +388,7 @@ fn variant_counts_match_the_enums() {
 /// (a serde variant index each), with 19 (`Unsupported`, retired) no kind.
 #[test]
 fn error_kinds_keep_their_wire_numbers() {
-    let pinned: [(ErrorKind, u8); 24] = [
+    let pinned: [(ErrorKind, u8); 26] = [
         (ErrorKind::BadCrc, 0),
         (ErrorKind::BadFraming, 1),
         (ErrorKind::Oversized, 2),
@@ -374,6 +413,8 @@ fn error_kinds_keep_their_wire_numbers() {
         (ErrorKind::MissingRows, 22),
         (ErrorKind::StorageFull, 23),
         (ErrorKind::StorageFailed, 24),
+        (ErrorKind::NothingToExtend, 25),
+        (ErrorKind::ExtendOtherConfig, 26),
     ];
     assert_eq!(ErrorKind::ALL, pinned.map(|(k, _)| k));
     for (kind, code) in pinned {
@@ -385,7 +426,7 @@ fn error_kinds_keep_their_wire_numbers() {
         assert_eq!(back, msg);
     }
     // The retired number and the next unused one are no kind.
-    for code in [19u8, 25] {
+    for code in [19u8, 27] {
         let raw = raw_frame(&[1, 1, 7, code], true);
         let mut decoder = FrameDecoder::<N>::new();
         let Feed::Frame { result, .. } = decoder.feed::<DeviceMessage>(&raw) else {
@@ -446,8 +487,8 @@ fn bad_crc_reports_the_claimed_sequence_number() {
 
 #[test]
 fn unknown_and_undecodable_messages_are_typed() {
-    // seq 9, variant 9 (one past FrameAbort), valid CRC.
-    let got = run_host(&[&raw_frame(&[9, 9], true)]);
+    // seq 9, variant 11 (one past LogRead), valid CRC.
+    let got = run_host(&[&raw_frame(&[9, 11], true)]);
     assert_eq!(
         got,
         vec![Err(ProtocolError {
@@ -521,6 +562,9 @@ fn the_largest_replies_fit_the_reply_buffer() {
             max: u32::MAX,
             core: u64::MAX,
         },
+        stored_records: u32::MAX,
+        sessions: u32::MAX,
+        session_first: u32::MAX,
         ..Status::new(u32::MAX, Phase::Finished)
     };
     let record = ExportRecord {
@@ -547,6 +591,18 @@ fn the_largest_replies_fit_the_reply_buffer() {
             seq: Some(u32::MAX),
             kind: ErrorKind::MissingRows,
         },
+        DeviceMessage::LogBytes(LogBytes {
+            seq: u32::MAX,
+            record: u32::MAX,
+            at: u32::MAX,
+            total: u32::MAX,
+            offset: u32::MAX,
+            ..log_bytes(LOG_CHUNK as u8, 0)
+        }),
+        DeviceMessage::LogBytes(LogBytes {
+            data: [[0; 32]; LOG_CHUNK / 32],
+            ..log_bytes(LOG_CHUNK as u8, u32::MAX)
+        }),
     ] {
         assert!(encode(&msg, &mut buf).is_ok(), "{msg:?} does not fit");
     }
@@ -632,7 +688,7 @@ fn splitting_the_stream_anywhere_gives_the_same_frames() {
         stream.extend_from_slice(&encode_vec(&frame));
     }
     let whole = run_host(&[&stream]);
-    assert_eq!(whole.len(), 9);
+    assert_eq!(whole.len(), 11);
     assert!(whole.iter().all(|r| r.is_ok()));
     for cut in 0..=stream.len() {
         let (a, b) = stream.split_at(cut);

@@ -61,6 +61,12 @@ pub struct StreamArgs {
     /// power cut) from its first undecided frame, instead of starting over.
     #[arg(long)]
     resume: bool,
+    /// Continue the finished scan the device holds in flash with this
+    /// sequence as a new session (same options as the first session's):
+    /// its frames are numbered on from the earlier sessions', and the
+    /// export holds every session.
+    #[arg(long, conflicts_with = "resume")]
+    extend: bool,
     /// Leave the scan open (no Finish): more frames can follow with --resume.
     #[arg(long)]
     no_finish: bool,
@@ -68,7 +74,7 @@ pub struct StreamArgs {
     /// a frame due while the device is still busy with earlier ones is
     /// skipped (named in the output and in skipped.csv with -o; it has no
     /// label) instead of waiting.
-    #[arg(long, conflicts_with_all = ["resume", "no_finish", "drop_chance", "corrupt_chance", "retries"])]
+    #[arg(long, conflicts_with_all = ["resume", "extend", "no_finish", "drop_chance", "corrupt_chance", "retries"])]
     realtime: bool,
 }
 
@@ -108,6 +114,7 @@ pub fn run(a: StreamArgs) -> Result<(), Error> {
         retries: a.retries,
         resend_after: Duration::from_millis(a.resend_ms.max(1)),
         resume: a.resume,
+        extend: a.extend,
         finish: !a.no_finish,
     };
     stream_cmd(&a.port, &seq, &v, sel, &a.profile, out, a.quiet, &recovery)?;
@@ -163,6 +170,16 @@ pub fn stream_cmd(
             degradation::no_valid_pixel(seq, vcfg.range)
         )));
     }
+    if st.sessions > 1 {
+        println!(
+            "{}: session {} of the device's scan, frames {}..{} (the earlier sessions hold frames 0..{})",
+            seq.name,
+            st.sessions - 1,
+            report.first_index,
+            report.first_index as usize + seq.frames.len(),
+            report.first_index
+        );
+    }
     println!(
         "{}: {} -> {} on the device ({} profile, mu {}, window {}, stride {})",
         seq.name,
@@ -207,9 +224,9 @@ pub fn stream_cmd(
     }
     if let Some(k) = report.log_full_at {
         println!(
-            "  the device's flash log is full: frames {k}..{} were not scanned; the scan \
-             was finished with frames 0..{k} (Reset the device, or give it more flash, \
-             for a longer scan)",
+            "  the device's flash log is full: frames {k}..{} of the sequence were not \
+             scanned; the scan was finished with frames 0..{k} of it (Reset the device, or \
+             give it more flash, for a longer scan)",
             seq.frames.len()
         );
     }

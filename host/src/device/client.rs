@@ -40,6 +40,7 @@ impl Received {
             Received::Message(DeviceMessage::Ack { seq })
             | Received::Message(DeviceMessage::ExportEnd { seq, .. }) => Some(*seq),
             Received::Message(DeviceMessage::Status(status)) => Some(status.seq),
+            Received::Message(DeviceMessage::LogBytes(bytes)) => Some(bytes.seq),
             Received::Message(DeviceMessage::Error { seq, .. }) => *seq,
             _ => None,
         }

@@ -2,20 +2,25 @@
 //! in batches checked by count and CRC and asked again, shorter, when they
 //! fail ([`export`]); the checked batches kept in a partial-export file so
 //! that an interrupted export resumes ([`export_to_with`] with `from`); and
-//! the files of [`crate::output`], all or nothing, byte-identical to `placedb select
-//! --solver online`'s with the same profile and configuration.
+//! the files of [`crate::output`], all or nothing, byte-identical to
+//! `placedb select --solver online`'s with the same profile and
+//! configuration (the session columns of a scan of several sessions, and the
+//! extension file of a finished scan, rebuilt from the device's flash log:
+//! [`log_records`]).
 
 use crate::degradation::plural;
 use crate::device::client::{ask_status, device_profile, Client, Received, Wait};
 use crate::device::error::DeviceError;
 use crate::device::link::Link;
+use crate::device::log_records;
 use crate::output::dataset::DatasetError;
+use crate::output::extension::{self, Extension};
 use crate::output::replace::{self, Outputs};
-use crate::output::{self, metrics_json};
+use crate::output::{self, metrics_json, sessions};
 use indicatif::ProgressBar;
 use placedb::protocol::{
     encode, export_crc, CapacitySlot, DeviceMessage, ExportRecord, Feed, FrameDecoder, HostMessage,
-    RecordKind, Status, MAX_FRAME_LEN,
+    Phase, RecordKind, Status, MAX_FRAME_LEN,
 };
 use placedb::DbRecord;
 use std::io;
@@ -66,6 +71,9 @@ pub struct Export {
     pub status: Status,
     /// Batches that had to be retried.
     pub retried: usize,
+    /// What a later session needs (`extension.bin`), read back from the
+    /// device's flash log by [`pull`] when its scan is finished.
+    pub extension: Option<Extension>,
 }
 
 /// One batch: records `from..from+max`, checked by count and CRC.
@@ -199,14 +207,16 @@ pub fn export<L: Link>(
         records: have,
         status: last,
         retried,
+        extension: None,
     })
 }
 
 /// Checks the layout: database records in strictly increasing frame order,
-/// then one label per frame 0, 1, 2, ...
+/// then one label per frame 0, 1, 2, ..., then one record per session
+/// after the first (sessions 1, 2, ..., at increasing frames).
 fn check_records(records: &[ExportRecord], database: usize) -> Result<(), DeviceError> {
     let bad = |what: &str| Err(DeviceError::Protocol(format!("export: {what}")));
-    let (db, labels) = records.split_at(database.min(records.len()));
+    let (db, rest) = records.split_at(database.min(records.len()));
     if db.len() != database {
         return bad("fewer records than database frames");
     }
@@ -217,9 +227,23 @@ fn check_records(records: &[ExportRecord], database: usize) -> Result<(), Device
         }
         last = Some(r.frame);
     }
-    for (j, r) in labels.iter().enumerate() {
-        if !matches!(r.kind, RecordKind::Label { .. }) || r.frame as usize != j {
+    let labels = rest
+        .iter()
+        .take_while(|r| matches!(r.kind, RecordKind::Label { .. }))
+        .count();
+    for (j, r) in rest.iter().take(labels).enumerate() {
+        if r.frame as usize != j {
             return bad("label records out of order");
+        }
+    }
+    let mut first = 0;
+    for (k, r) in rest.iter().skip(labels).enumerate() {
+        let next = k as u32 + 1;
+        match r.kind {
+            RecordKind::Session { session } if session == next && r.frame > first => {
+                first = r.frame;
+            }
+            _ => return bad("session records out of order"),
         }
     }
     Ok(())
@@ -238,9 +262,18 @@ impl Export {
                     pose,
                     voxels: 0,
                 }),
-                RecordKind::Label { .. } => None,
+                RecordKind::Label { .. } | RecordKind::Session { .. } => None,
             })
             .collect()
+    }
+
+    /// The first frame of every session (`[0]` for a scan of one session).
+    pub fn sessions(&self) -> Vec<u32> {
+        let later = self.records.iter().filter_map(|r| match r.kind {
+            RecordKind::Session { .. } => Some(r.frame),
+            _ => None,
+        });
+        std::iter::once(0).chain(later).collect()
     }
 
     /// Timestamps and class labels of every labelled frame.
@@ -249,7 +282,7 @@ impl Export {
             .iter()
             .filter_map(|r| match r.kind {
                 RecordKind::Label { class } => Some((r.timestamp, class as usize)),
-                RecordKind::Database { .. } => None,
+                RecordKind::Database { .. } | RecordKind::Session { .. } => None,
             })
             .unzip()
     }
@@ -434,11 +467,15 @@ pub fn pull<L: Link>(
     if let Some(pb) = &pb {
         pb.finish_and_clear();
     }
+    let mut export = export;
+    export.extension = extension_of(client, &export, opts)?;
     Ok(export)
 }
 
 /// Writes `export` as output `out` of the run writing `outputs`:
-/// `database.csv`, `labels.csv`, `metrics.json`, and the `extra` files.
+/// `database.csv`, `labels.csv` (with the session columns for a scan of
+/// several sessions), `metrics.json`, the extension file of a finished scan,
+/// and the `extra` files.
 pub fn stage(
     outputs: &mut Outputs,
     out: &Path,
@@ -449,6 +486,23 @@ pub fn stage(
     let (timestamps, labels) = export.labels();
     let rows = output::rows_from_records(&export.database());
     output::write_database_dir(&dir, &rows, &timestamps, &labels, &export.metrics())?;
+    let firsts = export.sessions();
+    if firsts.len() > 1 {
+        // A scan of several sessions: the session columns too.
+        let session_of = |g: usize| log_records::session_of(&firsts, g as u32);
+        replace::write_text(
+            &dir.join("database.csv"),
+            &sessions::database_csv(&rows, &session_of),
+        )?;
+        replace::write_text(
+            &dir.join("labels.csv"),
+            &sessions::labels_csv(&timestamps, &labels, &session_of),
+        )?;
+    }
+    if let Some(ext) = &export.extension {
+        let path = dir.join(extension::FILE_NAME);
+        extension::write(&path, ext).map_err(|source| DatasetError::Write { path, source })?;
+    }
     for (name, text) in extra {
         replace::write_text(&dir.join(name), text)?;
     }
@@ -466,17 +520,27 @@ pub fn finished(out: &Path, export: &Export, quiet: bool) -> Result<(), DeviceEr
         })
     })?;
     if !quiet {
+        let firsts = export.sessions();
         println!(
-            "exported {} ({}, {}), checked by count and CRC{}; wrote {}/{{database.csv,labels.csv,metrics.json}}",
+            "exported {} ({}, {}{}), checked by count and CRC{}; wrote {}/{{database.csv,labels.csv,metrics.json{}}}",
             plural(export.records.len() as u64, "record", "records"),
             plural(export.status.database_size.into(), "database frame", "database frames"),
             plural(export.status.capacity(CapacitySlot::Labels).used.into(), "label", "labels"),
+            match firsts.len() {
+                1 => String::new(),
+                n => format!(", {n} sessions"),
+            },
             if export.retried > 0 {
                 format!(" ({} batches retried)", export.retried)
             } else {
                 String::new()
             },
-            out.display()
+            out.display(),
+            if export.extension.is_some() {
+                format!(",{}", extension::FILE_NAME)
+            } else {
+                String::new()
+            }
         );
     }
     Ok(())
@@ -488,4 +552,43 @@ fn remove_if_there(path: &Path) -> io::Result<()> {
         Err(e) if e.kind() != io::ErrorKind::NotFound => Err(e),
         _ => Ok(()),
     }
+}
+
+/// The extension file of the exported scan, from the device's flash log
+/// (every record read back and checked against the export); `None` when
+/// the device keeps no log or its scan is not finished (nothing to extend).
+fn extension_of<L: Link>(
+    client: &mut Client<L>,
+    export: &Export,
+    opts: &ExportOptions,
+) -> Result<Option<Extension>, DeviceError> {
+    let st = &export.status;
+    if st.stored_records == 0 || st.phase != Phase::Finished {
+        return Ok(None);
+    }
+    let records = log_records::read_log(client, st.stored_records, opts.wait())?;
+    let scan = log_records::scan_of(&records)?;
+    let (timestamps, labels) = export.labels();
+    let same = scan.sessions == export.sessions()
+        && scan.decisions.len() == labels.len()
+        && scan
+            .decisions
+            .iter()
+            .zip(0u32..)
+            .zip(timestamps.iter().zip(&labels))
+            .all(|(((t, kind), i), (ts, &class))| {
+                t.to_bits() == ts.to_bits() && kind.class(i) == Some(class as u32)
+            })
+        && scan
+            .database
+            .iter()
+            .map(|f| f.meta.index)
+            .eq(export.database().iter().map(|r| r.index));
+    if !same {
+        return Err(DeviceError::Protocol(
+            "the device's flash log does not hold the scan it exported".into(),
+        ));
+    }
+    let profile = device_profile(st).map_or("", |p| p.name);
+    Ok(Some(scan.extension(profile)))
 }

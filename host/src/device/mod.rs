@@ -1,9 +1,10 @@
 //! The device client, one layer, bottom up: transports and fault injection
 //! ([`link`]), the emulated boards ([`emulator`]), the protocol client with
 //! the one send-and-wait ([`client`]), streaming a scan ([`scan`]), pulling
-//! its results ([`export`]), and the public [`session`] a robot program
-//! calls. Imports go one way, from the top: session → scan → export →
-//! client → link, emulator → link, and every one may name [`error`].
+//! its results ([`export`]; the flash log's records for the extension file:
+//! [`log_records`]), and the public [`session`] a robot program calls.
+//! Imports go one way, from the top: session → scan → export → log_records
+//! → client → link, emulator → link, and every one may name [`error`].
 
 pub mod client;
 pub mod emulator;
@@ -11,6 +12,7 @@ pub mod error;
 pub mod export;
 pub mod flash_timing;
 pub mod link;
+pub mod log_records;
 pub mod pacing;
 pub mod scan;
 pub mod session;

@@ -53,6 +53,13 @@ pub struct StreamOptions {
     /// it from flash): no Reset, the same Hello (the device accepts an
     /// identical one), frames from the device's `frames_seen` on.
     pub resume: bool,
+    /// Continue the finished scan the device holds in flash with a new
+    /// session (`placedb stream --extend`): no Reset, an Extend instead of
+    /// the Hello (the same configuration as the first session's), the
+    /// sequence's frames numbered on from the earlier sessions' frames. A
+    /// session begun so and cut short (a power cut) resumes where the
+    /// device stopped.
+    pub extend: bool,
     /// End with Finish (decides the frames still pending).
     pub finish: bool,
     /// Retransmissions allowed per message. 0: messages are pipelined
@@ -89,6 +96,7 @@ impl Default for StreamOptions {
             reply_timeout: Duration::from_secs(60),
             reset: true,
             resume: false,
+            extend: false,
             finish: true,
             retries: 0,
             resend_after: Duration::from_secs(2),
@@ -101,7 +109,10 @@ impl Default for StreamOptions {
 pub struct StreamReport {
     /// Frames sent.
     pub frames: usize,
-    /// Final decision of every frame, by index.
+    /// The device's index of the sequence's first frame: 0, or for an
+    /// extended scan the frames of the earlier sessions.
+    pub first_index: u32,
+    /// Final decision of every frame, by the device's index.
     pub decisions: Vec<Option<DecisionKind>>,
     /// The device's status after Finish.
     pub status: Status,
@@ -113,8 +124,9 @@ pub struct StreamReport {
     pub messages: u64,
     /// Messages sent again (lost or damaged on the way, or their reply was).
     pub retransmissions: u64,
-    /// The device's flash log filled up: frames from this one on were not
-    /// scanned (the open one was dropped, the scan finished with the rest).
+    /// The device's flash log filled up: frames of the sequence from this
+    /// one on were not scanned (the open one was dropped, the scan finished
+    /// with the rest).
     pub log_full_at: Option<usize>,
 }
 
@@ -234,8 +246,11 @@ pub fn stream<L: Link>(
     let n = seq.frames.len();
     let mut scan = ScanState::new(opts.clone());
     scan.begin(client, cfg, Some(profile), Some(n))?;
-    let first = scan.next_frame as usize;
-    scan.decisions = vec![None; n];
+    // The device numbers the sequence's frames from `base` (the earlier
+    // sessions' frames, when extending).
+    let base = scan.first_index as usize;
+    let first = scan.next_frame as usize - base;
+    scan.decisions = vec![None; base + n];
     let started = scan.started.unwrap_or_else(Instant::now);
     if let Some(p) = progress {
         p.set_position(first as u64);
@@ -246,7 +261,8 @@ pub fn stream<L: Link>(
         // The device's flash log is full: it kept room to end the scan, so
         // drop the open frame and Finish with every frame so far.
         Err(e) if ScanState::is_log_full(&e) => {
-            log_full_at = Some(scan.abandon_open_frame(client)? as usize);
+            let at = scan.abandon_open_frame(client)? as usize;
+            log_full_at = Some(at.saturating_sub(base));
         }
         Err(e) => return Err(e),
     }
@@ -258,6 +274,7 @@ pub fn stream<L: Link>(
     let status = scan.call_status(client)?;
     Ok(StreamReport {
         frames: log_full_at.unwrap_or(n) - first,
+        first_index: scan.first_index,
         log_full_at,
         decisions: scan.decisions,
         status,
@@ -325,6 +342,8 @@ pub struct Recovery {
     pub resend_after: Duration,
     /// Resume the scan the device holds (see [`StreamOptions::resume`]).
     pub resume: bool,
+    /// Extend the finished scan the device holds ([`StreamOptions::extend`]).
+    pub extend: bool,
     /// End the stream with Finish ([`StreamOptions::finish`]).
     pub finish: bool,
 }
@@ -336,6 +355,7 @@ impl Default for Recovery {
             retries: None,
             resend_after: Duration::from_secs(2),
             resume: false,
+            extend: false,
             finish: true,
         }
     }
@@ -354,6 +374,7 @@ impl Recovery {
             retries: self.retries(),
             resend_after: self.resend_after,
             resume: self.resume,
+            extend: self.extend,
             finish: self.finish,
             ..StreamOptions::default()
         }
@@ -398,6 +419,9 @@ pub(crate) struct ScanState {
     /// Strided rows per DepthRows message.
     rows_per_msg: u16,
     pub(crate) next_frame: u32,
+    /// The device's index of this scan's first frame (see
+    /// [`StreamReport::first_index`]).
+    pub(crate) first_index: u32,
     pub(crate) decisions: Vec<Option<DecisionKind>>,
     pub(crate) new_decisions: Vec<(u32, DecisionKind)>,
     pub(crate) status: Option<Status>,
@@ -417,6 +441,7 @@ impl ScanState {
             cfg: None,
             rows_per_msg: 1,
             next_frame: 0,
+            first_index: 0,
             decisions: Vec::new(),
             new_decisions: Vec::new(),
             status: None,
@@ -444,6 +469,13 @@ impl ScanState {
             check_profile(&st, profile)?;
         }
         self.next_frame = 0;
+        self.first_index = 0;
+        if opts.extend {
+            self.started = Some(Instant::now());
+            let st = self.extend(client, cfg, frames)?;
+            self.set_config(cfg);
+            return Ok(st);
+        }
         if opts.resume {
             if st.phase == Phase::InFrame {
                 return Err(DeviceError::Input(
@@ -451,7 +483,9 @@ impl ScanState {
                         .into(),
                 ));
             }
-            let seen = st.frames_seen as usize;
+            // In a later session (`--extend`), the sequence is that session.
+            self.first_index = st.session_first;
+            let seen = st.frames_seen.saturating_sub(st.session_first) as usize;
             if let Some(n) = frames.filter(|&n| seen > n) {
                 return Err(DeviceError::Input(format!(
                     "the device has seen {seen} frames, the sequence has {n}: not this sequence?"
@@ -463,13 +497,64 @@ impl ScanState {
         }
         self.started = Some(Instant::now());
         self.call(client, HostMessage::Hello(*cfg), "Hello")?;
+        self.set_config(cfg);
+        Ok(st)
+    }
+
+    /// The configuration in force, and the rows per message it allows.
+    fn set_config(&mut self, cfg: &Config) {
         let fit = depth_rows_per_message(cfg.width_sent());
-        self.rows_per_msg = match opts.rows_per_message {
+        self.rows_per_msg = match self.opts.rows_per_message {
             0 => fit,
             r => r.min(fit),
         }
         .max(1);
         self.cfg = Some(*cfg);
+    }
+
+    /// Extend instead of the Hello: the device goes on with a new session
+    /// of its finished scan (or the one begun so and cut short); the next
+    /// frame is the device's `frames_seen`, the session's first its
+    /// `session_first`. `frames`: how many frames the host has. Returns the
+    /// status after it.
+    fn extend<L: Link>(
+        &mut self,
+        client: &mut Client<L>,
+        cfg: &Config,
+        frames: Option<usize>,
+    ) -> Result<Status, DeviceError> {
+        match self.call(client, HostMessage::Extend(*cfg), "Extend") {
+            Err(DeviceError::Refused {
+                kind: ErrorKind::NothingToExtend,
+                ..
+            }) => {
+                return Err(DeviceError::Input(
+                    "--extend: the device holds no finished scan in its flash log to extend                      (stream a first session to it and let it finish, then extend it; a scan                      cut short is resumed with --resume)"
+                        .into(),
+                ))
+            }
+            Err(DeviceError::Refused {
+                kind: ErrorKind::ExtendOtherConfig,
+                ..
+            }) => {
+                return Err(DeviceError::Input(
+                    "--extend: the device's scan was configured otherwise: every session of a                      scan needs the first one's camera, depth scale and range, stride, voxel                      size, grid, --mu and --window (Reset the device for a new scan)"
+                        .into(),
+                ))
+            }
+            other => other?,
+        };
+        let st = self.call_status(client)?;
+        let (first, seen) = (st.session_first, st.frames_seen);
+        let done = seen.saturating_sub(first) as usize;
+        if seen < first || frames.is_some_and(|n| done > n) {
+            return Err(DeviceError::Input(format!(
+                "--extend: the device has seen {done} frames of this session, the sequence has {}: not this sequence?",
+                frames.unwrap_or(0)
+            )));
+        }
+        self.first_index = first;
+        self.next_frame = seen;
         Ok(st)
     }
 
