@@ -116,7 +116,9 @@ impl<const K: usize> Sketch<K> {
         Some(s)
     }
 
-    /// Keeps `h` if it is among the `K` smallest seen so far.
+    /// Keeps `h` if it is among the `K` smallest seen so far: the one-by-one
+    /// definition [`Self::from_keys`]'s heap is tested against.
+    #[cfg(test)]
     fn offer(&mut self, h: u32) {
         let len = self.len as usize;
         // Full: `h` must beat the largest kept (with `K == 0` nothing is kept).
