@@ -379,7 +379,10 @@ impl FrameProjector {
     /// the two ends; `fits` bounds exactly those magnitudes.
     fn every_row_fits_narrow(&self) -> bool {
         let samples = u32::from(self.samples_per_row());
-        let last_row = (self.sampled_rows() - 1) * self.stride;
+        let last_row = self
+            .sampled_rows()
+            .saturating_sub(1)
+            .saturating_mul(self.stride);
         let raw_max = u32::from(self.raw_max);
         [0, last_row].iter().all(|&v| {
             let (ray, step) = self.row_rays(v);

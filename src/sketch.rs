@@ -24,7 +24,8 @@ pub fn hash_key(bits: u64) -> u32 {
 /// `2i + 1` and `2i + 2`), `heap[i]` being the one entry out of place.
 fn sift_down(heap: &mut [u32], mut i: usize) {
     loop {
-        let (left, right) = (2 * i + 1, 2 * i + 2);
+        let left = i.saturating_mul(2).saturating_add(1);
+        let right = left.saturating_add(1);
         let mut largest = i;
         for child in [left, right] {
             if let (Some(c), Some(l)) = (heap.get(child), heap.get(largest)) {
@@ -33,10 +34,18 @@ fn sift_down(heap: &mut [u32], mut i: usize) {
                 }
             }
         }
+        let (Some(&parent), Some(&child)) = (heap.get(i), heap.get(largest)) else {
+            return;
+        };
         if largest == i {
             return;
         }
-        heap.swap(i, largest);
+        if let Some(p) = heap.get_mut(i) {
+            *p = child;
+        }
+        if let Some(c) = heap.get_mut(largest) {
+            *c = parent;
+        }
         i = largest;
     }
 }

@@ -83,7 +83,8 @@ pub(super) fn sort(
         .iter()
         .zip(&census.high)
         .all(|(&low, &high)| high.wrapping_sub(low) < BUCKETS as u32);
-    if !narrow || n.checked_mul(2).is_none_or(|end| end > slots.len()) {
+    let end = n.checked_mul(2).filter(|&end| end <= slots.len())?;
+    if !narrow {
         return None;
     }
     let (front, back) = slots.split_at_mut(n);
@@ -93,7 +94,7 @@ pub(super) fn sort(
     pass::<2>(front, back, census);
     pass::<1>(back, front, census);
     pass::<0>(front, back, census);
-    Some(n..2 * n)
+    Some(n..end)
 }
 
 /// One stable counting pass by axis `A`'s coordinate less the smallest.
