@@ -260,6 +260,24 @@ pub struct FrameProjector {
     width: u16,
     height: u16,
     stride: u16,
+    /// What every row's rays share, computed once per frame ([`RowSetUp`]).
+    rows: RowSetUp,
+}
+
+/// The parts of [`FrameProjector::row_rays`] that do not depend on the row,
+/// computed once per frame: on a core without an FPU (the M0+) each float
+/// operation is a library call, and a frame has hundreds of rows.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct RowSetUp {
+    /// `rotation[a][0] * x0` per axis, `x0` the ray's x at pixel column 0:
+    /// the first term of each row's ray, as that sum rounds it.
+    first_term: [f32; 3],
+    /// The fixed-point step from one sample to the next, per axis.
+    step: [i64; 3],
+    /// Every row of the frame fits [`narrow::fits`]: checked at the first
+    /// and last sampled rows, which bound every row in between (a row's
+    /// ray is monotone in `v`; see [`FrameProjector::every_row_fits_narrow`]).
+    narrow: bool,
 }
 
 /// Fixed-point fraction bits tried first; fewer only for extreme scales.
@@ -328,7 +346,9 @@ impl FrameProjector {
         let one = libm::ldexpf(1.0, shift as i32);
         let translation = centre.map(|c| (c * one) as i64);
         let (raw_min, raw_max) = valid_raw_range(metres_per_unit, range);
-        Ok(FrameProjector {
+        let x0 = -intrinsics.cx * inv_fx;
+        let stride_i64 = i64::from(stride);
+        let mut projector = FrameProjector {
             rotation,
             translation,
             shift,
@@ -341,6 +361,33 @@ impl FrameProjector {
             width: intrinsics.width,
             height: intrinsics.height,
             stride,
+            rows: RowSetUp {
+                first_term: rotation.map(|r| r[0] * x0),
+                step: rotation.map(|r| fixed(r[0] * inv_fx, shift).wrapping_mul(stride_i64)),
+                narrow: false,
+            },
+        };
+        projector.rows.narrow = projector.every_row_fits_narrow();
+        Ok(projector)
+    }
+
+    /// Whether [`narrow::fits`] accepts every row: it does when it accepts
+    /// the first and the last sampled row. A row's first ray is monotone in
+    /// `v` on each axis (`y` grows with `v`; a product with a fixed factor,
+    /// a sum with a fixed term, IEEE rounding and the truncation to fixed
+    /// point are all monotone), and sample `i`'s ray is that plus `i`
+    /// steps, so its magnitude at any row is at most its magnitude at one of
+    /// the two ends; `fits` bounds exactly those magnitudes.
+    fn every_row_fits_narrow(&self) -> bool {
+        let samples = u32::from(self.samples_per_row());
+        let last_row = self
+            .sampled_rows()
+            .saturating_sub(1)
+            .saturating_mul(self.stride);
+        let raw_max = u32::from(self.raw_max);
+        [0, last_row].iter().all(|&v| {
+            let (ray, step) = self.row_rays(v);
+            narrow::fits(&ray, &step, samples, raw_max)
         })
     }
 
@@ -458,7 +505,8 @@ impl FrameProjector {
         let mut invalid = 0u32;
         if self.shift == MAX_SHIFT {
             let t = self.biased_translation();
-            invalid = if NARROW && narrow::fits(&ray, &step, seen, hi) {
+            let narrow = NARROW && (self.rows.narrow || narrow::fits(&ray, &step, seen, hi));
+            invalid = if narrow {
                 narrow::narrow_loop(samples, ray, step, t, (lo, span), &mut emit_new)
             } else {
                 fast_loop(samples, ray, step, t, (lo, span), &mut emit_new)
@@ -488,16 +536,23 @@ impl FrameProjector {
     /// from one sample to the next: the ray through `(u, v)` is
     /// `base + u * step`, stepped from sample to sample, which integers do
     /// exactly.
+    ///
+    /// By definition, with `x0 = -cx / fx` and `y = (v - cy) / fy` (as
+    /// `f32` products with the reciprocals), the ray of axis `a` is
+    /// `fixed(m[a][0] x0 + m[a][1] y + m[a][2])` and its step
+    /// `fixed(m[a][0] / fx) * stride`, `fixed(x)` being `x 2^shift`
+    /// truncated to an integer; the parts without `v` come from [`RowSetUp`].
     fn row_rays(&self, v: u16) -> ([i64; 3], [i64; 3]) {
-        let m = &self.rotation;
-        let one = libm::ldexpf(1.0, self.shift as i32);
-        let fixed = |x: f32| (x * one) as i64;
         let y = (f32::from(v) - self.cy) * self.inv_fy;
-        let x0 = -self.cx * self.inv_fx;
-        let stride = i64::from(self.stride);
-        let ray = m.map(|r| fixed(r[0] * x0 + r[1] * y + r[2]));
-        let step = m.map(|r| fixed(r[0] * self.inv_fx).wrapping_mul(stride));
-        (ray, step)
+        let mut ray = [0i64; 3];
+        for ((r, m), first) in ray
+            .iter_mut()
+            .zip(&self.rotation)
+            .zip(&self.rows.first_term)
+        {
+            *r = fixed(first + m[1] * y + m[2], self.shift);
+        }
+        (ray, self.rows.step)
     }
 
     /// The translation with the key bias added: `raw * ray + t + 2^60` has
@@ -508,6 +563,37 @@ impl FrameProjector {
     fn biased_translation(&self) -> [i64; 3] {
         let bias = i64::from(AXIS_BIAS) << MAX_SHIFT;
         self.translation.map(|t| t.wrapping_add(bias))
+    }
+}
+
+/// `x 2^shift` truncated toward zero, as `(x * 2^shift) as i64` gives it
+/// (the product is exact in `f32`: a power of two), without the float
+/// multiply and the saturating conversion's compares, which a core without
+/// an FPU makes library calls: from the bits, for every `x` whose result
+/// is below `2^62` in magnitude (the rays and steps `FrameProjector::new`
+/// bounds), and by the float path otherwise (NaN, infinities, huge values).
+#[inline]
+fn fixed(x: f32, shift: u32) -> i64 {
+    let bits = x.to_bits();
+    let exponent = ((bits >> 23) & 0xff) as i32;
+    // Normal numbers have the implicit leading one; subnormals the exponent of the smallest normal.
+    let (mantissa, exponent) = match exponent {
+        0 => (bits & 0x7f_ffff, 1),
+        e => ((bits & 0x7f_ffff) | 0x80_0000, e),
+    };
+    // `x = mantissa 2^(exponent - 150)`; the result is that times `2^shift`.
+    let k = exponent - 150 + shift as i32;
+    let magnitude = match k {
+        // `mantissa < 2^24`: at most `2^62` after the shift.
+        0..=38 => i64::from(mantissa) << k,
+        -31..=-1 => i64::from(mantissa >> -k),
+        ..=-32 => 0,
+        _ => return (x * libm::ldexpf(1.0, shift as i32)) as i64,
+    };
+    if bits >> 31 == 0 {
+        magnitude
+    } else {
+        -magnitude
     }
 }
 
@@ -786,6 +872,106 @@ mod tests {
             outside += oor;
         }
         assert!(checked > 10_000 && outside > 1_000, "{checked} {outside}");
+    }
+
+    #[test]
+    fn fixed_matches_the_float_conversion() {
+        let float = |x: f32, s: u32| (x * libm::ldexpf(1.0, s as i32)) as i64;
+        let edges = [
+            0.0f32,
+            -0.0,
+            f32::MIN_POSITIVE,
+            -f32::MIN_POSITIVE / 3.0,
+            f32::from_bits(1),
+            0.5,
+            -1.0,
+            1.0 - f32::EPSILON,
+            libm::ldexpf(1.0, 62 - 40),
+            -libm::ldexpf(1.0, 62 - 40),
+            libm::ldexpf(1.0, 62 - 40) * (1.0 - f32::EPSILON),
+            f32::MAX,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+        ];
+        for shift in MIN_SHIFT..=MAX_SHIFT {
+            for &x in &edges {
+                assert_eq!(fixed(x, shift), float(x, shift), "{x} {shift}");
+            }
+        }
+        // Every 4093rd bit pattern (both signs, every exponent), at three shifts.
+        for shift in [MIN_SHIFT, 33, MAX_SHIFT] {
+            for bits in (0..=u32::MAX).step_by(4093) {
+                let x = f32::from_bits(bits);
+                assert_eq!(fixed(x, shift), float(x, shift), "{bits:#x} {shift}");
+            }
+        }
+    }
+
+    /// The rays of row `v` by the definition, every float operation per row.
+    fn defined_rays(proj: &FrameProjector, v: u16) -> ([i64; 3], [i64; 3]) {
+        let m = &proj.rotation;
+        let one = libm::ldexpf(1.0, proj.shift as i32);
+        let fixed = |x: f32| (x * one) as i64;
+        let y = (f32::from(v) - proj.cy) * proj.inv_fy;
+        let x0 = -proj.cx * proj.inv_fx;
+        let stride = i64::from(proj.stride);
+        let ray = m.map(|r| fixed(r[0] * x0 + r[1] * y + r[2]));
+        let step = m.map(|r| fixed(r[0] * proj.inv_fx).wrapping_mul(stride));
+        (ray, step)
+    }
+
+    #[test]
+    fn rows_set_up_once_per_frame_give_the_defined_rays() {
+        let mut seed = 0x0123_4567_89ab_cdefu64;
+        let mut next = move || {
+            seed = seed
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (seed >> 33) as u32
+        };
+        let (mut narrow, mut wide, mut rows) = (0, 0, 0);
+        for case in 0..300 {
+            let mut unit = || next() as f32 / (1u64 << 31) as f32;
+            let mut k = k();
+            (k.fx, k.fy) = (200.0 + unit() * 800.0, 200.0 + unit() * 800.0);
+            (k.cx, k.cy) = (unit() * 640.0, unit() * 480.0);
+            let voxel = [0.01, 0.05, 0.3, 2.0][case % 4];
+            let grid = VoxelGrid::new(voxel, [unit() * 50.0 - 25.0, 0.0, unit()]).unwrap();
+            let q = [unit() - 0.5, unit() - 0.5, unit() - 0.5, unit() + 0.1];
+            let n = libm::sqrtf(q.iter().map(|c| c * c).sum::<f32>());
+            let t = [unit() * 2e3 - 1e3, unit() * 10.0, unit() * 4e3 - 2e3];
+            let pose = Pose::from_quaternion(t, q.map(|c| c / n)).unwrap();
+            let stride = 1 + (case % 4) as u16;
+            let range = DepthRange {
+                min: 0.1,
+                max: [10.0, 40.0, 65.0][case % 3],
+            };
+            let Ok(proj) = FrameProjector::new(&k, 1000.0, range, stride, &grid, &pose) else {
+                continue;
+            };
+            let samples = u32::from(proj.samples_per_row());
+            let mut every_row_fits = true;
+            for v in (0..480).step_by(usize::from(stride)) {
+                let rays = proj.row_rays(v);
+                assert_eq!(rays, defined_rays(&proj, v), "case {case} row {v}");
+                let fits = narrow::fits(&rays.0, &rays.1, samples, u32::from(proj.raw_max));
+                every_row_fits &= fits;
+                rows += 1;
+            }
+            // The frame's check is exact here: it says yes exactly when
+            // every row fits (it is sound in general, and the ends decide).
+            assert_eq!(proj.rows.narrow, every_row_fits, "case {case}");
+            if every_row_fits {
+                narrow += 1;
+            } else {
+                wide += 1;
+            }
+        }
+        assert!(
+            narrow > 50 && wide > 20 && rows > 20_000,
+            "{narrow} {wide} {rows}"
+        );
     }
 
     /// Each run of one key once.

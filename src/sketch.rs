@@ -20,6 +20,36 @@ pub fn hash_key(bits: u64) -> u32 {
     (h >> 32) as u32
 }
 
+/// Restores the max-heap order of `heap` below `i` (children of `i` are
+/// `2i + 1` and `2i + 2`), `heap[i]` being the one entry out of place.
+fn sift_down(heap: &mut [u32], mut i: usize) {
+    loop {
+        let left = i.saturating_mul(2).saturating_add(1);
+        let right = left.saturating_add(1);
+        let mut largest = i;
+        for child in [left, right] {
+            if let (Some(c), Some(l)) = (heap.get(child), heap.get(largest)) {
+                if c > l {
+                    largest = child;
+                }
+            }
+        }
+        let (Some(&parent), Some(&child)) = (heap.get(i), heap.get(largest)) else {
+            return;
+        };
+        if largest == i {
+            return;
+        }
+        if let Some(p) = heap.get_mut(i) {
+            *p = child;
+        }
+        if let Some(c) = heap.get_mut(largest) {
+            *c = parent;
+        }
+        i = largest;
+    }
+}
+
 /// The `K` smallest hashes of a voxel set, ascending.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Sketch<const K: usize> {
@@ -46,13 +76,38 @@ impl<const K: usize> Sketch<K> {
         }
     };
 
-    /// Sketch of a set given as distinct packed keys, in any order.
+    /// Sketch of a set given as distinct packed keys, in any order: the
+    /// `K` smallest of their hashes (with repeats, as [`Self::offer`] keeps
+    /// them), ascending.
+    ///
+    /// The first `K` hashes fill the array; from then on it is a max-heap,
+    /// so a hash below the largest kept replaces it in `log K` steps (an
+    /// insertion into the sorted array moves half of it, and a frame
+    /// offers a few hundred such hashes); one sort at the end.
     #[inline(never)]
     pub fn from_keys(keys: impl Iterator<Item = u64>) -> Self {
         let mut s = Self::default();
-        for k in keys {
-            s.offer(hash_key(k));
+        let mut keys = keys.map(hash_key);
+        for (slot, h) in s.hashes.iter_mut().zip(&mut keys) {
+            *slot = h;
+            // `len < K <= u16::MAX` (see `LEN_FITS`): no wrap.
+            s.len += 1;
         }
+        if usize::from(s.len) == K {
+            for i in (0..K / 2).rev() {
+                sift_down(&mut s.hashes, i);
+            }
+            for h in keys {
+                if let Some(largest) = s.hashes.first_mut().filter(|l| h < **l) {
+                    *largest = h;
+                    sift_down(&mut s.hashes, 0);
+                }
+            }
+        }
+        s.hashes
+            .get_mut(..usize::from(s.len))
+            .unwrap_or_default()
+            .sort_unstable();
         s
     }
 
@@ -70,7 +125,9 @@ impl<const K: usize> Sketch<K> {
         Some(s)
     }
 
-    /// Keeps `h` if it is among the `K` smallest seen so far.
+    /// Keeps `h` if it is among the `K` smallest seen so far: the one-by-one
+    /// definition [`Self::from_keys`]'s heap is tested against.
+    #[cfg(test)]
     fn offer(&mut self, h: u32) {
         let len = self.len as usize;
         // Full: `h` must beat the largest kept (with `K == 0` nothing is kept).
@@ -184,6 +241,28 @@ mod tests {
             let kept = Sketch::<8>::from_keys(keys.clone());
             assert_eq!(kept.hashes(), &all[..all.len().min(8)], "n = {n}");
             assert_eq!(Sketch::<0>::from_keys(keys).hashes(), &[] as &[u32]);
+        }
+    }
+
+    /// The heap of `from_keys` keeps what offering the hashes one by one
+    /// into the sorted array keeps, for set sizes around `K` and far above,
+    /// keys offered in scrambled orders.
+    #[test]
+    fn from_keys_keeps_what_offering_keeps() {
+        for n in [0u64, 1, 15, 16, 17, 100, 5000] {
+            for spread in [1u64, 3, 1 << 40] {
+                let keys = (0..n).map(|i| (i * 7919) % n.max(1) * spread);
+                let mut offered = Sketch::<16>::default();
+                for k in keys.clone() {
+                    offered.offer(hash_key(k));
+                }
+                assert_eq!(Sketch::<16>::from_keys(keys.clone()), offered, "n {n}");
+                let mut offered = Sketch::<64>::default();
+                for k in keys.clone() {
+                    offered.offer(hash_key(k));
+                }
+                assert_eq!(Sketch::<64>::from_keys(keys), offered, "n {n}");
+            }
         }
     }
 

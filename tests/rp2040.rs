@@ -178,14 +178,21 @@ fn cortex_m0_cycles_per_valid_pixel() {
             c.bytes,
         );
         assert!(per_pixel > 0.0 && f.ticks > c.ticks);
-        // The 32-bit projection loop (src/camera/narrow.rs): 231.5 and 253.5
-        // cycles per valid pixel when it landed, against 442 and 488 before.
-        // The goal is 240 on both (issue 24); these bounds catch a return
-        // to the 64-bit multiplies.
-        let bound = if name == "synthetic" { 260.0 } else { 240.0 };
+        // The 32-bit projection loop (src/camera/narrow.rs) and the row
+        // set-up once per frame: 222.3 and 234.0 cycles per valid pixel on
+        // 2026-12-02, against 442 and 488 before the loop. Issue 24 asks
+        // for at most 240 on both.
         assert!(
-            per_pixel <= bound,
-            "{name}: {per_pixel:.1} cycles per valid pixel, above {bound}"
+            per_pixel <= 240.0,
+            "{name}: {per_pixel:.1} cycles per valid pixel, above 240"
+        );
+        // What a frame costs besides its pixels: 548 k and 870 k cycles on
+        // 2026-12-02 (the radix sort of the keys, the sketch's heap, the row
+        // set-up once per frame), 887 k and 1,143 k before.
+        let frame_bound = if name == "synthetic" { 950e3 } else { 600e3 };
+        assert!(
+            fixed <= frame_bound,
+            "{name}: {fixed:.0} cycles per frame besides its pixels, above {frame_bound}"
         );
         // At 133 MHz, every pixel valid (the worst case), and what USB full
         // speed carries: ~1.1 MB/s of bulk payload at best; the host sends

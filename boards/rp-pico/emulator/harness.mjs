@@ -16,6 +16,8 @@
 //   "stats cycles=N ..."               on exit (SIGTERM, SIGINT, deadline)
 //   "latency frames=N ..."             on exit: frame answer latencies (below)
 // A fatal condition prints "error: ..." on stderr and exits 2 (3: deadline).
+// PICO_PROFILE=FILE: on exit, the cycles spent at each instruction address
+// are appended to FILE ("address cycles" lines; see docs/PERFORMANCE.md).
 // --cut-during-erase N: the power goes during the firmware's N-th sector
 // erase (counted from 1): the sector's first half is erased, the rest left
 // as it was (a torn erase), and the harness exits at once with code 4 after
@@ -857,6 +859,22 @@ server.listen(opts.port, '127.0.0.1', () => {
 
 // ---------------------------------------------------------------- run loop
 
+/** PICO_PROFILE=FILE: the cycles spent at each instruction address, written
+ * to FILE on exit as "address cycles" lines for `nm`/`addr2line` to name: a
+ * flat profile of the firmware for whoever tunes it. Off by default. */
+const profile = process.env.PICO_PROFILE
+  ? {
+      cycles: new Map(),
+      add(pc, n) {
+        this.cycles.set(pc, (this.cycles.get(pc) ?? 0) + n);
+      },
+      write() {
+        const lines = [...this.cycles].map(([pc, n]) => `${hex(pc)} ${n}`);
+        fs.appendFileSync(process.env.PICO_PROFILE, lines.join('\n') + '\n');
+      },
+    }
+  : null;
+
 let stopped = false;
 let sleeping = null;
 const started = Date.now();
@@ -895,6 +913,7 @@ function run() {
       if (code !== null && flashCall(code)) continue;
     }
     const cycles = core.executeInstruction();
+    if (profile) profile.add(pc, cycles);
     clock.tick(cycles * NANOS_PER_CYCLE);
   }
   if (stopped) return;
@@ -932,6 +951,7 @@ function finish(code = 0) {
       `usb_bytes_in=${stats.bytesIn} usb_bytes_out=${stats.bytesOut}\n`,
   );
   process.stdout.write(latency.line() + '\n');
+  if (profile) profile.write();
   if (flashFd !== null) {
     try {
       fs.fsyncSync(flashFd);
