@@ -10,8 +10,8 @@ pub mod dataset;
 pub mod exports;
 pub mod extension;
 pub mod metrics_json;
-pub mod sessions;
 pub mod replace;
+pub mod sessions;
 pub mod topview;
 
 use crate::output::dataset::DatasetError;
