@@ -277,7 +277,11 @@ struct RowSetUp {
     /// Every row of the frame fits [`narrow::fits`]: checked at the first
     /// and last sampled rows, which bound every row in between (a row's
     /// ray is monotone in `v`; see [`FrameProjector::every_row_fits_narrow`]).
-    narrow: bool,
+    /// 1 for yes, 0 for no: not a `bool`, whose niche would make the
+    /// `Option<(FrameMeta, FrameProjector)>` in the device state a non-zero
+    /// byte when `None`, and so move the whole device static from `.bss`
+    /// into flash (`tests/end_to_end.rs`, `firmware_fits_its_budget`).
+    narrow: u8,
 }
 
 /// Fixed-point fraction bits tried first; fewer only for extreme scales.
@@ -364,10 +368,10 @@ impl FrameProjector {
             rows: RowSetUp {
                 first_term: rotation.map(|r| r[0] * x0),
                 step: rotation.map(|r| fixed(r[0] * inv_fx, shift).wrapping_mul(stride_i64)),
-                narrow: false,
+                narrow: 0,
             },
         };
-        projector.rows.narrow = projector.every_row_fits_narrow();
+        projector.rows.narrow = u8::from(projector.every_row_fits_narrow());
         Ok(projector)
     }
 
@@ -505,7 +509,7 @@ impl FrameProjector {
         let mut invalid = 0u32;
         if self.shift == MAX_SHIFT {
             let t = self.biased_translation();
-            let narrow = NARROW && (self.rows.narrow || narrow::fits(&ray, &step, seen, hi));
+            let narrow = NARROW && (self.rows.narrow == 1 || narrow::fits(&ray, &step, seen, hi));
             invalid = if narrow {
                 narrow::narrow_loop(samples, ray, step, t, (lo, span), &mut emit_new)
             } else {
@@ -961,7 +965,7 @@ mod tests {
             }
             // The frame's check is exact here: it says yes exactly when
             // every row fits (it is sound in general, and the ends decide).
-            assert_eq!(proj.rows.narrow, every_row_fits, "case {case}");
+            assert_eq!(proj.rows.narrow == 1, every_row_fits, "case {case}");
             if every_row_fits {
                 narrow += 1;
             } else {
