@@ -131,7 +131,13 @@ fn select_rerun_smaller_leaves_no_stale_file() {
     ok(&run("10"));
     assert_eq!(
         names(&out),
-        ["database.csv", "labels.csv", "metrics.json", "topview.png"]
+        [
+            "database.csv",
+            "extension.bin",
+            "labels.csv",
+            "metrics.json",
+            "topview.png"
+        ]
     );
     assert_eq!(lines(&out.join("labels.csv")), 11);
     assert_eq!(
@@ -357,11 +363,25 @@ fn stream_and_export_outputs_are_whole() {
     ok(&stream(&["--realtime"]));
     assert_eq!(
         names(&out),
-        ["database.csv", "labels.csv", "metrics.json", "skipped.csv"]
+        [
+            "database.csv",
+            "extension.bin",
+            "labels.csv",
+            "metrics.json",
+            "skipped.csv"
+        ]
     );
     // ... and a later export into it replaces it whole.
     ok(&stream(&[]));
-    assert_eq!(names(&out), ["database.csv", "labels.csv", "metrics.json"]);
+    assert_eq!(
+        names(&out),
+        [
+            "database.csv",
+            "extension.bin",
+            "labels.csv",
+            "metrics.json"
+        ]
+    );
     let before = tree(&out);
     // A resume position with nothing to resume: no directory, no file.
     let resumed = root.join("resumed");

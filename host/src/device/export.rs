@@ -400,6 +400,12 @@ pub fn pull<L: Link>(
     opts: &ExportOptions,
 ) -> Result<Export, DeviceError> {
     let partial = resume_file(out);
+    // What a resume starts from is read first: a `--from` with nothing to
+    // resume fails before the device is asked.
+    let saved = match from {
+        Some(k) => Some((k, read_partial(out)?)),
+        None => None,
+    };
     client.resync()?;
     let (now, _) = ask_status(client, opts.wait())?;
     // Empty CSVs would pass for a scan that saw nothing: refused, before
@@ -411,9 +417,8 @@ pub fn pull<L: Link>(
                 .into(),
         ));
     }
-    let have = match from {
-        Some(k) => {
-            let (was, mut records) = read_partial(out)?;
+    let have = match saved {
+        Some((k, (was, mut records))) => {
             if (was.frames_seen, was.database_size, was.export_records())
                 != (now.frames_seen, now.database_size, now.export_records())
             {
