@@ -177,6 +177,20 @@ fn a_window_above_the_profile_is_refused_naming_its_window() {
         stderr(&run)
     );
     assert!(!tmp.path().join("out").exists());
+    // A resend wait of 0 ms is refused, not raised to 1 without a word.
+    let run = placedb(&[
+        "stream",
+        "--demo",
+        "--port",
+        "local:ram512k",
+        "--resend-ms",
+        "0",
+        "-o",
+        &out,
+    ]);
+    assert_eq!(run.status.code(), Some(USAGE), "{}", stderr(&run));
+    assert!(stderr(&run).contains("1 or more"), "{}", stderr(&run));
+    assert!(!tmp.path().join("out").exists());
     // The profile's own window is taken, and what metrics.json records.
     let run = placedb(&[
         "select",

@@ -54,9 +54,9 @@ pub struct StreamArgs {
     /// first error stops the stream) without fault injection, 20 with.
     #[arg(long)]
     retries: Option<usize>,
-    /// With retransmission: wait this many milliseconds for a reply before sending again.
-    #[arg(long, default_value_t = 2000)]
-    resend_ms: u64,
+    /// With retransmission: wait this many milliseconds (1 or more) for a reply before sending again.
+    #[arg(long, default_value_t = 2000, value_parser = super::params::count)]
+    resend_ms: usize,
     /// Go on with the scan the device holds (e.g. restored from flash after a
     /// power cut) from its first undecided frame, instead of starting over.
     #[arg(long)]
@@ -112,7 +112,7 @@ pub fn run(a: StreamArgs) -> Result<(), Error> {
     let recovery = Recovery {
         faults: FaultConfig::new(a.drop_chance, a.corrupt_chance, a.fault_seed),
         retries: a.retries,
-        resend_after: Duration::from_millis(a.resend_ms.max(1)),
+        resend_after: Duration::from_millis(a.resend_ms as u64),
         resume: a.resume,
         extend: a.extend,
         finish: !a.no_finish,
