@@ -97,7 +97,7 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
         let dir = output::stage_database_dir(outputs, &a.out)?;
         // The picture is drawn and encoded while the tables are written.
         let (written, drawn) = rayon::join(
-            || output::write_database_dir(&dir, &rows, &timestamps, &o.labels, &json),
+            || output::write_database_dir(&dir, &rows, &timestamps, &o.labels, &json, None),
             || {
                 let path = dir.join("topview.png");
                 annotate::render(&view, &caption)

@@ -16,7 +16,7 @@ use crate::device::log_records;
 use crate::output::dataset::DatasetError;
 use crate::output::extension::{self, Extension};
 use crate::output::replace::{self, Outputs};
-use crate::output::{self, metrics_json, sessions};
+use crate::output::{self, metrics_json};
 use indicatif::ProgressBar;
 use placedb::protocol::{
     encode, export_crc, CapacitySlot, DeviceMessage, ExportRecord, Feed, FrameDecoder, HostMessage,
@@ -490,23 +490,20 @@ pub fn stage(
     let dir = output::stage_database_dir(outputs, out)?;
     let (timestamps, labels) = export.labels();
     let rows = output::rows_from_records(&export.database());
-    output::write_database_dir(&dir, &rows, &timestamps, &labels, &export.metrics())?;
     let firsts = export.sessions();
-    if firsts.len() > 1 {
-        // A scan of several sessions: the session columns too.
-        let session_of = |g: usize| log_records::session_of(&firsts, g as u32);
-        replace::write_text(
-            &dir.join("database.csv"),
-            &sessions::database_csv(&rows, &session_of),
-        )?;
-        replace::write_text(
-            &dir.join("labels.csv"),
-            &sessions::labels_csv(&timestamps, &labels, &session_of),
-        )?;
-    }
+    // A scan of several sessions: the session columns too.
+    let session_of = |g: usize| log_records::session_of(&firsts, g as u32);
+    let sessions = (firsts.len() > 1).then_some(&session_of as output::sessions::SessionOf<'_>);
+    output::write_database_dir(
+        &dir,
+        &rows,
+        &timestamps,
+        &labels,
+        &export.metrics(),
+        sessions,
+    )?;
     if let Some(ext) = &export.extension {
-        let path = dir.join(extension::FILE_NAME);
-        extension::write(&path, ext).map_err(|source| DatasetError::Write { path, source })?;
+        extension::write(&dir.join(extension::FILE_NAME), ext)?;
     }
     for (name, text) in extra {
         replace::write_text(&dir.join(name), text)?;

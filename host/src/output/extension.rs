@@ -19,6 +19,7 @@
 //! truncated file, another magic, a newer version, a damaged CRC and a
 //! payload whose parts contradict each other.
 
+use crate::output::dataset::DatasetError;
 use placedb::key_pool::Aabb;
 use serde::{Deserialize, Serialize};
 use std::io;
@@ -397,9 +398,15 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<Extension, ExtensionError> {
     }
 }
 
-/// Writes `ext` to `path`.
-pub fn write(path: &Path, ext: &Extension) -> io::Result<()> {
-    std::fs::write(path, encode(ext)?)
+/// Writes `ext` to `path` (a file inside a staged output), naming it in an
+/// error.
+pub fn write(path: &Path, ext: &Extension) -> Result<(), DatasetError> {
+    encode(ext)
+        .and_then(|bytes| std::fs::write(path, bytes))
+        .map_err(|source| DatasetError::Write {
+            path: path.to_path_buf(),
+            source,
+        })
 }
 
 /// Reads the extension file at `path` (see [`decode`]).

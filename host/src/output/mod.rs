@@ -133,20 +133,29 @@ pub fn stage_database_dir(outputs: &mut Outputs, dir: &Path) -> Result<PathBuf, 
 
 /// Writes `database.csv`, `labels.csv` and `metrics.json` into directory
 /// `dir` (one from [`stage_database_dir`]); `metrics` must be a flat JSON
-/// object.
+/// object. With `sessions` (a run of several sessions), the two tables
+/// carry the session columns ([`sessions`]).
 pub fn write_database_dir(
     dir: &Path,
     rows: &[DbRow],
     timestamps: &[f64],
     labels: &[usize],
     metrics: &serde_json::Value,
+    sessions: Option<sessions::SessionOf<'_>>,
 ) -> Result<(), DatasetError> {
     let metrics_path = dir.join("metrics.json");
     let metrics = metrics_json::text(metrics).map_err(|source| DatasetError::Write {
         path: metrics_path.clone(),
         source,
     })?;
-    replace::write_text(&dir.join("database.csv"), &database_csv(rows))?;
-    replace::write_text(&dir.join("labels.csv"), &labels_csv(timestamps, labels))?;
+    let (database, labels) = match sessions {
+        Some(session_of) => (
+            sessions::database_csv(rows, session_of),
+            sessions::labels_csv(timestamps, labels, session_of),
+        ),
+        None => (database_csv(rows), labels_csv(timestamps, labels)),
+    };
+    replace::write_text(&dir.join("database.csv"), &database)?;
+    replace::write_text(&dir.join("labels.csv"), &labels)?;
     replace::write_text(&metrics_path, &metrics)
 }

@@ -10,7 +10,7 @@ use crate::extend::fixed::{self, Missing};
 use crate::extend::{check_config, grid_of, measure, record};
 use crate::output::dataset::DatasetError;
 use crate::output::extension::{self, Extension, Measured};
-use crate::output::{self, annotate, metrics_json, replace, sessions, topview, DbRow};
+use crate::output::{self, annotate, metrics_json, replace, topview, DbRow};
 use crate::pipeline::{self, Outcome, Prepared, Solver, SolverParams};
 use crate::replay::{self, OnlineRun};
 use crate::sequence::Sequence;
@@ -54,8 +54,7 @@ pub(super) fn write_first(
         online: o.online.as_ref(),
     };
     let ext = record::extension(None, &run);
-    let path = out.join(extension::FILE_NAME);
-    extension::write(&path, &ext).map_err(|source| DatasetError::Write { path, source })
+    extension::write(&out.join(extension::FILE_NAME), &ext)
 }
 
 /// The earlier database and the new session's frames after solving.
@@ -233,25 +232,20 @@ pub(super) fn run(a: SelectArgs, from: &Path) -> Result<(), Error> {
     // Every file of the run appears together, or none does.
     replace::together(|outputs| {
         let dir = output::stage_database_dir(outputs, &a.out)?;
-        let write = |name: &str, text: &str| replace::write_text(&dir.join(name), text);
-        write("database.csv", &sessions::database_csv(&rows, &session_of))?;
-        write(
-            "labels.csv",
-            &sessions::labels_csv(&timestamps, &o.labels, &session_of),
+        output::write_database_dir(
+            &dir,
+            &rows,
+            &timestamps,
+            &o.labels,
+            &json,
+            Some(&session_of),
         )?;
-        let path = dir.join("metrics.json");
-        let text = metrics_json::text(&json).map_err(|source| DatasetError::Write {
-            path: path.clone(),
-            source,
-        })?;
-        replace::write_text(&path, &text)?;
         let path = dir.join("topview.png");
         annotate::render(&view, &caption)
             .image
             .write_png(&path)
             .map_err(|source| DatasetError::Write { path, source })?;
-        let path = dir.join(extension::FILE_NAME);
-        extension::write(&path, &next).map_err(|source| DatasetError::Write { path, source })
+        extension::write(&dir.join(extension::FILE_NAME), &next)
     })?;
     if a.params.json {
         println!("{}", serde_json::to_string_pretty(&json)?);
