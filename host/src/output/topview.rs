@@ -181,11 +181,44 @@ impl Frame {
     }
 }
 
-fn finite2(p: [f64; 2]) -> bool {
+/// Whether a top-view position can be drawn (both coordinates finite).
+pub(crate) fn finite2(p: [f64; 2]) -> bool {
     p[0].is_finite() && p[1].is_finite()
 }
 
 impl TopView {
+    /// The database frames that can be drawn: index and position.
+    pub(crate) fn database_points(&self) -> impl Iterator<Item = (usize, [f64; 2])> + '_ {
+        self.database
+            .iter()
+            .filter_map(|&i| self.positions.get(i).map(|p| (i, *p)))
+            .filter(|(_, p)| finite2(*p))
+    }
+
+    /// Each database frame's view direction, a line `length` pixels long
+    /// in `colour` (drawn before the discs, so that no line covers one).
+    pub(crate) fn draw_view_lines(
+        &self,
+        img: &mut Image,
+        frame: &Frame,
+        length: f64,
+        colour: [u8; 3],
+    ) {
+        for (i, p) in self.database_points() {
+            let Some(&d) = self.view_dirs.get(i) else {
+                continue;
+            };
+            let norm = (d[0] * d[0] + d[1] * d[1]).sqrt();
+            if !(norm > 1e-6 && norm.is_finite()) {
+                continue;
+            }
+            let [x, y] = frame.px(p);
+            let end = [x + length * d[0] / norm, y + length * d[1] / norm];
+            let end = (end[0].floor() as i64, end[1].floor() as i64);
+            img.line(frame.pixel(p), end, colour);
+        }
+    }
+
     /// Rasterises the view: grey map columns (white background, darker = more
     /// voxels in the column, relative to the fullest column), the trajectory as
     /// a blue polyline, then database frames as red discs with a short red
@@ -295,26 +328,8 @@ impl TopView {
         }
 
         // Database frames: view lines first so that no line covers a disc.
-        let db = || {
-            self.database
-                .iter()
-                .filter_map(|&i| self.positions.get(i).map(|p| (i, *p)))
-                .filter(|(_, p)| finite2(*p))
-        };
-        for (i, p) in db() {
-            let Some(&d) = self.view_dirs.get(i) else {
-                continue;
-            };
-            let norm = (d[0] * d[0] + d[1] * d[1]).sqrt();
-            if !(norm > 1e-6 && norm.is_finite()) {
-                continue;
-            }
-            let [x, y] = frame.px(p);
-            let end = [x + VIEW_LENGTH * d[0] / norm, y + VIEW_LENGTH * d[1] / norm];
-            let end = (end[0].floor() as i64, end[1].floor() as i64);
-            img.line(frame.pixel(p), end, DATABASE);
-        }
-        for (_, p) in db() {
+        self.draw_view_lines(&mut img, &frame, VIEW_LENGTH, DATABASE);
+        for (_, p) in self.database_points() {
             img.disc(frame.pixel(p), DISC_RADIUS, DATABASE);
         }
         (img, Some(frame))

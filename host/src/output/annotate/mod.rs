@@ -7,7 +7,7 @@
 pub mod font;
 
 use crate::output::topview::{
-    Frame, Image, Projection, TopView, BACKGROUND, GREY_DARK, GREY_LIGHT,
+    finite2, Frame, Image, Projection, TopView, BACKGROUND, GREY_DARK, GREY_LIGHT,
 };
 use font::{draw_text, text_height, text_width};
 use std::collections::HashMap;
@@ -61,10 +61,6 @@ pub fn class_colours(view: &TopView) -> Vec<[u8; 3]> {
         .collect()
 }
 
-fn finite2(p: [f64; 2]) -> bool {
-    p[0].is_finite() && p[1].is_finite()
-}
-
 /// The frames' marks over a class-coloured trajectory: a dot per frame in
 /// its class colour, and per database frame a view line and a disc in its
 /// colour, ringed in ink.
@@ -74,29 +70,8 @@ pub fn mark_frames(img: &mut Image, frame: &Frame, view: &TopView, colours: &[[u
             img.disc(frame.pixel(p), 1, c);
         }
     }
-    let db = || {
-        view.database
-            .iter()
-            .filter_map(|&i| view.positions.get(i).map(|p| (i, *p)))
-            .filter(|(_, p)| finite2(*p))
-    };
-    for (i, p) in db() {
-        let Some(&d) = view.view_dirs.get(i) else {
-            continue;
-        };
-        let norm = (d[0] * d[0] + d[1] * d[1]).sqrt();
-        if !(norm > 1e-6 && norm.is_finite()) {
-            continue;
-        }
-        let [x, y] = frame.px(p);
-        let end = [x + VIEW_LENGTH * d[0] / norm, y + VIEW_LENGTH * d[1] / norm];
-        img.line(
-            frame.pixel(p),
-            (end[0].floor() as i64, end[1].floor() as i64),
-            INK,
-        );
-    }
-    for (i, p) in db() {
+    view.draw_view_lines(img, frame, VIEW_LENGTH, INK);
+    for (i, p) in view.database_points() {
         let c = colours.get(i).copied().unwrap_or(INK);
         img.disc(frame.pixel(p), DISC_RADIUS + 1, INK);
         img.disc(frame.pixel(p), DISC_RADIUS, c);
