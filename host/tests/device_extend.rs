@@ -272,6 +272,8 @@ fn an_extend_without_a_finished_scan_or_of_another_configuration_is_refused_in_w
         "{err}"
     );
     assert!(!err.contains("NothingToExtend"), "{err}");
+    // One sentence, not a source line's indentation in the middle of it.
+    assert!(!err.contains("  "), "{err}");
     assert!(!out.exists(), "nothing written");
     // The library: a scan cut short, then a finished one with another mu.
     let seq = placedb_host::testing::demo(6);
@@ -309,6 +311,7 @@ fn an_extend_without_a_finished_scan_or_of_another_configuration_is_refused_in_w
     let other = placedb::protocol::Config { mu: 0.5, ..cfg };
     let err = stream(&mut client, &seq, &other, PROFILE, &extend, None).unwrap_err();
     assert!(err.to_string().contains("configured otherwise"), "{err}");
+    assert!(!err.to_string().contains("  "), "{err}");
     // Nothing changed: the same scan extends with its own configuration.
     let report = stream(&mut client, &seq, &cfg, PROFILE, &extend, None).unwrap();
     assert_eq!((report.first_index, report.status.sessions), (6, 2));

@@ -529,7 +529,9 @@ impl ScanState {
                 ..
             }) => {
                 return Err(DeviceError::Input(
-                    "--extend: the device holds no finished scan in its flash log to extend                      (stream a first session to it and let it finish, then extend it; a scan                      cut short is resumed with --resume)"
+                    "--extend: the device holds no finished scan in its flash log to extend \
+                     (stream a first session to it and let it finish, then extend it; a scan \
+                     cut short is resumed with --resume)"
                         .into(),
                 ))
             }
@@ -538,7 +540,9 @@ impl ScanState {
                 ..
             }) => {
                 return Err(DeviceError::Input(
-                    "--extend: the device's scan was configured otherwise: every session of a                      scan needs the first one's camera, depth scale and range, stride, voxel                      size, grid, --mu and --window (Reset the device for a new scan)"
+                    "--extend: the device's scan was configured otherwise: every session of a \
+                     scan needs the first one's camera, depth scale and range, stride, voxel \
+                     size, grid, --mu and --window (Reset the device for a new scan)"
                         .into(),
                 ))
             }
