@@ -9,7 +9,7 @@
 //! than the paper's `in-order` and at most 1.15 × `greedy`.
 
 use placedb::protocol::{degradation, CapacitySlot, RecordKind, Status};
-use placedb::SelectorConfig;
+use placedb::{Pose, SelectorConfig};
 use placedb_host::device::client::Client;
 use placedb_host::device::link::LocalLink;
 use placedb_host::device::scan::{device_config, scan_config, DepthFrame, StreamOptions};
@@ -18,6 +18,7 @@ use placedb_host::pipeline::{self, Prepared, Solver, SolverParams};
 use placedb_host::synth::{self, SynthConfig};
 use placedb_host::yardstick::metrics;
 use placedb_host::{Sequence, VoxelConfig};
+use std::sync::{mpsc, Arc};
 
 fn building(frames: usize, rooms: usize, seed: u64) -> Sequence {
     synth::sequence(&SynthConfig {
@@ -38,57 +39,87 @@ struct DeviceRun {
 
 /// Streams `seq` at once to one in-process device per `(profile, mu)` of
 /// `runs` (window: the profile's) and exports each. Every frame is rendered
-/// once and pushed to every device in turn (each runs on its own thread), so
-/// that nine streams of the 20,000-frame building cost one rendering, not
-/// nine.
+/// once and handed to every device's session, so that nine streams of the
+/// 20,000-frame building cost one rendering, not nine. Each session (its
+/// encoding of the frames, its device on its own thread) runs on a thread
+/// of its own, fed in frame order through a short queue: the streams do
+/// not wait for one another, so they keep both cores busy.
 fn device_runs(seq: &Sequence, runs: &[(&str, f32)]) -> Vec<DeviceRun> {
     let scan = scan_config(seq, &VoxelConfig::default()).expect("scan config");
-    let mut sessions: Vec<_> = runs
-        .iter()
-        .map(|&(profile, mu)| {
-            let window = placedb::profile::by_name(profile).expect("profile").window as u16;
-            let sel = SelectorConfig {
-                mu,
-                window,
-                sketch_margin: SolverParams::default().sketch_margin,
-            };
-            let cfg = device_config(&scan, &sel).expect("device config");
-            let link = LocalLink::start(profile).expect("local device");
-            let mut session = Session::new(Client::new(link), StreamOptions::default());
-            session.start(&cfg, Some(profile)).expect("starts");
-            session
-        })
-        .collect();
-    for (i, frame) in seq.frames.iter().enumerate() {
-        let img = seq.depth(i).expect("renders");
-        let depth = DepthFrame {
-            timestamp: frame.timestamp,
-            pose: frame.pose().expect("pose"),
-            intrinsics: scan.intrinsics,
-            depth: &img.data,
-        };
-        for session in &mut sessions {
-            session.push_frame(&depth).expect("streams");
-        }
-    }
-    sessions
-        .iter_mut()
-        .map(|session| {
-            let status = session.finish().expect("finishes");
-            let export = session.export().expect("exports");
-            let database = export.database().iter().map(|r| r.index as usize).collect();
-            let labels = export
-                .records
-                .iter()
-                .filter(|r| matches!(r.kind, RecordKind::Label { .. }))
-                .count();
-            DeviceRun {
-                status,
-                database,
-                labels,
+    std::thread::scope(|threads| {
+        let (feeds, streams): (Vec<_>, Vec<_>) = runs
+            .iter()
+            .map(|&(profile, mu)| {
+                let window = placedb::profile::by_name(profile).expect("profile").window as u16;
+                let sel = SelectorConfig {
+                    mu,
+                    window,
+                    sketch_margin: SolverParams::default().sketch_margin,
+                };
+                let cfg = device_config(&scan, &sel).expect("device config");
+                let link = LocalLink::start(profile).expect("local device");
+                let mut session = Session::new(Client::new(link), StreamOptions::default());
+                session.start(&cfg, Some(profile)).expect("starts");
+                // A few frames ahead at most: memory stays that of a few frames.
+                let (feed, frames) = mpsc::sync_channel::<Arc<Rendered>>(4);
+                let intrinsics = scan.intrinsics;
+                let stream = threads.spawn(move || {
+                    for frame in frames {
+                        let depth = DepthFrame {
+                            timestamp: frame.timestamp,
+                            pose: frame.pose,
+                            intrinsics,
+                            depth: &frame.depth,
+                        };
+                        session.push_frame(&depth).expect("streams");
+                    }
+                    device_run(&mut session)
+                });
+                (feed, stream)
+            })
+            .collect();
+        for (i, frame) in seq.frames.iter().enumerate() {
+            let rendered = Arc::new(Rendered {
+                timestamp: frame.timestamp,
+                pose: frame.pose().expect("pose"),
+                depth: seq.depth(i).expect("renders").data,
+            });
+            for feed in &feeds {
+                feed.send(Arc::clone(&rendered))
+                    .expect("the stream is running");
             }
-        })
-        .collect()
+        }
+        // The end of the frames: each stream finishes and exports.
+        drop(feeds);
+        streams
+            .into_iter()
+            .map(|s| s.join().expect("a stream panicked"))
+            .collect()
+    })
+}
+
+/// One rendered frame, shared by the streams.
+struct Rendered {
+    timestamp: f64,
+    pose: Pose,
+    depth: Vec<u16>,
+}
+
+/// Finishes the scan of `session` and exports it.
+fn device_run(session: &mut Session<LocalLink>) -> DeviceRun {
+    let status = session.finish().expect("finishes");
+    let export = session.export().expect("exports");
+    let database = export.database().iter().map(|r| r.index as usize).collect();
+    let labels = export
+        .records
+        .iter()
+        .filter(|r| matches!(r.kind, RecordKind::Label { .. }))
+        .count();
+    DeviceRun {
+        status,
+        database,
+        labels,
+    }
 }
 
 fn size(seq: &Sequence, prep: &Prepared, solver: Solver, mu: f32) -> usize {
