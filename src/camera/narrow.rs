@@ -63,7 +63,7 @@ impl Split {
     #[inline(always)]
     fn key(self, raw: u32, ray: Ray) -> u32 {
         // `raw * b + low <= (2^16 - 1)^2 + 2^16 - 1 < 2^32`: never wraps.
-        let carry = raw.wrapping_mul(ray.b).wrapping_add(self.low) >> 16;
+        let carry = raw.wrapping_mul(ray.b_high >> 16).wrapping_add(self.low) >> 16;
         let r = (raw as i32)
             .wrapping_mul(ray.a)
             .wrapping_add(self.mid)
@@ -72,12 +72,15 @@ impl Split {
     }
 }
 
-/// A fixed-point ray (or its step) as `a 2^16 + b`, `0 <= b < 2^16`: the
-/// halves the key needs, stepped without 64-bit arithmetic.
+/// A fixed-point ray (or its step) as `a 2^16 + b`, `0 <= b < 2^16`, with
+/// `b` kept in the high half of `b_high` (`b_high = b 2^16`): the halves
+/// the key needs, stepped without 64-bit arithmetic, and `b`'s carry into
+/// `a` is the carry flag of the add (an `adds` and an `adcs` a step, where
+/// a `b` in the low half takes a shift, a mask and two adds).
 #[derive(Clone, Copy)]
 struct Ray {
     a: i32,
-    b: u32,
+    b_high: u32,
 }
 
 impl Ray {
@@ -85,17 +88,17 @@ impl Ray {
     fn of(ray: i64) -> Ray {
         Ray {
             a: (ray >> 16) as i32,
-            b: ray as u32 & 0xffff,
+            b_high: (ray as u32) << 16,
         }
     }
 
     /// The ray one sample on: the carry out of `b` moves into `a`.
     #[inline(always)]
     fn step(self, by: Ray) -> Ray {
-        let b = self.b.wrapping_add(by.b);
+        let (b_high, carry) = self.b_high.overflowing_add(by.b_high);
         Ray {
-            a: self.a.wrapping_add(by.a).wrapping_add((b >> 16) as i32),
-            b: b & 0xffff,
+            a: self.a.wrapping_add(by.a).wrapping_add(i32::from(carry)),
+            b_high,
         }
     }
 }
