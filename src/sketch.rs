@@ -48,17 +48,60 @@ const C2: (u32, u32) = (0xc4ce_b9fe, 0x1a85_ec53);
 /// [`hash_key`] with `mul` for the 32x32 -> 64-bit multiply, as (low, high)
 /// words (see [`hash_key`] for the derivation).
 #[inline(always)]
-fn hash_on_words(bits: u64, mul: impl Fn(u32, u32) -> (u32, u32)) -> u32 {
+fn hash_on_words(bits: u64, mul: impl Fn(u32, u32) -> (u32, u32) + Copy) -> u32 {
+    let (gh, gl) = first_stage(bits, mul);
+    second_stage(gh, gl, mul)
+}
+
+/// `g = f * C1 ^ (f * C1 >> 33)`, `f = k ^ (k >> 33)`, as (high, low) words.
+#[inline(always)]
+fn first_stage(bits: u64, mul: impl Fn(u32, u32) -> (u32, u32)) -> (u32, u32) {
     let (kh, kl) = ((bits >> 32) as u32, bits as u32);
     let (fh, fl) = (kh, kl ^ (kh >> 1));
     let (hl, p) = mul(fl, C1.1);
     let hh = p
         .wrapping_add(fh.wrapping_mul(C1.1))
         .wrapping_add(fl.wrapping_mul(C1.0));
-    let (gh, gl) = (hh, hl ^ (hh >> 1));
+    (hh, hl ^ (hh >> 1))
+}
+
+/// The hash from `g`: the high word of `g * C2`.
+#[inline(always)]
+fn second_stage(gh: u32, gl: u32, mul: impl Fn(u32, u32) -> (u32, u32)) -> u32 {
     let (_, p) = mul(gl, C2.1);
     p.wrapping_add(gh.wrapping_mul(C2.1))
         .wrapping_add(gl.wrapping_mul(C2.0))
+}
+
+/// How far the hash may lie above [`hash_floor`].
+const FLOOR_SLACK: u32 = 1 << 17;
+
+/// A floor of the hash from `g` for three plain multiplies instead of the
+/// widening one: the hash is `(floor + e) mod 2^32` with `0 <= e <=
+/// FLOOR_SLACK`. With `gl = a1:a0` and `c = b1:b0` (16-bit halves of `C2`'s
+/// low word), the high word of `gl * c` is `a1*b1` plus the high word of
+/// `(a0*b1 + a1*b0) << 16 + a0*b0`, which is below `2^49 + 2^32`: at most
+/// `2^17`. The floor keeps `a1*b1` alone.
+#[inline(always)]
+fn hash_floor(gh: u32, gl: u32) -> u32 {
+    (gl >> 16)
+        .wrapping_mul(C2.1 >> 16)
+        .wrapping_add(gh.wrapping_mul(C2.1))
+        .wrapping_add(gl.wrapping_mul(C2.0))
+}
+
+/// The hash of `bits`, unless it is sure to be at least `bound` (`None`):
+/// a hash whose floor is at least `bound`, with no wrap past `u32::MAX`
+/// within its slack, is too, so most keys of a large set are refused
+/// before the widening multiply of the second stage.
+#[inline(always)]
+fn hash_unless_at_least(bits: u64, bound: u32) -> Option<u32> {
+    let (gh, gl) = first_stage(bits, widening_mul);
+    let floor = hash_floor(gh, gl);
+    if floor >= bound && floor <= u32::MAX - FLOOR_SLACK {
+        return None;
+    }
+    Some(second_stage(gh, gl, widening_mul))
 }
 
 /// The 32x32 -> 64-bit product as (low, high) words: by 16-bit halves on
@@ -169,9 +212,9 @@ impl<const K: usize> Sketch<K> {
     #[inline(never)]
     pub fn from_keys(keys: impl Iterator<Item = u64>) -> Self {
         let mut s = Self::default();
-        let mut keys = keys.map(hash_key);
-        for (slot, h) in s.hashes.iter_mut().zip(&mut keys) {
-            *slot = h;
+        let mut keys = keys;
+        for (slot, k) in s.hashes.iter_mut().zip(&mut keys) {
+            *slot = hash_key(k);
             // `len < K <= u16::MAX` (see `LEN_FITS`): no wrap.
             s.len += 1;
         }
@@ -182,13 +225,16 @@ impl<const K: usize> Sketch<K> {
                 }
             }
             // The largest kept, held here: most hashes of a large set are
-            // refused by this one compare.
+            // refused by it, most of them before they are fully computed.
             if let Some(&first) = s.hashes.first() {
                 let mut largest = first;
-                for h in keys {
-                    if h < largest {
-                        sift_down(&mut s.hashes, 0, h);
-                        largest = s.hashes.first().copied().unwrap_or(h);
+                for k in keys {
+                    match hash_unless_at_least(k, largest) {
+                        Some(h) if h < largest => {
+                            sift_down(&mut s.hashes, 0, h);
+                            largest = s.hashes.first().copied().unwrap_or(h);
+                        }
+                        _ => {}
                     }
                 }
             }
@@ -378,6 +424,43 @@ mod tests {
             assert_eq!(hash_on_words(k, native), want, "key {k:#x}");
             assert_eq!(hash_key(k), want, "key {k:#x}");
         }
+    }
+
+    /// The floor is at most `FLOOR_SLACK` below the hash (mod 2^32), and a
+    /// hash is refused against a bound only when it is at least the bound.
+    #[test]
+    fn the_early_refusal_refuses_only_hashes_at_least_the_bound() {
+        let keys = edge_keys()
+            .chain(random(4).take(200_000))
+            .chain(random(5).take(200_000).map(|k| k >> 1));
+        let (mut refused, mut near_wrap) = (0u32, 0u32);
+        for (i, k) in keys.enumerate() {
+            let h = hash_key_definition(k);
+            let (gh, gl) = first_stage(k, mul_by_halves);
+            let floor = hash_floor(gh, gl);
+            assert!(h.wrapping_sub(floor) <= FLOOR_SLACK, "key {k:#x}");
+            near_wrap += u32::from(floor > u32::MAX - FLOOR_SLACK);
+            let r = (i as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15) as u32;
+            for bound in [
+                0,
+                1,
+                h.saturating_sub(1),
+                h,
+                h.saturating_add(1),
+                r,
+                u32::MAX,
+            ] {
+                match hash_unless_at_least(k, bound) {
+                    Some(got) => assert_eq!(got, h, "key {k:#x}"),
+                    None => {
+                        assert!(h >= bound, "key {k:#x} refused below {bound:#x}");
+                        refused += 1;
+                    }
+                }
+            }
+        }
+        // The refusal does happen, and floors near the wrap are among the keys.
+        assert!(refused > 100_000 && near_wrap > 0, "{refused} {near_wrap}");
     }
 
     /// Sketches of random sets (sizes around `K` and far above, random
