@@ -8,9 +8,30 @@
 //! estimate with standard error about `sqrt(J (1 - J) / K)`.
 
 /// Hash of a packed voxel key: the finaliser of MurmurHash3 (a bijection on
-/// `u64`, so distinct keys collide only in the 32 bits kept).
+/// `u64`, so distinct keys collide only in the 32 bits kept), of which only
+/// the high 32 bits are kept.
+///
+/// Computed on 32-bit words, bit for bit what the definition on `u64` gives
+/// (`hash_key_definition` in the tests, which check it): a frame hashes every one of its
+/// keys, and a 32-bit core has no 64-bit multiply (the Cortex-M0+ not even a
+/// widening one, and `__aeabi_lmul` is a call doing four partial products and
+/// more). Writing `k = kh:kl` (high and low words):
+/// - `f = k ^ (k >> 33)` is `kh : kl ^ (kh >> 1)`, the shift's high word being 0;
+/// - `f * C1 mod 2^64` is `lo(fl*c1l) : hi(fl*c1l) + fh*c1l + fl*c1h`
+///   (mod `2^32`): one widening and two plain multiplies;
+/// - `g = h ^ (h >> 33)` as for `f`;
+/// - the kept word, `(g * C2 ^ (g * C2 >> 33)) >> 32`, is the high word of
+///   `g * C2` alone (the last shift moves nothing into it): again one
+///   widening and two plain multiplies, of which only the high word counts.
 #[inline]
 pub fn hash_key(bits: u64) -> u32 {
+    hash_on_words(bits, widening_mul)
+}
+
+/// The hash as MurmurHash3 defines its finaliser, on `u64`: the reference
+/// [`hash_key`] is checked against.
+#[cfg(test)]
+fn hash_key_definition(bits: u64) -> u32 {
     let mut h = bits;
     h ^= h >> 33;
     h = h.wrapping_mul(0xff51_afd7_ed55_8ccd);
@@ -20,33 +41,137 @@ pub fn hash_key(bits: u64) -> u32 {
     (h >> 32) as u32
 }
 
-/// Restores the max-heap order of `heap` below `i` (children of `i` are
-/// `2i + 1` and `2i + 2`), `heap[i]` being the one entry out of place.
-fn sift_down(heap: &mut [u32], mut i: usize) {
+/// MurmurHash3's finaliser constants, as (high, low) words.
+const C1: (u32, u32) = (0xff51_afd7, 0xed55_8ccd);
+const C2: (u32, u32) = (0xc4ce_b9fe, 0x1a85_ec53);
+
+/// [`hash_key`] with `mul` for the 32x32 -> 64-bit multiply, as (low, high)
+/// words (see [`hash_key`] for the derivation).
+#[inline(always)]
+fn hash_on_words(bits: u64, mul: impl Fn(u32, u32) -> (u32, u32) + Copy) -> u32 {
+    let (gh, gl) = first_stage(bits, mul);
+    second_stage(gh, gl, mul)
+}
+
+/// `g = f * C1 ^ (f * C1 >> 33)`, `f = k ^ (k >> 33)`, as (high, low) words.
+#[inline(always)]
+fn first_stage(bits: u64, mul: impl Fn(u32, u32) -> (u32, u32)) -> (u32, u32) {
+    let (kh, kl) = ((bits >> 32) as u32, bits as u32);
+    let (fh, fl) = (kh, kl ^ (kh >> 1));
+    let (hl, p) = mul(fl, C1.1);
+    let hh = p
+        .wrapping_add(fh.wrapping_mul(C1.1))
+        .wrapping_add(fl.wrapping_mul(C1.0));
+    (hh, hl ^ (hh >> 1))
+}
+
+/// The hash from `g`: the high word of `g * C2`.
+#[inline(always)]
+fn second_stage(gh: u32, gl: u32, mul: impl Fn(u32, u32) -> (u32, u32)) -> u32 {
+    let (_, p) = mul(gl, C2.1);
+    p.wrapping_add(gh.wrapping_mul(C2.1))
+        .wrapping_add(gl.wrapping_mul(C2.0))
+}
+
+/// How far the hash may lie above [`hash_floor`].
+const FLOOR_SLACK: u32 = 1 << 17;
+
+/// A floor of the hash from `g` for three plain multiplies instead of the
+/// widening one: the hash is `(floor + e) mod 2^32` with `0 <= e <=
+/// FLOOR_SLACK`. With `gl = a1:a0` and `c = b1:b0` (16-bit halves of `C2`'s
+/// low word), the high word of `gl * c` is `a1*b1` plus the high word of
+/// `(a0*b1 + a1*b0) << 16 + a0*b0`, which is below `2^49 + 2^32`: at most
+/// `2^17`. The floor keeps `a1*b1` alone.
+#[inline(always)]
+fn hash_floor(gh: u32, gl: u32) -> u32 {
+    (gl >> 16)
+        .wrapping_mul(C2.1 >> 16)
+        .wrapping_add(gh.wrapping_mul(C2.1))
+        .wrapping_add(gl.wrapping_mul(C2.0))
+}
+
+/// The hash of `bits`, unless it is sure to be at least `bound` (`None`):
+/// a hash whose floor is at least `bound`, with no wrap past `u32::MAX`
+/// within its slack, is too, so most keys of a large set are refused
+/// before the widening multiply of the second stage.
+#[inline(always)]
+fn hash_unless_at_least(bits: u64, bound: u32) -> Option<u32> {
+    let (gh, gl) = first_stage(bits, widening_mul);
+    let floor = hash_floor(gh, gl);
+    if floor >= bound && floor <= u32::MAX - FLOOR_SLACK {
+        return None;
+    }
+    Some(second_stage(gh, gl, widening_mul))
+}
+
+/// The 32x32 -> 64-bit product as (low, high) words: by 16-bit halves on
+/// the Cortex-M0/M0+ (ARMv6-M), which has no widening multiply. Stable Rust
+/// names no target feature for that, but ARMv6-M is also the one ARM
+/// profile without 32-bit atomics, which it does name.
+#[cfg(all(target_arch = "arm", not(target_has_atomic = "32")))]
+#[inline(always)]
+fn widening_mul(a: u32, b: u32) -> (u32, u32) {
+    mul_by_halves(a, b)
+}
+
+/// The 32x32 -> 64-bit product as (low, high) words: one instruction
+/// (`umull`) on a Cortex-M3/M4, a 64-bit multiply on a 64-bit host.
+#[cfg(not(all(target_arch = "arm", not(target_has_atomic = "32"))))]
+#[inline(always)]
+fn widening_mul(a: u32, b: u32) -> (u32, u32) {
+    let p = u64::from(a) * u64::from(b);
+    (p as u32, (p >> 32) as u32)
+}
+
+/// The 32x32 -> 64-bit product as (low, high) words from four 16x16 -> 32
+/// products (single-cycle `muls` on the Cortex-M0+, which keeps only the low
+/// word of a product): `a*b = a1*b1 << 32 + (a0*b1 + a1*b0) << 16 + a0*b0`.
+#[inline(always)]
+#[cfg_attr(
+    not(any(test, all(target_arch = "arm", not(target_has_atomic = "32")))),
+    allow(dead_code)
+)]
+fn mul_by_halves(a: u32, b: u32) -> (u32, u32) {
+    let (a0, a1) = (a & 0xffff, a >> 16);
+    let (b0, b1) = (b & 0xffff, b >> 16);
+    // Each 16x16 product is below 2^32; their sums carry explicitly.
+    let (mid, mid_carry) = a0.wrapping_mul(b1).overflowing_add(a1.wrapping_mul(b0));
+    let (lo, lo_carry) = a0.wrapping_mul(b0).overflowing_add(mid << 16);
+    // The high word of a 32x32 product is at most 2^32 - 2: no wrap.
+    let hi = a1
+        .wrapping_mul(b1)
+        .wrapping_add(mid >> 16)
+        .wrapping_add(u32::from(mid_carry) << 16)
+        .wrapping_add(u32::from(lo_carry));
+    (lo, hi)
+}
+
+/// Puts `h` into the max-heap `heap` at `i`, in place of the entry there,
+/// and restores the heap order below `i` (the children of `i` are `2i + 1`
+/// and `2i + 2`): larger children move up into the hole until `h` is at
+/// least both of them. With `i` the root this replaces the largest entry.
+fn sift_down(heap: &mut [u32], mut i: usize, h: u32) {
     loop {
-        let left = i.saturating_mul(2).saturating_add(1);
-        let right = left.saturating_add(1);
-        let mut largest = i;
-        for child in [left, right] {
-            if let (Some(c), Some(l)) = (heap.get(child), heap.get(largest)) {
-                if c > l {
-                    largest = child;
-                }
-            }
-        }
-        let (Some(&parent), Some(&child)) = (heap.get(i), heap.get(largest)) else {
-            return;
+        // `i < heap.len()`, far below `usize::MAX / 2`: no wrap.
+        let left = i.wrapping_mul(2).wrapping_add(1);
+        let Some(&l) = heap.get(left) else {
+            break;
         };
-        if largest == i {
-            return;
+        let right = left.wrapping_add(1);
+        let (child, c) = match heap.get(right) {
+            Some(&r) if r > l => (right, r),
+            _ => (left, l),
+        };
+        if c <= h {
+            break;
         }
-        if let Some(p) = heap.get_mut(i) {
-            *p = child;
+        if let Some(hole) = heap.get_mut(i) {
+            *hole = c;
         }
-        if let Some(c) = heap.get_mut(largest) {
-            *c = parent;
-        }
-        i = largest;
+        i = child;
+    }
+    if let Some(hole) = heap.get_mut(i) {
+        *hole = h;
     }
 }
 
@@ -87,20 +212,30 @@ impl<const K: usize> Sketch<K> {
     #[inline(never)]
     pub fn from_keys(keys: impl Iterator<Item = u64>) -> Self {
         let mut s = Self::default();
-        let mut keys = keys.map(hash_key);
-        for (slot, h) in s.hashes.iter_mut().zip(&mut keys) {
-            *slot = h;
+        let mut keys = keys;
+        for (slot, k) in s.hashes.iter_mut().zip(&mut keys) {
+            *slot = hash_key(k);
             // `len < K <= u16::MAX` (see `LEN_FITS`): no wrap.
             s.len += 1;
         }
         if usize::from(s.len) == K {
             for i in (0..K / 2).rev() {
-                sift_down(&mut s.hashes, i);
+                if let Some(&h) = s.hashes.get(i) {
+                    sift_down(&mut s.hashes, i, h);
+                }
             }
-            for h in keys {
-                if let Some(largest) = s.hashes.first_mut().filter(|l| h < **l) {
-                    *largest = h;
-                    sift_down(&mut s.hashes, 0);
+            // The largest kept, held here: most hashes of a large set are
+            // refused by it, most of them before they are fully computed.
+            if let Some(&first) = s.hashes.first() {
+                let mut largest = first;
+                for k in keys {
+                    match hash_unless_at_least(k, largest) {
+                        Some(h) if h < largest => {
+                            sift_down(&mut s.hashes, 0, h);
+                            largest = s.hashes.first().copied().unwrap_or(h);
+                        }
+                        _ => {}
+                    }
                 }
             }
         }
@@ -195,6 +330,163 @@ impl<const K: usize> Sketch<K> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A xorshift64* stream: reproducible random keys without a dependency.
+    fn random(seed: u64) -> impl Iterator<Item = u64> + Clone {
+        let mut x = seed | 1;
+        core::iter::repeat_with(move || {
+            x ^= x >> 12;
+            x ^= x << 25;
+            x ^= x >> 27;
+            x.wrapping_mul(0x2545_f491_4f6c_dd1d)
+        })
+    }
+
+    /// Keys at the edges: 0, all ones, each single bit and its complement,
+    /// the voxel key range's corners and the words' boundaries.
+    fn edge_keys() -> impl Iterator<Item = u64> {
+        use crate::voxel::VoxelKey;
+        let (lo, hi) = (VoxelKey::MIN, VoxelKey::MAX);
+        let corners = [
+            VoxelKey::new(lo, lo, lo),
+            VoxelKey::new(hi, hi, hi),
+            VoxelKey::new(lo, hi, lo),
+            VoxelKey::new(hi, lo, hi),
+            VoxelKey::new(0, 0, 0),
+            VoxelKey::new(-1, -1, -1),
+        ]
+        .map(VoxelKey::to_bits);
+        let words = [
+            0,
+            u64::MAX,
+            u64::from(u32::MAX),
+            1 << 32,
+            u64::MAX << 32,
+            (1 << 63) - 1,
+            (1 << 63) - 2,
+            (1 << 63) + 1,
+            (1 << 33) - 1,
+            0xffff,
+            0x1_0000,
+        ];
+        (0..64)
+            .flat_map(|i| [1u64 << i, !(1u64 << i)])
+            .chain(corners)
+            .chain(words)
+            .flat_map(|k| [k, k.wrapping_sub(1), k.wrapping_add(1)])
+    }
+
+    #[test]
+    fn the_product_by_halves_is_the_widening_product() {
+        let edges = [
+            0u32,
+            1,
+            0xffff,
+            0x1_0000,
+            0x1_ffff,
+            0xffff_0000,
+            u32::MAX - 1,
+            u32::MAX,
+        ];
+        let pairs = edges
+            .iter()
+            .flat_map(|&a| edges.iter().map(move |&b| (a, b)))
+            .chain(
+                random(1)
+                    .take(200_000)
+                    .map(|r| (r as u32, (r >> 32) as u32)),
+            );
+        for (a, b) in pairs {
+            let p = u64::from(a) * u64::from(b);
+            assert_eq!(
+                mul_by_halves(a, b),
+                (p as u32, (p >> 32) as u32),
+                "{a:#x} * {b:#x}"
+            );
+        }
+    }
+
+    /// The hash on words, with either multiply (the Cortex-M0+ takes the one by
+    /// halves, every other target the widening one), is the definition's.
+    #[test]
+    fn the_hash_on_words_is_the_definition() {
+        let native = |a: u32, b: u32| {
+            let p = u64::from(a) * u64::from(b);
+            (p as u32, (p >> 32) as u32)
+        };
+        // Random keys, and random keys within the packed key range (63 bits).
+        let keys = edge_keys()
+            .chain(random(2).take(200_000))
+            .chain(random(3).take(200_000).map(|k| k >> 1));
+        for k in keys {
+            let want = hash_key_definition(k);
+            assert_eq!(hash_on_words(k, mul_by_halves), want, "key {k:#x}");
+            assert_eq!(hash_on_words(k, native), want, "key {k:#x}");
+            assert_eq!(hash_key(k), want, "key {k:#x}");
+        }
+    }
+
+    /// The floor is at most `FLOOR_SLACK` below the hash (mod 2^32), and a
+    /// hash is refused against a bound only when it is at least the bound.
+    #[test]
+    fn the_early_refusal_refuses_only_hashes_at_least_the_bound() {
+        let keys = edge_keys()
+            .chain(random(4).take(200_000))
+            .chain(random(5).take(200_000).map(|k| k >> 1));
+        let (mut refused, mut near_wrap) = (0u32, 0u32);
+        for (i, k) in keys.enumerate() {
+            let h = hash_key_definition(k);
+            let (gh, gl) = first_stage(k, mul_by_halves);
+            let floor = hash_floor(gh, gl);
+            assert!(h.wrapping_sub(floor) <= FLOOR_SLACK, "key {k:#x}");
+            near_wrap += u32::from(floor > u32::MAX - FLOOR_SLACK);
+            let r = (i as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15) as u32;
+            for bound in [
+                0,
+                1,
+                h.saturating_sub(1),
+                h,
+                h.saturating_add(1),
+                r,
+                u32::MAX,
+            ] {
+                match hash_unless_at_least(k, bound) {
+                    Some(got) => assert_eq!(got, h, "key {k:#x}"),
+                    None => {
+                        assert!(h >= bound, "key {k:#x} refused below {bound:#x}");
+                        refused += 1;
+                    }
+                }
+            }
+        }
+        // The refusal does happen, and floors near the wrap are among the keys.
+        assert!(refused > 100_000 && near_wrap > 0, "{refused} {near_wrap}");
+    }
+
+    /// Sketches of random sets (sizes around `K` and far above, random
+    /// order) are the `K` smallest of the definition's hashes, ascending.
+    #[test]
+    fn sketches_of_random_sets_are_the_definitions() {
+        let mut all = [0u32; 5000];
+        for (t, n) in [0usize, 1, 63, 64, 65, 500, 5000].into_iter().enumerate() {
+            for seed in 0..4u64 {
+                // Packed keys are below 2^63; any u64 is hashed alike.
+                let shift = if seed % 2 == 0 { 1 } else { 0 };
+                let keys = random(seed * 16 + t as u64).take(n).map(|k| k >> shift);
+                for (slot, k) in all.iter_mut().zip(keys.clone()) {
+                    *slot = hash_key_definition(k);
+                }
+                let all = &mut all[..n];
+                all.sort_unstable();
+                let want = &all[..n.min(64)];
+                assert_eq!(
+                    Sketch::<64>::from_keys(keys).hashes(),
+                    want,
+                    "n {n} seed {seed}"
+                );
+            }
+        }
+    }
 
     #[test]
     fn identical_disjoint_and_partial() {
