@@ -31,7 +31,7 @@
 
 use super::database::{DbEntry, DbIndex, FrameStore, NOWHERE};
 use super::{better, Best, SelectorConfig, Stored};
-use crate::store::KeyPool;
+use crate::store::{Fresh, KeyPool};
 use crate::voxel::iou;
 
 /// The database as the overlap step reads it.
@@ -73,14 +73,15 @@ fn may_end_uncovered<const DB: usize, const K: usize>(
     free <= ahead || pinned.saturating_add(ahead) >= db.resident_capacity
 }
 
-/// Measures the new frame (`new`, its ascending packed `keys` in hand)
-/// against every database frame that can matter (see the module docs).
+/// Measures the new frame (`new`, its ascending packed keys in hand, and
+/// the same staged in the pool when it had room) against every database
+/// frame that can matter (see the module docs).
 pub(super) fn against_database<const POOL: usize, const DB: usize, const K: usize>(
     cfg: &SelectorConfig,
     pool: &KeyPool<POOL>,
     mut db: DbView<'_, DB, K>,
     new: &Stored<K>,
-    keys: &[u64],
+    fresh: Fresh<'_>,
     ahead: usize,
 ) -> Measured {
     let mu = cfg.mu;
@@ -93,7 +94,7 @@ pub(super) fn against_database<const POOL: usize, const DB: usize, const K: usiz
     };
     let bound = |e: &DbEntry| match &new.aabb {
         Some(a) if e.len > 0 && e.bbox.touches(a) => {
-            iou(new.len, u32::from(e.len), e.bbox.count_in(keys))
+            iou(new.len, u32::from(e.len), e.bbox.count_in(fresh.keys))
         }
         _ => 0.0,
     };
@@ -116,7 +117,7 @@ pub(super) fn against_database<const POOL: usize, const DB: usize, const K: usiz
             if !wanted {
                 continue;
             }
-            match measure(cfg, pool, &mut db, e, new, keys) {
+            match measure(cfg, pool, &mut db, e, new, fresh) {
                 Some((x, overlaps)) => {
                     m.nearest = better(m.nearest, x, e.index);
                     if overlaps {
@@ -138,17 +139,17 @@ fn measure<const POOL: usize, const DB: usize, const K: usize>(
     db: &mut DbView<'_, DB, K>,
     e: &DbEntry,
     new: &Stored<K>,
-    keys: &[u64],
+    fresh: Fresh<'_>,
 ) -> Option<(f32, bool)> {
     let exact = |x: f32| (x, x > cfg.mu);
     let sketched = |x: f32| (x, x > cfg.mu + cfg.sketch_margin);
     let resident = db.resident.iter().find(|r| r.meta.index == e.index);
-    if let Some(run) = resident.and_then(|r| r.keys.as_ref()) {
-        let len = resident.map_or(0, |r| r.len);
-        return Some(exact(iou(new.len, len, pool.intersect(run, keys))));
+    if let Some((r, run)) = resident.and_then(|r| Some((r, r.keys.as_ref()?))) {
+        let common = pool.intersect_fresh(run, r.aabb.as_ref(), fresh);
+        return Some(exact(iou(new.len, r.len, common)));
     }
     if e.keyed {
-        if let Some((common, len)) = db.store.intersect(e.at, keys) {
+        if let Some((common, len)) = db.store.intersect(e.at, fresh.keys) {
             return Some(exact(iou(new.len, len, common)));
         }
     }

@@ -28,7 +28,7 @@
 
 use crate::camera::Pose;
 use crate::frame::{FrameError, FrameIngest, FrameMeta, ScanConfig};
-use crate::key_pool::{Aabb, KeyPool, KeyRun};
+use crate::key_pool::{Aabb, Fresh, KeyPool, KeyRun};
 use crate::sketch::Sketch;
 use crate::voxel::iou;
 
@@ -348,11 +348,13 @@ struct WindowView {
     slot: usize,
 }
 
-/// Measures the overlap of a new frame (exact `keys` in hand) with every
+/// Measures the overlap of a new frame (its exact keys in hand) with every
 /// database frame near it and every open window frame, records the window
 /// relations in both directions, and returns the new frame's window slot and
-/// the number of stored frames that could not be read. Kept out of line so
-/// instruction counts split voxelize / overlap / select.
+/// the number of stored frames that could not be read. The keys come staged
+/// in the pool's free space too when it had room (the merges then compare
+/// 32-bit words). Kept out of line so instruction counts split voxelize /
+/// overlap / select.
 #[inline(never)]
 fn overlaps<const POOL: usize, const DB: usize, const W: usize, const K: usize>(
     cfg: &SelectorConfig,
@@ -361,7 +363,7 @@ fn overlaps<const POOL: usize, const DB: usize, const W: usize, const K: usize>(
     ring: &mut [RingEntry<W, K>; W],
     window: WindowView,
     new: Stored<K>,
-    keys: &[u64],
+    fresh: Fresh<'_>,
 ) -> (Slot<W, K>, u32) {
     let (mu, margin) = (cfg.mu, cfg.sketch_margin);
     let touching = |a: &Option<Aabb>, b: &Option<Aabb>| match (a, b) {
@@ -374,7 +376,8 @@ fn overlaps<const POOL: usize, const DB: usize, const W: usize, const K: usize>(
         }
         match &other.keys {
             Some(run) => {
-                let x = iou(new.len, other.len, pool.intersect(run, keys));
+                let common = pool.intersect_fresh(run, other.aabb.as_ref(), fresh);
+                let x = iou(new.len, other.len, common);
                 (x, x > mu)
             }
             None => {
@@ -387,7 +390,7 @@ fn overlaps<const POOL: usize, const DB: usize, const W: usize, const K: usize>(
         cover,
         nearest,
         unreadable,
-    } = against_database(cfg, pool, db, &new, keys, window.len);
+    } = against_database(cfg, pool, db, &new, fresh, window.len);
     let s = window.slot;
     let mut slot = Slot {
         frame: new.clone(),
@@ -644,10 +647,17 @@ impl<
             index: &self.db,
             store,
         };
+        // Encoded once for the store, and merged as words meanwhile.
+        let staged = aabb.as_ref().and_then(|a| self.pool.stage(keys, a));
+        let fresh = Fresh {
+            keys,
+            staged: staged.as_ref(),
+        };
         let (mut slot, unreadable) =
-            overlaps(&cfg, &self.pool, db, &mut self.ring, window, new, keys);
+            overlaps(&cfg, &self.pool, db, &mut self.ring, window, new, fresh);
         if let Some(a) = &aabb {
-            slot.frame.keys = self.pool.store(keys, a);
+            // What `store` would give: staging refuses exactly what it refuses.
+            slot.frame.keys = staged.and_then(|s| self.pool.commit(&s));
             // Pool full: the oldest database frames give up their exact keys
             // (they are compared least, only on revisits) so that the frames
             // of the window, compared with every new frame, stay exact.
