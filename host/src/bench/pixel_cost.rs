@@ -93,19 +93,38 @@ pub fn measure<L: Link>(
     profile: &str,
     strides: [u16; 2],
 ) -> Result<PixelCost, DeviceError> {
-    let mut runs = strides.map(|stride| StrideCost {
-        stride,
-        frames: 0,
-        ticks: 0.0,
-        core: 0.0,
-        pixels: 0.0,
-        bytes: 0.0,
-    });
-    for run in &mut runs {
-        let vcfg = VoxelConfig {
-            stride: run.stride,
-            ..*vcfg
-        };
+    let runs = measure_strides(client, seq, vcfg, sel, profile, &strides)?;
+    let [fine, coarse] = <[StrideCost; 2]>::try_from(runs)
+        .map_err(|_| DeviceError::Input("one cost per stride".into()))?;
+    PixelCost::of(fine, coarse)
+}
+
+impl PixelCost {
+    /// The cost of `fine` and `coarse`, which must differ in valid pixels.
+    pub fn of(fine: StrideCost, coarse: StrideCost) -> Result<PixelCost, DeviceError> {
+        if fine.pixels <= coarse.pixels {
+            return Err(DeviceError::Input(format!(
+                "stride {} saw no more valid pixels than stride {}",
+                fine.stride, coarse.stride
+            )));
+        }
+        Ok(PixelCost { fine, coarse })
+    }
+}
+
+/// Streams every frame of `seq` at each of `strides` in turn, as
+/// [`measure`] does; the device's cost at each.
+pub fn measure_strides<L: Link>(
+    client: &mut Client<L>,
+    seq: &Sequence,
+    vcfg: &VoxelConfig,
+    sel: SelectorConfig,
+    profile: &str,
+    strides: &[u16],
+) -> Result<Vec<StrideCost>, DeviceError> {
+    let mut runs = Vec::with_capacity(strides.len());
+    for &stride in strides {
+        let vcfg = VoxelConfig { stride, ..*vcfg };
         let scan = scan::scan_config(seq, &vcfg)?;
         let cfg = scan::device_config(&scan, &sel)?;
         let report = scan::stream(client, seq, &cfg, profile, &StreamOptions::default(), None)?;
@@ -116,21 +135,14 @@ pub fn measure<L: Link>(
             ));
         }
         let frames = f64::from(st.cost.frames);
-        *run = StrideCost {
+        runs.push(StrideCost {
+            stride,
             frames: st.cost.frames,
             ticks: st.cost.total as f64 / frames,
             core: st.cost.core as f64 / frames,
             pixels: st.valid_pixels as f64 / frames,
             bytes: report.bytes_sent as f64 / frames,
-            ..*run
-        };
+        });
     }
-    let [fine, coarse] = runs;
-    if fine.pixels <= coarse.pixels {
-        return Err(DeviceError::Input(format!(
-            "stride {} saw no more valid pixels than stride {}",
-            fine.stride, coarse.stride
-        )));
-    }
-    Ok(PixelCost { fine, coarse })
+    Ok(runs)
 }
