@@ -61,9 +61,15 @@ fn bench_pico_json_rows_follow_from_what_was_measured() {
         let marginal = (num(fine, "cycles") - num(coarse, "cycles"))
             / (num(fine, "valid_pixels") - num(coarse, "valid_pixels"));
         let headline = num(&j["cycles_per_valid_pixel"], name);
-        assert!(close(headline, marginal), "{name}: {headline} vs {marginal}");
+        assert!(
+            close(headline, marginal),
+            "{name}: {headline} vs {marginal}"
+        );
         let per_frame = num(coarse, "cycles") - marginal * num(coarse, "valid_pixels");
-        assert!(close(num(&j["cycles_per_frame"], name), per_frame), "{name}");
+        assert!(
+            close(num(&j["cycles_per_frame"], name), per_frame),
+            "{name}"
+        );
         assert!(num(&j["core_cycles_per_valid_pixel"], name) < headline);
 
         // The host counts the flash work of the emulator's own streams as
@@ -75,7 +81,11 @@ fn bench_pico_json_rows_follow_from_what_was_measured() {
         assert!(num(&check["emulator"], "programs") > 0.0, "{check}");
 
         // The steady-state flash count runs over the whole sequence.
-        let whole = if name == "synthetic" { 600.0 } else { FRAMES as f64 };
+        let whole = if name == "synthetic" {
+            600.0
+        } else {
+            FRAMES as f64
+        };
         for f in j["flash"][name].as_array().unwrap() {
             assert_eq!(num(f, "frames"), whole, "{f}");
             let ms = (num(f, "erases") * 45.0 + num(f, "programs") * 0.4) / whole;
