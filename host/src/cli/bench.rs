@@ -42,7 +42,10 @@ pub struct BenchArgs {
     device_frames: usize,
     /// Instead: the Pico's Cortex-M0+ under the RP2040 emulator: cycles per
     /// valid pixel and per frame (the --device frames at strides 2 and 4),
-    /// and the frames/s it sustains beside what USB full speed carries.
+    /// and the frames/s it sustains beside what USB full speed carries, each
+    /// row measured at its own sampling density, with the flash time of a
+    /// whole scan at that density (its erases and programs counted on the
+    /// host).
     #[arg(long)]
     pico: bool,
     /// With --pico: print one JSON object instead of the tables.
