@@ -5,7 +5,12 @@
 //! Cycles come from the firmware's own clock (the RP2040 timer, read at 125
 //! cycles a microsecond under rp2040js) through [`super::pixel_cost`]: the
 //! first frames of each sequence streamed at several strides on one
-//! emulated Pico, its flash timing off (CPU cycles only).
+//! emulated Pico, its flash timing off (CPU cycles only). Only the first
+//! frames, for the run time: the 16-frame window is not full yet, so a
+//! frame's own work (its overlaps with the window) is below a long scan's
+//! (7scenes-1000 at stride 16: ~0.58 M cycles a frame over the first 3
+//! frames, 0.86 M over all 1,000 by the device's clock under
+//! `placedb device --rp2040`); `--device-frames` streams more.
 //!
 //! - **Headline** (`cycles_per_valid_pixel`, `cycles_per_frame`): the
 //!   marginal cost of a valid pixel between strides 2 and 4 and what a frame
@@ -408,7 +413,8 @@ fn print_table(runs: &[Measured], rows: &[Row]) {
     let [fine, coarse] = STRIDES;
     println!(
         "Pico (RP2040 emulator, Cortex-M0+), profile {PROFILE}: cycles per valid pixel, marginal \
-         between strides {fine} and {coarse}, protocol included; cycles per frame besides its pixels"
+         between strides {fine} and {coarse}, protocol included; cycles per frame besides its pixels \
+         (the first frames only: the 16-frame window is not full, a long scan's frames cost more)"
     );
     println!(
         "{:<14} {:>6} {:>10} {:>9} {:>11}",
