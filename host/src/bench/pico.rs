@@ -5,12 +5,16 @@
 //! Cycles come from the firmware's own clock (the RP2040 timer, read at 125
 //! cycles a microsecond under rp2040js) through [`super::pixel_cost`]: the
 //! first frames of each sequence streamed at several strides on one
-//! emulated Pico, its flash timing off (CPU cycles only). Only the first
-//! frames, for the run time: the 16-frame window is not full yet, so a
-//! frame's own work (its overlaps with the window) is below a long scan's
-//! (7scenes-1000 at stride 16: ~0.58 M cycles a frame over the first 3
-//! frames, 0.86 M over all 1,000 by the device's clock under
-//! `placedb device --rp2040`); `--device-frames` streams more.
+//! emulated Pico, its flash timing off (CPU cycles only). Each stride is a
+//! scan of its own (a Reset: the device's window and its cost counters
+//! start empty), so each first streams a warm-up of `--warm-up` frames
+//! (default 16, the window [`SELECTOR`] holds) at that stride, not counted
+//! (their cycles and pixels apart, from the status taken after them): the
+//! frames measured meet a full window, as a long scan's frames do, and the
+//! figures are steady-state ones. Without it the first frames cost far
+//! less (7scenes-1000 at stride 16: ~0.58 M cycles a frame over the first 3
+//! frames, 0.86 M over all 1,000 by the device's clock under `placedb
+//! device --rp2040`). `--device-frames` sets the frames measured after it.
 //!
 //! - **Headline** (`cycles_per_valid_pixel`, `cycles_per_frame`): the
 //!   marginal cost of a valid pixel between strides 2 and 4 and what a frame
@@ -93,8 +97,12 @@ struct Measured {
     size: (u32, u32),
     /// The headline: strides 2 and 4.
     cost: PixelCost,
+    /// Frames of each stride's scan streamed first and not counted.
+    warm_up: usize,
     /// The emulator's cost at every stride streamed, in ticks.
     strides: Vec<StrideCost>,
+    /// The warm-up's cost at each stride, apart.
+    warm: Vec<StrideCost>,
     /// Steady-state flash work at each row's stride.
     flash: Vec<(u16, Flash)>,
     /// The emulator's count of its own streams, and the host's of the same.
@@ -256,10 +264,34 @@ pub fn host_flash_count(seq: &Sequence, strides: &[u16]) -> Result<(usize, Flash
     Ok((frames, client.into_link().count()))
 }
 
-/// `emulated` (the first frames of a sequence) on a freshly booted emulated
-/// Pico at every stride it needs; `long` (the whole sequence) through the
-/// host's flash count at every row's stride.
-fn measure(name: &'static str, emulated: &Sequence, long: &Sequence) -> Result<Measured, Error> {
+/// The flash work of `seq` streamed at each of `strides` in turn as the
+/// emulator is streamed ([`pixelcost::stream_warmed`], its status taken
+/// after `warm_up` frames too) on the host's model of the Pico: the frames
+/// streamed, warm-up included, and their count.
+fn host_flash_count_warmed(
+    seq: &Sequence,
+    strides: &[u16],
+    warm_up: usize,
+) -> Result<(usize, FlashCount), Error> {
+    let mut client = Client::new(PicoFlashLink::new()?);
+    let mut frames = 0;
+    for &stride in strides {
+        let cfg = pixelcost::config_at(seq, &VoxelConfig::default(), SELECTOR, stride)?;
+        frames += pixelcost::stream_warmed(&mut client, seq, &cfg, PROFILE, warm_up)?.frames;
+    }
+    Ok((frames, client.into_link().count()))
+}
+
+/// `emulated` (the first frames of a sequence, the first `warm_up` of them
+/// not counted) on a freshly booted emulated Pico at every stride it needs;
+/// `long` (the whole sequence) through the host's flash count at every
+/// row's stride.
+fn measure(
+    name: &'static str,
+    emulated: &Sequence,
+    warm_up: usize,
+    long: &Sequence,
+) -> Result<Measured, Error> {
     let size = (u32::from(emulated.size.0), u32::from(emulated.size.1));
     let strides = strides_for(size)?;
     let firmware = rp2040::built_firmware()?;
@@ -272,14 +304,17 @@ fn measure(name: &'static str, emulated: &Sequence, long: &Sequence) -> Result<M
     let board = Rp2040::start_with(&firmware, &options)
         .map_err(|e| format!("cannot start the RP2040 emulator: {e}"))?;
     let mut client = Client::new(board);
-    let costs = pixelcost::measure_strides(
+    let runs = pixelcost::measure_strides_warmed(
         &mut client,
         emulated,
         &VoxelConfig::default(),
         SELECTOR,
         PROFILE,
         &strides,
+        warm_up,
     )?;
+    let costs: Vec<StrideCost> = runs.iter().map(|r| r.0).collect();
+    let warm: Vec<StrideCost> = runs.iter().map(|r| r.1).collect();
     let console = client.into_link().stop();
     let count = |field: &str| -> Result<u64, Error> {
         console
@@ -293,7 +328,7 @@ fn measure(name: &'static str, emulated: &Sequence, long: &Sequence) -> Result<M
         erases: count("sectors_erased")?,
         programs: count("pages_programmed")?,
     };
-    let (frames, host) = host_flash_count(emulated, &strides)?;
+    let (frames, host) = host_flash_count_warmed(emulated, &strides, warm_up)?;
     let cost = PixelCost::of(costs[0], costs[1])?;
     let mut flash = Vec::new();
     for d in row_strides(size)? {
@@ -304,7 +339,9 @@ fn measure(name: &'static str, emulated: &Sequence, long: &Sequence) -> Result<M
         name,
         size,
         cost,
+        warm_up,
         strides: costs,
+        warm,
         flash,
         check: FlashCheck {
             frames,
@@ -318,21 +355,21 @@ fn measure(name: &'static str, emulated: &Sequence, long: &Sequence) -> Result<M
 /// synthetic ones on the emulator; the flash work of all of 7scenes-1000
 /// and of the 600-frame synthetic demo scan on the host; a table, or one
 /// JSON object with `json`.
-pub fn run(data: &Path, frames: usize, json: bool) -> Result<(), Error> {
+pub fn run(data: &Path, frames: usize, warm_up: usize, json: bool) -> Result<(), Error> {
     let dir = data.join("7scenes-1000");
     let real = read::open(&dir, &ReadOptions::default())?;
     let mut real_first = read::open(&dir, &ReadOptions::default())?;
-    real_first.frames.truncate(frames);
+    real_first.frames.truncate(warm_up + frames);
     let demo = SynthConfig {
         frames: SYNTHETIC_FLASH_FRAMES,
         ..SynthConfig::demo()
     };
     let synthetic = synth::sequence(&demo);
     let mut synthetic_first = synth::sequence(&demo);
-    synthetic_first.frames.truncate(2 * frames);
+    synthetic_first.frames.truncate(warm_up + 2 * frames);
     let runs = [
-        measure("7scenes-1000", &real_first, &real)?,
-        measure("synthetic", &synthetic_first, &synthetic)?,
+        measure("7scenes-1000", &real_first, warm_up, &real)?,
+        measure("synthetic", &synthetic_first, warm_up, &synthetic)?,
     ];
     let mut rows = Vec::new();
     for depth in DEPTHS {
@@ -384,12 +421,18 @@ fn print_json(runs: &[Measured], rows: &[Row]) {
         "cycles_per_valid_pixel": by_name(&|m| m.per_pixel().into()),
         "core_cycles_per_valid_pixel": by_name(&|m| m.core_per_pixel().into()),
         "cycles_per_frame": by_name(&|m| m.per_frame().into()),
-        "emulated": by_name(&|m| m.strides.iter().map(|c| serde_json::json!({
+        "warm_up": by_name(&|m| m.warm_up.into()),
+        "emulated": by_name(&|m| m.strides.iter().zip(&m.warm).map(|(c, w)| serde_json::json!({
             "stride": c.stride,
             "frames": c.frames,
             "cycles": c.ticks * CYCLES_PER_TICK,
             "core_cycles": c.core * CYCLES_PER_TICK,
             "valid_pixels": c.pixels,
+            "warm_up": {
+                "frames": w.frames,
+                "cycles": w.ticks * CYCLES_PER_TICK,
+                "valid_pixels": w.pixels,
+            },
         })).collect::<Vec<_>>().into()),
         "flash": by_name(&|m| m.flash.iter().map(|(stride, f)| serde_json::json!({
             "stride": stride,
@@ -411,10 +454,18 @@ fn print_json(runs: &[Measured], rows: &[Row]) {
 
 fn print_table(runs: &[Measured], rows: &[Row]) {
     let [fine, coarse] = STRIDES;
+    let warm_up = runs.first().map_or(0, |m| m.warm_up);
     println!(
         "Pico (RP2040 emulator, Cortex-M0+), profile {PROFILE}: cycles per valid pixel, marginal \
-         between strides {fine} and {coarse}, protocol included; cycles per frame besides its pixels \
-         (the first frames only: the 16-frame window is not full, a long scan's frames cost more)"
+         between strides {fine} and {coarse}, protocol included; cycles per frame besides its pixels; \
+         each stride's scan after a warm-up of {warm_up} frames at that stride, not counted (window \
+         {}: {})",
+        SELECTOR.window,
+        if warm_up >= usize::from(SELECTOR.window) {
+            "the frames measured meet a full window, as in a long scan"
+        } else {
+            "NOT FULL: the frames measured cost less than a long scan's"
+        }
     );
     println!(
         "{:<14} {:>6} {:>10} {:>9} {:>11}",

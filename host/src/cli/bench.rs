@@ -48,6 +48,11 @@ pub struct BenchArgs {
     /// host).
     #[arg(long)]
     pico: bool,
+    /// With --pico: frames of each stride's scan streamed before the
+    /// measured ones and not counted, so that those meet a full window as
+    /// in a long scan (default: the 16 frames the window holds).
+    #[arg(long, requires = "pico", default_value_t = usize::from(crate::bench::pixel_cost::SELECTOR.window))]
+    warm_up: usize,
     /// With --pico: print one JSON object instead of the tables.
     #[arg(long, requires = "pico")]
     json: bool,
@@ -93,7 +98,7 @@ pub fn run(a: BenchArgs) -> Result<(), Error> {
         return instructions::device_cost(&opts);
     }
     if a.pico {
-        return pico::run(&a.data, a.device_frames, a.json);
+        return pico::run(&a.data, a.device_frames, a.warm_up, a.json);
     }
     if let Some(flash) = &a.db_probe {
         return Ok(db_scaling::run_probe(flash, a.building_frames)?);
