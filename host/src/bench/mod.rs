@@ -4,6 +4,7 @@
 //! ([`db_scaling`]).
 
 pub mod db_scaling;
+pub mod flash_count;
 pub mod instructions;
 pub mod pico;
 pub mod pixel_cost;

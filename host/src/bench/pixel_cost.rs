@@ -14,8 +14,9 @@
 use crate::device::client::Client;
 use crate::device::error::DeviceError;
 use crate::device::link::Link;
-use crate::device::scan::{self, StreamOptions};
+use crate::device::scan::{self, DepthFrame, ScanState, StreamOptions};
 use crate::{Sequence, VoxelConfig};
+use placedb::protocol::{Config, HostMessage, Status};
 use placedb::SelectorConfig;
 
 /// The strides compared (fine, coarse), as `placedb bench --device`, the
@@ -93,19 +94,38 @@ pub fn measure<L: Link>(
     profile: &str,
     strides: [u16; 2],
 ) -> Result<PixelCost, DeviceError> {
-    let mut runs = strides.map(|stride| StrideCost {
-        stride,
-        frames: 0,
-        ticks: 0.0,
-        core: 0.0,
-        pixels: 0.0,
-        bytes: 0.0,
-    });
-    for run in &mut runs {
-        let vcfg = VoxelConfig {
-            stride: run.stride,
-            ..*vcfg
-        };
+    let runs = measure_strides(client, seq, vcfg, sel, profile, &strides)?;
+    let [fine, coarse] = <[StrideCost; 2]>::try_from(runs)
+        .map_err(|_| DeviceError::Input("one cost per stride".into()))?;
+    PixelCost::of(fine, coarse)
+}
+
+impl PixelCost {
+    /// The cost of `fine` and `coarse`, which must differ in valid pixels.
+    pub fn of(fine: StrideCost, coarse: StrideCost) -> Result<PixelCost, DeviceError> {
+        if fine.pixels <= coarse.pixels {
+            return Err(DeviceError::Input(format!(
+                "stride {} saw no more valid pixels than stride {}",
+                fine.stride, coarse.stride
+            )));
+        }
+        Ok(PixelCost { fine, coarse })
+    }
+}
+
+/// Streams every frame of `seq` at each of `strides` in turn, as
+/// [`measure`] does; the device's cost at each.
+pub fn measure_strides<L: Link>(
+    client: &mut Client<L>,
+    seq: &Sequence,
+    vcfg: &VoxelConfig,
+    sel: SelectorConfig,
+    profile: &str,
+    strides: &[u16],
+) -> Result<Vec<StrideCost>, DeviceError> {
+    let mut runs = Vec::with_capacity(strides.len());
+    for &stride in strides {
+        let vcfg = VoxelConfig { stride, ..*vcfg };
         let scan = scan::scan_config(seq, &vcfg)?;
         let cfg = scan::device_config(&scan, &sel)?;
         let report = scan::stream(client, seq, &cfg, profile, &StreamOptions::default(), None)?;
@@ -116,21 +136,146 @@ pub fn measure<L: Link>(
             ));
         }
         let frames = f64::from(st.cost.frames);
-        *run = StrideCost {
+        runs.push(StrideCost {
+            stride,
             frames: st.cost.frames,
             ticks: st.cost.total as f64 / frames,
             core: st.cost.core as f64 / frames,
             pixels: st.valid_pixels as f64 / frames,
             bytes: report.bytes_sent as f64 / frames,
-            ..*run
-        };
+        });
     }
-    let [fine, coarse] = runs;
-    if fine.pixels <= coarse.pixels {
+    Ok(runs)
+}
+
+/// One scan at one stride whose first frames only warm the device up.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WarmedScan {
+    /// The device's status after the warm-up frames (before any measured
+    /// one): its counters since the scan's Reset cover the warm-up alone.
+    pub warm: Status,
+    /// Its status after the measured frames and Finish.
+    pub end: Status,
+    /// Bytes sent by the end of the warm-up, and by the end.
+    pub warm_bytes: u64,
+    pub end_bytes: u64,
+    /// Frames streamed in all, warm-up included.
+    pub frames: usize,
+}
+
+/// Streams `seq` to `client` as [`scan::stream`] does (Reset, Hello with
+/// `cfg`, each frame followed by a StatusRequest, Finish), with the status
+/// taken once more after its first `warm_up` frames. A Reset clears the
+/// device's window (and its cost counters), so every scan needs its own
+/// warm-up: the frames after it meet a window as full as a long scan's.
+pub fn stream_warmed<L: Link>(
+    client: &mut Client<L>,
+    seq: &Sequence,
+    cfg: &Config,
+    profile: &str,
+    warm_up: usize,
+) -> Result<WarmedScan, DeviceError> {
+    let n = seq.frames.len();
+    if warm_up >= n {
         return Err(DeviceError::Input(format!(
-            "stride {} saw no more valid pixels than stride {}",
-            fine.stride, coarse.stride
+            "a warm-up of {warm_up} frames leaves none of {n} to measure"
         )));
     }
-    Ok(PixelCost { fine, coarse })
+    let mut state = ScanState::new(StreamOptions::default());
+    state.begin(client, cfg, Some(profile), Some(n))?;
+    let mut warm = None;
+    for i in 0..n {
+        if i == warm_up {
+            state.drain(client)?;
+            warm = Some((state.call_status(client)?, state.bytes));
+        }
+        let img = seq
+            .depth(i)
+            .map_err(|e| DeviceError::Input(format!("frame {i}: {e}")))?;
+        let pose = seq.frames[i]
+            .pose()
+            .map_err(|e| DeviceError::Input(format!("frame {i}: pose: {e}")))?;
+        state.push(
+            client,
+            &DepthFrame {
+                timestamp: seq.frames[i].timestamp,
+                pose,
+                intrinsics: cfg.intrinsics,
+                depth: &img.data,
+            },
+        )?;
+        state.send(client, HostMessage::StatusRequest, || {
+            "StatusRequest".into()
+        })?;
+    }
+    state.send(client, HostMessage::Finish, || "Finish".into())?;
+    state.drain(client)?;
+    let end = state.call_status(client)?;
+    let (warm, warm_bytes) = warm.ok_or_else(|| DeviceError::Input("no warm-up status".into()))?;
+    Ok(WarmedScan {
+        warm,
+        end,
+        warm_bytes,
+        end_bytes: state.bytes,
+        frames: n,
+    })
+}
+
+/// The scan's config for `seq` at `stride` with the rest of `vcfg` and `sel`.
+pub fn config_at(
+    seq: &Sequence,
+    vcfg: &VoxelConfig,
+    sel: SelectorConfig,
+    stride: u16,
+) -> Result<Config, DeviceError> {
+    let vcfg = VoxelConfig { stride, ..*vcfg };
+    scan::device_config(&scan::scan_config(seq, &vcfg)?, &sel)
+}
+
+/// [`measure_strides`] at steady state: each stride's scan streams the
+/// first `warm_up` frames of `seq` first, not counted (their ticks, pixels
+/// and bytes are the status's before the measured frames, subtracted), so
+/// that the frames measured meet a full window as in a long scan. Each
+/// stride's cost of its measured frames, and of its warm-up apart.
+pub fn measure_strides_warmed<L: Link>(
+    client: &mut Client<L>,
+    seq: &Sequence,
+    vcfg: &VoxelConfig,
+    sel: SelectorConfig,
+    profile: &str,
+    strides: &[u16],
+    warm_up: usize,
+) -> Result<Vec<(StrideCost, StrideCost)>, DeviceError> {
+    let mut runs = Vec::with_capacity(strides.len());
+    for &stride in strides {
+        let cfg = config_at(seq, vcfg, sel, stride)?;
+        let r = stream_warmed(client, seq, &cfg, profile, warm_up)?;
+        let (w, e) = (&r.warm.cost, &r.end.cost);
+        if e.clock_hz == 0 || e.frames <= w.frames {
+            return Err(DeviceError::Input(
+                "the device has no clock: it cannot measure its cost".into(),
+            ));
+        }
+        let cost = |frames: u32, ticks: u64, core: u64, pixels: u64, bytes: u64| {
+            let per = |x: u64| x as f64 / f64::from(frames.max(1));
+            StrideCost {
+                stride,
+                frames,
+                ticks: per(ticks),
+                core: per(core),
+                pixels: per(pixels),
+                bytes: per(bytes),
+            }
+        };
+        let measured = cost(
+            e.frames - w.frames,
+            e.total.saturating_sub(w.total),
+            e.core.saturating_sub(w.core),
+            r.end.valid_pixels.saturating_sub(r.warm.valid_pixels),
+            r.end_bytes.saturating_sub(r.warm_bytes),
+        );
+        let warm = cost(w.frames, w.total, w.core, r.warm.valid_pixels, r.warm_bytes);
+        runs.push((measured, warm));
+    }
+    Ok(runs)
 }

@@ -42,9 +42,17 @@ pub struct BenchArgs {
     device_frames: usize,
     /// Instead: the Pico's Cortex-M0+ under the RP2040 emulator: cycles per
     /// valid pixel and per frame (the --device frames at strides 2 and 4),
-    /// and the frames/s it sustains beside what USB full speed carries.
+    /// and the frames/s it sustains beside what USB full speed carries, each
+    /// row measured at its own sampling density, with the flash time of a
+    /// whole scan at that density (its erases and programs counted on the
+    /// host).
     #[arg(long)]
     pico: bool,
+    /// With --pico: frames of each stride's scan streamed before the
+    /// measured ones and not counted, so that those meet a full window as
+    /// in a long scan (default: the 16 frames the window holds).
+    #[arg(long, requires = "pico", default_value_t = usize::from(crate::bench::pixel_cost::SELECTOR.window))]
+    warm_up: usize,
     /// With --pico: print one JSON object instead of the tables.
     #[arg(long, requires = "pico")]
     json: bool,
@@ -90,7 +98,7 @@ pub fn run(a: BenchArgs) -> Result<(), Error> {
         return instructions::device_cost(&opts);
     }
     if a.pico {
-        return pico::run(&a.data, a.device_frames, a.json);
+        return pico::run(&a.data, a.device_frames, a.warm_up, a.json);
     }
     if let Some(flash) = &a.db_probe {
         return Ok(db_scaling::run_probe(flash, a.building_frames)?);
