@@ -468,8 +468,11 @@ mod tests {
                 .collect()
         };
         let (at0, at1) = ((0, 0, 0), (1, 1, 1));
+        // Two sets of voxel offsets, the keys they share, and whether the
+        // box around both fits the word fields.
+        type Case = (Vec<(i32, i32, i32)>, Vec<(i32, i32, i32)>, u32, bool);
         for corner in CORNERS {
-            let cases: [(Vec<(i32, i32, i32)>, Vec<(i32, i32, i32)>, u32, bool); 9] = [
+            let cases: [Case; 9] = [
                 // The same set.
                 (cube(at0, 3), cube(at0, 3), 64, true),
                 // Nested: a small cube inside a big box.
