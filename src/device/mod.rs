@@ -150,6 +150,12 @@ struct Core<
     /// and copies) for the message not complete yet: the message they
     /// bring in is charged for them once it is decoded.
     rx_ticks: u64,
+    /// The board counts its receive path (it has handed in receive ticks):
+    /// only then is the framing's push timed too, as part of it. A board
+    /// that does not (QEMU: its UART reads come a few bytes at a time, and
+    /// two clock readings a push would be most of what they measured) keeps
+    /// the cost as it was.
+    rx_timed: bool,
     /// The last state-changing message handled, to answer its retransmission.
     last: Applied,
     /// Decisions of the selection step in progress.
@@ -239,6 +245,7 @@ impl<
                 rows_ticks: 0,
                 core_ticks: 0,
                 rx_ticks: 0,
+                rx_timed: false,
                 last: Applied::NONE,
                 step: heapless::Vec::new(),
                 timestamps: [0.0; 65],
@@ -279,9 +286,10 @@ impl<
         loop {
             // The framing's pass over the bytes (delimiter scan, copy into
             // the receive buffer) is receive work of the message they end.
-            let t_push = now(core.clock);
+            let clock = core.clock.filter(|_| core.rx_timed);
+            let t_push = now(clock);
             let pushed = self.decoder.push(rest);
-            core.add_receive_ticks(delta(core.clock, t_push, 0));
+            core.add_receive_ticks(delta(clock, t_push, 0));
             match pushed {
                 Push::NeedMore => return,
                 Push::Error { error, remaining } => {
@@ -318,8 +326,11 @@ impl<
     /// message ends in them) to the cost of the message they complete: the
     /// frame's [`FrameCost::total`] includes them, its
     /// [`FrameCost::core`] does not. Count only reads that moved bytes
-    /// (idle polls are no frame's work); ignored without a clock.
+    /// (idle polls are no frame's work); ignored without a clock. Once a
+    /// board has called this, the framing's own pass over the bytes is
+    /// timed as receive work as well.
     pub fn add_receive_ticks(&mut self, ticks: u64) {
+        self.core.rx_timed = true;
         self.core.add_receive_ticks(ticks);
     }
 
