@@ -182,10 +182,12 @@ fn cortex_m0_cycles_per_valid_pixel() {
         // set-up once per frame: 222.3 and 234.0 cycles per valid pixel on
         // 2026-12-02, against 442 and 488 before the loop; 212.8 and 224.2
         // with the ray's low half stepped by add-with-carry. Issue 24 asks
-        // for at most 240 on both.
+        // for at most 240 on both. Since the cost counts the receive path
+        // too (the USB reads, the framing's scans; uncounted before): 324.8
+        // and 328.7 on the same code.
         assert!(
-            per_pixel <= 230.0,
-            "{name}: {per_pixel:.1} cycles per valid pixel, above 230"
+            per_pixel <= 340.0,
+            "{name}: {per_pixel:.1} cycles per valid pixel, above 340"
         );
         // What a frame costs besides its pixels: 548 k and 870 k cycles on
         // 2026-12-02 (the radix sort of the keys, the sketch's heap, the row

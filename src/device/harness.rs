@@ -53,6 +53,8 @@ pub trait AnyDevice: Send + 'static {
     );
     /// [`Device::restore`].
     fn restore_from(&mut self, log: &mut Log<SimFlash>) -> Result<u32, RestoreFailure>;
+    /// [`Device::add_receive_ticks`].
+    fn add_receive_ticks(&mut self, ticks: u64);
 }
 
 impl<
@@ -79,6 +81,10 @@ impl<
 
     fn restore_from(&mut self, log: &mut Log<SimFlash>) -> Result<u32, RestoreFailure> {
         self.restore(log)
+    }
+
+    fn add_receive_ticks(&mut self, ticks: u64) {
+        Device::add_receive_ticks(self, ticks);
     }
 }
 

@@ -99,7 +99,7 @@ use crate::protocol::{
 use crate::select::{FrameDecision, Selector};
 
 use durable::{Decisions, MAX_RECORD_LEN};
-use reply::{now, to_u32, Out};
+use reply::{delta, now, to_u32, Out};
 use retransmit::Applied;
 
 pub use crate::profile::{Device1M, Device256K, Device512K};
@@ -146,6 +146,16 @@ struct Core<
     rows_ticks: u64,
     /// Of those, ticks inside the core (voxelizing the rows).
     core_ticks: u64,
+    /// Ticks of receive work (the board's USB reads, the framing's scans
+    /// and copies) for the message not complete yet: the message they
+    /// bring in is charged for them once it is decoded.
+    rx_ticks: u64,
+    /// The board counts its receive path (it has handed in receive ticks):
+    /// only then is the framing's push timed too, as part of it. A board
+    /// that does not (QEMU: its UART reads come a few bytes at a time, and
+    /// two clock readings a push would be most of what they measured) keeps
+    /// the cost as it was.
+    rx_timed: bool,
     /// The last state-changing message handled, to answer its retransmission.
     last: Applied,
     /// Decisions of the selection step in progress.
@@ -234,6 +244,8 @@ impl<
                 cost: FrameCost::ZERO,
                 rows_ticks: 0,
                 core_ticks: 0,
+                rx_ticks: 0,
+                rx_timed: false,
                 last: Applied::NONE,
                 step: heapless::Vec::new(),
                 timestamps: [0.0; 65],
@@ -272,9 +284,17 @@ impl<
         let core = &mut self.core;
         let mut rest = bytes;
         loop {
-            match self.decoder.push(rest) {
+            // The framing's pass over the bytes (delimiter scan, copy into
+            // the receive buffer) is receive work of the message they end.
+            let clock = core.clock.filter(|_| core.rx_timed);
+            let t_push = now(clock);
+            let pushed = self.decoder.push(rest);
+            core.add_receive_ticks(delta(clock, t_push, 0));
+            match pushed {
                 Push::NeedMore => return,
                 Push::Error { error, remaining } => {
+                    // A refused frame's receive work is charged to nobody.
+                    core.rx_ticks = 0;
                     core.note_rx(MAX_FRAME_LEN);
                     let mut out = core.out(send);
                     out.reply(&error.reply());
@@ -284,7 +304,13 @@ impl<
                 Push::Ready { remaining } => {
                     // The delimiter counts: the buffer holds frame_len + 1 bytes.
                     core.note_rx(self.decoder.frame_len().saturating_add(1));
-                    let t0 = now(core.clock);
+                    // The message's cost starts when its receive work did:
+                    // every tick its handling measures from `t0` then
+                    // includes the receive ticks too (they are protocol
+                    // work, never the core's share). A message that is not
+                    // part of a frame drops them.
+                    let t0 = now(core.clock).wrapping_sub(core.rx_ticks);
+                    core.rx_ticks = 0;
                     core.flash = journal.usage();
                     let frame = self.decoder.decode::<HostFrame>();
                     core.handle(frame, t0, journal, send);
@@ -293,6 +319,19 @@ impl<
                 }
             }
         }
+    }
+
+    /// Adds `ticks` of the board's receive work (reading the bytes passed
+    /// to the next [`Self::receive_logged`] from its link, finding the
+    /// message ends in them) to the cost of the message they complete: the
+    /// frame's [`FrameCost::total`] includes them, its
+    /// [`FrameCost::core`] does not. Count only reads that moved bytes
+    /// (idle polls are no frame's work); ignored without a clock. Once a
+    /// board has called this, the framing's own pass over the bytes is
+    /// timed as receive work as well.
+    pub fn add_receive_ticks(&mut self, ticks: u64) {
+        self.core.rx_timed = true;
+        self.core.add_receive_ticks(ticks);
     }
 
     /// Gives the device a monotonic clock: `ticks()` counting at `hz` ticks
@@ -414,6 +453,12 @@ impl<
         }
     }
 
+    fn add_receive_ticks(&mut self, ticks: u64) {
+        if self.clock.is_some() {
+            self.rx_ticks = self.rx_ticks.saturating_add(ticks);
+        }
+    }
+
     fn note_rx(&mut self, len: usize) {
         self.rx_last = to_u32(len);
         self.rx_peak = self.rx_peak.max(self.rx_last);
@@ -434,6 +479,7 @@ impl<
         };
         self.rows_ticks = 0;
         self.core_ticks = 0;
+        self.rx_ticks = 0;
         self.last = Applied::NONE;
         self.stored = 0;
         self.storage_failed = false;

@@ -94,6 +94,18 @@ fn bench<D: AnyDevice>() -> Harness<D> {
 /// Streams frame `i` with `rows_per_msg` rows per message; returns the
 /// decisions.
 fn frame<D: AnyDevice>(b: &mut Harness<D>, i: u32, rows_per_msg: u16) -> Vec<(u32, DecisionKind)> {
+    frame_rx(b, i, rows_per_msg, 0)
+}
+
+/// [`frame`], with `rx` ticks of board receive work handed to the device
+/// before each of the frame's messages.
+fn frame_rx<D: AnyDevice>(
+    b: &mut Harness<D>,
+    i: u32,
+    rows_per_msg: u16,
+    rx: u64,
+) -> Vec<(u32, DecisionKind)> {
+    b.device.add_receive_ticks(rx);
     b.ok(HostMessage::FrameBegin {
         frame: i,
         timestamp: timestamp(i),
@@ -105,6 +117,7 @@ fn frame<D: AnyDevice>(b: &mut Harness<D>, i: u32, rows_per_msg: u16) -> Vec<(u3
     for chunk in rows.chunks(ws * usize::from(rows_per_msg)) {
         let data: Vec<u8> = chunk.iter().flat_map(|d| d.to_le_bytes()).collect();
         let n = (chunk.len() / ws) as u16;
+        b.device.add_receive_ticks(rx);
         b.ok(HostMessage::DepthRows(DepthRows {
             frame: i,
             first_row: first,
@@ -113,6 +126,7 @@ fn frame<D: AnyDevice>(b: &mut Harness<D>, i: u32, rows_per_msg: u16) -> Vec<(u3
         }));
         first += n;
     }
+    b.device.add_receive_ticks(rx);
     decisions(&b.ok(HostMessage::FrameEnd { frame: i }))
 }
 
@@ -697,6 +711,44 @@ fn the_clock_measures_frames() {
         assert_eq!(
             (st.cost.clock_hz, st.cost.frames, st.cost.core),
             (1000, 0, 0)
+        );
+    });
+}
+
+#[test]
+fn receive_ticks_count_in_the_frame_total_not_in_the_core() {
+    use core::sync::atomic::{AtomicU64, Ordering};
+    static TICKS: AtomicU64 = AtomicU64::new(0);
+    // Every reading advances the clock by 10: a message's own ticks depend
+    // only on how often it reads the clock, the same on both devices.
+    fn tick() -> u64 {
+        TICKS.fetch_add(10, Ordering::Relaxed)
+    }
+    const RX: u64 = 7;
+    on_big_stack(|| {
+        let run = |rx: u64| {
+            let mut b = bench::<Small>();
+            b.device.set_clock(tick, 1000);
+            b.ok(HostMessage::Hello(config(3)));
+            for i in 0..3 {
+                frame_rx(&mut b, i, 24, rx);
+                // Receive work of a message outside a frame is no frame's.
+                b.device.add_receive_ticks(rx);
+                let _ = b.status();
+            }
+            b.status().cost
+        };
+        let (plain, received) = (run(0), run(RX));
+        // Per frame: FrameBegin, the DepthRows messages, FrameEnd.
+        let messages = 1 + u64::from(H.div_ceil(STRIDE).div_ceil(24)) + 1;
+        assert_eq!(received.frames, 3);
+        assert_eq!(received.total, plain.total + 3 * messages * RX);
+        assert_eq!(received.core, plain.core);
+        assert_eq!(received.last_end, plain.last_end + RX as u32);
+        let rows_rx = (messages - 1) * RX;
+        assert_eq!(
+            u64::from(received.last_rows),
+            u64::from(plain.last_rows) + rows_rx
         );
     });
 }

@@ -549,9 +549,12 @@ pub mod degradation {
 }
 
 /// Cost of frames on the device, measured with a board clock (all zero when
-/// the board gives none). Decoding, voxelizing and selecting are counted;
-/// sending replies is not. `total - core` is the protocol's share: COBS,
-/// CRC, message decoding, dispatch and copying the depth samples.
+/// the board gives none). Receiving, decoding, voxelizing and selecting are
+/// counted; sending replies is not. `total - core` is the protocol's share:
+/// the receive path (what the board times of its link reads that moved a
+/// frame's bytes, handed in with `Device::add_receive_ticks`, and the
+/// framing's delimiter scan and copy), COBS, CRC, message decoding,
+/// dispatch and copying the depth samples.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct FrameCost {
     /// Clock rate, ticks per second (0: no clock). The QEMU board counts
@@ -559,17 +562,20 @@ pub struct FrameCost {
     pub clock_hz: u32,
     /// Frames measured (ended) since the last reset.
     pub frames: u32,
-    /// Ticks of every measured frame together.
+    /// Ticks of every measured frame together, receive path included.
     pub total: u64,
-    /// Ticks of the last frame's FrameBegin and DepthRows (decode + voxelize).
+    /// Ticks of the last frame's FrameBegin and DepthRows (receive, decode,
+    /// voxelize).
     pub last_rows: u32,
-    /// Ticks of the last frame's FrameEnd (overlaps + selection).
+    /// Ticks of the last frame's FrameEnd (receive, decode, overlaps,
+    /// selection).
     pub last_end: u32,
     /// Most ticks of one frame.
     pub max: u32,
     /// Ticks of every measured frame inside the core alone: voxelizing its
     /// rows (projection and the frame's voxel set) and its selection step
-    /// (sketch, overlaps, decisions, the database frame it writes).
+    /// (sketch, overlaps, decisions, the database frame it writes). Never
+    /// the receive path.
     pub core: u64,
 }
 

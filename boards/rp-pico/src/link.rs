@@ -88,12 +88,20 @@ impl<'a, B: UsbBus> Link<'a, B> {
     /// Services the USB device (enumeration, control requests, endpoint
     /// events) and moves queued reply bytes to the serial port.
     pub fn poll(&mut self, usb: &mut UsbDevice<'a, B>) {
-        usb.poll(&mut [&mut *self]);
+        self.service(usb);
         self.drain(usb);
     }
 
-    /// Hands the serial port as much of the queue as it takes.
-    fn drain(&mut self, usb: &UsbDevice<'a, B>) {
+    /// [`Self::poll`]'s first half: services the USB device only (where a
+    /// received packet is taken from the controller), so that a caller can
+    /// time it apart from sending replies.
+    pub fn service(&mut self, usb: &mut UsbDevice<'a, B>) {
+        usb.poll(&mut [&mut *self]);
+    }
+
+    /// [`Self::poll`]'s second half: hands the serial port as much of the
+    /// queue as it takes.
+    pub fn drain(&mut self, usb: &UsbDevice<'a, B>) {
         while configured(usb) {
             let (head, _) = self.tx.as_slices();
             if head.is_empty() {

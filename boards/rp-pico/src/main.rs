@@ -119,8 +119,17 @@ fn main() -> ! {
 
     let mut rx = [0u8; RX_CHUNK];
     loop {
-        link.poll(&mut usb);
+        // The receive path is part of a frame's cost (FrameCost): servicing
+        // USB (the packet copied out of the controller's buffer) and the
+        // read are timed, sending queued replies (`drain`) is not, and a
+        // turn that reads nothing (an idle poll) is no frame's work.
+        let t_service = ticks();
+        link.service(&mut usb);
+        let serviced = ticks().wrapping_sub(t_service);
+        link.drain(&usb);
+        let t_read = ticks();
         let n = link.read(&usb, &mut rx);
+        let mut received = serviced.wrapping_add(ticks().wrapping_sub(t_read));
         let bytes = rx.get(..n).unwrap_or_default();
         if bytes.is_empty() {
             // Nothing from the host: the time to erase what the log needs
@@ -131,9 +140,17 @@ fn main() -> ! {
         // One host message at a time (each ends with the frame delimiter
         // 0x00), so that the gap after a frame's answer is seen even when
         // the next frame's first bytes came in the same packet.
-        for part in bytes.split_inclusive(|&b| b == 0) {
+        let mut parts = bytes.split_inclusive(|&b| b == 0);
+        loop {
+            // The delimiter scan is receive work too; the turn's USB time
+            // goes with its first message.
+            let t_scan = ticks();
+            let Some(part) = parts.next() else { break };
+            let rx_ticks = received.wrapping_add(ticks().wrapping_sub(t_scan));
+            received = 0;
             let between_frames = critical_section::with(|cs| {
                 let mut device = DEVICE.borrow_ref_mut(cs);
+                device.add_receive_ticks(rx_ticks);
                 device.receive_logged(part, &mut log, &mut |frame| {
                     let Ok(()) = led.toggle();
                     link.send(&mut usb, frame);
