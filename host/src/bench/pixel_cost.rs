@@ -14,7 +14,7 @@
 use crate::device::client::Client;
 use crate::device::error::DeviceError;
 use crate::device::link::Link;
-use crate::device::scan::{self, DepthFrame, ScanState, StreamOptions};
+use crate::device::scan::{self, ScanState, StreamOptions};
 use crate::{Sequence, VoxelConfig};
 use placedb::protocol::{Config, HostMessage, Status};
 use placedb::SelectorConfig;
@@ -189,21 +189,7 @@ pub fn stream_warmed<L: Link>(
             state.drain(client)?;
             warm = Some((state.call_status(client)?, state.bytes));
         }
-        let img = seq
-            .depth(i)
-            .map_err(|e| DeviceError::Input(format!("frame {i}: {e}")))?;
-        let pose = seq.frames[i]
-            .pose()
-            .map_err(|e| DeviceError::Input(format!("frame {i}: pose: {e}")))?;
-        state.push(
-            client,
-            &DepthFrame {
-                timestamp: seq.frames[i].timestamp,
-                pose,
-                intrinsics: cfg.intrinsics,
-                depth: &img.data,
-            },
-        )?;
+        state.push_sequence_frame(client, seq, i, cfg.intrinsics)?;
         state.send(client, HostMessage::StatusRequest, || {
             "StatusRequest".into()
         })?;

@@ -298,21 +298,7 @@ fn send_frames<L: Link>(
 ) -> Result<(), DeviceError> {
     let first = range.start;
     for i in range {
-        let img = seq
-            .depth(i)
-            .map_err(|e| DeviceError::Input(format!("frame {i}: {e}")))?;
-        let pose = seq.frames[i]
-            .pose()
-            .map_err(|e| DeviceError::Input(format!("frame {i}: pose: {e}")))?;
-        scan.push(
-            client,
-            &DepthFrame {
-                timestamp: seq.frames[i].timestamp,
-                pose,
-                intrinsics: cfg.intrinsics,
-                depth: &img.data,
-            },
-        )?;
+        scan.push_sequence_frame(client, seq, i, cfg.intrinsics)?;
         // The live line's status; stop-and-wait without a display skips it.
         if scan.opts.retries == 0 || progress.is_some() {
             scan.send(client, HostMessage::StatusRequest, || {
@@ -560,6 +546,32 @@ impl ScanState {
         self.first_index = first;
         self.next_frame = seen;
         Ok(st)
+    }
+
+    /// Sends frame `i` of `seq` (its depth decoded, its pose), the one way a
+    /// recorded sequence's frames reach [`Self::push`].
+    pub(crate) fn push_sequence_frame<L: Link>(
+        &mut self,
+        client: &mut Client<L>,
+        seq: &Sequence,
+        i: usize,
+        intrinsics: placedb::Intrinsics,
+    ) -> Result<u32, DeviceError> {
+        let img = seq
+            .depth(i)
+            .map_err(|e| DeviceError::Input(format!("frame {i}: {e}")))?;
+        let pose = seq.frames[i]
+            .pose()
+            .map_err(|e| DeviceError::Input(format!("frame {i}: pose: {e}")))?;
+        self.push(
+            client,
+            &DepthFrame {
+                timestamp: seq.frames[i].timestamp,
+                pose,
+                intrinsics,
+                depth: &img.data,
+            },
+        )
     }
 
     /// Sends one frame: see [`Session::push_frame`].
