@@ -235,7 +235,7 @@ fn row_strides(size: (u32, u32)) -> Result<Vec<u16>, Error> {
 }
 
 /// Streams `seq` at each of `strides` in turn to `client`, as
-/// [`pixelcost::measure_strides`] does, without asking for a clock; the
+/// [`pixelcost::measure`] does, without asking for a clock; the
 /// frames it scanned (up to a full log).
 fn stream_strides<L: Link>(
     client: &mut Client<L>,

@@ -48,6 +48,22 @@ pub struct StrideCost {
     pub bytes: f64,
 }
 
+impl StrideCost {
+    /// The per-frame figures of `frames` frames at `stride` from their
+    /// totals: ticks, core ticks, valid pixels and bytes sent.
+    fn of_totals(stride: u16, frames: u32, [ticks, core, pixels, bytes]: [u64; 4]) -> StrideCost {
+        let per = |x: u64| x as f64 / f64::from(frames.max(1));
+        StrideCost {
+            stride,
+            frames,
+            ticks: per(ticks),
+            core: per(core),
+            pixels: per(pixels),
+            bytes: per(bytes),
+        }
+    }
+}
+
 /// The cost of the same frames at a fine and a coarse stride.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PixelCost {
@@ -94,7 +110,22 @@ pub fn measure<L: Link>(
     profile: &str,
     strides: [u16; 2],
 ) -> Result<PixelCost, DeviceError> {
-    let runs = measure_strides(client, seq, vcfg, sel, profile, &strides)?;
+    let mut runs = Vec::with_capacity(strides.len());
+    for stride in strides {
+        let cfg = config_at(seq, vcfg, sel, stride)?;
+        let report = scan::stream(client, seq, &cfg, profile, &StreamOptions::default(), None)?;
+        let (st, c) = (&report.status, &report.status.cost);
+        if c.clock_hz == 0 || c.frames == 0 {
+            return Err(DeviceError::Input(
+                "the device has no clock: it cannot measure its cost".into(),
+            ));
+        }
+        runs.push(StrideCost::of_totals(
+            stride,
+            c.frames,
+            [c.total, c.core, st.valid_pixels, report.bytes_sent],
+        ));
+    }
     let [fine, coarse] = <[StrideCost; 2]>::try_from(runs)
         .map_err(|_| DeviceError::Input("one cost per stride".into()))?;
     PixelCost::of(fine, coarse)
@@ -111,41 +142,6 @@ impl PixelCost {
         }
         Ok(PixelCost { fine, coarse })
     }
-}
-
-/// Streams every frame of `seq` at each of `strides` in turn, as
-/// [`measure`] does; the device's cost at each.
-pub fn measure_strides<L: Link>(
-    client: &mut Client<L>,
-    seq: &Sequence,
-    vcfg: &VoxelConfig,
-    sel: SelectorConfig,
-    profile: &str,
-    strides: &[u16],
-) -> Result<Vec<StrideCost>, DeviceError> {
-    let mut runs = Vec::with_capacity(strides.len());
-    for &stride in strides {
-        let vcfg = VoxelConfig { stride, ..*vcfg };
-        let scan = scan::scan_config(seq, &vcfg)?;
-        let cfg = scan::device_config(&scan, &sel)?;
-        let report = scan::stream(client, seq, &cfg, profile, &StreamOptions::default(), None)?;
-        let st = &report.status;
-        if st.cost.clock_hz == 0 || st.cost.frames == 0 {
-            return Err(DeviceError::Input(
-                "the device has no clock: it cannot measure its cost".into(),
-            ));
-        }
-        let frames = f64::from(st.cost.frames);
-        runs.push(StrideCost {
-            stride,
-            frames: st.cost.frames,
-            ticks: st.cost.total as f64 / frames,
-            core: st.cost.core as f64 / frames,
-            pixels: st.valid_pixels as f64 / frames,
-            bytes: report.bytes_sent as f64 / frames,
-        });
-    }
-    Ok(runs)
 }
 
 /// One scan at one stride whose first frames only warm the device up.
@@ -242,25 +238,21 @@ pub fn measure_strides_warmed<L: Link>(
                 "the device has no clock: it cannot measure its cost".into(),
             ));
         }
-        let cost = |frames: u32, ticks: u64, core: u64, pixels: u64, bytes: u64| {
-            let per = |x: u64| x as f64 / f64::from(frames.max(1));
-            StrideCost {
-                stride,
-                frames,
-                ticks: per(ticks),
-                core: per(core),
-                pixels: per(pixels),
-                bytes: per(bytes),
-            }
-        };
-        let measured = cost(
+        let measured = StrideCost::of_totals(
+            stride,
             e.frames - w.frames,
-            e.total.saturating_sub(w.total),
-            e.core.saturating_sub(w.core),
-            r.end.valid_pixels.saturating_sub(r.warm.valid_pixels),
-            r.end_bytes.saturating_sub(r.warm_bytes),
+            [
+                e.total.saturating_sub(w.total),
+                e.core.saturating_sub(w.core),
+                r.end.valid_pixels.saturating_sub(r.warm.valid_pixels),
+                r.end_bytes.saturating_sub(r.warm_bytes),
+            ],
         );
-        let warm = cost(w.frames, w.total, w.core, r.warm.valid_pixels, r.warm_bytes);
+        let warm = StrideCost::of_totals(
+            stride,
+            w.frames,
+            [w.total, w.core, r.warm.valid_pixels, r.warm_bytes],
+        );
         runs.push((measured, warm));
     }
     Ok(runs)
