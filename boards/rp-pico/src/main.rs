@@ -24,7 +24,8 @@
 mod flash;
 mod link;
 
-use core::cell::{Cell, RefCell};
+use core::cell::RefCell;
+use core::sync::atomic::{AtomicBool, Ordering};
 use critical_section::Mutex;
 use embedded_hal::digital::StatefulOutputPin;
 use placedb::device::Device256K;
@@ -53,12 +54,33 @@ const RX_CHUNK: usize = 64;
 /// stack reserve do not fit the 256 KiB RAM fails to link (memory.x).
 static DEVICE: Mutex<RefCell<Device256K>> = Mutex::new(RefCell::new(Device256K::new()));
 
-/// The timer read by [`ticks`], the device's clock.
-static TIMER: Mutex<Cell<Option<hal::Timer>>> = Mutex::new(Cell::new(None));
+/// Set once the timer runs: [`ticks`] reads it only then.
+static TIMER_RUNNING: AtomicBool = AtomicBool::new(false);
 
 /// Microseconds since boot (0 before the timer is set up).
+///
+/// Called a few times per received packet (the receive path is timed) and
+/// per message by the device, so it reads the counter registers directly:
+/// the `hal::Timer` kept in a critical-section mutex cost a critical section
+/// (interrupts off, the hardware spinlock taken and released) on every read.
 fn ticks() -> u64 {
-    critical_section::with(|cs| TIMER.borrow(cs).get()).map_or(0, |t| t.get_counter().ticks())
+    if !TIMER_RUNNING.load(Ordering::Acquire) {
+        return 0;
+    }
+    // SAFETY: only the read-only raw counter registers are read (reads have
+    // no side effect), and only once `hal::Timer::new` has taken the timer
+    // out of reset (TIMER_RUNNING). The high word is read around the low
+    // one, as `hal::Timer::get_counter` does, so a carry between is seen.
+    let timer = unsafe { &*pac::TIMER::PTR };
+    let mut high = timer.timerawh().read().bits();
+    loop {
+        let low = timer.timerawl().read().bits();
+        let again = timer.timerawh().read().bits();
+        if again == high {
+            return (u64::from(high) << 32) | u64::from(low);
+        }
+        high = again;
+    }
 }
 
 #[hal::entry]
@@ -78,9 +100,11 @@ fn main() -> ! {
     ) else {
         halt()
     };
-    let timer = hal::Timer::new(pac.TIMER, &mut pac.RESETS, &clocks);
+    // Kept alive (not read through: `ticks` reads the registers) so the
+    // timer is owned by this firmware for as long as it runs.
+    let _timer = hal::Timer::new(pac.TIMER, &mut pac.RESETS, &clocks);
+    TIMER_RUNNING.store(true, Ordering::Release);
     critical_section::with(|cs| {
-        TIMER.borrow(cs).set(Some(timer));
         DEVICE.borrow_ref_mut(cs).set_clock(ticks, TIMER_HZ);
     });
 
