@@ -196,6 +196,12 @@ enum State {
 #[derive(Debug, Clone)]
 pub struct FrameDecoder<const N: usize> {
     buf: [u8; N],
+    /// Where the frame starts in `buf` (0..=3): chosen at its first byte so
+    /// that `buf[start..]` and the input are equally aligned to 4 bytes.
+    /// The copies into `buf` are then word copies: on the Cortex-M0+ a
+    /// `memcpy` between differently aligned buffers moves a byte at a time,
+    /// and the receive path copies every byte of every frame.
+    start: usize,
     len: usize,
     state: State,
 }
@@ -214,6 +220,7 @@ impl<const N: usize> FrameDecoder<N> {
     pub const fn new() -> Self {
         FrameDecoder {
             buf: [0; N],
+            start: 0,
             len: 0,
             state: State::Collecting,
         }
@@ -221,6 +228,7 @@ impl<const N: usize> FrameDecoder<N> {
 
     /// Forgets any partial frame; the next byte starts a new frame.
     pub fn clear(&mut self) {
+        self.start = 0;
         self.len = 0;
         self.state = State::Collecting;
     }
@@ -264,18 +272,46 @@ impl<const N: usize> FrameDecoder<N> {
                 }
                 return Push::NeedMore;
             }
+            if self.len == 0 {
+                // Reading an address is safe; only its low bits are used.
+                let gap = (body.as_ptr() as usize).wrapping_sub(self.buf.as_ptr() as usize);
+                self.start = gap & 3;
+            }
             let end = self.len.saturating_add(body.len());
-            let dest = match self.buf.get_mut(self.len..end) {
-                Some(dest) if end <= Self::CAPACITY => dest,
-                _ => {
+            if end > Self::CAPACITY {
+                self.len = 0;
+                self.start = 0;
+                self.state = if ended {
+                    State::Collecting
+                } else {
+                    State::Discarding
+                };
+                return Push::Error {
+                    error: ProtocolError::new(ErrorKind::Oversized),
+                    remaining: rest,
+                };
+            }
+            if self.start + end > Self::CAPACITY {
+                // The aligned start leaves no room for a frame this long:
+                // it moves to the buffer's start (once per such frame),
+                // so the capacity is CAPACITY whatever the alignment.
+                // (A loop, not `copy_within`: no panicking path, and rare.)
+                for i in 0..self.len {
+                    let byte = self.buf.get(self.start + i).copied().unwrap_or(0);
+                    if let Some(to) = self.buf.get_mut(i) {
+                        *to = byte;
+                    }
+                }
+                self.start = 0;
+            }
+            let dest = match self.buf.get_mut(self.start + self.len..self.start + end) {
+                Some(dest) => dest,
+                None => {
                     self.len = 0;
-                    self.state = if ended {
-                        State::Collecting
-                    } else {
-                        State::Discarding
-                    };
+                    self.start = 0;
+                    self.state = State::Discarding;
                     return Push::Error {
-                        error: ProtocolError::new(ErrorKind::Oversized),
+                        error: ProtocolError::new(ErrorKind::Internal),
                         remaining: rest,
                     };
                 }
@@ -305,11 +341,11 @@ impl<const N: usize> FrameDecoder<N> {
         if self.state != State::Ready {
             return Err(ProtocolError::new(ErrorKind::Internal));
         }
-        let n = self.len;
+        let (start, n) = (self.start, self.len);
         self.clear();
         let body = self
             .buf
-            .get_mut(..n)
+            .get_mut(start..start + n)
             .ok_or(ProtocolError::new(ErrorKind::Internal))?;
         let (decoded, crc) =
             super::cobs::decode_in_place(body).ok_or(ProtocolError::new(ErrorKind::BadFraming))?;

@@ -985,3 +985,56 @@ proptest! {
         }
     }
 }
+
+/// Depth rows decode the same whatever the alignment of the bytes received
+/// and however they are chunked: the decoder starts each frame at the
+/// input's alignment (word copies on the M0+), and a frame too long for
+/// that start moves to the buffer's start, so a frame of exactly the
+/// buffer's capacity still fits at every alignment.
+#[test]
+fn frames_decode_at_every_input_alignment_and_chunking() {
+    let data: Vec<u8> = (0..2 * N as u32).map(|i| (i * 7 % 251) as u8 + 1).collect();
+    let frame_of = |k: usize| HostFrame {
+        seq: 3,
+        msg: HostMessage::DepthRows(DepthRows {
+            frame: 9,
+            first_row: 1,
+            row_count: 2,
+            data: &data[..k],
+        }),
+    };
+    // The longest frame the decoder holds: N bytes with its delimiter.
+    let longest = (0..data.len())
+        .rev()
+        .find(|&k| encode_vec(&frame_of(k)).len() == N)
+        .expect("some data length encodes to exactly N bytes");
+    for k in [0, 1, 61, 300, longest] {
+        let expected = frame_of(k);
+        let bytes = encode_vec(&expected);
+        for offset in 0..4 {
+            // Two frames back to back, the second starting at another
+            // alignment than the first.
+            let mut stream = vec![0xAA; offset];
+            stream.extend_from_slice(&bytes);
+            stream.extend_from_slice(&bytes);
+            let input = &stream[offset..];
+            for chunk_len in [input.len(), 64, 63, 5, 1] {
+                let mut decoder = FrameDecoder::<N>::new();
+                let mut got = 0;
+                for chunk in input.chunks(chunk_len) {
+                    let mut rest = chunk;
+                    while let Feed::Frame { result, remaining } = decoder.feed::<HostFrame>(rest) {
+                        assert_eq!(
+                            result,
+                            Ok(expected),
+                            "k {k} offset {offset} chunk {chunk_len}"
+                        );
+                        got += 1;
+                        rest = remaining;
+                    }
+                }
+                assert_eq!(got, 2, "k {k} offset {offset} chunk {chunk_len}");
+            }
+        }
+    }
+}
