@@ -281,42 +281,57 @@ impl<
         journal: &mut dyn Journal,
         send: &mut dyn FnMut(&[u8]),
     ) {
-        let core = &mut self.core;
         let mut rest = bytes;
-        loop {
-            // The framing's pass over the bytes (delimiter scan, copy into
-            // the receive buffer) is receive work of the message they end.
-            let clock = core.clock.filter(|_| core.rx_timed);
-            let t_push = now(clock);
-            let pushed = self.decoder.push(rest);
-            core.add_receive_ticks(delta(clock, t_push, 0));
-            match pushed {
-                Push::NeedMore => return,
-                Push::Error { error, remaining } => {
-                    // A refused frame's receive work is charged to nobody.
-                    core.rx_ticks = 0;
-                    core.note_rx(MAX_FRAME_LEN);
-                    let mut out = core.out(send);
-                    out.reply(&error.reply());
-                    core.refused = core.refused.saturating_add(1);
-                    rest = remaining;
-                }
-                Push::Ready { remaining } => {
-                    // The delimiter counts: the buffer holds frame_len + 1 bytes.
-                    core.note_rx(self.decoder.frame_len().saturating_add(1));
-                    // The message's cost starts when its receive work did:
-                    // every tick its handling measures from `t0` then
-                    // includes the receive ticks too (they are protocol
-                    // work, never the core's share). A message that is not
-                    // part of a frame drops them.
-                    let t0 = now(core.clock).wrapping_sub(core.rx_ticks);
-                    core.rx_ticks = 0;
-                    core.flash = journal.usage();
-                    let frame = self.decoder.decode::<HostFrame>();
-                    core.handle(frame, t0, journal, send);
-                    core.flash = journal.usage();
-                    rest = remaining;
-                }
+        while !rest.is_empty() {
+            rest = self.receive_message(rest, journal, send).0;
+        }
+    }
+
+    /// [`Self::receive_logged`] up to the end of the first frame in `bytes`
+    /// (its delimiter included): handles that frame, if one ends there, and
+    /// returns the bytes after it and whether one ended. A board that acts
+    /// between messages (erasing flash ahead once a frame's answer is out)
+    /// calls this in a loop instead of scanning for the delimiters itself:
+    /// the framing's scan is the only pass over the bytes.
+    pub fn receive_message<'i>(
+        &mut self,
+        bytes: &'i [u8],
+        journal: &mut dyn Journal,
+        send: &mut dyn FnMut(&[u8]),
+    ) -> (&'i [u8], bool) {
+        let core = &mut self.core;
+        // The framing's pass over the bytes (delimiter scan, copy into
+        // the receive buffer) is receive work of the message they end.
+        let clock = core.clock.filter(|_| core.rx_timed);
+        let t_push = now(clock);
+        let pushed = self.decoder.push(bytes);
+        core.add_receive_ticks(delta(clock, t_push, 0));
+        match pushed {
+            Push::NeedMore => (&[], false),
+            Push::Error { error, remaining } => {
+                // A refused frame's receive work is charged to nobody.
+                core.rx_ticks = 0;
+                core.note_rx(MAX_FRAME_LEN);
+                let mut out = core.out(send);
+                out.reply(&error.reply());
+                core.refused = core.refused.saturating_add(1);
+                (remaining, true)
+            }
+            Push::Ready { remaining } => {
+                // The delimiter counts: the buffer holds frame_len + 1 bytes.
+                core.note_rx(self.decoder.frame_len().saturating_add(1));
+                // The message's cost starts when its receive work did:
+                // every tick its handling measures from `t0` then
+                // includes the receive ticks too (they are protocol
+                // work, never the core's share). A message that is not
+                // part of a frame drops them.
+                let t0 = now(core.clock).wrapping_sub(core.rx_ticks);
+                core.rx_ticks = 0;
+                core.flash = journal.usage();
+                let frame = self.decoder.decode::<HostFrame>();
+                core.handle(frame, t0, journal, send);
+                core.flash = journal.usage();
+                (remaining, true)
             }
         }
     }

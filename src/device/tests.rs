@@ -1050,3 +1050,73 @@ fn blank_log() -> Log<SimFlash> {
 }
 
 mod extend;
+
+/// `receive_message` handles exactly one frame a call (the board acts
+/// between messages on what it returns) and, called until its input is
+/// used up, gives what `receive_logged` gives; a refused frame and a lone
+/// delimiter end nothing early, a partial frame ends nothing.
+#[test]
+fn receive_message_stops_after_each_frame() {
+    on_big_stack(|| {
+        let mut stream = Vec::new();
+        let mut buf = vec![0u8; MAX_FRAME_LEN];
+        let mut ends = Vec::new();
+        for (seq, msg) in [
+            (1, HostMessage::Hello(config(3))),
+            (2, HostMessage::StatusRequest),
+            (3, HostMessage::StatusRequest),
+        ] {
+            stream.extend_from_slice(encode(&HostFrame { seq, msg }, &mut buf).unwrap());
+            ends.push(stream.len());
+        }
+        // A frame with a bad CRC (refused, answered), a lone delimiter
+        // (skipped), then the first half of a status request.
+        let mut bad = encode(
+            &HostFrame {
+                seq: 4,
+                msg: HostMessage::StatusRequest,
+            },
+            &mut buf,
+        )
+        .unwrap()
+        .to_vec();
+        bad[1] ^= 0x20;
+        stream.extend_from_slice(&bad);
+        ends.push(stream.len());
+        stream.push(0);
+        let partial = encode(
+            &HostFrame {
+                seq: 5,
+                msg: HostMessage::StatusRequest,
+            },
+            &mut buf,
+        )
+        .unwrap()
+        .to_vec();
+        stream.extend_from_slice(&partial[..partial.len() / 2]);
+
+        let mut whole = Vec::new();
+        Small::new_boxed().receive(&stream, &mut |f| whole.push(f.to_vec()));
+
+        let mut device = Small::new_boxed();
+        let mut replies = Vec::new();
+        let mut rest: &[u8] = &stream;
+        let mut ended_at = Vec::new();
+        while !rest.is_empty() {
+            let before = replies.len();
+            let (after, ended) =
+                device.receive_message(rest, &mut NoJournal, &mut |f| replies.push(f.to_vec()));
+            if ended {
+                ended_at.push(stream.len() - after.len());
+                assert_eq!(replies.len(), before + 1, "one frame, one reply");
+            } else {
+                assert!(after.is_empty());
+                assert_eq!(replies.len(), before);
+            }
+            rest = after;
+        }
+        assert_eq!(ended_at, ends);
+        assert_eq!(replies, whole);
+        assert_eq!(replies.len(), 4);
+    });
+}

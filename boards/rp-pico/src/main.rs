@@ -161,26 +161,24 @@ fn main() -> ! {
             erase_ahead(&mut log);
             continue;
         }
-        // One host message at a time (each ends with the frame delimiter
-        // 0x00), so that the gap after a frame's answer is seen even when
-        // the next frame's first bytes came in the same packet.
-        let mut parts = bytes.split_inclusive(|&b| b == 0);
-        loop {
-            // The delimiter scan is receive work too; the turn's USB time
-            // goes with its first message.
-            let t_scan = ticks();
-            let Some(part) = parts.next() else { break };
-            let rx_ticks = received.wrapping_add(ticks().wrapping_sub(t_scan));
-            received = 0;
-            let between_frames = critical_section::with(|cs| {
+        // One host message at a time, so that the gap after a frame's
+        // answer is seen even when the next frame's first bytes came in the
+        // same packet; the framing's scan finds where each message ends (the
+        // only pass over the bytes before their decode). The turn's USB time
+        // goes with the first message.
+        let mut rest = bytes;
+        while !rest.is_empty() {
+            let (after, between_frames) = critical_section::with(|cs| {
                 let mut device = DEVICE.borrow_ref_mut(cs);
-                device.add_receive_ticks(rx_ticks);
-                device.receive_logged(part, &mut log, &mut |frame| {
+                device.add_receive_ticks(received);
+                let (after, ended) = device.receive_message(rest, &mut log, &mut |frame| {
                     let Ok(()) = led.toggle();
                     link.send(&mut usb, frame);
                 });
-                device.phase() != Phase::InFrame
+                (after, ended && device.phase() != Phase::InFrame)
             });
+            received = 0;
+            rest = after;
             // A host that keeps the link busy (a pipelined stream: the next
             // frame is always waiting) leaves no idle turn, so the sector is
             // also erased between two frames: after a message that leaves no
@@ -188,7 +186,7 @@ fn main() -> ! {
             // waits, boundedly, until the USB controller holds them: it sends
             // them from its own buffers during the erase). The erase then
             // delays the next frame's start, not a frame's answer.
-            if part.last() == Some(&0) && between_frames && !erased_ahead(&mut log) {
+            if between_frames && !erased_ahead(&mut log) {
                 link.flush(&mut usb);
                 erase_ahead(&mut log);
             }
