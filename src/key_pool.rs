@@ -25,25 +25,50 @@ pub struct Aabb {
 }
 
 impl Aabb {
-    /// Box of ascending packed keys; `None` for an empty set.
+    /// Box of ascending packed keys; `None` for an empty set (or one whose
+    /// first word is no key).
+    ///
+    /// Runs once a frame over all its keys, on the packed words (x in bits
+    /// 42..63, y in 21..42, z in 0..21). x is the most significant field, so
+    /// in ascending keys the smallest x is the first key's and the largest
+    /// the last valid key's (words no key packs to sort above every key).
+    /// y and z are compared as 32-bit words holding the field in their top
+    /// 21 bits (`k >> 10` and `k << 11`): the bits below the field cannot
+    /// change which field value is smallest or largest, and the loop needs
+    /// no mask, bias or 64-bit shift, so it fits the Cortex-M0+'s registers.
     #[inline(never)]
     pub fn of_sorted(keys: &[u64]) -> Option<Aabb> {
-        let first = VoxelKey::from_bits(*keys.first()?)?.coords();
-        let mut b = Aabb {
-            min: [first.0, first.1, first.2],
-            max: [first.0, first.1, first.2],
-        };
+        let &first = keys.first()?;
+        VoxelKey::from_bits(first)?;
+        let last = keys
+            .iter()
+            .rev()
+            .copied()
+            .find(|&k| VoxelKey::from_bits(k).is_some())
+            .unwrap_or(first);
+        let top_y = |k: u64| (k >> 10) as u32;
+        let top_z = |k: u64| (k as u32) << 11;
+        let (mut y0, mut y1) = (top_y(first), top_y(first));
+        let (mut z0, mut z1) = (top_z(first), top_z(first));
         for &k in keys {
-            if let Some(key) = VoxelKey::from_bits(k) {
-                let (x, y, z) = key.coords();
-                let axes = b.min.iter_mut().zip(b.max.iter_mut());
-                for ((lo, hi), c) in axes.zip([x, y, z]) {
-                    *lo = (*lo).min(c);
-                    *hi = (*hi).max(c);
-                }
+            if VoxelKey::from_bits(k).is_some() {
+                let (y, z) = (top_y(k), top_z(k));
+                y0 = y0.min(y);
+                y1 = y1.max(y);
+                z0 = z0.min(z);
+                z1 = z1.max(z);
             }
         }
-        Some(b)
+        // The x of `x_of` with the y and z fields of the kept words.
+        let corner = |x_of: u64, y: u32, z: u32| {
+            let bits = (x_of >> 42 << 42) | (u64::from(y >> 11) << 21) | u64::from(z >> 11);
+            VoxelKey::from_bits(bits).map(VoxelKey::coords)
+        };
+        let (lo, hi) = (corner(first, y0, z0)?, corner(last, y1, z1)?);
+        Some(Aabb {
+            min: [lo.0, lo.1, lo.2],
+            max: [hi.0, hi.1, hi.2],
+        })
     }
 
     /// Whether the boxes share at least one voxel: sets whose boxes do not
@@ -594,6 +619,38 @@ mod tests {
             if let Some((n, _)) = fresh_count(&a, &b) {
                 prop_assert_eq!(n, reference(&a, &b));
             }
+        }
+    }
+
+    proptest! {
+        /// The box from the ends' x and a loop over y and z is the box
+        /// every valid key's three axes give, with words no key packs to
+        /// (which sort last) left out.
+        #[test]
+        fn box_of_sorted_keys_is_every_axis_bound(
+            corner in (-3000..3000i32, -3000..3000i32, -3000..3000i32).prop_map(|(x, y, z)| [x, y, z]),
+            offsets in offsets(),
+            junk in proptest::collection::vec(1u64 << 63.., 0..3),
+        ) {
+            let mut keys = set_at(corner, &offsets);
+            keys.sort_unstable();
+            keys.dedup();
+            keys.extend(junk);
+            keys.sort_unstable();
+            let valid: Vec<_> = keys.iter().filter_map(|&k| VoxelKey::from_bits(k)).collect();
+            let expected = valid.first().map(|k0| {
+                let c = k0.coords();
+                let mut b = Aabb { min: [c.0, c.1, c.2], max: [c.0, c.1, c.2] };
+                for k in &valid {
+                    let (x, y, z) = k.coords();
+                    for (i, v) in [x, y, z].into_iter().enumerate() {
+                        b.min[i] = b.min[i].min(v);
+                        b.max[i] = b.max[i].max(v);
+                    }
+                }
+                b
+            });
+            prop_assert_eq!(Aabb::of_sorted(&keys), expected);
         }
     }
 
