@@ -11,6 +11,7 @@ use super::error::DeviceError;
 use super::link::{self, Link};
 use super::scan::{stream_config, DepthFrame, StreamOptions};
 use super::session::Session;
+use crate::degradation::plural;
 use crate::{Sequence, VoxelConfig};
 use placedb::protocol::{Config, Status};
 use placedb::SelectorConfig;
@@ -157,10 +158,39 @@ pub fn index_ranges(frames: &[usize]) -> String {
     out.join(", ")
 }
 
+impl RealtimeReport {
+    /// Refuses a replay whose sent frames gave the device no valid depth
+    /// pixel (`placedb stream`'s refusal): it measured nothing, however many
+    /// frames went out, and must not read as a success. Happens when the
+    /// frames with depth were all skipped (the sequence has some: it was
+    /// checked before the device was touched). The skipped frames are named.
+    pub fn check_measured(&self, seq: &Sequence) -> Result<(), DeviceError> {
+        if self.status.valid_pixels > 0 {
+            return Ok(());
+        }
+        let skipped = if self.skipped.is_empty() {
+            "none was skipped".to_string()
+        } else {
+            format!(
+                "{} skipped because the device was busy when they were due (they have no label): {}",
+                plural(self.skipped.len() as u64, "frame", "frames"),
+                index_ranges(&self.skipped)
+            )
+        };
+        Err(DeviceError::Input(format!(
+            "{}: the device found no valid depth pixel in the {} it was sent ({}), so the \
+             real-time replay measured nothing; {skipped}. Stream it without --realtime to send \
+             every frame",
+            seq.name,
+            plural(self.sent.len() as u64, "frame", "frames"),
+            index_ranges(&self.sent)
+        )))
+    }
+}
+
 /// `placedb stream --realtime`: replays `seq` to the device on `port` at
-/// its recorded rate ([`stream_realtime`]), prints what was skipped and
-/// the database the device got, and with `out` exports it there, with
-/// `skipped.csv` (sequence frame and timestamp of every skipped frame).
+/// its recorded rate ([`realtime_on`]). A refused `seq`, selector, profile
+/// or `out` fails before the port is opened.
 pub fn realtime_cmd(
     port: &str,
     seq: &Sequence,
@@ -169,13 +199,32 @@ pub fn realtime_cmd(
     profile: &str,
     out: Option<&Path>,
 ) -> Result<RealtimeReport, DeviceError> {
-    let (scan, sel, cfg) = stream_config(seq, vcfg, sel, profile)?;
+    stream_config(seq, vcfg, sel, profile)?;
     if let Some(dir) = out {
         crate::output::check_database_dir(dir)?;
     }
     let link = link::open(port, Duration::from_secs(10))?;
+    realtime_on(link, port, seq, vcfg, sel, profile, out)
+}
+
+/// `placedb stream --realtime` on `link` (the device on `port`):
+/// [`stream_realtime`] at the recorded rate, refused if it measured nothing
+/// ([`RealtimeReport::check_measured`]); prints what was skipped and the
+/// database the device got, and with `out` exports it there, with
+/// `skipped.csv` (sequence frame and timestamp of every skipped frame).
+pub fn realtime_on<L: Link>(
+    link: L,
+    port: &str,
+    seq: &Sequence,
+    vcfg: &VoxelConfig,
+    sel: SelectorConfig,
+    profile: &str,
+    out: Option<&Path>,
+) -> Result<RealtimeReport, DeviceError> {
+    let (scan, sel, cfg) = stream_config(seq, vcfg, sel, profile)?;
     let mut session = Session::new(Client::new(link), StreamOptions::default());
     let report = stream_realtime(&mut session, seq, &cfg, profile, 1.0)?;
+    report.check_measured(seq)?;
     let n = seq.frames.len();
     println!(
         "{}: {n} frames replayed at the recorded {:.1} frames/s in {:.1} s: {} sent, {} skipped \
