@@ -457,3 +457,71 @@ fn a_full_disk_names_the_file_and_leaves_nothing() {
     assert!(listed.trim().is_empty(), "left on the disk: {listed}");
     std::fs::remove_dir_all(&root).ok();
 }
+
+/// A run killed outright (SIGKILL, a power cut) cannot remove its
+/// `.NAME.partial-PID-K`: the next run writing NAME removes it, and only
+/// names of that pattern for NAME whose process no longer runs; the
+/// outputs are those of a run into a clean folder.
+#[test]
+fn a_killed_runs_partial_sibling_is_removed_by_the_next_run_and_only_it() {
+    let root = temp("killed");
+    let (out, fresh) = (root.join("out"), root.join("fresh"));
+    // A process that has exited: its id no longer runs.
+    let mut gone = Command::new(env!("CARGO_BIN_EXE_placedb"))
+        .arg("--version")
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let dead = gone.id();
+    gone.wait().unwrap();
+    // What a select killed while writing leaves: its staged directory with
+    // a table cut short, and a staged file.
+    let stale_dir = root.join(format!(".out.partial-{dead}-0"));
+    std::fs::create_dir(&stale_dir).unwrap();
+    std::fs::write(stale_dir.join("database.csv"), "index,timestamp\n0,").unwrap();
+    let stale_file = root.join(format!(".out.partial-{dead}-1"));
+    std::fs::write(&stale_file, "cut short").unwrap();
+    // Kept: a running process's (this test's), another output's, the
+    // resumable export's file, and names not quite of the pattern.
+    let kept = [
+        format!(".out.partial-{}-0", std::process::id()),
+        format!(".other.partial-{dead}-0"),
+        ".out.export-partial".to_string(),
+        format!(".out.partial-{dead}"),
+        format!(".out.partial-{dead}-0x"),
+        format!("out.partial-{dead}-0"),
+    ];
+    for k in &kept {
+        std::fs::write(root.join(k), "keep").unwrap();
+    }
+    let select = |dir: &Path| {
+        ok(&placedb(&[
+            p("select"),
+            p("--demo"),
+            p("--demo-frames"),
+            p("12"),
+            p("-q"),
+            p("-o"),
+            dir,
+        ]))
+    };
+    select(&out);
+    assert!(!stale_dir.exists() && !stale_file.exists());
+    let mut want: Vec<String> = kept.to_vec();
+    want.push("out".into());
+    want.sort();
+    assert_eq!(names(&root), want);
+    for k in &kept {
+        assert_eq!(std::fs::read_to_string(root.join(k)).unwrap(), "keep");
+    }
+    select(&fresh);
+    assert_eq!(names(&out), names(&fresh));
+    for table in ["database.csv", "labels.csv"] {
+        assert_eq!(
+            std::fs::read(out.join(table)).unwrap(),
+            std::fs::read(fresh.join(table)).unwrap(),
+            "{table}"
+        );
+    }
+    std::fs::remove_dir_all(&root).ok();
+}

@@ -11,7 +11,10 @@
 //! replaces other files. A file target is replaced unless it is a directory.
 //! [`check_dir`] and [`check_file`] apply the rule before a command's work,
 //! so that a refused or unwritable target fails the run before anything is
-//! computed.
+//! computed. A partial sibling that a killed run left behind is removed by
+//! the next run writing that target ([`stale`]).
+
+mod stale;
 
 use crate::error::ReadError;
 use crate::output::dataset::DatasetError;
@@ -197,8 +200,9 @@ impl Outputs {
         let mut all: Vec<&Path> = self.staged.iter().map(|s| s.target.as_path()).collect();
         all.push(target);
         check_apart(&all)?;
-        let (parent, _) = split(target)?;
+        let (parent, name) = split(target)?;
         std::fs::create_dir_all(&parent).map_err(io_err(&parent))?;
+        stale::remove_stale(&parent, &name);
         self.staged.push(Staged {
             target: target.to_path_buf(),
             partial,
