@@ -95,9 +95,17 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
         }
         if let Some(dir) = &a.dataset {
             if export.labels().1.is_empty() {
+                // Nothing is written (the export and its dataset appear
+                // together): an empty dataset would read as a made one.
                 return Err(format!(
-                    "--dataset {}: the device's export has no labelled frame (its scan decided none yet): no dataset written",
-                    dir.display()
+                    "--dataset {}: the device's export has no labelled frame (its scan decided \
+                     none yet): no dataset written, nor {}. Finish the scan first (placedb stream \
+                     {} --port {} --resume, with the options it was streamed with), or export \
+                     without --dataset",
+                    dir.display(),
+                    a.out.display(),
+                    a.sequence.as_deref().unwrap_or(Path::new("SEQ")).display(),
+                    a.port
                 )
                 .into());
             }
