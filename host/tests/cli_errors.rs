@@ -195,3 +195,32 @@ fn the_default_intrinsics_of_7_scenes_are_named_and_change_no_output() {
         );
     }
 }
+
+/// `bench --db-scaling` restores a device from each flash image it wrote
+/// (`--db-probe FLASH`, its callgrind child): one it cannot restore is
+/// refused in words naming the file, never a Rust variant or a panic.
+#[test]
+fn the_db_scaling_probe_refuses_a_flash_image_in_words() {
+    let tmp = TempDir::new("db-probe");
+    // Sectors of 4 KiB: none, a part of one, and two of noise.
+    let noise: Vec<u8> = (0..2 * 4096u32)
+        .map(|i| (i.wrapping_mul(2_654_435_761) >> 24) as u8)
+        .collect();
+    for (name, bytes, says) in [
+        ("empty.flash", Vec::new(), "not a flash log image"),
+        (
+            "short.flash",
+            vec![0xFF; 5000],
+            "not a flash image of whole",
+        ),
+        ("noise.flash", noise, "no scan in this flash log"),
+    ] {
+        let path = tmp.arg(name);
+        std::fs::write(&path, bytes).unwrap();
+        let run = placedb(&["bench", "--db-probe", &path, "--building-frames", "10"]);
+        let err = stderr(&run);
+        assert_eq!(run.status.code(), Some(1), "{name}: {err}");
+        assert!(in_words(&err).contains(says), "{name}: {err}");
+        assert!(err.contains(&path), "{name}: {err}");
+    }
+}

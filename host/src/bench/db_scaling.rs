@@ -9,6 +9,7 @@
 //! all live in flash, so both counts include reading every nearby stored
 //! frame back: the worst case for the bigger database.
 
+use crate::device::flash_words::{log_error, restore_failure};
 use crate::device::scan;
 use crate::replay::sampled_rows;
 use crate::row_chunks::{row_chunks, RowChunk};
@@ -115,7 +116,8 @@ pub fn prepare(dir: &Path, frames: usize) -> Result<(u32, u32), String> {
     let building = Building::new(frames)?;
     let mut device = Box::new(Device256K::new());
     let end = (SECTORS * SimFlash::SECTOR) as u32;
-    let mut log = Log::open(SimFlash::new(SECTORS), 0, end).map_err(|e| format!("{e:?}"))?;
+    let mut log = Log::open(SimFlash::new(SECTORS), 0, end)
+        .map_err(|e| format!("the simulated flash log does not open: {}", log_error(e)))?;
     let mut seq_no = 0;
     let mut hello = Vec::new();
     encode_frame(&mut seq_no, HostMessage::Hello(building.cfg), &mut hello);
@@ -149,13 +151,36 @@ pub fn probe_step(device: &mut Device256K, log: &mut Log<SimFlash>, bytes: &[u8]
 /// for a building of `frames` frames) and decides the probe frame, rendered
 /// again here (the building is deterministic).
 pub fn run_probe(flash: &Path, frames: usize) -> Result<(), String> {
-    let bytes = std::fs::read(flash).map_err(|e| e.to_string())?;
+    let name = flash.display();
+    let bytes = std::fs::read(flash).map_err(|e| format!("{name}: {e}"))?;
+    // Whole sectors, or the copy below would not fit the flash.
+    if bytes.len() % SimFlash::SECTOR != 0 {
+        return Err(format!(
+            "{name}: {} bytes, not a flash image of whole {}-byte sectors",
+            bytes.len(),
+            SimFlash::SECTOR
+        ));
+    }
     let mut sim = SimFlash::new(bytes.len() / SimFlash::SECTOR);
     sim.bytes_mut().copy_from_slice(&bytes);
-    let end = bytes.len() as u32;
-    let mut log = Log::open(sim, 0, end).map_err(|e| format!("{e:?}"))?;
+    let end = u32::try_from(bytes.len())
+        .map_err(|_| format!("{name}: {} bytes, more than a flash log spans", bytes.len()))?;
+    let mut log = Log::open(sim, 0, end)
+        .map_err(|e| format!("{name}: not a flash log image: {}", log_error(e)))?;
     let mut device = Box::new(Device256K::new());
-    device.restore(&mut log).map_err(|e| format!("{e:?}"))?;
+    let records = device.restore(&mut log).map_err(|e| {
+        format!(
+            "{name}: the device restores no scan from it: {}",
+            restore_failure(e)
+        )
+    })?;
+    // An erased or foreign image restores nothing: the probe frame would
+    // meet an unconfigured device and count nothing worth reporting.
+    if records == 0 {
+        return Err(format!(
+            "{name}: no scan in this flash log (give an image `bench --db-scaling` wrote)"
+        ));
+    }
     let st = device.status();
     let p = Building::new(frames)?.probe()?;
     let bytes = p.bytes(st.frames_seen, &mut 1000);

@@ -11,6 +11,7 @@ pub mod emulator;
 pub mod error;
 pub mod export;
 pub mod flash_timing;
+pub mod flash_words;
 pub mod link;
 pub mod log_records;
 pub mod pacing;
