@@ -269,7 +269,6 @@ fn every_solver_reports_its_losses() {
             "30",
             "--solver",
             solver,
-            "-q",
             "-o",
             &out.display().to_string(),
         ]));
@@ -316,7 +315,6 @@ fn an_empty_frame_is_counted_and_warned() {
             &seq,
             "--solver",
             solver,
-            "-q",
             "-o",
             &out.display().to_string(),
         ]);
@@ -487,7 +485,6 @@ fn singular_and_the_users_decimals() {
         "0.2",
         "--depth-range",
         "0.1,4.7",
-        "-q",
         "-o",
         &out.display().to_string(),
     ]));
@@ -529,4 +526,46 @@ fn bench_prints_a_dash_not_nan() {
         .find(|l| l.contains("decode-only") && l.starts_with("7scenes-1000"))
         .unwrap_or_else(|| panic!("no floor row: {text}"));
     assert!(floor.contains(" - "), "{floor}");
+}
+
+/// `select -q` prints no summary (stdout stays empty, with or without
+/// --extend) and still its warnings on stderr; `--json` still prints the
+/// JSON asked for.
+#[test]
+fn select_quiet_prints_no_summary_only_its_warnings() {
+    let t = TempDir::new("quiet");
+    let seq = seven_scenes_copy(&t, "seq", 4);
+    flat_depth(&seq, 2, 0);
+    let warned = "warning: 1 frame without a valid depth pixel";
+    for solver in ["in-order", "online"] {
+        let r = placedb(&[
+            "select",
+            &seq,
+            "--solver",
+            solver,
+            "-q",
+            "-o",
+            &t.arg(solver),
+        ]);
+        let text = succeeds(&r);
+        assert!(text.is_empty(), "{solver}: -q printed: {text}");
+        assert!(stderr(&r).contains(warned), "{solver}: {}", stderr(&r));
+        assert!(t.join(solver).join("labels.csv").is_file());
+    }
+    let r = placedb(&[
+        "select",
+        &seq,
+        "--extend",
+        &t.arg("online"),
+        "-q",
+        "-o",
+        &t.arg("extended"),
+    ]);
+    let text = succeeds(&r);
+    assert!(text.is_empty(), "--extend -q printed: {text}");
+    assert!(t.join("extended").join("labels.csv").is_file());
+    let r = placedb(&["select", &seq, "-q", "--json", "-o", &t.arg("json")]);
+    let json: serde_json::Value = serde_json::from_str(&succeeds(&r)).unwrap();
+    assert_eq!(json["empty_frames"], 1, "{json}");
+    assert!(stderr(&r).contains(warned), "{}", stderr(&r));
 }

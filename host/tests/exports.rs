@@ -101,7 +101,7 @@ fn colmap_vpr_eval_and_pairs_of_a_recorded_sequence() {
     );
     let n = FRAMES.to_string();
     let s = |p: &Path| p.to_str().unwrap().to_string();
-    let base = ["select", SEVEN_SCENES, "-q", "--max-frames", &n];
+    let base = ["select", SEVEN_SCENES, "--max-frames", &n];
     let mut with: Vec<String> = base.iter().map(|a| a.to_string()).collect();
     with.extend(["-o".into(), s(&out), "--colmap".into(), s(&colmap)]);
     with.extend(["--vpr-eval".into(), s(&vpr), "--pairs".into(), s(&pairs)]);

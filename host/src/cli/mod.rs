@@ -136,7 +136,8 @@ pub struct ParamArgs {
     /// Print machine-readable JSON instead of text.
     #[arg(long)]
     json: bool,
-    /// No progress bars.
+    /// No progress bars; select prints no summary either (its warnings and
+    /// errors still go to stderr, and --json its JSON).
     #[arg(long, short)]
     quiet: bool,
 }

@@ -129,7 +129,7 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
     })?;
     if a.params.json {
         println!("{}", serde_json::to_string_pretty(&json)?);
-    } else {
+    } else if !a.params.quiet {
         let m = &o.metrics;
         println!(
             "{}: {} -> {} ({:.1}x reduction) with solver {} at mu {}",

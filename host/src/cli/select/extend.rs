@@ -251,6 +251,9 @@ pub(super) fn run(a: SelectArgs, from: &Path) -> Result<(), Error> {
         println!("{}", serde_json::to_string_pretty(&json)?);
         return Ok(());
     }
+    if a.params.quiet {
+        return Ok(());
+    }
     let mm = &o.metrics;
     let added = o.database.len() - m;
     println!(
