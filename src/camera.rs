@@ -434,7 +434,7 @@ impl FrameProjector {
         }
         let samples = row.iter().copied().step_by(usize::from(self.stride));
         let samples = samples.take(usize::from(self.samples_per_row()));
-        self.project::<false, NARROW>(v, samples, out_of_range, emit)
+        self.project::<false, NARROW>(v, samples, None, out_of_range, emit)
     }
 
     /// Like [`Self::project_row`] for a row that is already subsampled, as the
@@ -470,7 +470,7 @@ impl FrameProjector {
         let row = samples
             .get(..usize::from(self.samples_per_row()))
             .unwrap_or(samples);
-        self.project::<true, NARROW_LOOP>(v, row.iter().copied(), out_of_range, emit)
+        self.project::<true, NARROW_LOOP>(v, row.iter().copied(), Some(row), out_of_range, emit)
     }
 
     /// Sampled columns per row: `ceil(width / stride)`.
@@ -493,12 +493,15 @@ impl FrameProjector {
     /// pixels `u = 0, stride, 2 stride, ...` of row `v`, at most one row's
     /// worth (so `invalid` cannot wrap). With `RUNS`, a key equal to the
     /// previous one emitted is not emitted again. With `NARROW_LOOP`, rows
-    /// [`narrow::fits`] accepts take [`narrow::narrow_loop`].
+    /// [`narrow::fits`] accepts take [`narrow::narrow_loop`] when the
+    /// samples are a slice, given as `whole` (the wire's rows; the loop
+    /// indexes them within a chunk).
     #[inline(always)]
     fn project<const RUNS: bool, const NARROW_LOOP: bool>(
         &self,
         v: u16,
         samples: impl ExactSizeIterator<Item = u16>,
+        whole: Option<&[u16]>,
         out_of_range: &mut u32,
         mut emit: impl FnMut(VoxelKey),
     ) -> u32 {
@@ -524,11 +527,11 @@ impl FrameProjector {
         let mut invalid = 0u32;
         if self.shift == MAX_SHIFT {
             let t = self.biased_translation();
-            let narrow = NARROW_LOOP && (self.rows.narrow == 1 || narrow::fits(&ray, &step, seen, hi));
-            invalid = if narrow {
-                narrow::narrow_loop(samples, ray, step, t, (lo, span), &mut emit_new)
-            } else {
-                fast_loop(samples, ray, step, t, (lo, span), &mut emit_new)
+            let fits = || self.rows.narrow == 1 || narrow::fits(&ray, &step, seen, hi);
+            let narrow = whole.filter(|_| NARROW_LOOP && fits());
+            invalid = match narrow {
+                Some(row) => narrow::narrow_loop(row, ray, step, t, (lo, span), &mut emit_new),
+                None => fast_loop(samples, ray, step, t, (lo, span), &mut emit_new),
             };
         } else {
             let (shift, t) = (self.shift, self.translation);
@@ -1107,12 +1110,15 @@ mod tests {
                 fast[nf] = key.to_bits();
                 nf += 1;
             });
-            let valid_narrow =
-                proj.project_samples_with::<true>(v, row, &mut oor_narrow, |key| {
-                    narrow[nn] = key.to_bits();
-                    nn += 1;
-                });
-            assert_eq!((valid_fast, oor_fast), (valid_narrow, oor_narrow), "case {case}");
+            let valid_narrow = proj.project_samples_with::<true>(v, row, &mut oor_narrow, |key| {
+                narrow[nn] = key.to_bits();
+                nn += 1;
+            });
+            assert_eq!(
+                (valid_fast, oor_fast),
+                (valid_narrow, oor_narrow),
+                "case {case}"
+            );
             assert_eq!(fast[..nf], narrow[..nn], "case {case}");
             assert!(narrow[..nn].windows(2).all(|w| w[0] != w[1]), "case {case}");
             // The definition's keys, one a valid pixel, at full resolution.

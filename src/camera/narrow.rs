@@ -24,7 +24,7 @@
 //! whenever `R' mod 2^24 < 2^24 - (raw_max + 2^16 - 1)`: all but about
 //! `(raw_max + 2^16) / 2^24` of the samples an axis (1/220 at 10 m in
 //! millimetres). A sample with an axis in that guard band takes the exact
-//! key instead ([`Exact::keys`]), so every key is exact.
+//! key instead ([`Exact::key`]), so every key is exact.
 
 use crate::voxel::VoxelKey;
 
@@ -33,9 +33,10 @@ use crate::voxel::VoxelKey;
 const PRODUCT_LIMIT: u64 = (1 << 31) - (1 << 25);
 
 /// Samples a chunk: the loop's 32-bit ray restarts exact at each chunk's
-/// first sample, so its error (one unit of `2^-32` a step, below) stays
-/// under the `2^8` that would take `A'` further than `A - 1`.
-const CHUNK: i32 = 256;
+/// first sample, so its error (under two units of `2^-32` a step, see
+/// [`narrow_loop`]) stays under the `2^8` that would take `A'` further
+/// than `A - 1`.
+const CHUNK: usize = 128;
 
 /// `|ray|` must stay below this for the loop's 32-bit ray `floor(ray / 2^8)`
 /// to fit an `i32` with room for its error (`2^30 + 2^8 < 2^31`).
@@ -107,20 +108,19 @@ struct Exact {
 }
 
 impl Exact {
-    /// The exact biased keys of sample `index` (depth `raw`): its ray is
-    /// `ray + index * step`, exactly (`fits` bounds it at both ends).
+    /// The exact biased key on `axis` of sample `index` (depth `raw`): its
+    /// ray is `ray + index * step`, exactly (`fits` bounds it at both ends).
+    /// Out of line and apart for each axis, so that the loop keeps a branch
+    /// an axis to it rather than computing every axis's test.
     #[cold]
     #[inline(never)]
-    fn keys(&self, raw: u32, index: u32) -> (u32, u32, u32) {
-        let axis = |a: usize| {
-            let (ray, step, t) = match a {
-                0 => (self.ray[0], self.step[0], self.t[0]),
-                1 => (self.ray[1], self.step[1], self.t[1]),
-                _ => (self.ray[2], self.step[2], self.t[2]),
-            };
-            t.key(raw, ray.wrapping_add(step.wrapping_mul(i64::from(index))))
+    fn key(&self, axis: usize, raw: u32, index: u32) -> u32 {
+        let (ray, step, t) = match axis {
+            0 => (self.ray[0], self.step[0], self.t[0]),
+            1 => (self.ray[1], self.step[1], self.t[1]),
+            _ => (self.ray[2], self.step[2], self.t[2]),
         };
-        (axis(0), axis(1), axis(2))
+        t.key(raw, ray.wrapping_add(step.wrapping_mul(i64::from(index))))
     }
 }
 
@@ -139,17 +139,22 @@ fn guard(raw_max: u32) -> u32 {
 /// The ray of sample `i` is `ray + i * step` (40 fraction bits). The loop
 /// holds it as `F = floor(ray / 2^8)` in an `i32` (`|ray| < 2^38`), exact at
 /// the first sample `c` of each chunk of [`CHUNK`], and for the `j`-th
-/// sample of the chunk (`j < 2^8`) takes `F' = F_c + j floor(step / 2^8)`
-/// (wrapping; the result fits, see below) and `A' = floor(F' / 2^8)`.
-/// With `ray_c = 2^8 p + rho` and `step = 2^8 q + sigma`
-/// (`0 <= rho, sigma < 2^8`), the exact `F = p + j q + floor((rho + j sigma) / 2^8)`
-/// and `F' = p + j q`, so `0 <= F - F' <= floor((2^8 - 1)(j + 1) / 2^8) < 2^8`;
-/// then `A = floor(F / 2^8)` (floors nest) and `A' = floor(F' / 2^8)` differ
-/// by 0 or 1, `A' <= A`, as the module's bound needs. (`|F| < 2^30`, so `F'`
-/// fits an `i32` and wrapping arithmetic gives it exactly.)
+/// sample of the chunk (`j < 2^7`) takes `F' = F_c + 2 j floor(step / 2^9)`
+/// and `A' = floor(F' / 2^8)`. With `ray_c = 2^8 p + rho` and
+/// `step = 2^9 q + sigma` (`0 <= rho < 2^8`, `0 <= sigma < 2^9`), the exact
+/// `F = p + 2 j q + floor((rho + j sigma) / 2^8)` and `F' = p + 2 j q`, so
+/// `0 <= F - F' <= floor((255 + 511 j) / 2^8) < 2^8`; then `A = floor(F / 2^8)`
+/// (floors nest) and `A'` differ by 0 or 1, `A' <= A`, as the module's
+/// bound needs. `|F| < 2^30`, so `F'` fits an `i32` and wrapping
+/// arithmetic gives it exactly.
+///
+/// `2 j` is the sample's address less the chunk's (`u16`s): the loop takes
+/// `F' = (F_c - 2 q start) + 2 q address` (wrapping, so only the difference
+/// counts, on any pointer width), and so needs no counter besides the
+/// slice's pointer, which is a register on the Cortex-M0+.
 #[inline(never)]
 pub(super) fn narrow_loop(
-    mut samples: impl Iterator<Item = u16>,
+    samples: &[u16],
     ray: [i64; 3],
     step: [i64; 3],
     t: [i64; 3],
@@ -163,41 +168,48 @@ pub(super) fn narrow_loop(
     };
     let [tx, ty, tz] = exact.t;
     let guard = guard(lo.wrapping_add(span));
-    let [sx, sy, sz] = step.map(|s| (s >> 8) as i32);
+    // `q = floor(step / 2^9)`, wrapping: only `2 j q` modulo `2^32` counts.
+    let [sx, sy, sz] = step.map(|s| (s >> 9) as i32);
+    let address = |raw: &u16| (raw as *const u16 as usize) as u32 as i32;
     let mut first = ray;
     let (mut invalid, mut base) = (0u32, 0u32);
-    loop {
-        let [fx, fy, fz] = first.map(|r| (r >> 8) as i32);
-        for j in 0..CHUNK {
-            let Some(raw) = samples.next() else {
-                return invalid;
-            };
-            let raw = u32::from(raw);
+    for chunk in samples.chunks(CHUNK) {
+        let start = chunk.first().map_or(0, address);
+        let f = |ray: i64, s: i32| ((ray >> 8) as i32).wrapping_sub(start.wrapping_mul(s));
+        let (fx, fy, fz) = (f(first[0], sx), f(first[1], sy), f(first[2], sz));
+        for raw_at in chunk {
+            let raw = u32::from(*raw_at);
             if raw.wrapping_sub(lo) > span {
                 invalid += 1;
                 continue;
             }
+            let at = address(raw_at);
             // `R'` of one axis: `raw A' + M`.
             let r = |f: i32, s: i32, t: Split| {
-                let a = f.wrapping_add(s.wrapping_mul(j)) >> 8;
+                let a = f.wrapping_add(s.wrapping_mul(at)) >> 8;
                 (raw as i32).wrapping_mul(a).wrapping_add(t.mid)
             };
             let (rx, ry, rz) = (r(fx, sx, tx), r(fy, sy, ty), r(fz, sz, tz));
-            let near = |r: i32| (r as u32) << 8 >= guard;
-            let (kx, ky, kz) = if near(rx) || near(ry) || near(rz) {
-                // `j < CHUNK`: the sample's index in the row.
-                exact.keys(raw, base.wrapping_add(j as u32))
-            } else {
-                (tx.fast_key(rx), ty.fast_key(ry), tz.fast_key(rz))
+            // The key of one axis, exact in the guard band.
+            let key = |axis: usize, r: i32, t: Split| {
+                if (r as u32) << 8 >= guard {
+                    // The sample's index in the row.
+                    let j = (at.wrapping_sub(start) as u32) >> 1;
+                    exact.key(axis, raw, base.wrapping_add(j))
+                } else {
+                    t.fast_key(r)
+                }
             };
+            let (kx, ky, kz) = (key(0, rx, tx), key(1, ry, ty), key(2, rz, tz));
             emit(VoxelKey::from_biased(kx, ky, kz));
         }
         base = base.wrapping_add(CHUNK as u32);
         // The next chunk's first ray, exactly (wrapping only past the row).
         for (f, s) in first.iter_mut().zip(&step) {
-            *f = f.wrapping_add(s.wrapping_mul(i64::from(CHUNK)));
+            *f = f.wrapping_add(s.wrapping_mul(CHUNK as i64));
         }
     }
+    invalid
 }
 
 #[cfg(test)]
@@ -246,12 +258,15 @@ mod tests {
             let v = (next() % 480) as u16 / stride * stride;
             let row: [u16; 640] = core::array::from_fn(|_| (next() % 12_000) as u16);
             let samples = usize::from(proj.samples_per_row());
-            let raws = || {
-                row.iter()
-                    .copied()
-                    .step_by(usize::from(stride))
-                    .take(samples)
-            };
+            let mut sampled = [0u16; 640];
+            for (s, &r) in sampled
+                .iter_mut()
+                .zip(row.iter().step_by(usize::from(stride)))
+            {
+                *s = r;
+            }
+            let sampled = &sampled[..samples];
+            let raws = || sampled.iter().copied();
             let (ray, step) = proj.row_rays(v);
             let t = proj.biased_translation();
             let valid = (
@@ -268,7 +283,7 @@ mod tests {
                 want[i] = key;
                 i += 1;
             });
-            let b = narrow_loop(raws(), ray, step, t, valid, &mut |key| {
+            let b = narrow_loop(sampled, ray, step, t, valid, &mut |key| {
                 got[j] = key;
                 j += 1;
             });
@@ -318,7 +333,7 @@ mod tests {
                 want[i] = key;
                 i += 1;
             });
-            let b = narrow_loop(raws(), ray, step, t, (lo, span), &mut |key| {
+            let b = narrow_loop(&row[..samples], ray, step, t, (lo, span), &mut |key| {
                 got[j] = key;
                 j += 1;
             });
