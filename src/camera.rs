@@ -434,7 +434,7 @@ impl FrameProjector {
         }
         let samples = row.iter().copied().step_by(usize::from(self.stride));
         let samples = samples.take(usize::from(self.samples_per_row()));
-        self.project::<false>(v, samples, out_of_range, emit)
+        self.project::<false, NARROW>(v, samples, None, out_of_range, emit)
     }
 
     /// Like [`Self::project_row`] for a row that is already subsampled, as the
@@ -450,13 +450,27 @@ impl FrameProjector {
         out_of_range: &mut u32,
         emit: impl FnMut(VoxelKey),
     ) -> u32 {
+        self.project_samples_with::<NARROW>(v, samples, out_of_range, emit)
+    }
+
+    /// [`Self::project_samples`] with the choice of the 32-bit loop made
+    /// by the caller (`NARROW_LOOP`; [`NARROW`] on the device), so that host
+    /// tests run the Cortex-M0+'s path too.
+    #[inline(always)]
+    pub(crate) fn project_samples_with<const NARROW_LOOP: bool>(
+        &self,
+        v: u16,
+        samples: &[u16],
+        out_of_range: &mut u32,
+        emit: impl FnMut(VoxelKey),
+    ) -> u32 {
         if !self.projects_row(v) {
             return 0;
         }
         let row = samples
             .get(..usize::from(self.samples_per_row()))
             .unwrap_or(samples);
-        self.project::<true>(v, row.iter().copied(), out_of_range, emit)
+        self.project::<true, NARROW_LOOP>(v, row.iter().copied(), Some(row), out_of_range, emit)
     }
 
     /// Sampled columns per row: `ceil(width / stride)`.
@@ -478,12 +492,16 @@ impl FrameProjector {
     /// The one back-projection loop: `samples` yields the raw depths of
     /// pixels `u = 0, stride, 2 stride, ...` of row `v`, at most one row's
     /// worth (so `invalid` cannot wrap). With `RUNS`, a key equal to the
-    /// previous one emitted is not emitted again.
+    /// previous one emitted is not emitted again. With `NARROW_LOOP`, rows
+    /// [`narrow::fits`] accepts take [`narrow::narrow_loop`] when the
+    /// samples are a slice, given as `whole` (the wire's rows; the loop
+    /// indexes them within a chunk).
     #[inline(always)]
-    fn project<const RUNS: bool>(
+    fn project<const RUNS: bool, const NARROW_LOOP: bool>(
         &self,
         v: u16,
         samples: impl ExactSizeIterator<Item = u16>,
+        whole: Option<&[u16]>,
         out_of_range: &mut u32,
         mut emit: impl FnMut(VoxelKey),
     ) -> u32 {
@@ -509,11 +527,11 @@ impl FrameProjector {
         let mut invalid = 0u32;
         if self.shift == MAX_SHIFT {
             let t = self.biased_translation();
-            let narrow = NARROW && (self.rows.narrow == 1 || narrow::fits(&ray, &step, seen, hi));
-            invalid = if narrow {
-                narrow::narrow_loop(samples, ray, step, t, (lo, span), &mut emit_new)
-            } else {
-                fast_loop(samples, ray, step, t, (lo, span), &mut emit_new)
+            let fits = || self.rows.narrow == 1 || narrow::fits(&ray, &step, seen, hi);
+            let narrow = whole.filter(|_| NARROW_LOOP && fits());
+            invalid = match narrow {
+                Some(row) => narrow::narrow_loop(row, ray, step, t, (lo, span), &mut emit_new),
+                None => fast_loop(samples, ray, step, t, (lo, span), &mut emit_new),
             };
         } else {
             let (shift, t) = (self.shift, self.translation);
@@ -979,7 +997,6 @@ mod tests {
     }
 
     /// Each run of one key once.
-    #[cfg(target_pointer_width = "64")]
     fn runs(keys: impl Iterator<Item = u64>) -> impl Iterator<Item = u64> {
         let mut last = None;
         keys.filter(move |&k| last.replace(k) != Some(k))
@@ -1045,5 +1062,81 @@ mod tests {
         // The samples emit each run of one voxel once.
         assert!(nf > 1 && nf < 214, "{nf} runs");
         assert_eq!(&full[..nf], &sub[..ns]);
+    }
+
+    /// The wire's rows through the Cortex-M0+'s path (`narrow_loop`) and
+    /// through `fast_loop` on random poses, grids and rows: the same keys,
+    /// counts and out-of-range counts, each run of one key emitted once,
+    /// and those runs the runs of the definition's keys.
+    #[test]
+    fn narrow_samples_give_the_keys_of_the_fast_samples() {
+        let mut seed = 0x5851_f42d_4c95_7f2du64;
+        let mut next = move || {
+            seed = seed
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (seed >> 33) as u32
+        };
+        let (mut narrow_rows, mut keys, mut repeats) = (0, 0, 0);
+        for case in 0..300 {
+            let mut unit = || next() as f32 / (1u64 << 31) as f32;
+            let voxel = [0.05, 0.1, 0.3, 2.0][case % 4];
+            let grid = VoxelGrid::new(voxel, [unit() * 50.0 - 25.0, 0.0, unit()]).unwrap();
+            let q = [unit() - 0.5, unit() - 0.5, unit() - 0.5, unit() + 0.1];
+            let n = libm::sqrtf(q.iter().map(|c| c * c).sum::<f32>());
+            let t = [unit() * 2e3 - 1e3, unit() * 10.0, unit() * 4e3 - 2e3];
+            let pose = Pose::from_quaternion(t, q.map(|c| c / n)).unwrap();
+            let stride = 1 + (case % 4) as u16;
+            let proj =
+                FrameProjector::new(&k(), 1000.0, DepthRange::default(), stride, &grid, &pose)
+                    .unwrap();
+            narrow_rows += usize::from(proj.rows.narrow);
+            let v = (next() % 480) as u16 / stride * stride;
+            // Smooth stretches (runs of one voxel) between random depths.
+            let mut depth = 2000u32;
+            let row: [u16; 640] = core::array::from_fn(|_| {
+                match next() % 8 {
+                    0 => depth = next() % 12_000,
+                    1 => depth = 0,
+                    _ => depth = (depth + next() % 8).min(12_000),
+                }
+                depth as u16
+            });
+            let samples = proj.samples_per_row();
+            let row: &[u16] = &row[..usize::from(samples)];
+            let (mut fast, mut narrow) = ([0u64; 640], [0u64; 640]);
+            let (mut nf, mut nn, mut oor_fast, mut oor_narrow) = (0, 0, 0, 0);
+            let valid_fast = proj.project_samples_with::<false>(v, row, &mut oor_fast, |key| {
+                fast[nf] = key.to_bits();
+                nf += 1;
+            });
+            let valid_narrow = proj.project_samples_with::<true>(v, row, &mut oor_narrow, |key| {
+                narrow[nn] = key.to_bits();
+                nn += 1;
+            });
+            assert_eq!(
+                (valid_fast, oor_fast),
+                (valid_narrow, oor_narrow),
+                "case {case}"
+            );
+            assert_eq!(fast[..nf], narrow[..nn], "case {case}");
+            assert!(narrow[..nn].windows(2).all(|w| w[0] != w[1]), "case {case}");
+            // The definition's keys, one a valid pixel, at full resolution.
+            let full: [u16; 640] = core::array::from_fn(|u| {
+                if u % usize::from(stride) == 0 {
+                    row.get(u / usize::from(stride)).copied().unwrap_or(0)
+                } else {
+                    0
+                }
+            });
+            let mut want = [None; 640];
+            reference_keys(&proj, v, &full, &mut want);
+            let defined = want.iter().flatten().count();
+            assert!(runs(want.iter().flatten().copied()).eq(narrow[..nn].iter().copied()));
+            keys += nn;
+            repeats += defined - nn;
+        }
+        assert!(narrow_rows > 200, "{narrow_rows} rows took narrow_loop");
+        assert!(keys > 10_000 && repeats > 10_000, "{keys} {repeats}");
     }
 }
