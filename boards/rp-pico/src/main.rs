@@ -157,86 +157,82 @@ fn main() -> ! {
     let mut packet = Packet([0; link::PACKET_LEN]);
     let mut unpolled = 0u32;
     loop {
-        // The receive path is part of a frame's cost (FrameCost): reading
-        // a packet out of the controller and, when it came after one,
-        // servicing USB are timed; sending queued replies (`drain`) is
-        // not, and a turn that reads nothing (an idle poll) is no frame's
-        // work. USB is serviced only once no packet is waiting (or after
-        // MAX_UNPOLLED packets, for control requests): the controller
-        // holds a received packet and takes the next reply packet without
-        // it.
         link.drain(&usb);
-        let t_read = ticks();
-        let mut got = if unpolled < MAX_UNPOLLED {
-            read_packet(&mut link, &usb, &mut packet)
-        } else {
-            Got::Nothing
-        };
-        let mut received = ticks().wrapping_sub(t_read);
-        if got == Got::Nothing {
-            unpolled = 0;
-            let t_service = ticks();
-            link.service(&mut usb);
-            let serviced = ticks().wrapping_sub(t_service);
-            link.drain(&usb);
+        // One critical section (one borrow of the device) a turn, not one
+        // for the read and one for each message: the firmware uses no
+        // interrupts, and the turn's flash work nests its own.
+        critical_section::with(|cs| {
+            let mut device = DEVICE.borrow_ref_mut(cs);
+            // The receive path is part of a frame's cost (FrameCost):
+            // reading a packet out of the controller and, when it came
+            // after one, servicing USB are timed; sending queued replies
+            // (`drain`) is not, and a turn that reads nothing (an idle
+            // poll) is no frame's work. USB is serviced only once no
+            // packet is waiting (or after MAX_UNPOLLED packets, for
+            // control requests): the controller holds a received packet
+            // and takes the next reply packet without it.
             let t_read = ticks();
-            got = read_packet(&mut link, &usb, &mut packet);
-            received = serviced.wrapping_add(ticks().wrapping_sub(t_read));
-        }
-        if got != Got::Nothing {
-            unpolled += 1;
-        }
-        // One host message at a time, so that the gap after a frame's
-        // answer is seen even when the next frame's first bytes came in the
-        // same packet; the framing's scan finds where each message ends (the
-        // only pass over the bytes before their decode). The turn's USB time
-        // goes with the first message.
-        match got {
-            Got::Nothing => {
-                // Nothing from the host: the time to erase what the log
-                // needs next (a failed erase is the log's own erase's to
-                // retry).
-                erase_ahead(&mut log);
+            let mut got = if unpolled < MAX_UNPOLLED {
+                read_packet(&mut link, &usb, &mut device, &mut packet)
+            } else {
+                Got::Nothing
+            };
+            let mut received = ticks().wrapping_sub(t_read);
+            if got == Got::Nothing {
+                unpolled = 0;
+                let t_service = ticks();
+                link.service(&mut usb);
+                let serviced = ticks().wrapping_sub(t_service);
+                link.drain(&usb);
+                let t_read = ticks();
+                got = read_packet(&mut link, &usb, &mut device, &mut packet);
+                received = serviced.wrapping_add(ticks().wrapping_sub(t_read));
             }
-            Got::InPlace => loop {
-                let (between_frames, more) = critical_section::with(|cs| {
-                    let mut device = DEVICE.borrow_ref_mut(cs);
+            // One host message at a time, so that the gap after a frame's
+            // answer is seen even when the next frame's first bytes came
+            // in the same packet; the framing's scan finds where each
+            // message ends (the only pass over the bytes before their
+            // decode). The turn's USB time goes with the first message.
+            match got {
+                Got::Nothing => {
+                    // Nothing from the host: the time to erase what the
+                    // log needs next (a failed erase is the log's own
+                    // erase's to retry).
+                    erase_ahead(&mut log);
+                    return;
+                }
+                Got::InPlace => loop {
                     device.add_receive_ticks(received);
+                    received = 0;
                     let ended = device.receive_held(&mut log, &mut |frame| {
                         let Ok(()) = led.toggle();
                         link.send(&mut usb, frame);
                     });
-                    let between = ended && device.phase() != Phase::InFrame;
-                    (between, device.holds_input())
-                });
-                received = 0;
-                if between_frames {
-                    erase_between_frames(&mut link, &mut usb, &mut log);
-                }
-                if !more {
-                    break;
-                }
-            },
-            Got::Packet(n) => {
-                let mut rest = packet.0.get(..n).unwrap_or_default();
-                while !rest.is_empty() {
-                    let (after, between_frames) = critical_section::with(|cs| {
-                        let mut device = DEVICE.borrow_ref_mut(cs);
+                    if ended && device.phase() != Phase::InFrame {
+                        erase_between_frames(&mut link, &mut usb, &mut log);
+                    }
+                    if !device.holds_input() {
+                        break;
+                    }
+                },
+                Got::Packet(n) => {
+                    let mut rest = packet.0.get(..n).unwrap_or_default();
+                    while !rest.is_empty() {
                         device.add_receive_ticks(received);
+                        received = 0;
                         let (after, ended) = device.receive_message(rest, &mut log, &mut |frame| {
                             let Ok(()) = led.toggle();
                             link.send(&mut usb, frame);
                         });
-                        (after, ended && device.phase() != Phase::InFrame)
-                    });
-                    received = 0;
-                    rest = after;
-                    if between_frames {
-                        erase_between_frames(&mut link, &mut usb, &mut log);
+                        rest = after;
+                        if ended && device.phase() != Phase::InFrame {
+                            erase_between_frames(&mut link, &mut usb, &mut log);
+                        }
                     }
                 }
             }
-        }
+            unpolled += 1;
+        });
     }
 }
 
@@ -259,26 +255,24 @@ enum Got {
 fn read_packet<'a>(
     link: &mut link::Link<'a, UsbBus>,
     usb: &UsbDevice<'a, UsbBus>,
+    device: &mut Device256K,
     packet: &mut Packet,
 ) -> Got {
-    critical_section::with(|cs| {
-        let mut device = DEVICE.borrow_ref_mut(cs);
-        let room = device.receive_room(link::PACKET_LEN);
-        if room.len() >= link::PACKET_LEN {
-            let n = link.read(usb, room);
-            device.commit_received(n);
-            if n == 0 {
-                Got::Nothing
-            } else {
-                Got::InPlace
-            }
+    let room = device.receive_room(link::PACKET_LEN);
+    if room.len() >= link::PACKET_LEN {
+        let n = link.read(usb, room);
+        device.commit_received(n);
+        if n == 0 {
+            Got::Nothing
         } else {
-            match link.read(usb, &mut packet.0) {
-                0 => Got::Nothing,
-                n => Got::Packet(n),
-            }
+            Got::InPlace
         }
-    })
+    } else {
+        match link.read(usb, &mut packet.0) {
+            0 => Got::Nothing,
+            n => Got::Packet(n),
+        }
+    }
 }
 
 /// After a message that leaves no frame open: a host that keeps the link
