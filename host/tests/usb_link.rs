@@ -9,12 +9,13 @@
 //! scripted host where, as on the RP2040, an endpoint holds one packet at a
 //! time: a write while the host has not taken the last packet is
 //! `WouldBlock`, and packets the host sends wait on the host side (NAKed)
-//! until the device reads them.
+//! until the device reads them (the link reads them straight from the
+//! endpoint: there is no buffer between).
 
 #[path = "../../boards/rp-pico/src/link.rs"]
 mod link;
 
-use link::{Link, FLUSH_POLLS, RX_HEADROOM, TX_QUEUE_LEN};
+use link::{Link, FLUSH_POLLS, RX_HEADROOM, SHORT_PACKET_INTERVAL, TX_QUEUE_LEN};
 use placedb::protocol::MAX_REPLY_LEN;
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -282,6 +283,8 @@ struct Wire {
     start_reading_after: Option<u64>,
     /// Bytes the host took from the bulk IN endpoint.
     received: Vec<u8>,
+    /// The length of every packet the host took from the bulk IN endpoint.
+    in_lengths: Vec<usize>,
     polls: u64,
 }
 
@@ -384,6 +387,7 @@ impl UsbBus for WireBus {
             if let Some(packet) = w.in_packet[i].take() {
                 if i != 0 {
                     w.received.extend_from_slice(&packet);
+                    w.in_lengths.push(packet.len());
                 }
                 w.in_complete |= 1 << i;
             }
@@ -422,19 +426,66 @@ fn frame(i: usize) -> Vec<u8> {
         .collect()
 }
 
+/// Configures the link's device on `wire` (SET_CONFIGURATION 1).
+fn configure<'a>(
+    wire: &Mutex<Wire>,
+    link: &mut Link<'a, WireBus>,
+    usb: &mut UsbDevice<'a, WireBus>,
+) {
+    wire.lock().unwrap().setup = Some([0x00, 0x09, 1, 0, 0, 0, 0, 0]);
+    for _ in 0..4 {
+        link.poll(usb);
+    }
+    assert_eq!(usb.state(), UsbDeviceState::Configured);
+}
+
+/// Replies go out a packet at a time and every transfer ends with a short
+/// packet: a zero-length one after a reply that ends on a full packet (a
+/// CDC host sees a transfer's data only once it ends), one of 63 bytes
+/// after `SHORT_PACKET_INTERVAL` (10) full ones in a row, so a long stream
+/// is seen in good time. The endpoint holds one packet: the next waits in
+/// the queue (`WouldBlock`) and none is lost.
+#[test]
+fn every_transfer_ends_with_a_short_packet() {
+    let wire = Arc::new(Mutex::new(Wire::default()));
+    let bus = UsbBusAllocator::new(WireBus(wire.clone()));
+    let mut link = Link::new(&bus);
+    let mut usb = link::device(&bus).unwrap();
+    configure(&wire, &mut link, &mut usb);
+    assert_eq!(SHORT_PACKET_INTERVAL, 10);
+    wire.lock().unwrap().reading = true;
+    let cases: [(usize, Vec<usize>); 6] = [
+        (128, vec![64, 64, 0]),
+        (100, vec![64, 36]),
+        (64, vec![64, 0]),
+        (1, vec![1]),
+        (12 * 64, [vec![64; 10], vec![63, 64, 1]].concat()),
+        (11 * 64 - 1, [vec![64; 10], vec![63]].concat()),
+    ];
+    for (i, (len, packets)) in cases.into_iter().enumerate() {
+        let reply: Vec<u8> = (0..len).map(|j| (i * 31 + j) as u8).collect();
+        {
+            let mut w = wire.lock().unwrap();
+            w.received.clear();
+            w.in_lengths.clear();
+        }
+        link.send(&mut usb, &reply);
+        for _ in 0..2 * packets.len() + 4 {
+            link.poll(&mut usb);
+        }
+        let w = wire.lock().unwrap();
+        assert_eq!(w.in_lengths, packets, "a reply of {len} bytes");
+        assert_eq!(w.received, reply);
+    }
+}
+
 #[test]
 fn reply_queue_backpressure() {
     let wire = Arc::new(Mutex::new(Wire::default()));
     let bus = UsbBusAllocator::new(WireBus(wire.clone()));
     let mut link = Link::new(&bus);
     let mut usb = link::device(&bus).unwrap();
-
-    // SET_CONFIGURATION 1.
-    wire.lock().unwrap().setup = Some([0x00, 0x09, 1, 0, 0, 0, 0, 0]);
-    for _ in 0..4 {
-        link.poll(&mut usb);
-    }
-    assert_eq!(usb.state(), UsbDeviceState::Configured);
+    configure(&wire, &mut link, &mut usb);
     let out_ep = bulk_index(&wire, UsbDirection::Out);
     let in_ep = bulk_index(&wire, UsbDirection::In);
 
@@ -449,10 +500,10 @@ fn reply_queue_backpressure() {
     }
 
     // The device replies with 16 longest frames (the queue's size) and reads
-    // 64 bytes of input after each. Nothing waits: usbd-serial holds 192
-    // bytes (a packet in the endpoint, 128 in its buffer), the queue the rest.
-    // Input is read while 2 KiB of the queue are free: after frames 1..=8
-    // (at most 8 * 256 - 192 bytes queued), not after 9..=16.
+    // 64 bytes of input after each. Nothing waits: the IN endpoint holds a
+    // packet (64 bytes), the queue the rest. Input is read while 2 KiB of
+    // the queue are free: after frames 1..=8 (8 * 256 - 64 bytes queued),
+    // not after 9..=16.
     assert_eq!(TX_QUEUE_LEN, 16 * MAX_REPLY_LEN);
     assert_eq!(RX_HEADROOM, TX_QUEUE_LEN / 2);
     let mut input_got = Vec::new();
@@ -475,10 +526,10 @@ fn reply_queue_backpressure() {
         assert!(w.received.is_empty(), "the host read nothing");
         assert_eq!(w.in_packet[in_ep].as_deref(), Some(&frame(0)[..64]));
         // The host's input stays where it is (NAKed): the device took the 8
-        // packets it read and at most usbd-serial's 128-byte buffer more.
+        // packets it read and nothing more (no buffer between).
         let pending = w.out_packets[out_ep].len();
         assert_eq!(Some(pending), pending_when_stopped);
-        assert!((40 - 8 - 2..=40 - 8).contains(&pending), "{pending}");
+        assert_eq!(pending, 40 - 8);
     }
     assert_eq!(input_got, input[..8 * 64]);
 
@@ -497,9 +548,10 @@ fn reply_queue_backpressure() {
             w.polls > polls_before + 100,
             "send returned before the host read"
         );
-        // It returned as soon as the frame fitted: the host has taken only a
-        // few packets (192 bytes had to leave the queue).
-        assert!(!w.received.is_empty() && w.received.len() <= 4 * 64);
+        // It returned as soon as the frame fitted: 192 bytes had to leave
+        // the full queue (64 fitted at once), so the host has taken the
+        // packet that waited and two of those three.
+        assert_eq!(w.received.len(), 3 * 64);
     }
 
     // The host reads everything: every reply byte arrives once, in order;
@@ -533,19 +585,15 @@ fn reply_queue_backpressure() {
 /// `Link::flush` (what the firmware calls before a flash erase stalls the
 /// chip): with a host that does not read it gives up after `FLUSH_POLLS`
 /// polls, the replies still queued; with one that reads it returns once
-/// every reply byte has left the queue and usbd-serial's buffer (the last
-/// packet may still sit in the endpoint, which the controller sends alone).
+/// every reply byte has left the queue (the last packet may still sit in
+/// the endpoint, which the controller sends alone).
 #[test]
 fn flush_waits_for_the_host_and_gives_up_on_one_that_does_not_read() {
     let wire = Arc::new(Mutex::new(Wire::default()));
     let bus = UsbBusAllocator::new(WireBus(wire.clone()));
     let mut link = Link::new(&bus);
     let mut usb = link::device(&bus).unwrap();
-    wire.lock().unwrap().setup = Some([0x00, 0x09, 1, 0, 0, 0, 0, 0]);
-    for _ in 0..4 {
-        link.poll(&mut usb);
-    }
-    assert_eq!(usb.state(), UsbDeviceState::Configured);
+    configure(&wire, &mut link, &mut usb);
     let in_ep = bulk_index(&wire, UsbDirection::In);
 
     wire.lock().unwrap().reading = false;

@@ -93,8 +93,8 @@ pub use restore::RestoreFailure;
 
 use crate::persist::{Cursor, Journal, Log, NoJournal};
 use crate::protocol::{
-    degradation, Capacity, CapacitySlot, Config, FrameCost, FrameDecoder, HostFrame, Phase, Push,
-    Status, CAPACITY_SLOTS, MAX_FRAME_LEN, MAX_REPLY_LEN, MAX_ROW_VALUES, MAX_SESSIONS,
+    degradation, Capacity, CapacitySlot, Config, FrameCost, FrameDecoder, Held, HostFrame, Phase,
+    Push, Status, CAPACITY_SLOTS, MAX_FRAME_LEN, MAX_REPLY_LEN, MAX_ROW_VALUES, MAX_SESSIONS,
 };
 use crate::select::{FrameDecision, Selector};
 
@@ -299,25 +299,75 @@ impl<
         journal: &mut dyn Journal,
         send: &mut dyn FnMut(&[u8]),
     ) -> (&'i [u8], bool) {
-        let core = &mut self.core;
         // The framing's pass over the bytes (delimiter scan, copy into
         // the receive buffer) is receive work of the message they end.
-        let clock = core.clock.filter(|_| core.rx_timed);
+        let clock = self.core.clock.filter(|_| self.core.rx_timed);
         let t_push = now(clock);
         let pushed = self.decoder.push(bytes);
-        core.add_receive_ticks(delta(clock, t_push, 0));
-        match pushed {
-            Push::NeedMore => (&[], false),
-            Push::Error { error, remaining } => {
+        self.core.add_receive_ticks(delta(clock, t_push, 0));
+        let (held, remaining) = match pushed {
+            Push::NeedMore => (Held::NeedMore, &[][..]),
+            Push::Ready { remaining } => (Held::Ready, remaining),
+            Push::Error { error, remaining } => (Held::Error(error), remaining),
+        };
+        (remaining, self.handle_pushed(held, journal, send))
+    }
+
+    /// The receive buffer's free room, for a board to read its link's next
+    /// bytes straight into (a USB packet: no copy in between); then
+    /// [`Self::commit_received`] the bytes read and
+    /// [`Self::receive_held`] until [`Self::holds_input`] is false. At
+    /// least `want` bytes unless a frame that long is open: see
+    /// [`FrameDecoder::spare`] (receive those bytes with
+    /// [`Self::receive_message`]). Call it with no input held.
+    pub fn receive_room(&mut self, want: usize) -> &mut [u8] {
+        self.decoder.spare(want)
+    }
+
+    /// Holds the first `n` bytes of the room [`Self::receive_room`] lent as
+    /// received input.
+    pub fn commit_received(&mut self, n: usize) {
+        self.decoder.commit(n);
+    }
+
+    /// Whether received input waits for [`Self::receive_held`].
+    pub fn holds_input(&self) -> bool {
+        self.decoder.holds_input()
+    }
+
+    /// [`Self::receive_message`] for the input held
+    /// ([`Self::commit_received`]): handles the first frame that ends in it,
+    /// if one does, and returns whether one ended; the bytes after it stay
+    /// held for the next call.
+    pub fn receive_held(&mut self, journal: &mut dyn Journal, send: &mut dyn FnMut(&[u8])) -> bool {
+        let clock = self.core.clock.filter(|_| self.core.rx_timed);
+        let t_push = now(clock);
+        let held = self.decoder.push_held();
+        self.core.add_receive_ticks(delta(clock, t_push, 0));
+        self.handle_pushed(held, journal, send)
+    }
+
+    /// Handles what the framing made of the input: a complete frame's
+    /// message, or the refusal of a frame lost. True if a frame ended.
+    fn handle_pushed(
+        &mut self,
+        held: Held,
+        journal: &mut dyn Journal,
+        send: &mut dyn FnMut(&[u8]),
+    ) -> bool {
+        let core = &mut self.core;
+        match held {
+            Held::NeedMore => false,
+            Held::Error(error) => {
                 // A refused frame's receive work is charged to nobody.
                 core.rx_ticks = 0;
                 core.note_rx(MAX_FRAME_LEN);
                 let mut out = core.out(send);
                 out.reply(&error.reply());
                 core.refused = core.refused.saturating_add(1);
-                (remaining, true)
+                true
             }
-            Push::Ready { remaining } => {
+            Held::Ready => {
                 // The delimiter counts: the buffer holds frame_len + 1 bytes.
                 core.note_rx(self.decoder.frame_len().saturating_add(1));
                 // The message's cost starts when its receive work did:
@@ -331,7 +381,7 @@ impl<
                 let frame = self.decoder.decode::<HostFrame>();
                 core.handle(frame, t0, journal, send);
                 core.flash = journal.usage();
-                (remaining, true)
+                true
             }
         }
     }

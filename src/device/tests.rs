@@ -302,46 +302,53 @@ fn a_scan_matches_the_selector_and_exports_in_frame_order() {
     });
 }
 
+/// The bytes a host sends for a scan of 8 frames (full-image DepthRows),
+/// its Finish and an export.
+fn scan_stream() -> Vec<u8> {
+    let mut stream = Vec::new();
+    let mut buf = vec![0u8; MAX_FRAME_LEN];
+    let mut push = |seq: u32, msg: HostMessage<'_>| {
+        stream.extend_from_slice(encode(&HostFrame { seq, msg }, &mut buf).unwrap());
+    };
+    push(1, HostMessage::Hello(config(3)));
+    let mut seq = 2;
+    for i in 0..8 {
+        push(
+            seq,
+            HostMessage::FrameBegin {
+                frame: i,
+                timestamp: timestamp(i),
+                pose: pose(i),
+            },
+        );
+        let data: Vec<u8> = frame_rows(i).iter().flat_map(|d| d.to_le_bytes()).collect();
+        push(
+            seq + 1,
+            HostMessage::DepthRows(DepthRows {
+                frame: i,
+                first_row: 0,
+                row_count: H.div_ceil(STRIDE),
+                data: &data,
+            }),
+        );
+        push(seq + 2, HostMessage::FrameEnd { frame: i });
+        seq += 3;
+    }
+    push(seq, HostMessage::Finish);
+    push(
+        seq + 1,
+        HostMessage::ExportRequest {
+            from_record: 0,
+            max_records: u32::MAX,
+        },
+    );
+    stream
+}
+
 #[test]
 fn byte_by_byte_delivery_gives_the_same_replies() {
     on_big_stack(|| {
-        let mut stream = Vec::new();
-        let mut buf = vec![0u8; MAX_FRAME_LEN];
-        let mut push = |seq: u32, msg: HostMessage<'_>| {
-            stream.extend_from_slice(encode(&HostFrame { seq, msg }, &mut buf).unwrap());
-        };
-        push(1, HostMessage::Hello(config(3)));
-        let mut seq = 2;
-        for i in 0..8 {
-            push(
-                seq,
-                HostMessage::FrameBegin {
-                    frame: i,
-                    timestamp: timestamp(i),
-                    pose: pose(i),
-                },
-            );
-            let data: Vec<u8> = frame_rows(i).iter().flat_map(|d| d.to_le_bytes()).collect();
-            push(
-                seq + 1,
-                HostMessage::DepthRows(DepthRows {
-                    frame: i,
-                    first_row: 0,
-                    row_count: H.div_ceil(STRIDE),
-                    data: &data,
-                }),
-            );
-            push(seq + 2, HostMessage::FrameEnd { frame: i });
-            seq += 3;
-        }
-        push(seq, HostMessage::Finish);
-        push(
-            seq + 1,
-            HostMessage::ExportRequest {
-                from_record: 0,
-                max_records: u32::MAX,
-            },
-        );
+        let stream = scan_stream();
         let whole = bench::<Small>().feed(&stream, stream.len());
         assert_eq!(bench::<Small>().feed(&stream, 1), whole);
         assert_eq!(bench::<Small>().feed(&stream, 61), whole);
@@ -349,6 +356,47 @@ fn byte_by_byte_delivery_gives_the_same_replies() {
             whole.last(),
             Some(DeviceMessage::ExportEnd { .. })
         ));
+    });
+}
+
+/// Input read straight into the receive buffer (`receive_room`, as the
+/// Pico reads its USB packets) gives the replies `receive` gives, frame
+/// for frame, whatever the packet size; a packet that finds too little
+/// room (the end of a long frame) goes through `receive_message`.
+#[test]
+fn input_received_in_place_gives_the_same_replies() {
+    on_big_stack(|| {
+        let stream = scan_stream();
+        let mut whole = Vec::new();
+        Small::new_boxed().receive(&stream, &mut |f| whole.push(f.to_vec()));
+        assert!(whole.len() > 30);
+        for packet in [64, 63, 7, 1] {
+            let mut device = Small::new_boxed();
+            let mut replies = Vec::new();
+            let mut copied = 0;
+            for chunk in stream.chunks(packet) {
+                let room = device.receive_room(64);
+                if room.len() >= chunk.len() {
+                    room[..chunk.len()].copy_from_slice(chunk);
+                    device.commit_received(chunk.len());
+                    while device.holds_input() {
+                        device.receive_held(&mut NoJournal, &mut |f| replies.push(f.to_vec()));
+                    }
+                } else {
+                    copied += 1;
+                    let mut rest = chunk;
+                    while !rest.is_empty() {
+                        rest = device
+                            .receive_message(rest, &mut NoJournal, &mut |f| {
+                                replies.push(f.to_vec())
+                            })
+                            .0;
+                    }
+                }
+            }
+            assert_eq!(replies, whole, "packets of {packet}");
+            assert!(copied < stream.len() / packet / 20, "{copied} copied");
+        }
     });
 }
 

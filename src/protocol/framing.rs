@@ -145,6 +145,19 @@ pub enum Push<'i> {
     },
 }
 
+/// Result of [`FrameDecoder::push_held`]: [`Push`] for bytes received in
+/// place, which the decoder holds (so there is no remaining input to give
+/// back: what follows the frame stays held, [`FrameDecoder::holds_input`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Held {
+    /// Every held byte was consumed; no frame is complete yet.
+    NeedMore,
+    /// A frame is complete: call [`FrameDecoder::decode`] before going on.
+    Ready,
+    /// A frame was lost (too long); the decoder resynchronises on the next 0x00.
+    Error(ProtocolError),
+}
+
 /// Result of [`FrameDecoder::feed`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Feed<'i, M> {
@@ -193,16 +206,28 @@ enum State {
 /// [`ErrorKind::Truncated`], a CRC mismatch [`ErrorKind::BadCrc`], a message
 /// postcard cannot read [`ErrorKind::Decode`] or [`ErrorKind::UnknownMessage`].
 /// After any error the next frame decodes normally. Empty frames are skipped.
+///
+/// Input can also be received in place, with no copy: [`Self::spare`] lends
+/// the free room after the bytes held (a USB packet is read straight into
+/// it), [`Self::commit`] says how many bytes came, and [`Self::push_held`]
+/// consumes them as [`Self::push`] does its input; the bytes after a
+/// frame's delimiter stay held for the next call.
 #[derive(Debug, Clone)]
 pub struct FrameDecoder<const N: usize> {
     buf: [u8; N],
-    /// Where the frame starts in `buf` (0..=3): chosen at its first byte so
-    /// that `buf[start..]` and the input are equally aligned to 4 bytes.
-    /// The copies into `buf` are then word copies: on the Cortex-M0+ a
-    /// `memcpy` between differently aligned buffers moves a byte at a time,
-    /// and the receive path copies every byte of every frame.
+    /// Where the frame starts in `buf` (0..=3 for pushed input): chosen at
+    /// its first byte so that `buf[start..]` and the input are equally
+    /// aligned to 4 bytes. The copies into `buf` are then word copies: on
+    /// the Cortex-M0+ a `memcpy` between differently aligned buffers moves
+    /// a byte at a time, and the receive path copies every byte of every
+    /// frame.
     start: usize,
     len: usize,
+    /// Bytes received in place and not consumed yet: `buf[held_at..][..held]`
+    /// (right after the frame's bytes while collecting, after its
+    /// delimiter once it is complete).
+    held_at: usize,
+    held: usize,
     state: State,
 }
 
@@ -222,15 +247,30 @@ impl<const N: usize> FrameDecoder<N> {
             buf: [0; N],
             start: 0,
             len: 0,
+            held_at: 0,
+            held: 0,
             state: State::Collecting,
         }
     }
 
-    /// Forgets any partial frame; the next byte starts a new frame.
+    /// Forgets any partial frame and held input; the next byte starts a new
+    /// frame.
     pub fn clear(&mut self) {
         self.start = 0;
         self.len = 0;
+        self.held_at = 0;
+        self.held = 0;
         self.state = State::Collecting;
+    }
+
+    /// After a complete frame (decoded or not): the next frame starts at the
+    /// held bytes after it.
+    fn settle(&mut self) {
+        if self.state == State::Ready {
+            self.state = State::Collecting;
+            self.start = self.held_at;
+            self.len = 0;
+        }
     }
 
     /// Bytes of the frame being received, or of the complete frame awaiting
@@ -239,16 +279,150 @@ impl<const N: usize> FrameDecoder<N> {
         self.len
     }
 
-    /// Whether part of a frame has been received (and not completed).
+    /// Whether part of a frame has been received (and not completed), or
+    /// input is held that [`Self::push_held`] has not consumed yet.
     pub fn is_mid_frame(&self) -> bool {
-        self.state == State::Discarding || (self.state == State::Collecting && self.len > 0)
+        self.held > 0
+            || self.state == State::Discarding
+            || (self.state == State::Collecting && self.len > 0)
+    }
+
+    /// Whether bytes received in place wait for [`Self::push_held`].
+    pub fn holds_input(&self) -> bool {
+        self.held > 0
+    }
+
+    /// The free room after the frame and the bytes held, to receive input
+    /// into in place; say how much came with [`Self::commit`]. A frame left
+    /// undecoded is dropped. The open frame (and what is held) moves to
+    /// the buffer's start when that gives the room `want` bytes it lacks,
+    /// or when it is shorter than `want` (a frame just begun: few bytes to
+    /// move): it is placed so that the room starts word-aligned, for word
+    /// copies into it (as [`Self::push`] aligns to its input). The room is
+    /// shorter than `want` only when the frame so far leaves no more.
+    pub fn spare(&mut self, want: usize) -> &mut [u8] {
+        self.settle();
+        // What must stay: the frame so far and the held bytes after it
+        // (only the held bytes while discarding the rest of a frame).
+        let (from, kept) = if self.state == State::Discarding {
+            (self.held_at, self.held)
+        } else {
+            (self.start, self.len.saturating_add(self.held))
+        };
+        let end = from.saturating_add(kept);
+        // Reading an address is safe; only its low bits are used.
+        let base = self.buf.as_ptr() as usize;
+        let to = 0usize.wrapping_sub(base.wrapping_add(kept)) & 3;
+        let lacks_room = N.saturating_sub(end) < want && to < from;
+        let short = kept < want && to != from;
+        if (lacks_room || short) && to.saturating_add(kept) <= N {
+            self.move_kept(from, to, kept);
+        }
+        let end = self.held_at.saturating_add(self.held);
+        self.buf.get_mut(end..).unwrap_or_default()
+    }
+
+    /// Moves the `kept` bytes at `from` (frame and held bytes, contiguous)
+    /// to `to`. A loop, not `copy_within`: no panicking path.
+    fn move_kept(&mut self, from: usize, to: usize, kept: usize) {
+        let byte = |buf: &[u8; N], i: usize| buf.get(i).copied().unwrap_or(0);
+        if to < from {
+            for i in 0..kept {
+                let b = byte(&self.buf, from + i);
+                if let Some(dest) = self.buf.get_mut(to + i) {
+                    *dest = b;
+                }
+            }
+        } else {
+            for i in (0..kept).rev() {
+                let b = byte(&self.buf, from + i);
+                if let Some(dest) = self.buf.get_mut(to + i) {
+                    *dest = b;
+                }
+            }
+        }
+        if self.state != State::Discarding {
+            self.start = to;
+        }
+        self.held_at = to.saturating_add(kept - self.held.min(kept));
+    }
+
+    /// Holds the first `n` bytes of the room the last [`Self::spare`]
+    /// lent (as many as fit) as received input, for [`Self::push_held`].
+    pub fn commit(&mut self, n: usize) {
+        let end = self.held_at.saturating_add(self.held);
+        self.held = self.held.saturating_add(n.min(N.saturating_sub(end)));
+    }
+
+    /// [`Self::push`] for the input held ([`Self::commit`]): consumes it up
+    /// to the end of the next complete frame; the bytes after the frame
+    /// stay held. A frame left undecoded by the previous call is dropped.
+    pub fn push_held(&mut self) -> Held {
+        self.settle();
+        loop {
+            if self.held == 0 {
+                return Held::NeedMore;
+            }
+            let from = self.held_at;
+            let region = self
+                .buf
+                .get(from..from.saturating_add(self.held))
+                .unwrap_or_default();
+            let zero = region.iter().position(|&b| b == 0);
+            let (body, ended) = match zero {
+                Some(z) => (z, true),
+                None => (region.len(), false),
+            };
+            let used = body.saturating_add(usize::from(ended));
+            self.held = self.held.saturating_sub(used);
+            self.held_at = from.saturating_add(used);
+            if self.state == State::Discarding {
+                if ended {
+                    self.state = State::Collecting;
+                    self.start = self.held_at;
+                    self.len = 0;
+                    continue;
+                }
+                return Held::NeedMore;
+            }
+            let len = self.len.saturating_add(body);
+            if len > Self::CAPACITY {
+                self.len = 0;
+                if ended {
+                    self.start = self.held_at;
+                } else {
+                    self.state = State::Discarding;
+                }
+                return Held::Error(ProtocolError::new(ErrorKind::Oversized));
+            }
+            self.len = len;
+            if !ended {
+                return Held::NeedMore;
+            }
+            if len == 0 {
+                // Empty frame (a lone delimiter): resynchronisation, no message.
+                self.start = self.held_at;
+                continue;
+            }
+            self.state = State::Ready;
+            return Held::Ready;
+        }
     }
 
     /// Consumes input up to the end of the next complete frame. A frame left
-    /// undecoded by the previous call is dropped.
+    /// undecoded by the previous call is dropped. Input held
+    /// ([`Self::commit`]) comes first: a frame that ends in it is
+    /// returned with all of `input` remaining.
     pub fn push<'i>(&mut self, input: &'i [u8]) -> Push<'i> {
-        if self.state == State::Ready {
-            self.clear();
+        match self.push_held() {
+            Held::NeedMore => {}
+            Held::Ready => return Push::Ready { remaining: input },
+            Held::Error(error) => {
+                return Push::Error {
+                    error,
+                    remaining: input,
+                }
+            }
         }
         let mut input = input;
         loop {
@@ -281,6 +455,7 @@ impl<const N: usize> FrameDecoder<N> {
             if end > Self::CAPACITY {
                 self.len = 0;
                 self.start = 0;
+                self.held_at = 0;
                 self.state = if ended {
                     State::Collecting
                 } else {
@@ -309,6 +484,7 @@ impl<const N: usize> FrameDecoder<N> {
                 None => {
                     self.len = 0;
                     self.start = 0;
+                    self.held_at = 0;
                     self.state = State::Discarding;
                     return Push::Error {
                         error: ProtocolError::new(ErrorKind::Internal),
@@ -318,6 +494,9 @@ impl<const N: usize> FrameDecoder<N> {
             };
             dest.copy_from_slice(body);
             self.len = end;
+            // Nothing is held: the room for input in place starts after
+            // the frame (after its delimiter once it is complete).
+            self.held_at = self.start + end + usize::from(ended);
             if !ended {
                 return Push::NeedMore;
             }
@@ -331,7 +510,8 @@ impl<const N: usize> FrameDecoder<N> {
         }
     }
 
-    /// Decodes the frame completed by the last [`Self::push`]: COBS in place, CRC
+    /// Decodes the frame completed by the last [`Self::push`] or
+    /// [`Self::push_held`]: COBS in place, CRC
     /// check, then postcard. The message may borrow the decoder's buffer. Without
     /// a complete frame, returns [`ErrorKind::Internal`].
     pub fn decode<'d, M>(&'d mut self) -> Result<M, ProtocolError>
@@ -342,7 +522,8 @@ impl<const N: usize> FrameDecoder<N> {
             return Err(ProtocolError::new(ErrorKind::Internal));
         }
         let (start, n) = (self.start, self.len);
-        self.clear();
+        // The next frame starts at the bytes held after this one.
+        self.settle();
         let body = self
             .buf
             .get_mut(start..start + n)

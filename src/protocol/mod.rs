@@ -84,8 +84,8 @@ mod framing;
 mod messages;
 
 pub use framing::{
-    encode, export_crc, max_frame_len, pack_rows, strided_len, ExportCrc, Feed, FrameDecoder, Push,
-    WireMessage, CRC, MAX_FRAME_LEN,
+    encode, export_crc, max_frame_len, pack_rows, strided_len, ExportCrc, Feed, FrameDecoder, Held,
+    Push, WireMessage, CRC, MAX_FRAME_LEN,
 };
 pub use messages::{
     degradation, Capacity, CapacitySlot, Config, DecisionKind, DepthRows, DeviceMessage, ErrorKind,

@@ -1038,3 +1038,79 @@ fn frames_decode_at_every_input_alignment_and_chunking() {
         }
     }
 }
+
+/// Input received in place (`spare`, `commit`, `push_held`: how the Pico
+/// reads its USB packets straight into the decoder) decodes as pushed input
+/// does, at every packet size: frames that end mid-packet (the rest stays
+/// held for the next frame), the longest frame, one too long (its error,
+/// then the next frame), a lone delimiter. A packet that finds less room
+/// than it needs (the end of a long frame) is pushed instead, and that
+/// happens only there. With 64-byte packets the room always starts
+/// word-aligned, so the copies into it move words.
+#[test]
+fn input_received_in_place_decodes_as_pushed_input() {
+    let data: Vec<u8> = (0..2 * N as u32).map(|i| (i * 7 % 251) as u8 + 1).collect();
+    let frame_of = |k: usize| {
+        encode_vec(&HostFrame {
+            seq: k as u32,
+            msg: HostMessage::DepthRows(DepthRows {
+                frame: 9,
+                first_row: 1,
+                row_count: 2,
+                data: &data[..k],
+            }),
+        })
+    };
+    let longest = (0..data.len())
+        .rev()
+        .find(|&k| frame_of(k).len() == N)
+        .expect("some data length encodes to exactly N bytes");
+    let mut stream = Vec::new();
+    for k in [0, 61, longest, 300] {
+        stream.extend_from_slice(&frame_of(k));
+    }
+    stream.extend_from_slice(&[0x01; N + 10]);
+    stream.push(0);
+    stream.push(0);
+    for k in [1, 1000, longest, 2] {
+        stream.extend_from_slice(&frame_of(k));
+    }
+    let expected = run_host(&[&stream]);
+    assert_eq!(expected.len(), 9);
+    assert_eq!(expected[4], Err(ProtocolError::new(ErrorKind::Oversized)));
+    assert_eq!(expected.iter().filter(|r| r.is_ok()).count(), 8);
+
+    for packet in [64, 63, 200, 5, 1] {
+        let mut decoder = FrameDecoder::<N>::new();
+        let mut got = Vec::new();
+        let mut pushed = 0;
+        for chunk in stream.chunks(packet) {
+            let room = decoder.spare(packet);
+            if packet == 64 && room.len() >= packet {
+                assert_eq!(room.as_ptr() as usize % 4, 0, "room not word-aligned");
+            }
+            if room.len() < chunk.len() {
+                pushed += 1;
+                let mut rest: &[u8] = chunk;
+                while let Feed::Frame { result, remaining } = decoder.feed::<HostFrame>(rest) {
+                    got.push(result.map(|f| encode_vec(&f)));
+                    rest = remaining;
+                }
+                continue;
+            }
+            room[..chunk.len()].copy_from_slice(chunk);
+            decoder.commit(chunk.len());
+            while decoder.holds_input() {
+                match decoder.push_held() {
+                    Held::NeedMore => assert!(!decoder.holds_input()),
+                    Held::Ready => got.push(decoder.decode::<HostFrame>().map(|f| encode_vec(&f))),
+                    Held::Error(error) => got.push(Err(error)),
+                }
+            }
+        }
+        assert_eq!(got, expected, "packets of {packet}");
+        // Only the ends of the two longest frames and of the one too long.
+        assert!(pushed <= 6, "{pushed} pushed, packets of {packet}");
+        assert!(!decoder.is_mid_frame());
+    }
+}

@@ -1,13 +1,21 @@
-//! The byte link to the host: a polled USB CDC-ACM serial port with a queue of
-//! reply bytes and backpressure.
+//! The byte link to the host: the bulk endpoints of a polled USB CDC-ACM
+//! port, read and written a packet at a time, with a queue of reply bytes
+//! and backpressure.
 //!
-//! `SerialPort::write` takes only what fits its 128-byte buffer (or nothing:
-//! `WouldBlock`) and the host reads when it likes, so reply frames go into a
-//! fixed queue first and [`Link::poll`] moves them on as the host takes them.
+//! The endpoints are usbd-serial's [`CdcAcmClass`], not its `SerialPort`:
+//! that one copies every received packet into a ring buffer of its own (at
+//! unaligned offsets, so byte by byte on the Cortex-M0+) before the firmware
+//! copies it again; here [`Link::read`] puts a packet straight where the
+//! caller wants it (the device's receive buffer). Replies go into a fixed
+//! queue and [`Link::drain`] moves them on a packet at a time as the host
+//! takes them, ending every transfer with a short packet (a zero-length
+//! one after a reply that ends on a full packet): CDC hosts see a bulk
+//! transfer's data only once it ends.
+//!
 //! Nothing is dropped: a reply that finds the queue full waits, still polling
 //! USB, until there is room; and input is read only while the queue has room
 //! for a whole frame, so a host that does not read stops being read from (its
-//! writes are NAKed once usbd-serial's receive buffer is full). One request
+//! packets are NAKed: the controller holds one until it is read). One request
 //! may be answered by many frames (an export streams a record per frame): the
 //! device then waits inside `receive` for the host to read.
 //!
@@ -16,8 +24,11 @@
 //! so host tests (`host/tests/usb_link.rs`) drive this file over emulated
 //! buses, with the descriptors of [`device`].
 
-use heapless::Deque;
+#[path = "tx_queue.rs"]
+mod tx_queue;
+
 use placedb::protocol::MAX_REPLY_LEN;
+use tx_queue::TxQueue;
 use usb_device::bus::{InterfaceNumber, StringIndex, UsbBus, UsbBusAllocator};
 use usb_device::class::{ControlIn, ControlOut, UsbClass};
 use usb_device::descriptor::{BosWriter, DescriptorWriter};
@@ -27,13 +38,20 @@ use usb_device::device::{
 use usb_device::endpoint::EndpointAddress;
 use usb_device::prelude::BuilderError;
 use usb_device::LangID;
-use usbd_serial::{SerialPort, USB_CLASS_CDC};
+use usbd_serial::{CdcAcmClass, USB_CLASS_CDC};
 
+/// Bytes of a full-speed bulk packet, both ways: [`Link::read`] needs a
+/// buffer at least this long.
+pub const PACKET_LEN: usize = 64;
 /// Reply bytes that can wait for the host: 16 frames of the longest kind.
 pub const TX_QUEUE_LEN: usize = 16 * MAX_REPLY_LEN;
 /// Input is read only while at least this much of the queue is free (8 longest
 /// replies), so the replies to it usually fit without waiting.
 pub const RX_HEADROOM: usize = 8 * MAX_REPLY_LEN;
+/// Full packets in a row after which one is sent short (63 bytes), so that a
+/// host that waits for a transfer's end sees a long stream in good time (as
+/// usbd-serial's `SerialPort` does).
+pub const SHORT_PACKET_INTERVAL: u32 = 10;
 
 /// Most polls [`Link::flush`] waits for the host to take the queued
 /// replies: some tens of milliseconds of polling on the Pico, far more than
@@ -65,11 +83,15 @@ pub fn device<B: UsbBus>(bus: &UsbBusAllocator<B>) -> Result<UsbDevice<'_, B>, B
         .build())
 }
 
-/// The CDC-ACM serial port and the reply queue; the USB device it belongs to
+/// The CDC-ACM endpoints and the reply queue; the USB device it belongs to
 /// is passed to every call (and polls the link as its only class).
 pub struct Link<'a, B: UsbBus> {
-    serial: SerialPort<'a, B>,
-    tx: Deque<u8, TX_QUEUE_LEN>,
+    class: CdcAcmClass<'a, B>,
+    tx: TxQueue<TX_QUEUE_LEN>,
+    /// Full packets written since the last short one: while not 0, the
+    /// transfer is open and the next packet, if the queue is empty, is a
+    /// zero-length one.
+    full_run: u32,
 }
 
 fn configured<B: UsbBus>(usb: &UsbDevice<'_, B>) -> bool {
@@ -77,57 +99,75 @@ fn configured<B: UsbBus>(usb: &UsbDevice<'_, B>) -> bool {
 }
 
 impl<'a, B: UsbBus> Link<'a, B> {
-    /// Allocates the serial port's endpoints on `bus`.
+    /// Allocates the CDC-ACM endpoints (bulk packets of [`PACKET_LEN`]) on `bus`.
     pub fn new(bus: &'a UsbBusAllocator<B>) -> Self {
         Link {
-            serial: SerialPort::new(bus),
-            tx: Deque::new(),
+            class: CdcAcmClass::new(bus, PACKET_LEN as u16),
+            tx: TxQueue::new(),
+            full_run: 0,
         }
     }
 
     /// Services the USB device (enumeration, control requests, endpoint
-    /// events) and moves queued reply bytes to the serial port.
+    /// events) and moves queued reply bytes on.
     pub fn poll(&mut self, usb: &mut UsbDevice<'a, B>) {
         self.service(usb);
         self.drain(usb);
     }
 
-    /// [`Self::poll`]'s first half: services the USB device only (where a
-    /// received packet is taken from the controller), so that a caller can
-    /// time it apart from sending replies.
+    /// [`Self::poll`]'s first half: services the USB device only (control
+    /// requests, bus events; a packet the host took lets the next one go),
+    /// so that a caller can time it apart from sending replies. Received
+    /// packets stay in the controller until [`Self::read`].
     pub fn service(&mut self, usb: &mut UsbDevice<'a, B>) {
         usb.poll(&mut [&mut *self]);
     }
 
-    /// [`Self::poll`]'s second half: hands the serial port as much of the
-    /// queue as it takes.
+    /// [`Self::poll`]'s second half: writes reply packets while the IN
+    /// endpoint takes them (on the RP2040 it holds one).
     pub fn drain(&mut self, usb: &UsbDevice<'a, B>) {
-        while configured(usb) {
-            let (head, _) = self.tx.as_slices();
-            if head.is_empty() {
-                break;
-            }
-            match self.serial.write(head) {
-                Ok(n) => {
-                    for _ in 0..n {
-                        self.tx.pop_front();
-                    }
-                }
-                // `WouldBlock`: its buffer is full until the host reads. (The
-                // RP2040 bus returns no other error for a packet of an
-                // allocated endpoint; anything else is retried next poll.)
-                Err(_) => break,
-            }
+        if (!self.tx.is_empty() || self.full_run != 0) && configured(usb) {
+            while self.write_next() {}
         }
     }
 
+    /// Writes one packet from the queue (a zero-length one to end a transfer
+    /// whose last packet was full, once the queue is empty) unless the
+    /// endpoint still holds the last one (`WouldBlock`: the queue keeps
+    /// its bytes). True if a packet went.
+    fn write_next(&mut self) -> bool {
+        let max = if self.full_run >= SHORT_PACKET_INTERVAL {
+            PACKET_LEN - 1
+        } else {
+            PACKET_LEN
+        };
+        let mut scratch = [0u8; PACKET_LEN];
+        let packet = self.tx.front(max, &mut scratch);
+        if packet.is_empty() && self.full_run == 0 {
+            return false;
+        }
+        // `WouldBlock` is the only error of an allocated endpoint with a
+        // packet that fits; anything else is retried on the next call.
+        let Ok(n) = self.class.write_packet(packet) else {
+            return false;
+        };
+        self.tx.pop(n);
+        self.full_run = if n == PACKET_LEN {
+            self.full_run + 1
+        } else {
+            0
+        };
+        true
+    }
+
     /// Polls USB until every reply byte queued so far is in the USB
-    /// controller's buffers (which it sends by itself, even while the CPU
-    /// is stalled by a flash erase), or [`FLUSH_POLLS`] polls have passed (a
-    /// host that does not read). True if it all went.
+    /// controller's buffer (which it sends by itself, even while the CPU
+    /// is stalled by a flash erase) and the transfer is ended, or
+    /// [`FLUSH_POLLS`] polls have passed (a host that does not read). True
+    /// if it all went.
     pub fn flush(&mut self, usb: &mut UsbDevice<'a, B>) -> bool {
         for _ in 0..FLUSH_POLLS {
-            if self.tx.is_empty() && self.serial.flush().is_ok() {
+            if self.tx.is_empty() && self.full_run == 0 {
                 return true;
             }
             self.poll(usb);
@@ -135,81 +175,93 @@ impl<'a, B: UsbBus> Link<'a, B> {
         false
     }
 
-    /// Reads what the host sent into `buf`: 0 bytes unless configured, data
-    /// waiting and the queue has [`RX_HEADROOM`] free (backpressure).
+    /// Reads the packet the host sent, if any, into the start of `buf` (at
+    /// least [`PACKET_LEN`] bytes, or a full packet stays where it is) and
+    /// returns its length: 0 unless configured, a packet waiting and the
+    /// queue has [`RX_HEADROOM`] free (backpressure). Reading needs no
+    /// [`Self::service`] first: the controller holds the packet.
     pub fn read(&mut self, usb: &UsbDevice<'a, B>, buf: &mut [u8]) -> usize {
-        if !configured(usb) || TX_QUEUE_LEN - self.tx.len() < RX_HEADROOM {
+        if self.tx.free() < RX_HEADROOM || !configured(usb) {
             return 0;
         }
-        self.serial.read(buf).unwrap_or(0)
+        self.class.read_packet(buf).unwrap_or(0)
     }
 
     /// Queues one reply frame, waiting (and polling USB) while the queue is
     /// full. A USB bus reset meanwhile keeps the queue: the host's decoder
     /// resynchronises on the next frame delimiter.
     pub fn send(&mut self, usb: &mut UsbDevice<'a, B>, frame: &[u8]) {
-        for &byte in frame {
-            let mut byte = byte;
-            while let Err(back) = self.tx.push_back(byte) {
-                byte = back;
-                self.poll(usb);
+        let mut rest = frame;
+        loop {
+            let n = self.tx.push(rest);
+            rest = rest.get(n..).unwrap_or_default();
+            if rest.is_empty() {
+                break;
             }
+            self.poll(usb);
         }
         self.drain(usb);
     }
 }
 
-/// The link is the device's class: every request and endpoint event goes to
-/// the serial port unchanged (the queue only feeds it from [`Link::drain`]).
+/// The link is the device's class: every request goes to the CDC-ACM class
+/// unchanged; a packet the host took from the IN endpoint lets the next one
+/// go at once.
 impl<B: UsbBus> UsbClass<B> for Link<'_, B> {
     fn get_configuration_descriptors(
         &self,
         writer: &mut DescriptorWriter,
     ) -> usb_device::Result<()> {
-        self.serial.get_configuration_descriptors(writer)
+        self.class.get_configuration_descriptors(writer)
     }
 
     fn get_bos_descriptors(&self, writer: &mut BosWriter) -> usb_device::Result<()> {
-        self.serial.get_bos_descriptors(writer)
+        self.class.get_bos_descriptors(writer)
     }
 
     fn get_string(&self, index: StringIndex, lang_id: LangID) -> Option<&str> {
-        self.serial.get_string(index, lang_id)
+        self.class.get_string(index, lang_id)
     }
 
     fn reset(&mut self) {
-        self.serial.reset();
+        // The queue stays; the packet in flight went with the reset.
+        self.full_run = 0;
+        self.class.reset();
     }
 
     fn poll(&mut self) {
-        UsbClass::<B>::poll(&mut self.serial);
+        UsbClass::<B>::poll(&mut self.class);
     }
 
     fn control_out(&mut self, xfer: ControlOut<B>) {
-        self.serial.control_out(xfer);
+        self.class.control_out(xfer);
     }
 
     fn control_in(&mut self, xfer: ControlIn<B>) {
-        self.serial.control_in(xfer);
+        self.class.control_in(xfer);
     }
 
     fn endpoint_setup(&mut self, addr: EndpointAddress) {
-        self.serial.endpoint_setup(addr);
+        self.class.endpoint_setup(addr);
     }
 
     fn endpoint_out(&mut self, addr: EndpointAddress) {
-        self.serial.endpoint_out(addr);
+        self.class.endpoint_out(addr);
     }
 
     fn endpoint_in_complete(&mut self, addr: EndpointAddress) {
-        self.serial.endpoint_in_complete(addr);
+        if addr == self.class.write_ep().address() {
+            self.write_next();
+        } else {
+            self.class.endpoint_in_complete(addr);
+        }
     }
 
     fn get_alt_setting(&mut self, interface: InterfaceNumber) -> Option<u8> {
-        self.serial.get_alt_setting(interface)
+        self.class.get_alt_setting(interface)
     }
 
     fn set_alt_setting(&mut self, interface: InterfaceNumber, alternative: u8) -> bool {
-        self.serial.set_alt_setting(interface, alternative)
+        self.class.set_alt_setting(interface, alternative)
     }
 }

@@ -1,11 +1,13 @@
 //! placedb firmware for the Raspberry Pi Pico (RP2040, Cortex-M0+): the placedb
 //! wire protocol over USB CDC-ACM serial.
 //!
-//! One polled loop, no interrupts: service USB, read what the host sent, feed
-//! it to the [`Device256K`] (a `static`, so its RAM is accounted for at link
-//! time) and queue every reply frame it produces on the [`link::Link`], which
-//! never drops a reply byte and stops reading while its queue is full. The
-//! on-board LED (GPIO25) toggles on every reply frame.
+//! One polled loop, no interrupts: read the packet the host sent straight
+//! into the receive buffer of the [`Device256K`] (a `static`, so its RAM is
+//! accounted for at link time; servicing USB only when no packet waits),
+//! let it handle every message that ends there and queue every reply frame
+//! it produces on the [`link::Link`], which never drops a reply byte and
+//! stops reading while its queue is full. The on-board LED (GPIO25) toggles
+//! on every reply frame.
 //!
 //! The scan is durable: the device writes its database frames and decisions
 //! to a log in the second MiB of flash ([`flash`]) before it acknowledges
@@ -33,6 +35,7 @@ use placedb::persist::{EraseAhead, Log};
 use placedb::protocol::Phase;
 use rp2040_hal::{self as hal, pac, usb::UsbBus};
 use usb_device::class_prelude::UsbBusAllocator;
+use usb_device::device::UsbDevice;
 
 /// Second-stage bootloader for the Pico's W25Q16 flash (W25Q080 image): the
 /// first 256 bytes of flash (memory.x), loaded and checked by the boot ROM.
@@ -47,8 +50,18 @@ pub static BOOT2: [u8; 256] = rp2040_boot2::BOOT_LOADER_W25Q080;
 const XTAL_FREQ_HZ: u32 = 12_000_000;
 /// The RP2040 timer counts microseconds.
 const TIMER_HZ: u32 = 1_000_000;
-/// Bytes read from USB per turn: one full-speed bulk packet.
-const RX_CHUNK: usize = 64;
+/// Most packets read between two polls of USB while the host keeps one
+/// waiting: a bound on how long a control request (or a bus reset) waits,
+/// a few milliseconds of 64-byte frames' work.
+const MAX_UNPOLLED: u32 = 16;
+
+/// One bulk packet, for the rare packet the device's receive buffer has no
+/// room for: word-aligned as the controller's buffers are, so that the
+/// copy out of the controller moves words (the Cortex-M0+ `memcpy` moves
+/// bytes between differently aligned buffers), and so is the copy into
+/// the framing's buffer after it (which aligns the frame to it).
+#[repr(C, align(4))]
+struct Packet([u8; link::PACKET_LEN]);
 
 /// The device, all zero at power-on, in `.bss`: a firmware whose statics and
 /// stack reserve do not fit the 256 KiB RAM fails to link (memory.x).
@@ -141,56 +154,142 @@ fn main() -> ! {
         halt()
     };
 
-    let mut rx = [0u8; RX_CHUNK];
+    let mut packet = Packet([0; link::PACKET_LEN]);
+    let mut unpolled = 0u32;
     loop {
-        // The receive path is part of a frame's cost (FrameCost): servicing
-        // USB (the packet copied out of the controller's buffer) and the
-        // read are timed, sending queued replies (`drain`) is not, and a
-        // turn that reads nothing (an idle poll) is no frame's work.
-        let t_service = ticks();
-        link.service(&mut usb);
-        let serviced = ticks().wrapping_sub(t_service);
         link.drain(&usb);
-        let t_read = ticks();
-        let n = link.read(&usb, &mut rx);
-        let mut received = serviced.wrapping_add(ticks().wrapping_sub(t_read));
-        let bytes = rx.get(..n).unwrap_or_default();
-        if bytes.is_empty() {
-            // Nothing from the host: the time to erase what the log needs
-            // next (a failed erase is the log's own erase's to retry).
-            erase_ahead(&mut log);
-            continue;
-        }
-        // One host message at a time, so that the gap after a frame's
-        // answer is seen even when the next frame's first bytes came in the
-        // same packet; the framing's scan finds where each message ends (the
-        // only pass over the bytes before their decode). The turn's USB time
-        // goes with the first message.
-        let mut rest = bytes;
-        while !rest.is_empty() {
-            let (after, between_frames) = critical_section::with(|cs| {
-                let mut device = DEVICE.borrow_ref_mut(cs);
-                device.add_receive_ticks(received);
-                let (after, ended) = device.receive_message(rest, &mut log, &mut |frame| {
-                    let Ok(()) = led.toggle();
-                    link.send(&mut usb, frame);
-                });
-                (after, ended && device.phase() != Phase::InFrame)
-            });
-            received = 0;
-            rest = after;
-            // A host that keeps the link busy (a pipelined stream: the next
-            // frame is always waiting) leaves no idle turn, so the sector is
-            // also erased between two frames: after a message that leaves no
-            // frame open, once its answers are out of the chip (`flush`
-            // waits, boundedly, until the USB controller holds them: it sends
-            // them from its own buffers during the erase). The erase then
-            // delays the next frame's start, not a frame's answer.
-            if between_frames && !erased_ahead(&mut log) {
-                link.flush(&mut usb);
-                erase_ahead(&mut log);
+        // One critical section (one borrow of the device) a turn, not one
+        // for the read and one for each message: the firmware uses no
+        // interrupts, and the turn's flash work nests its own.
+        critical_section::with(|cs| {
+            let mut device = DEVICE.borrow_ref_mut(cs);
+            // The receive path is part of a frame's cost (FrameCost):
+            // reading a packet out of the controller and, when it came
+            // after one, servicing USB are timed; sending queued replies
+            // (`drain`) is not, and a turn that reads nothing (an idle
+            // poll) is no frame's work. USB is serviced only once no
+            // packet is waiting (or after MAX_UNPOLLED packets, for
+            // control requests): the controller holds a received packet
+            // and takes the next reply packet without it.
+            let t_read = ticks();
+            let mut got = if unpolled < MAX_UNPOLLED {
+                read_packet(&mut link, &usb, &mut device, &mut packet)
+            } else {
+                Got::Nothing
+            };
+            let mut received = ticks().wrapping_sub(t_read);
+            if got == Got::Nothing {
+                unpolled = 0;
+                let t_service = ticks();
+                link.service(&mut usb);
+                let serviced = ticks().wrapping_sub(t_service);
+                link.drain(&usb);
+                let t_read = ticks();
+                got = read_packet(&mut link, &usb, &mut device, &mut packet);
+                received = serviced.wrapping_add(ticks().wrapping_sub(t_read));
             }
+            // One host message at a time, so that the gap after a frame's
+            // answer is seen even when the next frame's first bytes came
+            // in the same packet; the framing's scan finds where each
+            // message ends (the only pass over the bytes before their
+            // decode). The turn's USB time goes with the first message.
+            match got {
+                Got::Nothing => {
+                    // Nothing from the host: the time to erase what the
+                    // log needs next (a failed erase is the log's own
+                    // erase's to retry).
+                    erase_ahead(&mut log);
+                    return;
+                }
+                Got::InPlace => loop {
+                    device.add_receive_ticks(received);
+                    received = 0;
+                    let ended = device.receive_held(&mut log, &mut |frame| {
+                        let Ok(()) = led.toggle();
+                        link.send(&mut usb, frame);
+                    });
+                    if ended && device.phase() != Phase::InFrame {
+                        erase_between_frames(&mut link, &mut usb, &mut log);
+                    }
+                    if !device.holds_input() {
+                        break;
+                    }
+                },
+                Got::Packet(n) => {
+                    let mut rest = packet.0.get(..n).unwrap_or_default();
+                    while !rest.is_empty() {
+                        device.add_receive_ticks(received);
+                        received = 0;
+                        let (after, ended) = device.receive_message(rest, &mut log, &mut |frame| {
+                            let Ok(()) = led.toggle();
+                            link.send(&mut usb, frame);
+                        });
+                        rest = after;
+                        if ended && device.phase() != Phase::InFrame {
+                            erase_between_frames(&mut link, &mut usb, &mut log);
+                        }
+                    }
+                }
+            }
+            unpolled += 1;
+        });
+    }
+}
+
+/// What [`read_packet`] read.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Got {
+    Nothing,
+    /// A packet, into the device's receive buffer (held there).
+    InPlace,
+    /// A packet of this many bytes, into the packet buffer: the device's
+    /// receive buffer had no room for a whole one (the end of a frame
+    /// close to the longest).
+    Packet(usize),
+}
+
+/// Reads the packet the host sent, if any, straight into the device's
+/// receive buffer (the framing then scans it where it lies: no copy
+/// between the USB controller and the frame's decode), or into `packet`
+/// when that has no room for a whole packet.
+fn read_packet<'a>(
+    link: &mut link::Link<'a, UsbBus>,
+    usb: &UsbDevice<'a, UsbBus>,
+    device: &mut Device256K,
+    packet: &mut Packet,
+) -> Got {
+    let room = device.receive_room(link::PACKET_LEN);
+    if room.len() >= link::PACKET_LEN {
+        let n = link.read(usb, room);
+        device.commit_received(n);
+        if n == 0 {
+            Got::Nothing
+        } else {
+            Got::InPlace
         }
+    } else {
+        match link.read(usb, &mut packet.0) {
+            0 => Got::Nothing,
+            n => Got::Packet(n),
+        }
+    }
+}
+
+/// After a message that leaves no frame open: a host that keeps the link
+/// busy (a pipelined stream: the next frame is always waiting) leaves no
+/// idle turn, so the sector the log needs next is erased here, once the
+/// answers are out of the chip (`flush` waits, boundedly, until the USB
+/// controller holds them: it sends them from its own buffers during the
+/// erase). The erase then delays the next frame's start, not a frame's
+/// answer.
+fn erase_between_frames<'a>(
+    link: &mut link::Link<'a, UsbBus>,
+    usb: &mut UsbDevice<'a, UsbBus>,
+    log: &mut Log<LogFlash>,
+) {
+    if !erased_ahead(log) {
+        link.flush(usb);
+        erase_ahead(log);
     }
 }
 
