@@ -157,16 +157,25 @@ impl VoxelGrid {
 
 /// Bounded set of the voxel keys of one frame, filled pixel by pixel.
 ///
-/// Open addressing with linear probing over `CAP` slots (a power of two); at
-/// most three quarters are used so that probes stay short. Keys arriving when
-/// it is full are counted in [`FrameVoxels::dropped`], never silently lost.
+/// Open addressing with linear probing over the first `CAP - CAP / 64`
+/// slots ([`Self::TABLE`]); the last `CAP / 64` slots are a bitmap of the
+/// filled ones, so that gathering and clearing visit only those (a frame
+/// fills a few hundred of the Pico's 4,096 slots) in the set's own memory.
+/// At most three quarters of `CAP` keys are held so that probes stay short.
+/// Keys arriving when it is full are counted in [`FrameVoxels::dropped`],
+/// never silently lost.
 #[derive(Debug, Clone)]
 pub struct FrameVoxels<const CAP: usize> {
+    /// The table's slots, then the bitmap: slot `i` filled is bit `i % 64`
+    /// of word `TABLE + i / 64`.
     slots: [u64; CAP],
     len: usize,
     dropped: u32,
     /// The last slot word inserted: runs of pixels in one voxel skip the probe.
     last: u64,
+    /// Leading slots [`Self::sorted`] wrote over (its gathering and scratch):
+    /// [`Self::clear`] empties them besides the filled ones.
+    front: usize,
 }
 
 /// Marks an empty slot. Slots hold `key + 1` (packed keys use 63 bits, so this
@@ -184,12 +193,17 @@ impl<const CAP: usize> FrameVoxels<CAP> {
     /// Most distinct keys the set holds: three quarters of `CAP`.
     pub const LIMIT: usize = CAP - CAP / 4;
     const MASK: usize = {
+        // From 8 slots the table (`CAP` less the bitmap's `CAP / 64`,
+        // rounded up) always keeps an empty slot, which ends every probe;
+        // up to 2^16 its index is a 32-bit product (see `insert`).
         assert!(
-            CAP.is_power_of_two() && CAP >= 4,
-            "CAP must be a power of two >= 4"
+            CAP.is_power_of_two() && CAP >= 8 && CAP <= 1 << 16,
+            "CAP must be a power of two in 8..=65536"
         );
         CAP - 1
     };
+    /// Slots of the hash table proper, before the bitmap's words.
+    const TABLE: usize = CAP - CAP.div_ceil(64);
 
     /// An empty set.
     pub const fn new() -> Self {
@@ -198,12 +212,22 @@ impl<const CAP: usize> FrameVoxels<CAP> {
             len: 0,
             dropped: 0,
             last: EMPTY,
+            front: 0,
         }
     }
 
-    /// Empties the set for the next frame.
+    /// Empties the set for the next frame: the filled slots, the bitmap and
+    /// what [`Self::sorted`] wrote, not the whole table (32 KB on the Pico).
     pub fn clear(&mut self) {
-        self.slots.fill(EMPTY);
+        Self::each_filled(&mut self.slots, |slots, i| {
+            if let Some(slot) = slots.get_mut(i & Self::MASK) {
+                *slot = EMPTY;
+            }
+        });
+        let (table, map) = self.slots.split_at_mut(Self::TABLE);
+        map.fill(0);
+        table.get_mut(..self.front).unwrap_or_default().fill(EMPTY);
+        self.front = 0;
         self.len = 0;
         self.dropped = 0;
         self.last = EMPTY;
@@ -233,15 +257,17 @@ impl<const CAP: usize> FrameVoxels<CAP> {
             return true;
         }
         // Fibonacci hashing of the key folded to 32 bits (x, y and z each
-        // reach the low word): the product's top half, rotated down, spreads
-        // neighbouring voxels. A 32-bit multiply, because a Cortex-M0+ has no
+        // reach the low word): the product's top half spreads neighbouring
+        // voxels, scaled onto the table by a second product (the table is
+        // no power of two). 32-bit multiplies, because a Cortex-M0+ has no
         // 64-bit one; the slots a key lands in never show in [`Self::sorted`].
         let folded = bits as u32 ^ (bits >> 32) as u32 ^ (bits >> 21) as u32;
-        let mut i = folded.wrapping_mul(0x9E37_79B9).rotate_left(16) as usize & Self::MASK;
+        let top = folded.wrapping_mul(0x9E37_79B9) >> 16;
+        let mut i = (top.wrapping_mul(Self::TABLE as u32) >> 16) as usize;
         loop {
-            // `i` is masked to `CAP - 1`, so the slot always exists and the
-            // compiler drops the check; the `else` is never taken.
-            let Some(slot) = self.slots.get_mut(i) else {
+            // `i < TABLE < CAP`, so the mask changes nothing but lets the
+            // compiler drop the check; the `else` is never taken.
+            let Some(slot) = self.slots.get_mut(i & Self::MASK) else {
                 return false;
             };
             if *slot == bits {
@@ -249,16 +275,73 @@ impl<const CAP: usize> FrameVoxels<CAP> {
                 return true;
             }
             if *slot == EMPTY {
-                if self.len >= Self::LIMIT {
-                    self.dropped = self.dropped.saturating_add(1);
-                    return false;
-                }
-                *slot = bits;
-                self.len += 1;
-                self.last = bits;
-                return true;
+                return self.add(i, bits);
             }
-            i = (i + 1) & Self::MASK;
+            i += 1;
+            if i == Self::TABLE {
+                i = 0;
+            }
+        }
+    }
+
+    /// Puts a new key into empty slot `i` and sets its bit (a new key's
+    /// only extra cost), unless the set is full. Inlined on ARMv6-M, where
+    /// a call in the per-pixel loop spills its eight low registers (the
+    /// Pico measured slower out of line); out of line elsewhere, where
+    /// inlining it cost the M4F's loop ~10 instructions a valid pixel.
+    #[cfg_attr(
+        all(target_arch = "arm", not(target_has_atomic = "32")),
+        inline(always)
+    )]
+    #[cfg_attr(
+        not(all(target_arch = "arm", not(target_has_atomic = "32"))),
+        cold,
+        inline(never)
+    )]
+    fn add(&mut self, i: usize, bits: u64) -> bool {
+        if self.len >= Self::LIMIT {
+            self.dropped = self.dropped.saturating_add(1);
+            return false;
+        }
+        // `i < TABLE` and `TABLE + i / 64 < CAP`: the masks change nothing
+        // but let the compiler drop the checks.
+        if let Some(slot) = self.slots.get_mut(i & Self::MASK) {
+            *slot = bits;
+        }
+        self.len += 1;
+        self.last = bits;
+        // Set by halves: a variable 64-bit shift is a library call on a
+        // 32-bit core.
+        if let Some(word) = self.slots.get_mut((Self::TABLE + (i >> 6)) & Self::MASK) {
+            let (mut low, mut high) = (*word as u32, (*word >> 32) as u32);
+            let bit = 1u32 << (i & 31);
+            if i & 32 == 0 {
+                low |= bit;
+            } else {
+                high |= bit;
+            }
+            *word = u64::from(high) << 32 | u64::from(low);
+        }
+        true
+    }
+
+    /// Calls `f` with the slots and the index of every filled slot,
+    /// ascending: the bitmap word by word, skipping empty ones, each word
+    /// by halves (32-bit operations, the M0+'s).
+    #[inline(always)]
+    fn each_filled(slots: &mut [u64; CAP], mut f: impl FnMut(&mut [u64; CAP], usize)) {
+        for w in 0..CAP - Self::TABLE {
+            let word = slots.get(Self::TABLE + w).copied().unwrap_or(EMPTY);
+            if word == 0 {
+                continue;
+            }
+            for (half, mut bits) in [(0, word as u32), (32, (word >> 32) as u32)] {
+                let base = w * 64 + half;
+                while bits != 0 {
+                    f(slots, base + bits.trailing_zeros() as usize);
+                    bits &= bits - 1;
+                }
+            }
         }
     }
 
@@ -268,34 +351,36 @@ impl<const CAP: usize> FrameVoxels<CAP> {
     pub fn sorted(&mut self) -> &[u64] {
         // Gather the keys at the front first: a frame at a coarse stride holds
         // a few hundred keys in thousands of slots, and sorting only those is
-        // what keeps this step small on a microcontroller.
+        // what keeps this step small on a microcontroller. The bitmap names
+        // the filled slots in ascending order, so the front never passes a
+        // slot not yet read.
         let mut n = 0;
-        for i in 0..CAP {
-            let Some(&word) = self.slots.get(i) else {
-                break;
-            };
-            if word != EMPTY {
-                // `n <= i < CAP`: the mask changes nothing but lets the
-                // compiler see the write in bounds (no check per key).
-                if let Some(front) = self.slots.get_mut(n & Self::MASK) {
+        Self::each_filled(&mut self.slots, |slots, i| {
+            // `n <= i < TABLE`: the masks change nothing but let the
+            // compiler see the accesses in bounds (no check per key).
+            if let Some(&word) = slots.get(i & Self::MASK) {
+                if let Some(front) = slots.get_mut(n & Self::MASK) {
                     *front = word - 1;
                 }
-                n += 1;
             }
-        }
-        // Counted apart from the gathering, whose loop over every slot
-        // stays small enough for the M0+'s registers.
+            n += 1;
+        });
+        let table = self.slots.get_mut(..Self::TABLE).unwrap_or_default();
+        // Counted apart from the gathering, whose loop stays small enough
+        // for the M0+'s registers.
         let mut census = radix::Census::new();
-        for &key in self.slots.get(..n).unwrap_or_default() {
-            census.add(key);
-        }
+        census.take(table.get(..n).unwrap_or_default());
         // A frame's voxels span a few dozen per axis: the radix sort. A set
-        // spread wider, or filling more than half the slots, takes the
+        // spread wider, or filling more than half the table, takes the
         // comparison sort.
-        match radix::sort(&mut self.slots, n, &census) {
-            Some(sorted) => self.slots.get(sorted).unwrap_or_default(),
+        match radix::sort(table, n, &mut census) {
+            Some(sorted) => {
+                self.front = sorted.end;
+                table.get(sorted).unwrap_or_default()
+            }
             None => {
-                let keys = self.slots.get_mut(..n).unwrap_or_default();
+                self.front = n;
+                let keys = table.get_mut(..n).unwrap_or_default();
                 keys.sort_unstable();
                 keys
             }
@@ -433,6 +518,53 @@ mod tests {
                 assert!(set.sorted().windows(2).all(|w| w[0] < w[1]), "case {case}");
             }
         }
+    }
+
+    /// One set reused frame after frame, at sizes where keys collide and
+    /// probes wrap (8 slots up to 1,024, bitmaps of one to 16 words):
+    /// random keys in boxes narrow (the radix sort) and wide (the comparison
+    /// sort), overlapping the last frame's so stale slots would show, some
+    /// frames cleared unsorted, some overflowing; `sorted` gives exactly
+    /// the keys a `BTreeSet` kept (the first `LIMIT` distinct ones).
+    #[test]
+    fn reused_set_sorts_like_a_btreeset() {
+        fn run<const CAP: usize>(seed: u64) {
+            let mut seed = seed;
+            let mut next = move || {
+                seed = seed
+                    .wrapping_mul(6_364_136_223_846_793_005)
+                    .wrapping_add(1_442_695_040_888_963_407);
+                (seed >> 33) as u32
+            };
+            let limit = FrameVoxels::<CAP>::LIMIT;
+            let mut set = std::boxed::Box::new(FrameVoxels::<CAP>::new());
+            for frame in 0..600 {
+                let span = [2, 5, 12, 40, 300][frame % 5];
+                let len = next() as usize % (limit + limit / 2 + 1);
+                let base = (next() % 4) as i32 - 2;
+                let mut want = std::collections::BTreeSet::new();
+                for _ in 0..len {
+                    let mut c = || base + (next() % span) as i32;
+                    let key = VoxelKey::new(c(), c(), c());
+                    let kept = want.contains(&key.to_bits()) || want.len() < limit;
+                    if kept {
+                        want.insert(key.to_bits());
+                    }
+                    assert_eq!(set.insert(key), kept, "CAP {CAP} frame {frame}");
+                }
+                assert_eq!(set.len(), want.len(), "CAP {CAP} frame {frame}");
+                if frame % 7 != 3 {
+                    let want: std::vec::Vec<u64> = want.into_iter().collect();
+                    assert_eq!(set.sorted(), &want[..], "CAP {CAP} frame {frame}");
+                }
+                set.clear();
+                assert!(set.is_empty() && set.dropped() == 0);
+            }
+        }
+        run::<8>(1);
+        run::<64>(2);
+        run::<128>(3);
+        run::<1024>(4);
     }
 
     #[test]

@@ -6,8 +6,10 @@
 //! axis spans well under 256 voxels, and three counting passes over the keys
 //! replace a comparison sort of `u64`s, which a 32-bit core without 64-bit
 //! compares (the Cortex-M0+) pays for dearly. The histograms are counted
-//! while the keys are gathered from the hash set, by the coordinates' low
-//! byte, which is the digit rotated by the smallest coordinate's low byte.
+//! once the keys are gathered from the hash set, by the coordinates' low
+//! byte, which is the digit rotated by the smallest coordinate's low byte;
+//! each pass turns its histogram into bucket starts in place, over the
+//! digits the keys use.
 
 /// Bits per axis in a packed key (x, y, z from the top).
 const AXIS_BITS: u32 = 21;
@@ -15,7 +17,7 @@ const AXIS_MASK: u64 = (1 << AXIS_BITS) - 1;
 /// Buckets per pass: an axis whose span is wider takes the comparison sort.
 const BUCKETS: usize = 256;
 
-/// What the gathering pass learns of the keys for the sort.
+/// What a count of the gathered keys learns of them for the sort.
 pub(super) struct Census {
     /// Smallest and largest coordinate per axis (x, y, z), biased.
     low: [u32; 3],
@@ -33,27 +35,34 @@ impl Census {
         }
     }
 
-    /// Counts one key (at most `u16::MAX` keys: a frame set holds fewer).
-    #[inline(always)]
-    pub(super) fn add(&mut self, key: u64) {
-        self.axis::<0>(coord::<0>(key));
-        self.axis::<1>(coord::<1>(key));
-        self.axis::<2>(coord::<2>(key));
+    /// Counts the keys (at most `u16::MAX`: a frame set holds fewer), one
+    /// axis at a time: an axis's bounds stay in registers, where the three
+    /// axes' six did not fit the M0+'s eight.
+    pub(super) fn take(&mut self, keys: &[u64]) {
+        self.axis::<0>(keys);
+        self.axis::<1>(keys);
+        self.axis::<2>(keys);
     }
 
     #[inline(always)]
-    fn axis<const A: usize>(&mut self, c: u32) {
-        if let (Some(low), Some(high), Some(counts)) = (
+    fn axis<const A: usize>(&mut self, keys: &[u64]) {
+        let (Some(low), Some(high), Some(counts)) = (
             self.low.get_mut(A),
             self.high.get_mut(A),
             self.counts.get_mut(A),
-        ) {
-            *low = (*low).min(c);
-            *high = (*high).max(c);
+        ) else {
+            return;
+        };
+        let (mut lo, mut hi) = (*low, *high);
+        for &key in keys {
+            let c = coord::<A>(key);
+            lo = lo.min(c);
+            hi = hi.max(c);
             if let Some(count) = counts.get_mut(usize::from(c as u8)) {
                 *count = count.wrapping_add(1);
             }
         }
+        (*low, *high) = (lo, hi);
     }
 }
 
@@ -72,11 +81,12 @@ fn coord<const A: usize>(key: u64) -> u32 {
 /// Sorts the `n` keys at the front of `slots` ascending, with
 /// `slots[n..2n]` as scratch, when every axis spans fewer than
 /// [`BUCKETS`] coordinates and the scratch fits; returns where the sorted
-/// keys are (`None`: not sorted, the keys untouched at the front).
+/// keys are (`None`: not sorted, the keys untouched at the front). The
+/// census's counts become the passes' bucket starts.
 pub(super) fn sort(
     slots: &mut [u64],
     n: usize,
-    census: &Census,
+    census: &mut Census,
 ) -> Option<core::ops::Range<usize>> {
     let narrow = census
         .low
@@ -99,23 +109,31 @@ pub(super) fn sort(
 
 /// One stable counting pass by axis `A`'s coordinate less the smallest.
 #[inline(never)]
-fn pass<const A: usize>(from: &[u64], to: &mut [u64], census: &Census) {
-    let (Some(&low), Some(counts)) = (census.low.get(A), census.counts.get(A)) else {
+fn pass<const A: usize>(from: &[u64], to: &mut [u64], census: &mut Census) {
+    let (Some(&low), Some(&high), Some(counts)) = (
+        census.low.get(A),
+        census.high.get(A),
+        census.counts.get_mut(A),
+    ) else {
         return;
     };
-    // `next[d]`: where the next key of digit `d` goes. Digit `d` counted
-    // under low byte `d + low` (the span is under 256, so no two digits
-    // share a low byte).
-    let mut next = [0u16; BUCKETS];
+    // Each bucket's count becomes where its next key goes, in digit order
+    // (digit `d` is counted under low byte `d + low`; the span is under
+    // 256, so no two digits share a low byte), over the digits the keys
+    // use only: a frame's few dozen, not all 256.
     let mut at = 0u16;
-    for (d, slot) in next.iter_mut().enumerate() {
-        *slot = at;
-        let byte = (d as u32).wrapping_add(low) as u8;
-        at = at.wrapping_add(counts.get(usize::from(byte)).copied().unwrap_or(0));
+    for d in 0..=high.wrapping_sub(low) {
+        let byte = d.wrapping_add(low) as u8;
+        if let Some(count) = counts.get_mut(usize::from(byte)) {
+            let keys = *count;
+            *count = at;
+            at = at.wrapping_add(keys);
+        }
     }
+    // Bucketed by the low byte itself: no subtraction per key.
     for &key in from {
-        let digit = coord::<A>(key).wrapping_sub(low) as u8;
-        if let Some(slot) = next.get_mut(usize::from(digit)) {
+        let byte = coord::<A>(key) as u8;
+        if let Some(slot) = counts.get_mut(usize::from(byte)) {
             if let Some(out) = to.get_mut(usize::from(*slot)) {
                 *out = key;
             }
