@@ -1,8 +1,10 @@
 //! Framing: postcard + CRC-32 + COBS on the way out, a resynchronising
 //! accumulator on the way in.
 //!
-//! Encoding uses postcard's own flavours (`CrcModifier` over `Cobs` over `Slice`),
-//! so a frame is built in one pass straight into the caller's buffer. Decoding
+//! Encoding uses postcard's `Cobs` over `Slice` flavours under a CRC of our
+//! own ([`Framer`]: postcard's `CrcModifier`, the same bytes, but a slice's
+//! digest taken in one call), so a frame is built in one pass straight into
+//! the caller's buffer. Decoding
 //! does not use postcard's `CobsAccumulator`: it cannot tell a bad CRC from bad
 //! COBS from a bad message, and after an overflow it restarts in the middle of
 //! the oversized frame instead of at its end. [`FrameDecoder`] keeps the COBS
@@ -12,7 +14,7 @@
 
 use super::messages::{DeviceMessage, ErrorKind, ExportRecord, HostFrame, ProtocolError};
 use crc::{Crc, Digest, CRC_32_ISO_HDLC};
-use postcard::ser_flavors::{crc::CrcModifier, Cobs, Flavor, Slice};
+use postcard::ser_flavors::{Cobs, Flavor, Slice};
 use serde::{Deserialize, Serialize};
 
 /// Largest frame, trailing 0x00 included, that a receiver must accept: the
@@ -68,17 +70,24 @@ where
 {
     let cobs = Cobs::try_new(Slice::new(buf)).map_err(ser_error)?;
     let flavor = Framer {
-        inner: CrcModifier::new(cobs, CRC.digest()),
+        crc: CRC.digest(),
+        cobs,
     };
     let frame: &'b mut [u8] = postcard::serialize_with_flavor(msg, flavor).map_err(ser_error)?;
     Ok(frame)
 }
 
-/// postcard's CRC-over-COBS flavour behind out-of-line calls: the CRC and COBS
-/// steps are otherwise inlined into every field of every message, which
-/// multiplies the firmware's code size for no measurable speed gain.
+/// postcard's CRC-over-COBS (`CrcModifier<Cobs<Slice>>`: the CRC-32 of the
+/// message appended little-endian, all of it COBS-encoded), with two
+/// differences that leave the bytes alone. A slice (a [`super::DepthRows`]'s
+/// depth bytes) goes to the digest in one call: `CrcModifier` has
+/// no `try_extend` and took every depth byte through a one-byte digest
+/// update, the host's largest encoding cost. And the steps are out-of-line
+/// calls: otherwise inlined into every field of every message, they
+/// multiply the firmware's code size for no measurable speed gain.
 struct Framer<'b> {
-    inner: CrcModifier<'static, Cobs<Slice<'b>>, u32>,
+    crc: Digest<'static, u32>,
+    cobs: Cobs<Slice<'b>>,
 }
 
 impl<'b> Flavor for Framer<'b> {
@@ -86,16 +95,21 @@ impl<'b> Flavor for Framer<'b> {
 
     #[inline(never)]
     fn try_push(&mut self, data: u8) -> postcard::Result<()> {
-        self.inner.try_push(data)
+        self.crc.update(&[data]);
+        self.cobs.try_push(data)
     }
 
     #[inline(never)]
     fn try_extend(&mut self, data: &[u8]) -> postcard::Result<()> {
-        self.inner.try_extend(data)
+        self.crc.update(data);
+        data.iter().try_for_each(|&byte| self.cobs.try_push(byte))
     }
 
-    fn finalize(self) -> postcard::Result<Self::Output> {
-        self.inner.finalize()
+    fn finalize(mut self) -> postcard::Result<Self::Output> {
+        for byte in self.crc.finalize().to_le_bytes() {
+            self.cobs.try_push(byte)?;
+        }
+        self.cobs.finalize()
     }
 }
 

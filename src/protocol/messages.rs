@@ -267,7 +267,15 @@ pub struct DepthRows<'a> {
     /// Number of strided rows in `data`.
     pub row_count: u16,
     /// `row_count * width_sent` little-endian `u16` depth values, row-major.
+    // As bytes (a length, then the bytes: the bytes a sequence of `u8` has
+    // in postcard), so the encoder gets them as one slice, not one by one.
+    #[serde(serialize_with = "as_bytes")]
     pub data: &'a [u8],
+}
+
+/// Serializes a byte slice as serde bytes ([`DepthRows::data`]).
+fn as_bytes<S: serde::Serializer>(data: &&[u8], serializer: S) -> Result<S::Ok, S::Error> {
+    serializer.serialize_bytes(data)
 }
 
 impl<'a> DepthRows<'a> {

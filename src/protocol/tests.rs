@@ -319,6 +319,52 @@ fn frame_format_is_postcard_crc_cobs() {
         let message = plain_vec(&frame).unwrap();
         assert_eq!(encode_vec(&frame), raw_frame(&message, true));
     }
+    for msg in device_messages() {
+        let message = plain_vec(&msg).unwrap();
+        assert_eq!(encode_vec(&msg), raw_frame(&message, true));
+    }
+    // Zero-free runs of every length around COBS's 254-byte block, ending
+    // anywhere in the message and its CRC.
+    for run in 240..270 {
+        let data: Vec<u8> = (0..2 * MAX_ROW_VALUES)
+            .map(|i| {
+                if i % (run + 1) == run {
+                    0
+                } else {
+                    1 + (i % 255) as u8
+                }
+            })
+            .collect();
+        for len in [run - 8, run, 2 * run + 1, data.len()] {
+            let frame = HostFrame {
+                seq: run as u32,
+                msg: HostMessage::DepthRows(DepthRows {
+                    frame: 7,
+                    first_row: 0,
+                    row_count: 1,
+                    data: &data[..len & !1],
+                }),
+            };
+            let message = plain_vec(&frame).unwrap();
+            assert_eq!(encode_vec(&frame), raw_frame(&message, true), "run {run}");
+        }
+    }
+}
+
+#[test]
+fn depth_rows_data_is_a_length_then_the_bytes() {
+    // What serde's derive gives a `&[u8]` field: a sequence of `u8`, in
+    // postcard a length and then each byte. The field is serialized as
+    // bytes (one slice for the encoder), which must not change the wire.
+    let data = depth_bytes();
+    let rows = DepthRows {
+        frame: 300,
+        first_row: 8,
+        row_count: 8,
+        data: &data,
+    };
+    let as_sequence = (rows.frame, rows.first_row, rows.row_count, data.as_slice());
+    assert_eq!(plain_vec(&rows).unwrap(), plain_vec(&as_sequence).unwrap());
 }
 
 /// The wire tag of every host message, by an exhaustive `match` with no
