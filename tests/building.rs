@@ -182,29 +182,34 @@ fn check_building(name: &str, seq: &Sequence, profiles: &[&str], mus: &[f32]) {
     }
 }
 
+// The larger profiles run the same code with more room (capacities, window):
+// the 6,000-frame building checks them, and the 20,000-frame one the
+// smallest board, where room runs out first. `scripts/building-table` prints
+// the 20,000-frame building on every profile (docs/RESULTS.md); running it
+// here too tripled this test, the suite's longest.
+
 #[test]
-fn the_paper_scale_building_fits_every_profile() {
+fn the_paper_scale_building_fits_the_pico_profile() {
     // The 20,000-frame, 40-room building of the issue (`placedb synth big
     // --frames 20000 --rooms 40 --width 160 --height 120`).
     let seq = building(20_000, 40, 1);
-    check_building(
-        "building",
-        &seq,
-        &["ram256k", "ram512k", "ram1m"],
-        &[0.1, 0.3, 0.5],
-    );
+    check_building("building", &seq, &["ram256k"], &[0.1, 0.3, 0.5]);
 }
 
 #[test]
-fn other_buildings_fit_the_pico_profile() {
-    // The two buildings at once, each on a thread of its own: the test runs
-    // beside the paper-scale one, and outlasts it when they are in turn.
+fn other_buildings_fit() {
+    // The two buildings at once, each on a thread of its own, beside the
+    // paper-scale test: 6,000 frames on every profile, 12,000 on the Pico's.
     std::thread::scope(|threads| {
-        for (frames, rooms, seed) in [(6_000, 12, 2), (12_000, 28, 3)] {
+        let buildings: [(usize, usize, u64, &[&str]); 2] = [
+            (6_000, 12, 2, &["ram256k", "ram512k", "ram1m"]),
+            (12_000, 28, 3, &["ram256k"]),
+        ];
+        for (frames, rooms, seed, profiles) in buildings {
             threads.spawn(move || {
                 let seq = building(frames, rooms, seed);
                 let name = format!("building seed {seed}, {rooms} rooms");
-                check_building(&name, &seq, &["ram256k"], &[0.1, 0.3, 0.5]);
+                check_building(&name, &seq, profiles, &[0.1, 0.3, 0.5]);
             });
         }
     });
