@@ -4,13 +4,14 @@
 //! Encoding uses postcard's `Cobs` over `Slice` flavours under a CRC of our
 //! own ([`Framer`]: postcard's `CrcModifier`, the same bytes, but a slice's
 //! digest taken in one call), so a frame is built in one pass straight into
-//! the caller's buffer. Decoding
-//! does not use postcard's `CobsAccumulator`: it cannot tell a bad CRC from bad
-//! COBS from a bad message, and after an overflow it restarts in the middle of
-//! the oversized frame instead of at its end. [`FrameDecoder`] keeps the COBS
-//! bytes of one frame, decodes them in place when the delimiter arrives
-//! (computing the CRC in the same pass, [`super::cobs`]), checks the CRC, then lets postcard deserialize straight from its buffer, so borrowed
-//! payloads ([`super::DepthRows::data`]) point into the decoder: no copy.
+//! the caller's buffer. Decoding does not use postcard's `CobsAccumulator`: it
+//! cannot tell a bad CRC from bad COBS from a bad message, and after an
+//! overflow it restarts in the middle of the oversized frame instead of at its
+//! end. [`FrameDecoder`] keeps the COBS bytes of one frame, decodes them in
+//! place when the delimiter arrives (computing the CRC in the same pass,
+//! [`super::cobs`]), checks the CRC, then lets postcard deserialize straight
+//! from its buffer, so borrowed payloads ([`super::DepthRows::data`]) point
+//! into the decoder: no copy.
 
 use super::messages::{DeviceMessage, ErrorKind, ExportRecord, HostFrame, ProtocolError};
 use crc::{Crc, Digest, CRC_32_ISO_HDLC};
@@ -102,7 +103,7 @@ impl<'b> Flavor for Framer<'b> {
     #[inline(never)]
     fn try_extend(&mut self, data: &[u8]) -> postcard::Result<()> {
         self.crc.update(data);
-        data.iter().try_for_each(|&byte| self.cobs.try_push(byte))
+        self.cobs.try_extend(data)
     }
 
     fn finalize(mut self) -> postcard::Result<Self::Output> {
