@@ -9,9 +9,9 @@
 //! consistent (sizes, frame order, round trips), and the decoders with a
 //! fast path must agree with a plain one.
 
-use placedb_host::frame_keys::VectorUnit;
 use placedb_host::read::ros2::{self, msgs, Ros2Options};
 use placedb_host::read::{self, fuzzing, ReadOptions};
+use placedb_host::vector_unit::VectorUnit;
 use std::cell::Cell;
 use std::path::{Path, PathBuf};
 

@@ -5,6 +5,7 @@
 //! ([`NothingMeasured`]), which says what to check: the depth scale, the
 //! depth range, and what the first frames' raw depths mean in metres.
 
+use crate::error::NothingMeasured;
 use crate::sequence::Sequence;
 use crate::voxelize::VoxelSets;
 use placedb::DepthRange;
@@ -168,12 +169,6 @@ pub fn plural(n: u64, one: &str, many: &str) -> String {
         format!("{n} {many}")
     }
 }
-
-/// A run that measured nothing: no frame, no valid depth pixel, or every
-/// point outside the key range. The text says what to check.
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct NothingMeasured(pub String);
 
 /// Refuses a sequence without frames.
 pub fn check_frames(seq: &Sequence) -> Result<(), NothingMeasured> {

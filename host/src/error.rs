@@ -82,6 +82,12 @@ pub fn seconds(d: std::time::Duration) -> String {
     format!("{s} s")
 }
 
+/// A run that measured nothing: no frame, no valid depth pixel, or every
+/// point outside the key range. The text says what to check.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct NothingMeasured(pub String);
+
 #[cfg(test)]
 mod tests {
     use super::seconds;

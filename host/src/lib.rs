@@ -13,17 +13,18 @@ pub mod cli;
 pub mod degradation;
 pub mod device;
 pub mod error;
-pub mod extend;
+pub mod frame_rows;
 pub mod output;
 pub mod pipeline;
 pub mod read;
 pub mod replay;
 pub mod rng;
-pub mod row_chunks;
 pub mod sequence;
+pub mod sessions;
 pub mod synth;
 #[cfg(any(test, feature = "testing"))]
 pub mod testing;
+pub mod vector_unit;
 pub mod voxelize;
 pub mod yardstick;
 

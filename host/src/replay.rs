@@ -2,8 +2,7 @@
 //! exactly as a board would receive it: frame by frame, sampled rows in
 //! chunks, one selector of a named capacity profile.
 
-use crate::output::extension::{Extension, Fate};
-use crate::row_chunks::row_spans;
+use crate::frame_rows::{row_spans, sampled_rows};
 use crate::sequence::{DepthImage, Sequence};
 use crate::voxelize::{VoxelSets, VoxelizeError};
 use indicatif::ProgressBar;
@@ -11,9 +10,8 @@ use placedb::frame::{FrameError, FrameIngest};
 use placedb::key_pool::{key_of, merge_count, Aabb};
 use placedb::profile::{Ram1M, Ram256K, Ram512K};
 use placedb::select::{DbSnapshot, FrameStore};
-use placedb::sketch::Sketch;
 use placedb::{
-    DbRecord, Decision, FrameMeta, Pose, ScanConfig, SelectError, Selector, SelectorConfig, Status,
+    DbRecord, Decision, FrameMeta, ScanConfig, SelectError, Selector, SelectorConfig, Status,
 };
 use std::time::{Duration, Instant};
 
@@ -72,26 +70,6 @@ pub enum ReplayError {
     Seed(String),
 }
 
-/// The rows a board receives for one frame: sampled rows of sampled columns.
-pub fn sampled_rows(img: &DepthImage, stride: u16) -> (usize, Vec<u16>) {
-    sampled_rows_of(&img.data, img.width, stride)
-}
-
-/// [`sampled_rows`] of a row-major buffer `width` values wide (a frame held
-/// in memory, e.g. a camera driver's): its rows `0, stride, 2 stride, ...`,
-/// each sampled the same way. A last partial row is ignored.
-pub fn sampled_rows_of(data: &[u16], width: u16, stride: u16) -> (usize, Vec<u16>) {
-    let s = stride.max(1) as usize;
-    let w = width as usize;
-    let height = data.len().checked_div(w).unwrap_or(0);
-    let sampled = w.div_ceil(s);
-    let mut out = Vec::with_capacity(sampled * height.div_ceil(s));
-    for row in data.chunks_exact(w.max(1)).take(height).step_by(s) {
-        out.extend(row.iter().step_by(s));
-    }
-    (sampled, out)
-}
-
 /// Runs `seq` through a selector of profile `profile` (see `placedb::profile`).
 /// `rows_per_chunk` sampled rows are pushed at a time, as a transport would.
 pub fn replay(
@@ -104,7 +82,7 @@ pub fn replay(
 ) -> Result<OnlineRun, ReplayError> {
     let job = Job {
         seq,
-        ext: None,
+        earlier: None::<&FirstSession>,
         sets: None,
         scan,
         cfg,
@@ -131,7 +109,7 @@ pub fn replay_voxelized(
 ) -> Result<OnlineRun, ReplayError> {
     let job = Job {
         seq,
-        ext: None,
+        earlier: None::<&FirstSession>,
         sets: Some(sets),
         scan,
         cfg,
@@ -142,14 +120,15 @@ pub fn replay_voxelized(
 }
 
 /// [`replay`] (or [`replay_voxelized`] with `sets`) of a later session
-/// `seq` on top of the earlier sessions of `ext`: the selector is seeded
-/// with their database and decisions ([`seed`], as a device restores its
-/// flash log), then `seq`'s frames follow with global indices from
-/// [`Extension::next_index`]. The run's decisions, labels and database
-/// cover every session.
+/// `seq` on top of `earlier` sessions: the selector is seeded with their
+/// database and decisions ([`Seed::seed`], as a device restores its flash
+/// log), then `seq`'s frames follow with global indices from the index the
+/// seed returns. The run's decisions, labels and database cover every
+/// session. The earlier sessions' model is the caller's
+/// (`crate::sessions::seed` for an extension file).
 #[allow(clippy::too_many_arguments)]
-pub fn extend_from(
-    ext: &Extension,
+pub fn replay_after<S: Seed>(
+    earlier: &S,
     seq: &Sequence,
     sets: Option<&VoxelSets>,
     profile: &str,
@@ -160,7 +139,7 @@ pub fn extend_from(
 ) -> Result<OnlineRun, ReplayError> {
     let job = Job {
         seq,
-        ext: Some(ext),
+        earlier: Some(earlier),
         sets,
         scan,
         cfg,
@@ -170,12 +149,63 @@ pub fn extend_from(
     replay_with(job, profile)
 }
 
+/// Earlier sessions a replay goes on from, put into a fresh selector as a
+/// device restores its flash log before it continues.
+pub trait Seed: Sync {
+    /// Configures `sel` with `scan` and `cfg`, puts the earlier database
+    /// frames into it and `store`, and restores every earlier frame's
+    /// decision in order; returns the global index of the next frame.
+    fn seed<
+        const FV: usize,
+        const POOL: usize,
+        const DB: usize,
+        const W: usize,
+        const K: usize,
+        const R: usize,
+    >(
+        &self,
+        sel: &mut Selector<FV, POOL, DB, W, K, R>,
+        store: &mut MemStore<K>,
+        scan: ScanConfig,
+        cfg: SelectorConfig,
+    ) -> Result<u32, ReplayError>;
+
+    /// The final decision of every earlier frame, by global index.
+    fn decisions(&self) -> Vec<Decision>;
+}
+
+/// No earlier session: a replay of a first session ([`replay`],
+/// [`replay_voxelized`]). It has no value, so it is never seeded.
+pub enum FirstSession {}
+
+impl Seed for FirstSession {
+    fn seed<
+        const FV: usize,
+        const POOL: usize,
+        const DB: usize,
+        const W: usize,
+        const K: usize,
+        const R: usize,
+    >(
+        &self,
+        _: &mut Selector<FV, POOL, DB, W, K, R>,
+        _: &mut MemStore<K>,
+        _: ScanConfig,
+        _: SelectorConfig,
+    ) -> Result<u32, ReplayError> {
+        match *self {}
+    }
+
+    fn decisions(&self) -> Vec<Decision> {
+        match *self {}
+    }
+}
+
 /// What one replay runs on.
-#[derive(Clone, Copy)]
-struct Job<'a> {
+struct Job<'a, S> {
     seq: &'a Sequence,
     /// The earlier sessions to continue, if any.
-    ext: Option<&'a Extension>,
+    earlier: Option<&'a S>,
     /// The sequence's voxel sets, to reuse.
     sets: Option<&'a VoxelSets>,
     scan: ScanConfig,
@@ -184,7 +214,7 @@ struct Job<'a> {
     progress: Option<&'a ProgressBar>,
 }
 
-fn replay_with(job: Job<'_>, profile: &str) -> Result<OnlineRun, ReplayError> {
+fn replay_with<S: Seed>(job: Job<'_, S>, profile: &str) -> Result<OnlineRun, ReplayError> {
     // The selectors are hundreds of KiB: build them on a thread with a stack to match.
     std::thread::scope(|s| {
         let job = s.spawn_scoped_big(move || match profile {
@@ -354,11 +384,11 @@ fn run<
     const R: usize,
 >(
     sel: &mut Selector<FV, POOL, DB, W, K, R>,
-    job: Job<'_>,
+    job: Job<'_, impl Seed>,
 ) -> Result<OnlineRun, ReplayError> {
     let Job {
         seq,
-        ext,
+        earlier,
         sets,
         scan,
         cfg,
@@ -367,8 +397,8 @@ fn run<
     } = job;
     let n = seq.frames.len();
     let mut store = MemStore::<K>::default();
-    let first = match ext {
-        Some(ext) => seed(sel, &mut store, ext, scan, cfg)?,
+    let first = match earlier {
+        Some(earlier) => earlier.seed(sel, &mut store, scan, cfg)?,
         None => {
             sel.configure(scan, cfg)
                 .map_err(|reason| ReplayError::Core { frame: 0, reason })?;
@@ -378,9 +408,9 @@ fn run<
     let base = first as usize;
     let core_err = |frame: usize| move |reason| ReplayError::Core { frame, reason };
     let mut decisions = vec![Decision::Pending; base + n];
-    if let Some(ext) = ext {
-        for (d, f) in decisions.iter_mut().zip(&ext.frames) {
-            *d = decision_of(f.fate);
+    if let Some(earlier) = earlier {
+        for (d, e) in decisions.iter_mut().zip(earlier.decisions()) {
+            *d = e;
         }
     }
     let mut read_time = Duration::ZERO;
@@ -456,97 +486,4 @@ fn run<
         read_time,
         core_time,
     })
-}
-
-/// The core's decision of a frame of an earlier session.
-fn decision_of(fate: Fate) -> Decision {
-    match fate {
-        Fate::Taken => Decision::Taken,
-        Fate::Covered(k) => Decision::DominatedBy(k),
-        Fate::Uncovered(k) => Decision::Uncovered(k),
-    }
-}
-
-/// Seeds a fresh selector and its store with the earlier sessions of
-/// `ext`, exactly as a device restores its flash log before it continues:
-/// configured with `scan` and `cfg`, every database frame put back
-/// (`Selector::restore_database`: in the store with its exact keys where
-/// the earlier run kept them, else compared by sketch) and every frame's
-/// decision restored in order (`Selector::restore_decided`). Returns the
-/// global index of the next frame. The one place an extended replay is
-/// seeded: `select --extend --solver online` and the tests that compare it
-/// with a device go through it.
-pub fn seed<
-    const FV: usize,
-    const POOL: usize,
-    const DB: usize,
-    const W: usize,
-    const K: usize,
-    const R: usize,
->(
-    sel: &mut Selector<FV, POOL, DB, W, K, R>,
-    store: &mut MemStore<K>,
-    ext: &Extension,
-    scan: ScanConfig,
-    cfg: SelectorConfig,
-) -> Result<u32, ReplayError> {
-    let refused = |what: String| ReplayError::Seed(what);
-    sel.configure(scan, cfg)
-        .map_err(|reason| ReplayError::Core { frame: 0, reason })?;
-    for f in &ext.database {
-        let sketch = match (&f.sketch, &f.keys) {
-            (Some(hashes), _) => {
-                Sketch::<K>::from_hashes(hashes.iter().copied()).ok_or_else(|| {
-                    refused(format!(
-                        "frame {}: its sketch of {} hashes does not fit this profile's {K}",
-                        f.index,
-                        hashes.len()
-                    ))
-                })?
-            }
-            (None, Some(keys)) => Sketch::<K>::from_keys(keys.iter().copied()),
-            (None, None) => {
-                return Err(refused(format!(
-                    "frame {} has neither a sketch nor a voxel set",
-                    f.index
-                )))
-            }
-        };
-        let aabb = f
-            .aabb
-            .or_else(|| f.keys.as_deref().and_then(Aabb::of_sorted));
-        let [tx, ty, tz, qx, qy, qz, qw] = f.pose.map(|c| c as f32);
-        let snapshot = DbSnapshot {
-            meta: FrameMeta {
-                index: f.index,
-                timestamp: f.timestamp,
-                pose: Pose {
-                    translation: [tx, ty, tz],
-                    rotation: [qx, qy, qz, qw],
-                },
-            },
-            voxels: f.voxels,
-            aabb,
-            sketch,
-        };
-        let keys = f.keys.clone().filter(|_| f.keyed);
-        let key_bytes = if f.keyed { f.key_bytes } else { 0 };
-        let at = store.put(snapshot, keys, key_bytes);
-        sel.restore_database(&snapshot, at, f.keyed, key_bytes)
-            .map_err(|e| {
-                refused(match e {
-                    placedb::select::RestoreError::DatabaseFull => format!(
-                        "its {} database frames do not fit this profile's database ({} frames)",
-                        ext.database.len(),
-                        DB
-                    ),
-                    _ => format!("frame {} cannot be restored", f.index),
-                })
-            })?;
-    }
-    for (i, f) in ext.frames.iter().enumerate() {
-        sel.restore_decided(i as u32, decision_of(f.fate))
-            .map_err(|_| refused(format!("the decision of frame {i} cannot be restored")))?;
-    }
-    Ok(ext.next_index())
 }

@@ -11,8 +11,7 @@
 
 use crate::device::flash_words::{log_error, restore_failure};
 use crate::device::scan;
-use crate::replay::sampled_rows;
-use crate::row_chunks::{row_chunks, RowChunk};
+use crate::frame_rows::{row_chunks, sampled_rows, RowChunk};
 use crate::synth::{self, SynthConfig};
 use crate::VoxelConfig;
 use placedb::device::Device256K;

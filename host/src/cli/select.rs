@@ -8,6 +8,7 @@ use crate::error::CommandError as Error;
 use crate::output::{self, dataset, metrics_json, topview};
 use crate::output::{annotate, exports, replace};
 use crate::pipeline::{self, Solver};
+use crate::sessions::{extension, record};
 use clap::Args;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -108,7 +109,8 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
         );
         written?;
         drawn?;
-        extend::write_first(&dir, &seq, &prep, &o, &params, a.mu, &rows)?;
+        let first = record::first_session(&seq, &prep, &o, &params, a.mu, &rows);
+        extension::write(&dir.join(extension::FILE_NAME), &first)?;
         let dataset = match &a.dataset {
             Some(dir) => Some((dir, dataset::stage(outputs, dir, &seq, &o.labels)?)),
             None => None,

@@ -14,9 +14,9 @@ use crate::device::error::DeviceError;
 use crate::device::link::Link;
 use crate::device::log_records;
 use crate::output::dataset::DatasetError;
-use crate::output::extension::{self, Extension};
 use crate::output::replace::{self, Outputs};
 use crate::output::{self, metrics_json};
+use crate::sessions::extension::{self, Extension};
 use indicatif::ProgressBar;
 use placedb::protocol::{
     encode, export_crc, CapacitySlot, DeviceMessage, ExportRecord, Feed, FrameDecoder, HostMessage,
@@ -493,7 +493,8 @@ pub fn stage(
     let firsts = export.sessions();
     // A scan of several sessions: the session columns too.
     let session_of = |g: usize| log_records::session_of(&firsts, g as u32);
-    let sessions = (firsts.len() > 1).then_some(&session_of as output::sessions::SessionOf<'_>);
+    let sessions =
+        (firsts.len() > 1).then_some(&session_of as output::session_columns::SessionOf<'_>);
     output::write_database_dir(
         &dir,
         &rows,

@@ -11,7 +11,7 @@
 use crate::device::client::{send_and_wait, Client, Received, Wait};
 use crate::device::error::DeviceError;
 use crate::device::link::Link;
-use crate::output::extension::{DbFrame, Extension, Fate, FrameEntry, OnlineConfig, RunConfig};
+use crate::sessions::extension::{DbFrame, Extension, Fate, FrameEntry, OnlineConfig, RunConfig};
 use placedb::frame::FrameMeta;
 use placedb::key_pool::{key_of, Aabb};
 use placedb::persist::Record;

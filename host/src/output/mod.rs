@@ -8,10 +8,9 @@
 pub mod annotate;
 pub mod dataset;
 pub mod exports;
-pub mod extension;
 pub mod metrics_json;
 pub mod replace;
-pub mod sessions;
+pub mod session_columns;
 pub mod topview;
 
 use crate::output::dataset::DatasetError;
@@ -134,14 +133,14 @@ pub fn stage_database_dir(outputs: &mut Outputs, dir: &Path) -> Result<PathBuf, 
 /// Writes `database.csv`, `labels.csv` and `metrics.json` into directory
 /// `dir` (one from [`stage_database_dir`]); `metrics` must be a flat JSON
 /// object. With `sessions` (a run of several sessions), the two tables
-/// carry the session columns ([`sessions`]).
+/// carry the session columns ([`session_columns`]).
 pub fn write_database_dir(
     dir: &Path,
     rows: &[DbRow],
     timestamps: &[f64],
     labels: &[usize],
     metrics: &serde_json::Value,
-    sessions: Option<sessions::SessionOf<'_>>,
+    sessions: Option<session_columns::SessionOf<'_>>,
 ) -> Result<(), DatasetError> {
     let metrics_path = dir.join("metrics.json");
     let metrics = metrics_json::text(metrics).map_err(|source| DatasetError::Write {
@@ -150,8 +149,8 @@ pub fn write_database_dir(
     })?;
     let (database, labels) = match sessions {
         Some(session_of) => (
-            sessions::database_csv(rows, session_of),
-            sessions::labels_csv(timestamps, labels, session_of),
+            session_columns::database_csv(rows, session_of),
+            session_columns::labels_csv(timestamps, labels, session_of),
         ),
         None => (database_csv(rows), labels_csv(timestamps, labels)),
     };

@@ -5,8 +5,8 @@
 use super::png;
 use super::unfilter;
 use crate::error::ReadError;
-use crate::frame_keys::VectorUnit;
 use crate::sequence::DepthImage;
+use crate::vector_unit::VectorUnit;
 use std::path::Path;
 
 /// Decodes `bytes` as a 16-bit greyscale depth PNG, as [`super::decode_depth_png`]

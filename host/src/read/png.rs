@@ -13,7 +13,7 @@
 use super::unfilter;
 use crate::error::ReadError;
 use crate::sequence::{DepthImage, DepthSource};
-use crate::voxelize::frame_keys::VectorUnit;
+use crate::vector_unit::VectorUnit;
 use std::cell::RefCell;
 use std::path::{Path, PathBuf};
 

@@ -18,7 +18,7 @@
 //! rows of an image that do not fill a group, and other targets take the
 //! row-at-a-time path; every path is checked against the specification.
 
-use crate::voxelize::frame_keys::VectorUnit;
+use crate::vector_unit::VectorUnit;
 
 /// Undoes the filters of `scanlines` in place: rows of `1 + row_bytes` bytes,
 /// each a filter type byte followed by the filtered row. `row_bytes` must be

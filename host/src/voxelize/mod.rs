@@ -8,7 +8,8 @@ pub(crate) mod key_cells;
 
 use crate::error::ReadError;
 use crate::sequence::{DepthImage, Sequence};
-use crate::voxelize::frame_keys::{frame_keys, VectorUnit};
+use crate::vector_unit::VectorUnit;
+use crate::voxelize::frame_keys::frame_keys;
 use crate::voxelize::key_cells::{axes, BoxCells};
 use indicatif::ProgressBar;
 use placedb::{DepthRange, FrameProjector, VoxelGrid};
@@ -85,7 +86,7 @@ pub enum VoxelizeError {
     },
     /// No frame, no valid depth pixel, or every point out of key range.
     #[error(transparent)]
-    NothingMeasured(#[from] crate::degradation::NothingMeasured),
+    NothingMeasured(#[from] crate::error::NothingMeasured),
 }
 
 /// Voxelizes every frame; frames are processed in parallel, results are in order.

@@ -669,7 +669,7 @@ fn exact_locals(
 mod tests {
     use super::*;
     use crate::rng::SplitMix64;
-    use crate::voxelize::frame_keys::VectorUnit;
+    use crate::vector_unit::VectorUnit;
     use placedb::{DepthRange, FrameProjector, Intrinsics, Pose, VoxelGrid};
 
     /// A 640x480 frame of a tilted plane seen from a random pose, raws in

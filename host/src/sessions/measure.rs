@@ -6,7 +6,7 @@
 //! are a floor), and its voxels count in `spatial_coverage` through the
 //! extension file's `all_voxels`.
 
-use crate::output::extension::{Extension, Fate, Measured};
+use crate::sessions::extension::{Extension, Fate, Measured};
 use crate::yardstick::graph::CoObservation;
 use crate::yardstick::metrics::{self, Metrics, PerFrame};
 

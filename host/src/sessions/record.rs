@@ -1,13 +1,15 @@
 //! The extension file of a `select` run: what the next session needs of
-//! this one and of every session before it ([`crate::output::extension`]).
+//! this one and of every session before it ([`crate::sessions::extension`]).
 
-use crate::extend::config::origin_name;
-use crate::output::extension::Fate;
-use crate::output::extension::{DbFrame, Extension, FrameEntry, Measured, OnlineConfig, RunConfig};
 use crate::output::DbRow;
-use crate::pipeline::{Prepared, Solver, SolverParams};
+use crate::pipeline::{Outcome, Prepared, Solver, SolverParams};
 use crate::replay::OnlineRun;
 use crate::sequence::Sequence;
+use crate::sessions::config::origin_name;
+use crate::sessions::extension::Fate;
+use crate::sessions::extension::{
+    DbFrame, Extension, FrameEntry, Measured, OnlineConfig, RunConfig,
+};
 use crate::yardstick::metrics;
 use placedb::key_pool::Aabb;
 use placedb::Decision;
@@ -34,6 +36,42 @@ pub struct SessionRun<'a> {
     pub measured: &'a [Measured],
     /// The online replay, for `online`.
     pub online: Option<&'a OnlineRun>,
+}
+
+/// The extension file of a one-session run (every `select` writes one, so
+/// that its output directory can be extended later).
+pub fn first_session(
+    seq: &Sequence,
+    prep: &Prepared,
+    o: &Outcome,
+    params: &SolverParams,
+    mu: f32,
+    rows: &[DbRow],
+) -> Extension {
+    let (eval_sets, eval_co) = prep.eval();
+    let per = metrics::per_frame(&eval_sets.sets, eval_co, &o.database, mu);
+    let measured: Vec<Measured> = per
+        .coverage
+        .iter()
+        .zip(&per.covered)
+        .map(|(&c, &covered)| Measured {
+            coverage: c as f32,
+            covered,
+        })
+        .collect();
+    let run = SessionRun {
+        seq,
+        prep,
+        solver: o.solver,
+        mu,
+        params,
+        database: &o.database,
+        rows,
+        labels: &o.labels,
+        measured: &measured,
+        online: o.online.as_ref(),
+    };
+    extension(None, &run)
 }
 
 /// The extension file after `run`, on top of `earlier` (`None`: the first session).

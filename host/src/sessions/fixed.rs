@@ -4,7 +4,7 @@
 //! are taken already; a new frame they overlap is covered already; the
 //! solver covers the rest with new frames only.
 
-use crate::output::extension::Extension;
+use crate::sessions::extension::Extension;
 use crate::yardstick::graph::{CoObservation, OverlapGraph};
 use crate::yardstick::solve::greedy::{greedy_cover, Incidence};
 

@@ -1,8 +1,8 @@
 //! What a later session must share with the sessions it extends, checked
 //! before any work: a mismatch is refused naming both values.
 
-use crate::output::extension::Extension;
 use crate::pipeline::{Solver, SolverParams};
+use crate::sessions::extension::Extension;
 use crate::voxelize::VoxelConfig;
 use placedb::VoxelGrid;
 use std::path::Path;

@@ -1,9 +1,32 @@
-//! One frame's sampled rows cut into `DepthRows` messages: the one place
-//! the host splits a frame for the wire (the device client's
-//! `Session::push_frame`, `bench --db-scaling`'s probe frames, the power-cut
-//! tests) and into the chunks the online replay pushes.
+//! A frame's rows as the core receives them: the depth image sampled at the
+//! run's stride ([`sampled_rows`]) and cut into `DepthRows` messages
+//! ([`row_chunks`]). The one place the host makes a frame's rows, for the
+//! wire (the device client's `Session::push_frame`, `bench --db-scaling`'s
+//! probe frames, the power-cut tests) and for the online replay, so that the
+//! replay and a board see the very same samples.
 
+use crate::sequence::DepthImage;
 use placedb::protocol::{DepthRows, HostMessage};
+
+/// The rows a board receives for one frame: sampled rows of sampled columns.
+pub fn sampled_rows(img: &DepthImage, stride: u16) -> (usize, Vec<u16>) {
+    sampled_rows_of(&img.data, img.width, stride)
+}
+
+/// [`sampled_rows`] of a row-major buffer `width` values wide (a frame held
+/// in memory, e.g. a camera driver's): its rows `0, stride, 2 stride, ...`,
+/// each sampled the same way. A last partial row is ignored.
+pub fn sampled_rows_of(data: &[u16], width: u16, stride: u16) -> (usize, Vec<u16>) {
+    let s = stride.max(1) as usize;
+    let w = width as usize;
+    let height = data.len().checked_div(w).unwrap_or(0);
+    let sampled = w.div_ceil(s);
+    let mut out = Vec::with_capacity(sampled * height.div_ceil(s));
+    for row in data.chunks_exact(w.max(1)).take(height).step_by(s) {
+        out.extend(row.iter().step_by(s));
+    }
+    (sampled, out)
+}
 
 /// One `DepthRows` payload: `row_count` strided rows from strided row
 /// `first_row` on, as the little-endian bytes the message carries.
@@ -30,7 +53,7 @@ impl RowChunk {
 }
 
 /// `values`, one frame's sampled rows of `width` values each (as
-/// [`crate::replay::sampled_rows`] gives them), in chunks of
+/// [`sampled_rows`] gives them), in chunks of
 /// `rows_per_message` rows (the last one may hold fewer).
 pub fn row_chunks(
     width: usize,
