@@ -8,7 +8,6 @@
 //! or replay) and [`bench`] → [`output`] (the one writer of a run's files),
 //! [`read`] and [`synth`] (sequences in) → [`sequence`].
 
-pub mod bench;
 pub mod cli;
 pub mod degradation;
 pub mod device;
@@ -28,9 +27,6 @@ pub mod vector_unit;
 pub mod voxelize;
 pub mod yardstick;
 
-mod compat;
-
-pub use compat::*;
 pub use error::ReadError;
 pub use sequence::{CameraModel, ColorImage, DepthImage, DepthSource, Format, FrameInfo, Sequence};
 pub use voxelize::{voxelize, voxelize_on, GridOrigin, VoxelConfig, VoxelSets};

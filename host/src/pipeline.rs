@@ -14,7 +14,7 @@ use placedb::{ScanConfig, SelectorConfig, VoxelGrid};
 use std::time::{Duration, Instant};
 
 /// Solver names (DESIGN section 2).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Solver {
     /// The paper's result: take a frame iff no taken frame overlaps it.

@@ -64,13 +64,12 @@ impl FrameInfo {
 }
 
 /// Sequence layouts the readers understand.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Format {
     /// TUM RGB-D: depth.txt, rgb.txt, groundtruth.txt.
     Tum,
     /// Microsoft 7-Scenes: frame-XXXXXX.depth.png and .pose.txt.
-    #[value(name = "7scenes")]
     #[serde(rename = "7scenes")]
     SevenScenes,
     /// The reference code's layout: depth/, color/, poses file, intrinsics.txt.
@@ -79,7 +78,6 @@ pub enum Format {
     Ros2,
     /// The built-in synthetic renderer (`--demo`; not a layout to read, so
     /// `--format` does not offer it).
-    #[value(skip)]
     Synthetic,
 }
 

@@ -5,8 +5,8 @@
 //! in-process one (`local:`) behind a link that answers late, so that the
 //! frames after the first are due while it is busy, whatever the machine.
 
+use placedb_host::cli::stream::realtime::realtime_on;
 use placedb_host::device::link::{Link, LocalLink};
-use placedb_host::device::pacing::realtime_on;
 use placedb_host::testing::{demo, selector, voxel_config};
 use placedb_host::{DepthImage, DepthSource, ReadError};
 use std::collections::VecDeque;

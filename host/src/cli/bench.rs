@@ -1,10 +1,52 @@
-//! `placedb bench`: its arguments; the measurements are in [`crate::bench`].
+//! `placedb bench`: its arguments and its measurements, each in a file of
+//! its own: the timing table ([`timing`]), and instruction counts
+//! ([`instructions`]): per pixel on the QEMU board ([`pixel_cost`]), one
+//! frame against a small and a large database ([`db_scaling`]), the Pico's
+//! cycles under rp2040js ([`pico`], with its flash work [`flash_count`]).
 
-use crate::bench::{db_scaling, instructions, pico, timing, BenchOptions};
 use crate::error::CommandError as Error;
 use crate::pipeline::Solver;
 use clap::Args;
 use std::path::PathBuf;
+
+pub mod db_scaling;
+pub mod flash_count;
+pub mod instructions;
+pub mod pico;
+pub mod pixel_cost;
+pub mod timing;
+
+/// What the measurements of `placedb bench` are run on (its arguments, see
+/// `placedb bench --help`).
+#[derive(Debug, Clone)]
+pub struct BenchOptions {
+    /// Directory holding the recorded samples (7scenes-1000, vprdb-test-db).
+    pub data: PathBuf,
+    /// Solvers of the timing table.
+    pub solvers: Vec<Solver>,
+    /// Pixel stride.
+    pub stride: u16,
+    /// Frames of the synthetic scan.
+    pub synthetic_frames: usize,
+    /// `--core`: frames of 7scenes-1000 to replay.
+    pub core_frames: usize,
+    /// `--device`: frames of 7scenes-1000 (twice as many synthetic ones).
+    pub device_frames: usize,
+    /// `--db-scaling`: frames of the building.
+    pub building_frames: usize,
+    /// Rounds of the timing table.
+    pub repeat: u32,
+}
+
+/// `x` with `decimals` decimals, or "-" where it does not apply (NaN, or
+/// infinite: a figure the run did not report, or a ratio to nothing).
+pub fn figure(x: f64, decimals: usize) -> String {
+    if x.is_finite() {
+        format!("{x:.decimals$}")
+    } else {
+        "-".to_string()
+    }
+}
 
 #[derive(Args)]
 pub struct BenchArgs {
@@ -51,7 +93,7 @@ pub struct BenchArgs {
     /// With --pico: frames of each stride's scan streamed before the
     /// measured ones and not counted, so that those meet a full window as
     /// in a long scan (default: the 16 frames the window holds).
-    #[arg(long, requires = "pico", default_value_t = usize::from(crate::bench::pixel_cost::SELECTOR.window))]
+    #[arg(long, requires = "pico", default_value_t = usize::from(pixel_cost::SELECTOR.window))]
     warm_up: usize,
     /// With --pico: print one JSON object instead of the tables.
     #[arg(long, requires = "pico")]

@@ -1,10 +1,13 @@
 //! `placedb device`: an emulated board (QEMU or the Pico under rp2040js) in
 //! the foreground, its port printed.
 
-use crate::device::emulator::{qemu, rp2040};
+use crate::device::emulator::rp2040::{self, Rp2040Options};
+use crate::device::emulator::{qemu, wait_in_foreground};
+use crate::device::flash_timing::FlashTiming;
 use crate::error::CommandError as Error;
 use clap::Args;
 use std::path::PathBuf;
+use std::time::Duration;
 
 /// `placedb device`.
 #[derive(Args)]
@@ -35,15 +38,68 @@ pub struct DeviceArgs {
     /// page program, in emulated time (W25Q16JV datasheet: typical 45 ms and
     /// 0.4 ms, max 400 ms and 3 ms; none: no time).
     #[arg(long, default_value = "typical", requires = "rp2040")]
-    flash_timing: crate::device::flash_timing::FlashTiming,
+    flash_timing: FlashTiming,
 }
 
 /// Runs `placedb device`.
 pub fn run(a: DeviceArgs) -> Result<(), Error> {
-    if a.rp2040 {
-        rp2040::device_cmd(a.firmware, a.port, a.flash, a.flash_timing)?;
+    let (stopped, ended) = if a.rp2040 {
+        (run_rp2040(a)?, "the emulator")
     } else {
-        qemu::device_cmd(a.firmware, a.port, !a.no_icount, a.flash)?;
+        (run_qemu(a)?, "QEMU")
+    };
+    if let Some(signal) = stopped {
+        println!("stopped (signal {signal}): {ended} ended");
     }
     Ok(())
+}
+
+/// `placedb device --qemu`: QEMU in the foreground, its port printed.
+fn run_qemu(a: DeviceArgs) -> Result<Option<i32>, Error> {
+    let (mut child, port) =
+        qemu::spawn_foreground(a.firmware, a.port, !a.no_icount, a.flash.as_deref())?;
+    println!("emulated board (mps2-an386, profile ram512k) on port tcp:127.0.0.1:{port}");
+    println!("  e.g. placedb stream --port tcp:127.0.0.1:{port} --demo --stride 8 --max-frames 30");
+    println!("       placedb export --port tcp:127.0.0.1:{port} -o out");
+    match &a.flash {
+        Some(f) => println!(
+            "  flash kept in {}: after a restart, `placedb stream --resume` goes on with the scan",
+            f.display()
+        ),
+        None => println!("  no --flash file: the board starts empty every time"),
+    }
+    println!("  Ctrl-C (or SIGTERM, SIGHUP) stops it, QEMU with it");
+    Ok(wait_in_foreground(&mut child, "QEMU")?)
+}
+
+/// `placedb device --rp2040`: the emulated Pico in the foreground.
+fn run_rp2040(a: DeviceArgs) -> Result<Option<i32>, Error> {
+    let firmware = a.firmware.unwrap_or_else(rp2040::default_firmware);
+    let flash_timing = a.flash_timing;
+    let options = Rp2040Options {
+        flash: a.flash.clone(),
+        port: a.port,
+        deadline: Duration::ZERO,
+        flash_timing,
+        ..Rp2040Options::default()
+    };
+    rp2040::check_setup(&firmware, &options)?;
+    println!("emulated Raspberry Pi Pico (rp2040js, profile ram256k), USB CDC-ACM bridged to TCP");
+    println!(
+        "  flash timing {flash_timing}: {:?} per sector erase, {:?} per page program (W25Q16JV datasheet), in emulated time",
+        flash_timing.sector_erase(),
+        flash_timing.page_program()
+    );
+    println!("  e.g. placedb stream --port tcp:127.0.0.1:PORT --profile ram256k --demo --stride 8 --max-frames 30");
+    println!("       placedb export --port tcp:127.0.0.1:PORT -o out");
+    match &a.flash {
+        Some(f) => println!(
+            "  flash kept in {} (2 MiB): after a restart, `placedb stream --resume` goes on with the scan",
+            f.display()
+        ),
+        None => println!("  no --flash file: the board starts with an erased flash every time"),
+    }
+    println!("  Ctrl-C (or SIGTERM, SIGHUP) stops it, the emulator with it");
+    let mut child = rp2040::spawn_foreground(&firmware, &options)?;
+    Ok(wait_in_foreground(&mut child, "the RP2040 emulator")?)
 }

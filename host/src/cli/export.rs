@@ -7,8 +7,13 @@ use crate::device::client::connect;
 use crate::device::error::DeviceError;
 use crate::device::export::{self, export_to, Export, ExportOptions};
 use crate::error::CommandError as Error;
-use crate::output::{self, dataset, exports, replace};
+use crate::output::dataset::DatasetError;
+use crate::output::exports::{write_all, ExportTargets, Selection};
+use crate::output::replace::Outputs;
+use crate::output::{self, dataset, replace};
 use crate::read::{self, ReadOptions};
+use crate::sequence::Sequence;
+use crate::voxelize::{VoxelConfig, VoxelizeError};
 use crate::Format;
 use clap::Args;
 use std::path::{Path, PathBuf};
@@ -42,9 +47,25 @@ pub struct ExportArgs {
     #[arg(long, short)]
     quiet: bool,
     #[command(flatten)]
-    exports: exports::ExportFlags,
+    exports: super::ExportFlags,
     #[command(flatten)]
-    streamed: exports::StreamedWith,
+    streamed: StreamedWith,
+}
+
+/// What `export --sequence` needs to know of the stream for the exports
+/// (the device does not report it).
+#[derive(clap::Args, Debug, Clone)]
+pub struct StreamedWith {
+    /// With --pairs: the IoU threshold the sequence was streamed with.
+    #[arg(long, default_value_t = 0.3, value_parser = super::params::mu, allow_negative_numbers = true)]
+    pub mu: f32,
+    /// With --pairs: the voxel edge in metres the sequence was streamed with.
+    #[arg(long, default_value_t = 0.3, value_parser = super::params::voxel, allow_negative_numbers = true)]
+    pub voxel: f32,
+    /// With --vpr-eval: a test sequence of the same place, whose frames are
+    /// the queries (otherwise the non-database frames are).
+    #[arg(long)]
+    pub test: Option<PathBuf>,
 }
 
 /// `placedb export`, and the dataset of the exported labels when asked.
@@ -61,16 +82,17 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
         }
         None => None,
     };
-    if seq.is_some() && a.dataset.is_none() && !a.exports.any() {
+    let targets = a.exports.targets();
+    if seq.is_some() && a.dataset.is_none() && !targets.any() {
         return Err("--sequence is for --dataset, --colmap, --vpr-eval or --pairs".into());
     }
-    if a.exports.any() && seq.is_none() {
+    if targets.any() && seq.is_none() {
         return Err(
             "--colmap, --vpr-eval and --pairs need --sequence SEQ (the streamed sequence)".into(),
         );
     }
     // A refused or unwritable output fails before the device is asked.
-    output::check_outputs(&a.out, a.dataset.as_deref(), &a.exports)?;
+    output::check_outputs(&a.out, a.dataset.as_deref(), &targets)?;
     let mut client = connect(&a.port)?;
     let export = export::pull(
         &mut client,
@@ -121,14 +143,7 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
             Some(dir) => Some((dir, dataset::stage(outputs, dir, seq, &export.labels().1)?)),
             None => None,
         };
-        let exported = exports::device::write_from_device(
-            &a.exports,
-            &a.streamed,
-            seq,
-            &export,
-            a.quiet,
-            outputs,
-        )?;
+        let exported = write_from_device(&targets, &a.streamed, seq, &export, a.quiet, outputs)?;
         Ok((dataset, exported))
     })?;
     export::finished(&a.out, &export, a.quiet)?;
@@ -155,4 +170,53 @@ pub fn export_cmd(
     output::check_database_dir(out)?;
     let mut client = connect(port)?;
     export_to(&mut client, out, from, quiet)
+}
+
+/// The exports of `placedb export --sequence SEQ`: writes those `flags`
+/// asks for from `export`, the device's records of streamed sequence `seq`,
+/// into `outputs`, through the same writers as `placedb select`'s, so that a
+/// board's scan and the host's replay of it export alike; returns a line
+/// about each.
+pub fn write_from_device(
+    flags: &ExportTargets,
+    streamed: &StreamedWith,
+    seq: &Sequence,
+    export: &Export,
+    quiet: bool,
+    outputs: &mut Outputs,
+) -> Result<Vec<String>, DatasetError> {
+    if !flags.any() {
+        return Ok(Vec::new());
+    }
+    // database.csv's rows, as `select --solver online` writes them.
+    let rows = crate::output::rows_from_records(&export.database());
+    let (_, labels) = export.labels();
+    // The overlaps of the streamed frames, on the grid the device used.
+    let prep = match &flags.pairs {
+        Some(_) => {
+            let config = VoxelConfig {
+                voxel: streamed.voxel,
+                ..VoxelConfig::default()
+            };
+            let prep = crate::pipeline::prepare(seq, config, quiet).map_err(|e| match e {
+                VoxelizeError::Read(r) => DatasetError::Read(r),
+                other => DatasetError::Mismatch(other.to_string()),
+            })?;
+            Some(prep)
+        }
+        None => None,
+    };
+    let test = match &streamed.test {
+        Some(path) => Some(read::open(path, &ReadOptions::default())?),
+        None => None,
+    };
+    let sel = Selection {
+        seq,
+        rows: &rows,
+        labels: &labels,
+        overlaps: prep.as_ref().map(|p| &p.co),
+        mu: streamed.mu,
+        test: test.as_ref(),
+    };
+    write_all(flags, &sel, outputs)
 }

@@ -15,9 +15,11 @@ pub mod params;
 pub mod select;
 pub mod stream;
 pub mod synth;
+mod values;
 
 use crate::error::CommandError as Error;
 use crate::output::dataset::DatasetSummary;
+use crate::output::exports::ExportTargets;
 use crate::pipeline::SolverParams;
 use crate::read::{self, ReadOptions};
 use crate::synth::SynthConfig;
@@ -25,6 +27,34 @@ use crate::{CameraModel, Format, GridOrigin, Sequence, VoxelConfig};
 use clap::Args;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
+
+/// The export options shared by `select` and `export`.
+#[derive(Args, Debug, Clone, Default)]
+pub struct ExportFlags {
+    /// Also write the database frames as a COLMAP text model here:
+    /// sparse/0/{cameras,images,points3D}.txt and images/ (docs/exports.md).
+    #[arg(long)]
+    pub colmap: Option<PathBuf>,
+    /// Also write VPR-methods-evaluation's layout here: database/ and
+    /// queries/ named @east@north@index@.jpg (docs/exports.md).
+    #[arg(long)]
+    pub vpr_eval: Option<PathBuf>,
+    /// Also write hloc's retrieval pairs to this file: each non-database
+    /// frame with the database frames it overlaps above mu, best first.
+    #[arg(long)]
+    pub pairs: Option<PathBuf>,
+}
+
+impl ExportFlags {
+    /// Where the exports asked for go.
+    pub fn targets(&self) -> ExportTargets {
+        ExportTargets {
+            colmap: self.colmap.clone(),
+            vpr_eval: self.vpr_eval.clone(),
+            pairs: self.pairs.clone(),
+        }
+    }
+}
 
 /// Where the frames come from and how they become voxel sets.
 #[derive(Args, Clone)]

@@ -35,7 +35,7 @@ pub struct SelectArgs {
     #[command(flatten)]
     params: ParamArgs,
     #[command(flatten)]
-    exports: exports::ExportFlags,
+    exports: super::ExportFlags,
     /// Add this sequence as a new session to the database in this earlier
     /// output directory (its extension file; the earlier sequences need not
     /// be present): its database frames are kept, only what the new frames
@@ -52,7 +52,8 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
     let t0 = Instant::now();
     let params = solver_params(&a.params)?;
     // A refused or unwritable output fails the run before the work.
-    output::check_outputs(&a.out, a.dataset.as_deref(), &a.exports)?;
+    let targets = a.exports.targets();
+    output::check_outputs(&a.out, a.dataset.as_deref(), &targets)?;
     let seq = open_sequence(&a.seq)?;
     super::warn_voxel_memory(&seq, &a.seq);
     let prep = pipeline::prepare(&seq, voxel_config(&a.seq), a.params.quiet)?;
@@ -116,7 +117,7 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
             None => None,
         };
         let exported = exports::write_all(
-            &a.exports,
+            &targets,
             &exports::Selection {
                 seq: &seq,
                 rows: &rows,

@@ -18,6 +18,8 @@ use placedb::SelectorConfig;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
+pub mod realtime;
+
 /// `placedb stream`: the sequence options of select, a port and the selector's.
 #[derive(Args)]
 pub struct StreamArgs {
@@ -106,7 +108,7 @@ pub fn run(a: StreamArgs) -> Result<(), Error> {
     // is touched.
     degradation::check_depth(&seq, v.range, v.stride)?;
     if a.realtime {
-        crate::device::pacing::realtime_cmd(&a.port, &seq, &v, sel, &a.profile, out)?;
+        realtime::realtime_cmd(&a.port, &seq, &v, sel, &a.profile, out)?;
         return Ok(());
     }
     let recovery = Recovery {

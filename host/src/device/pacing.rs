@@ -6,16 +6,13 @@
 //! --realtime`) replays a recorded sequence so, at its recorded rate, and
 //! names every frame it skipped.
 
-use super::client::Client;
 use super::error::DeviceError;
-use super::link::{self, Link};
-use super::scan::{stream_config, DepthFrame, StreamOptions};
+use super::link::Link;
+use super::scan::DepthFrame;
 use super::session::Session;
 use crate::degradation::plural;
-use crate::{Sequence, VoxelConfig};
+use crate::Sequence;
 use placedb::protocol::{Config, Status};
-use placedb::SelectorConfig;
-use std::path::Path;
 use std::time::{Duration, Instant};
 
 /// The longest [`Session::busy`] waits for a reply that is on its way.
@@ -186,86 +183,6 @@ impl RealtimeReport {
             index_ranges(&self.sent)
         )))
     }
-}
-
-/// `placedb stream --realtime`: replays `seq` to the device on `port` at
-/// its recorded rate ([`realtime_on`]). A refused `seq`, selector, profile
-/// or `out` fails before the port is opened.
-pub fn realtime_cmd(
-    port: &str,
-    seq: &Sequence,
-    vcfg: &VoxelConfig,
-    sel: SelectorConfig,
-    profile: &str,
-    out: Option<&Path>,
-) -> Result<RealtimeReport, DeviceError> {
-    stream_config(seq, vcfg, sel, profile)?;
-    if let Some(dir) = out {
-        crate::output::check_database_dir(dir)?;
-    }
-    let link = link::open(port, Duration::from_secs(10))?;
-    realtime_on(link, port, seq, vcfg, sel, profile, out)
-}
-
-/// `placedb stream --realtime` on `link` (the device on `port`):
-/// [`stream_realtime`] at the recorded rate, refused if it measured nothing
-/// ([`RealtimeReport::check_measured`]); prints what was skipped and the
-/// database the device got, and with `out` exports it there, with
-/// `skipped.csv` (sequence frame and timestamp of every skipped frame).
-pub fn realtime_on<L: Link>(
-    link: L,
-    port: &str,
-    seq: &Sequence,
-    vcfg: &VoxelConfig,
-    sel: SelectorConfig,
-    profile: &str,
-    out: Option<&Path>,
-) -> Result<RealtimeReport, DeviceError> {
-    let (scan, sel, cfg) = stream_config(seq, vcfg, sel, profile)?;
-    let mut session = Session::new(Client::new(link), StreamOptions::default());
-    let report = stream_realtime(&mut session, seq, &cfg, profile, 1.0)?;
-    report.check_measured(seq)?;
-    let n = seq.frames.len();
-    println!(
-        "{}: {n} frames replayed at the recorded {:.1} frames/s in {:.1} s: {} sent, {} skipped \
-         (the device was busy when they were due; they have no label)",
-        seq.name,
-        report.rate,
-        report.wall.as_secs_f64(),
-        report.sent.len(),
-        report.skipped.len(),
-    );
-    if !report.skipped.is_empty() {
-        println!("  skipped frames: {}", index_ranges(&report.skipped));
-    }
-    println!(
-        "  database: {} frames on the device ({profile} profile, mu {}, window {}, stride {}); \
-         the device numbers the {} sent frames 0..{}",
-        report.status.database_size,
-        sel.mu,
-        sel.window,
-        scan.stride,
-        report.sent.len(),
-        report.sent.len(),
-    );
-    match out {
-        Some(dir) => {
-            let mut csv = String::from("frame,timestamp\n");
-            for &i in &report.skipped {
-                csv.push_str(&format!("{i},{:.6}\n", seq.frames[i].timestamp));
-            }
-            // skipped.csv is part of the export's directory: both or neither.
-            session.export_to_with(dir, &[("skipped.csv", csv)])?;
-            let path = dir.join("skipped.csv");
-            println!(
-                "  {} skipped frames listed in {}",
-                report.skipped.len(),
-                path.display()
-            );
-        }
-        None => println!("  pull the result with: placedb export --port {port} -o DIR"),
-    }
-    Ok(report)
 }
 
 #[cfg(test)]

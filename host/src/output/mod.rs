@@ -111,7 +111,7 @@ pub fn check_database_dir(dir: &Path) -> Result<(), DatasetError> {
 pub fn check_outputs(
     out: &Path,
     dataset: Option<&Path>,
-    exports: &exports::ExportFlags,
+    exports: &exports::ExportTargets,
 ) -> Result<(), DatasetError> {
     check_database_dir(out)?;
     if let Some(dir) = dataset {

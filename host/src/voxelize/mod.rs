@@ -16,7 +16,7 @@ use placedb::{DepthRange, FrameProjector, VoxelGrid};
 use std::time::{Duration, Instant};
 
 /// Where voxel (0, 0, 0) starts.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum GridOrigin {
     /// The world origin: what the device does, since it cannot know the scene in advance.

@@ -18,7 +18,7 @@ use std::time::Instant;
 /// Runs `placedb select` with `--extend from`.
 pub(super) fn run(a: SelectArgs, from: &Path) -> Result<(), Error> {
     let t0 = Instant::now();
-    if a.dataset.is_some() || a.params.test.is_some() || a.exports.any() {
+    if a.dataset.is_some() || a.params.test.is_some() || a.exports.targets().any() {
         return Err(
             "--extend does not combine with --dataset, --test, --colmap, --vpr-eval or --pairs yet"
                 .into(),

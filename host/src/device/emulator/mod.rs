@@ -47,21 +47,18 @@ pub fn build_board(board: &str, elf: PathBuf, build: bool, how: &str) -> Result<
 /// Waits for an emulator started with [`foreground::spawn`] until it exits
 /// or a signal stops placedb (Ctrl-C, SIGTERM, SIGHUP), which stops the
 /// emulator first; on Linux the emulator is also killed if placedb dies any
-/// other way. `exited` names it when it exits by itself, `ended` when a
-/// signal ended it. The one launcher of `placedb device`'s boards.
+/// other way. `exited` names it when it exits by itself. Returns the
+/// signal that stopped it, if one did. The one launcher of `placedb
+/// device`'s boards.
 pub fn wait_in_foreground(
     child: &mut std::process::Child,
     exited: &str,
-    ended: &str,
-) -> Result<(), DeviceError> {
+) -> Result<Option<i32>, DeviceError> {
     match foreground::wait(child)? {
-        foreground::Ended::Exited(status) if status.success() => Ok(()),
+        foreground::Ended::Exited(status) if status.success() => Ok(None),
         foreground::Ended::Exited(status) => Err(DeviceError::Io(io::Error::other(format!(
             "{exited} exited: {status}"
         )))),
-        foreground::Ended::Stopped(signal) => {
-            println!("stopped (signal {signal}): {ended} ended");
-            Ok(())
-        }
+        foreground::Ended::Stopped(signal) => Ok(Some(signal)),
     }
 }

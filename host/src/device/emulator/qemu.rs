@@ -456,17 +456,18 @@ fn accept_within(
     }
 }
 
-/// `placedb device --qemu`: boots the emulated board with UART0 listening on
-/// `tcp:127.0.0.1:PORT` (0: a free port) and waits until QEMU exits. Ctrl-C,
-/// SIGTERM or SIGHUP stop QEMU first, and on Linux QEMU is killed if placedb
-/// dies any other way ([`super::foreground`]). `icount` makes instruction
-/// counting exact.
-pub fn device_cmd(
+/// The emulated board of `placedb device --qemu`, started in the
+/// foreground with UART0 listening on `tcp:127.0.0.1:PORT` (0: a free
+/// port): returns QEMU's process and the port. Wait for it with
+/// [`super::wait_in_foreground`]: Ctrl-C, SIGTERM or SIGHUP stop QEMU first,
+/// and on Linux QEMU is killed if placedb dies any other way
+/// ([`super::foreground`]). `icount` makes instruction counting exact.
+pub fn spawn_foreground(
     firmware: Option<PathBuf>,
     port: u16,
     icount: bool,
-    flash: Option<PathBuf>,
-) -> Result<(), DeviceError> {
+    flash: Option<&Path>,
+) -> Result<(std::process::Child, u16), DeviceError> {
     let firmware = firmware.unwrap_or_else(default_firmware);
     if !firmware.is_file() {
         return Err(DeviceError::Input(format!(
@@ -481,11 +482,11 @@ pub fn device_cmd(
             .port(),
         p => p,
     };
-    if let Some(f) = &flash {
+    if let Some(f) = flash {
         prepare_flash_file(f)?;
     }
     let mut options = QemuOptions {
-        flash,
+        flash: flash.map(Path::to_path_buf),
         ..QemuOptions::default()
     };
     if icount {
@@ -497,7 +498,7 @@ pub fn device_cmd(
         &format!("tcp:127.0.0.1:{port},server,nowait"),
     );
     // QEMU ends with placedb, whatever stops it (foreground.rs).
-    let mut child = super::foreground::spawn(&mut command).map_err(|e| {
+    let child = super::foreground::spawn(&mut command).map_err(|e| {
         DeviceError::Io(io::Error::new(
             e.kind(),
             format!(
@@ -506,18 +507,7 @@ pub fn device_cmd(
             ),
         ))
     })?;
-    println!("emulated board (mps2-an386, profile ram512k) on port tcp:127.0.0.1:{port}");
-    println!("  e.g. placedb stream --port tcp:127.0.0.1:{port} --demo --stride 8 --max-frames 30");
-    println!("       placedb export --port tcp:127.0.0.1:{port} -o out");
-    match &options.flash {
-        Some(f) => println!(
-            "  flash kept in {}: after a restart, `placedb stream --resume` goes on with the scan",
-            f.display()
-        ),
-        None => println!("  no --flash file: the board starts empty every time"),
-    }
-    println!("  Ctrl-C (or SIGTERM, SIGHUP) stops it, QEMU with it");
-    super::wait_in_foreground(&mut child, "QEMU", "QEMU")
+    Ok((child, port))
 }
 
 #[cfg(test)]

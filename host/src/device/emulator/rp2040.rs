@@ -147,7 +147,7 @@ pub fn harness_command(firmware: &Path, options: &Rp2040Options) -> Command {
 
 /// Checks what the harness needs before starting it, with a message that
 /// says how to fix each thing.
-fn check_setup(firmware: &Path, options: &Rp2040Options) -> io::Result<()> {
+pub fn check_setup(firmware: &Path, options: &Rp2040Options) -> io::Result<()> {
     let missing = |what: String| Err(io::Error::new(io::ErrorKind::NotFound, what));
     if !firmware.is_file() {
         return missing(format!(
@@ -391,44 +391,19 @@ fn collect_lines(
         })
 }
 
-/// `placedb device --rp2040`: runs the emulated Pico in the foreground
-/// (its TCP port printed), until Ctrl-C, SIGTERM or SIGHUP, which stop the
-/// emulator first ([`super::foreground`]).
-pub fn device_cmd(
-    firmware: Option<PathBuf>,
-    port: u16,
-    flash: Option<PathBuf>,
-    flash_timing: FlashTiming,
-) -> Result<(), DeviceError> {
-    let firmware = firmware.unwrap_or_else(default_firmware);
-    let options = Rp2040Options {
-        flash: flash.clone(),
-        port,
-        deadline: Duration::ZERO,
-        flash_timing,
-        ..Rp2040Options::default()
-    };
-    check_setup(&firmware, &options).map_err(|e| DeviceError::Input(e.to_string()))?;
-    println!("emulated Raspberry Pi Pico (rp2040js, profile ram256k), USB CDC-ACM bridged to TCP");
-    println!(
-        "  flash timing {flash_timing}: {:?} per sector erase, {:?} per page program (W25Q16JV datasheet), in emulated time",
-        flash_timing.sector_erase(),
-        flash_timing.page_program()
-    );
-    println!("  e.g. placedb stream --port tcp:127.0.0.1:PORT --profile ram256k --demo --stride 8 --max-frames 30");
-    println!("       placedb export --port tcp:127.0.0.1:PORT -o out");
-    match &flash {
-        Some(f) => println!(
-            "  flash kept in {} (2 MiB): after a restart, `placedb stream --resume` goes on with the scan",
-            f.display()
-        ),
-        None => println!("  no --flash file: the board starts with an erased flash every time"),
-    }
-    println!("  Ctrl-C (or SIGTERM, SIGHUP) stops it, the emulator with it");
+/// The emulated Pico of `placedb device --rp2040`, started in the
+/// foreground on `port` (0: a free port, which the harness prints): returns
+/// the harness's process. `check_setup` has refused a missing firmware,
+/// emulator or flash file before it starts. Wait for it with
+/// [`super::wait_in_foreground`], which stops the emulator first on Ctrl-C,
+/// SIGTERM or SIGHUP ([`super::foreground`]).
+pub fn spawn_foreground(
+    firmware: &Path,
+    options: &Rp2040Options,
+) -> Result<std::process::Child, DeviceError> {
     // The emulator ends with placedb, whatever stops it (foreground.rs).
-    let mut child = super::foreground::spawn(&mut harness_command(&firmware, &options))
-        .map_err(|e| DeviceError::Input(format!("cannot start node (Node 20 or later): {e}")))?;
-    super::wait_in_foreground(&mut child, "the RP2040 emulator", "the emulator")
+    super::foreground::spawn(&mut harness_command(firmware, options))
+        .map_err(|e| DeviceError::Input(format!("cannot start node (Node 20 or later): {e}")))
 }
 
 #[cfg(test)]

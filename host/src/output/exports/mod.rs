@@ -7,7 +7,6 @@
 //! outputs ([`crate::output::replace`]).
 
 pub mod colmap;
-pub mod device;
 pub mod image;
 pub mod pairs;
 pub mod vpr_eval;
@@ -20,24 +19,22 @@ use crate::sequence::Sequence;
 use crate::yardstick::graph::CoObservation;
 use std::path::{Path, PathBuf};
 
-/// The export options shared by `select` and `export`.
-#[derive(clap::Args, Debug, Clone, Default)]
-pub struct ExportFlags {
-    /// Also write the database frames as a COLMAP text model here:
+/// Where the exports go (`select` and `export`'s `--colmap`, `--vpr-eval`
+/// and `--pairs`): each `None` is not written.
+#[derive(Debug, Clone, Default)]
+pub struct ExportTargets {
+    /// The database frames as a COLMAP text model:
     /// sparse/0/{cameras,images,points3D}.txt and images/ (docs/exports.md).
-    #[arg(long)]
     pub colmap: Option<PathBuf>,
-    /// Also write VPR-methods-evaluation's layout here: database/ and
-    /// queries/ named @east@north@index@.jpg (docs/exports.md).
-    #[arg(long)]
+    /// VPR-methods-evaluation's layout: database/ and queries/ named
+    /// @east@north@index@.jpg (docs/exports.md).
     pub vpr_eval: Option<PathBuf>,
-    /// Also write hloc's retrieval pairs to this file: each non-database
-    /// frame with the database frames it overlaps above mu, best first.
-    #[arg(long)]
+    /// hloc's retrieval pairs: each non-database frame with the database
+    /// frames it overlaps above mu, best first.
     pub pairs: Option<PathBuf>,
 }
 
-impl ExportFlags {
+impl ExportTargets {
     /// Whether any export was asked for.
     pub fn any(&self) -> bool {
         self.colmap.is_some() || self.vpr_eval.is_some() || self.pairs.is_some()
@@ -70,24 +67,6 @@ impl ExportFlags {
 /// The exports' names in a refusal.
 const COLMAP: &str = "a COLMAP export";
 const VPR_EVAL: &str = "a VPR-evaluation export";
-
-/// What `export --sequence` needs to know of the stream for the exports
-/// (the device does not report it).
-#[derive(clap::Args, Debug, Clone)]
-pub struct StreamedWith {
-    /// With --pairs: the IoU threshold the sequence was streamed with.
-    // The command line's one parser of each parameter (the only use of
-    // `cli` below it: these two are options of `placedb export`).
-    #[arg(long, default_value_t = 0.3, value_parser = crate::cli::params::mu, allow_negative_numbers = true)]
-    pub mu: f32,
-    /// With --pairs: the voxel edge in metres the sequence was streamed with.
-    #[arg(long, default_value_t = 0.3, value_parser = crate::cli::params::voxel, allow_negative_numbers = true)]
-    pub voxel: f32,
-    /// With --vpr-eval: a test sequence of the same place, whose frames are
-    /// the queries (otherwise the non-database frames are).
-    #[arg(long)]
-    pub test: Option<PathBuf>,
-}
 
 /// A selection as the exports see it.
 pub struct Selection<'a> {
@@ -173,7 +152,7 @@ fn write_err(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
 /// Writes every export `flags` asks for into `outputs` (renamed into place
 /// with the run's other outputs); returns a line about each.
 pub fn write_all(
-    flags: &ExportFlags,
+    flags: &ExportTargets,
     sel: &Selection,
     outputs: &mut Outputs,
 ) -> Result<Vec<String>, DatasetError> {

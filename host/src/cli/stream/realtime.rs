@@ -1,0 +1,95 @@
+//! `placedb stream --realtime`: a recorded sequence replayed to a device at
+//! its recorded rate ([`crate::device::pacing::stream_realtime`]), frames
+//! the device is still busy for skipped and named, and the summary printed.
+
+use crate::device::client::Client;
+use crate::device::error::DeviceError;
+use crate::device::link::{self, Link};
+use crate::device::pacing::{index_ranges, stream_realtime, RealtimeReport};
+use crate::device::scan::{stream_config, StreamOptions};
+use crate::device::session::Session;
+use crate::sequence::Sequence;
+use crate::voxelize::VoxelConfig;
+use placedb::SelectorConfig;
+use std::path::Path;
+use std::time::Duration;
+
+/// `placedb stream --realtime`: replays `seq` to the device on `port` at
+/// its recorded rate ([`realtime_on`]). A refused `seq`, selector, profile
+/// or `out` fails before the port is opened.
+pub fn realtime_cmd(
+    port: &str,
+    seq: &Sequence,
+    vcfg: &VoxelConfig,
+    sel: SelectorConfig,
+    profile: &str,
+    out: Option<&Path>,
+) -> Result<RealtimeReport, DeviceError> {
+    stream_config(seq, vcfg, sel, profile)?;
+    if let Some(dir) = out {
+        crate::output::check_database_dir(dir)?;
+    }
+    let link = link::open(port, Duration::from_secs(10))?;
+    realtime_on(link, port, seq, vcfg, sel, profile, out)
+}
+
+/// `placedb stream --realtime` on `link` (the device on `port`):
+/// [`stream_realtime`] at the recorded rate, refused if it measured nothing
+/// ([`RealtimeReport::check_measured`]); prints what was skipped and the
+/// database the device got, and with `out` exports it there, with
+/// `skipped.csv` (sequence frame and timestamp of every skipped frame).
+pub fn realtime_on<L: Link>(
+    link: L,
+    port: &str,
+    seq: &Sequence,
+    vcfg: &VoxelConfig,
+    sel: SelectorConfig,
+    profile: &str,
+    out: Option<&Path>,
+) -> Result<RealtimeReport, DeviceError> {
+    let (scan, sel, cfg) = stream_config(seq, vcfg, sel, profile)?;
+    let mut session = Session::new(Client::new(link), StreamOptions::default());
+    let report = stream_realtime(&mut session, seq, &cfg, profile, 1.0)?;
+    report.check_measured(seq)?;
+    let n = seq.frames.len();
+    println!(
+        "{}: {n} frames replayed at the recorded {:.1} frames/s in {:.1} s: {} sent, {} skipped \
+         (the device was busy when they were due; they have no label)",
+        seq.name,
+        report.rate,
+        report.wall.as_secs_f64(),
+        report.sent.len(),
+        report.skipped.len(),
+    );
+    if !report.skipped.is_empty() {
+        println!("  skipped frames: {}", index_ranges(&report.skipped));
+    }
+    println!(
+        "  database: {} frames on the device ({profile} profile, mu {}, window {}, stride {}); \
+         the device numbers the {} sent frames 0..{}",
+        report.status.database_size,
+        sel.mu,
+        sel.window,
+        scan.stride,
+        report.sent.len(),
+        report.sent.len(),
+    );
+    match out {
+        Some(dir) => {
+            let mut csv = String::from("frame,timestamp\n");
+            for &i in &report.skipped {
+                csv.push_str(&format!("{i},{:.6}\n", seq.frames[i].timestamp));
+            }
+            // skipped.csv is part of the export's directory: both or neither.
+            session.export_to_with(dir, &[("skipped.csv", csv)])?;
+            let path = dir.join("skipped.csv");
+            println!(
+                "  {} skipped frames listed in {}",
+                report.skipped.len(),
+                path.display()
+            );
+        }
+        None => println!("  pull the result with: placedb export --port {port} -o DIR"),
+    }
+    Ok(report)
+}
