@@ -55,6 +55,9 @@ pub struct Client<L: Link> {
     pending: Vec<u8>,
     next_seq: u32,
     tx: Vec<u8>,
+    /// Bytes of every message's first transmission (retransmissions not
+    /// counted): what a scan costs the link.
+    first_sent_bytes: u64,
 }
 
 impl<L: Link> Client<L> {
@@ -66,7 +69,14 @@ impl<L: Link> Client<L> {
             pending: Vec::new(),
             next_seq: 1,
             tx: vec![0u8; MAX_FRAME_LEN],
+            first_sent_bytes: 0,
         }
+    }
+
+    /// Bytes of every message sent by [`Client::send`] so far, as encoded
+    /// (retransmissions by [`Client::send_as`] not counted).
+    pub fn first_sent_bytes(&self) -> u64 {
+        self.first_sent_bytes
     }
 
     /// The underlying link.
@@ -92,6 +102,7 @@ impl<L: Link> Client<L> {
         let seq = self.take_seq();
         let frame = encode(&HostFrame { seq, msg }, &mut self.tx)
             .map_err(|e| io::Error::new(io::ErrorKind::InvalidInput, e))?;
+        self.first_sent_bytes += frame.len() as u64;
         self.link.send(frame)?;
         Ok(seq)
     }

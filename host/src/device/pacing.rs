@@ -44,11 +44,7 @@ impl<L: Link> Session<L> {
         if self.busy()? {
             return Ok(None);
         }
-        let in_flight = self.state.opts.in_flight;
-        self.state.opts.in_flight = usize::MAX;
-        let pushed = self.push_frame(frame);
-        self.state.opts.in_flight = in_flight;
-        pushed.map(Some)
+        self.state.push_unbounded(&mut self.client, frame).map(Some)
     }
 }
 

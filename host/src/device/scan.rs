@@ -27,8 +27,8 @@ use crate::sequence::Sequence;
 use crate::voxelize::{self, GridOrigin, VoxelConfig};
 use indicatif::ProgressBar;
 use placedb::protocol::{
-    depth_rows_per_message, encode, CapacitySlot, Config, DecisionKind, DeviceMessage, ErrorKind,
-    HostFrame, HostMessage, Phase, Status, MAX_FRAME_LEN,
+    depth_rows_per_message, CapacitySlot, Config, DecisionKind, DeviceMessage, ErrorKind,
+    HostMessage, Phase, Status,
 };
 use placedb::{Intrinsics, Pose, ScanConfig, SelectorConfig, VoxelGrid};
 use std::collections::VecDeque;
@@ -397,28 +397,66 @@ pub struct DepthFrame<'a> {
 /// [`Session`](crate::device::session::Session) (owning its client) and
 /// [`stream`] (borrowing one) run the very same code.
 pub(crate) struct ScanState {
-    pub(crate) opts: StreamOptions,
+    opts: StreamOptions,
     outstanding: VecDeque<(u32, String)>,
     /// The configuration sent in the Hello.
     cfg: Option<Config>,
     /// Strided rows per DepthRows message.
     rows_per_msg: u16,
-    pub(crate) next_frame: u32,
+    next_frame: u32,
     /// The device's index of this scan's first frame (see
     /// [`StreamReport::first_index`]).
-    pub(crate) first_index: u32,
-    pub(crate) decisions: Vec<Option<DecisionKind>>,
-    pub(crate) new_decisions: Vec<(u32, DecisionKind)>,
-    pub(crate) status: Option<Status>,
-    pub(crate) bytes: u64,
-    pub(crate) messages: u64,
-    pub(crate) retransmissions: u64,
+    first_index: u32,
+    decisions: Vec<Option<DecisionKind>>,
+    new_decisions: Vec<(u32, DecisionKind)>,
+    status: Option<Status>,
+    bytes: u64,
+    messages: u64,
+    retransmissions: u64,
     /// When the Hello was sent.
-    pub(crate) started: Option<Instant>,
-    tx: Vec<u8>,
+    started: Option<Instant>,
 }
 
 impl ScanState {
+    /// The newest status the device sent, if any.
+    pub(crate) fn last_status(&self) -> Option<&Status> {
+        self.status.as_ref()
+    }
+
+    /// Final decisions received since the last call, as `(frame, decision)`.
+    pub(crate) fn take_new_decisions(&mut self) -> Vec<(u32, DecisionKind)> {
+        std::mem::take(&mut self.new_decisions)
+    }
+
+    /// Final decision of every frame pushed so far, by index.
+    pub(crate) fn decisions(&self) -> &[Option<DecisionKind>] {
+        &self.decisions
+    }
+
+    /// Index the next pushed frame gets.
+    pub(crate) fn next_frame(&self) -> u32 {
+        self.next_frame
+    }
+
+    /// Bytes of the scan's messages, as first sent.
+    pub(crate) fn bytes_sent(&self) -> u64 {
+        self.bytes
+    }
+
+    /// [`ScanState::push`] with no bound on the messages in flight for this
+    /// one frame (a live caller has checked the device is not busy).
+    pub(crate) fn push_unbounded<L: Link>(
+        &mut self,
+        client: &mut Client<L>,
+        frame: &DepthFrame<'_>,
+    ) -> Result<u32, DeviceError> {
+        let in_flight = self.opts.in_flight;
+        self.opts.in_flight = usize::MAX;
+        let pushed = self.push(client, frame);
+        self.opts.in_flight = in_flight;
+        pushed
+    }
+
     pub(crate) fn new(opts: StreamOptions) -> Self {
         ScanState {
             opts,
@@ -434,7 +472,6 @@ impl ScanState {
             messages: 0,
             retransmissions: 0,
             started: None,
-            tx: vec![0u8; MAX_FRAME_LEN],
         }
     }
 
@@ -659,21 +696,23 @@ impl ScanState {
         while self.outstanding.len() >= self.opts.in_flight.max(1) {
             self.pump(client)?;
         }
-        self.bytes += encode(&HostFrame { seq: 0, msg }, &mut self.tx)
-            .map(|f| f.len() as u64)
-            .unwrap_or(0);
+        // The bytes are counted as the client encodes the message: once.
+        let before = client.first_sent_bytes();
         self.messages += 1;
         if self.opts.retries > 0 {
             let what = what();
-            let (replies, resent) = send_and_wait(client, msg, &what, self.opts.wait())?;
+            let sent = send_and_wait(client, msg, &what, self.opts.wait());
+            self.bytes += client.first_sent_bytes() - before;
+            let (replies, resent) = sent?;
             self.retransmissions += resent;
             for item in &replies {
                 self.note(item);
             }
             return Ok(());
         }
-        let seq = client.send(msg)?;
-        self.outstanding.push_back((seq, what()));
+        let seq = client.send(msg);
+        self.bytes += client.first_sent_bytes() - before;
+        self.outstanding.push_back((seq?, what()));
         Ok(())
     }
 

@@ -112,7 +112,7 @@ impl<L: Link> Session<L> {
 
     /// The newest status the device sent, if any.
     pub fn last_status(&self) -> Option<&Status> {
-        self.state.status.as_ref()
+        self.state.last_status()
     }
 
     /// Waits for every outstanding reply, then asks for the status.
@@ -123,18 +123,18 @@ impl<L: Link> Session<L> {
 
     /// Final decisions received since the last call, as `(frame, decision)`.
     pub fn take_decisions(&mut self) -> Vec<(u32, DecisionKind)> {
-        std::mem::take(&mut self.state.new_decisions)
+        self.state.take_new_decisions()
     }
 
     /// Final decision of every frame pushed so far, by index (`None`: not
     /// decided yet, or its reply was lost: the export has it).
     pub fn decisions(&self) -> &[Option<DecisionKind>] {
-        &self.state.decisions
+        self.state.decisions()
     }
 
     /// Index the next pushed frame gets.
     pub fn next_frame(&self) -> u32 {
-        self.state.next_frame
+        self.state.next_frame()
     }
 
     /// Ends the scan: Finish (decides every pending frame), then waits for

@@ -73,7 +73,7 @@ pub fn extend(
     let (eval, absent) = fixed::combined_sets(ext, &eval_sets.sets, true, Missing::Empty)
         .map_err(ExtendError::Refused)?;
     let eval_co = CoObservation::new(&eval, None);
-    let (metrics, measured) = measure::over_sessions(&ext, &eval, &eval_co, &db_positions, mu);
+    let (metrics, measured) = measure::over_sessions(ext, &eval, &eval_co, &db_positions, mu);
     // Labels judged on the solver's own sets, where coverage is promised.
     let (sets, _) = fixed::combined_sets(ext, &prep.sets.sets, false, Missing::Empty)
         .map_err(ExtendError::Refused)?;
@@ -100,7 +100,7 @@ pub fn extend(
             .collect(),
     };
     let o = Outcome {
-        solver: solver,
+        solver,
         database: solved.database.clone(),
         labels: solved.labels.clone(),
         metrics,
@@ -114,11 +114,11 @@ pub fn extend(
     let next = record::extension(
         Some(ext),
         &record::SessionRun {
-            seq: seq,
-            prep: prep,
-            solver: solver,
-            mu: mu,
-            params: params,
+            seq,
+            prep,
+            solver,
+            mu,
+            params,
             database: &o.database,
             rows: &rows,
             labels: &o.labels[first..],

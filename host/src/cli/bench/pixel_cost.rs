@@ -183,7 +183,7 @@ pub fn stream_warmed<L: Link>(
     for i in 0..n {
         if i == warm_up {
             state.drain(client)?;
-            warm = Some((state.call_status(client)?, state.bytes));
+            warm = Some((state.call_status(client)?, state.bytes_sent()));
         }
         state.push_sequence_frame(client, seq, i, cfg.intrinsics)?;
         state.send(client, HostMessage::StatusRequest, || {
@@ -198,7 +198,7 @@ pub fn stream_warmed<L: Link>(
         warm,
         end,
         warm_bytes,
-        end_bytes: state.bytes,
+        end_bytes: state.bytes_sent(),
         frames: n,
     })
 }
