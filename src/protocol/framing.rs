@@ -516,7 +516,10 @@ impl<const N: usize> FrameDecoder<N> {
                 return Push::NeedMore;
             }
             if self.len == 0 {
-                // Empty frame (a lone delimiter): resynchronisation, no message.
+                // Empty frame (a lone delimiter): resynchronisation, no
+                // message. Nothing is held and no frame is open: room for
+                // input in place starts where the next frame will.
+                self.held_at = self.start;
                 input = rest;
                 continue;
             }

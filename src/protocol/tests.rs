@@ -1160,3 +1160,63 @@ fn input_received_in_place_decodes_as_pushed_input() {
         assert!(!decoder.is_mid_frame());
     }
 }
+
+/// The device takes a packet in place when the decoder has room for it and
+/// pushes (copies) it otherwise, so the two paths alternate on one stream.
+/// Whatever the path of each packet, the frames are the ones a pushed-only
+/// stream gives: in particular a lone delimiter (the host's resynchronisation
+/// byte) taken by the copying path must not shift the next in-place frame.
+#[test]
+fn copying_and_in_place_receive_mix_on_one_stream() {
+    let data: Vec<u8> = (0..300u32).map(|i| (i * 11 % 251) as u8 + 1).collect();
+    let frame_of = |seq: u32, k: usize| {
+        encode_vec(&HostFrame {
+            seq,
+            msg: HostMessage::DepthRows(DepthRows {
+                frame: 3,
+                first_row: 0,
+                row_count: 1,
+                data: &data[..k],
+            }),
+        })
+    };
+    // Packets: a lone delimiter, frames, a delimiter then a frame, two frames.
+    let mut packets: Vec<Vec<u8>> = vec![vec![0], frame_of(1, 10), vec![0]];
+    packets.push([&[0u8][..], &frame_of(2, 40)].concat());
+    packets.push(frame_of(3, 0));
+    packets.push([frame_of(4, 7), frame_of(5, 200)].concat());
+    packets.push(vec![0, 0]);
+    packets.push(frame_of(6, 1));
+    let stream = packets.concat();
+    let expected = run_host(&[&stream]);
+    assert_eq!(expected.len(), 6);
+    assert!(expected.iter().all(|r| r.is_ok()));
+    // Every assignment of the two paths to the packets.
+    for paths in 0u32..1 << packets.len() {
+        let mut decoder = FrameDecoder::<N>::new();
+        let mut got = Vec::new();
+        for (i, packet) in packets.iter().enumerate() {
+            if paths & 1 << i != 0 {
+                let mut rest: &[u8] = packet;
+                while let Feed::Frame { result, remaining } = decoder.feed::<HostFrame>(rest) {
+                    got.push(result.map(|f| encode_vec(&f)));
+                    rest = remaining;
+                }
+                continue;
+            }
+            let room = decoder.spare(packet.len());
+            assert!(room.len() >= packet.len());
+            room[..packet.len()].copy_from_slice(packet);
+            decoder.commit(packet.len());
+            while decoder.holds_input() {
+                match decoder.push_held() {
+                    Held::NeedMore => {}
+                    Held::Ready => got.push(decoder.decode::<HostFrame>().map(|f| encode_vec(&f))),
+                    Held::Error(error) => got.push(Err(error)),
+                }
+            }
+        }
+        assert_eq!(got, expected, "paths {paths:#b}");
+        assert!(!decoder.is_mid_frame());
+    }
+}
