@@ -26,6 +26,7 @@ const LAYERS: &[&str] = &[
     "synth",
     "read",
     "sequence",
+    "picture",
     "vector_unit",
     "rng",
     "error",

@@ -22,7 +22,8 @@
 //! colour, `color/` is left out (the layout needs one per depth image).
 
 use crate::error::ReadError;
-use crate::sequence::{ColorImage, Sequence};
+use crate::picture::png::Samples;
+use crate::sequence::Sequence;
 use rayon::prelude::*;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -163,7 +164,8 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
                 .collect();
             for t in &targets {
                 let path = t.join("depth").join(format!("{}.png", name(i)));
-                write_png16(&path, depth.width, depth.height, &mm)?;
+                let (w, h) = (u32::from(depth.width), u32::from(depth.height));
+                write_png(&path, w, h, Samples::Grey16(&mm))?;
             }
             if color {
                 match &colors[i] {
@@ -186,7 +188,7 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
                         })?;
                         for t in &targets {
                             let path = t.join("color").join(format!("{}.png", name(i)));
-                            write_png_rgb(&path, &img)?;
+                            write_png(&path, img.width, img.height, Samples::Rgb8(&img.rgb))?;
                         }
                     }
                 }
@@ -236,51 +238,12 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
     })
 }
 
-fn write_png16(path: &Path, w: u16, h: u16, data: &[u16]) -> Result<(), DatasetError> {
-    let bytes: Vec<u8> = data.iter().flat_map(|v| v.to_be_bytes()).collect();
-    write_png(
-        path,
-        u32::from(w),
-        u32::from(h),
-        png::ColorType::Grayscale,
-        png::BitDepth::Sixteen,
-        &bytes,
-    )
-}
-
-fn write_png_rgb(path: &Path, img: &ColorImage) -> Result<(), DatasetError> {
-    write_png(
-        path,
-        u32::from(img.width),
-        u32::from(img.height),
-        png::ColorType::Rgb,
-        png::BitDepth::Eight,
-        &img.rgb,
-    )
-}
-
+/// Writes `path` with the one PNG writer ([`crate::picture::png`]).
 fn write_png(
     path: &Path,
-    w: u32,
-    h: u32,
-    color: png::ColorType,
-    depth: png::BitDepth,
-    bytes: &[u8],
+    width: u32,
+    height: u32,
+    samples: Samples<'_>,
 ) -> Result<(), DatasetError> {
-    let png_err = |e: png::EncodingError| DatasetError::Write {
-        path: path.to_path_buf(),
-        source: std::io::Error::other(e),
-    };
-    // Encoded in memory and written in one call, so that a failing write
-    // (a full disk) is an error, not a file cut short when a buffer drops.
-    let mut out = Vec::with_capacity(bytes.len() / 2 + 1024);
-    let mut enc = png::Encoder::new(&mut out, w, h);
-    enc.set_color(color);
-    enc.set_depth(depth);
-    // Fast compression: a dataset of thousands of frames is written once.
-    enc.set_compression(png::Compression::Fast);
-    let mut writer = enc.write_header().map_err(png_err)?;
-    writer.write_image_data(bytes).map_err(png_err)?;
-    writer.finish().map_err(png_err)?;
-    std::fs::write(path, out).map_err(write_err(path))
+    crate::picture::png::write(path, width, height, samples).map_err(write_err(path))
 }

@@ -3,7 +3,8 @@
 //! and a rendering of its depth where the sequence has no colour.
 
 use crate::output::dataset::DatasetError;
-use crate::sequence::{ColorImage, Sequence};
+use crate::picture::Image;
+use crate::sequence::Sequence;
 
 /// JPEG quality of re-encoded colour and of depth renderings.
 pub const QUALITY: u8 = 95;
@@ -20,8 +21,9 @@ pub fn frame_jpeg(seq: &Sequence, i: usize) -> Result<Vec<u8>, DatasetError> {
             seq.frames.len()
         ))
     })?;
-    let check = |what: String, size: (u16, u16)| {
-        if size == seq.size {
+    let (w, h) = seq.size;
+    let check = |what: String, size: (u32, u32)| {
+        if size == (u32::from(w), u32::from(h)) {
             Ok(())
         } else {
             Err(DatasetError::Mismatch(format!(
@@ -45,28 +47,21 @@ pub fn frame_jpeg(seq: &Sequence, i: usize) -> Result<Vec<u8>, DatasetError> {
             let size = jpeg_size(&bytes).ok_or_else(|| {
                 DatasetError::Mismatch(format!("{shown}: not a readable JPEG file"))
             })?;
-            check(format!("colour image {shown}"), size)?;
+            check(
+                format!("colour image {shown}"),
+                (u32::from(size.0), u32::from(size.1)),
+            )?;
             return Ok(bytes);
         }
         let img = decode_png_rgb(&bytes).map_err(|e| {
             DatasetError::Mismatch(format!("{shown}: cannot read the colour image: {e}"))
         })?;
         check(format!("colour image {shown}"), (img.width, img.height))?;
-        return encode(
-            &img.rgb,
-            img.width,
-            img.height,
-            jpeg_encoder::ColorType::Rgb,
-        );
+        return encode(&img.rgb, w, h, jpeg_encoder::ColorType::Rgb);
     }
     if let Some(img) = seq.source.color(i)? {
         check("its colour image".into(), (img.width, img.height))?;
-        return encode(
-            &img.rgb,
-            img.width,
-            img.height,
-            jpeg_encoder::ColorType::Rgb,
-        );
+        return encode(&img.rgb, w, h, jpeg_encoder::ColorType::Rgb);
     }
     let depth = seq.depth(i)?;
     let grey: Vec<u8> = depth
@@ -134,7 +129,7 @@ pub fn jpeg_size(bytes: &[u8]) -> Option<(u16, u16)> {
 
 /// An 8-bit RGB image from a PNG file's bytes (grey, palette, alpha and
 /// 16-bit samples converted).
-fn decode_png_rgb(bytes: &[u8]) -> Result<ColorImage, String> {
+fn decode_png_rgb(bytes: &[u8]) -> Result<Image, String> {
     let mut dec = png::Decoder::new(std::io::Cursor::new(bytes));
     dec.set_transformations(png::Transformations::normalize_to_color8());
     let mut reader = dec.read_info().map_err(|e| e.to_string())?;
@@ -155,10 +150,9 @@ fn decode_png_rgb(bytes: &[u8]) -> Result<ColorImage, String> {
             _ => [p[0], p[1], p[2]],
         })
         .collect();
-    let size = |v: u32| u16::try_from(v).map_err(|_| format!("{v} pixels is too large"));
-    Ok(ColorImage {
-        width: size(info.width)?,
-        height: size(info.height)?,
+    Ok(Image {
+        width: info.width,
+        height: info.height,
         rgb,
     })
 }
