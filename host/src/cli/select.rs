@@ -105,7 +105,7 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
                 annotate::render(&view, &caption)
                     .image
                     .write_png(&path)
-                    .map_err(|source| dataset::DatasetError::Write { path, source })
+                    .map_err(|source| crate::error::OutputError::Write { path, source })
             },
         );
         written?;

@@ -21,7 +21,7 @@
 //! (a ROS 2 bag's colour topic) is written as PNG. When some frames have no
 //! colour, `color/` is left out (the layout needs one per depth image).
 
-use crate::error::ReadError;
+use crate::error::OutputError;
 use crate::picture::png::Samples;
 use crate::sequence::Sequence;
 use rayon::prelude::*;
@@ -30,25 +30,6 @@ use std::path::{Path, PathBuf};
 
 /// Depth units per metre of the layout's depth PNGs.
 pub const DEPTH_SCALE: f64 = 1000.0;
-
-/// Why a dataset could not be written.
-#[derive(Debug, thiserror::Error)]
-pub enum DatasetError {
-    /// Reading a frame failed.
-    #[error(transparent)]
-    Read(#[from] ReadError),
-    /// Writing a file failed.
-    #[error("{path}: {source}")]
-    Write {
-        /// The file.
-        path: PathBuf,
-        /// Why.
-        source: std::io::Error,
-    },
-    /// Labels or database that do not fit the sequence.
-    #[error("{0}")]
-    Mismatch(String),
-}
 
 /// The dataset's name in a refusal.
 pub const DATASET: &str = "a dataset";
@@ -60,7 +41,7 @@ pub fn is_dataset(dir: &Path) -> bool {
 }
 
 /// Refuses, before the work, a target [`stage`] would refuse.
-pub fn check(dir: &Path) -> Result<(), DatasetError> {
+pub fn check(dir: &Path) -> Result<(), OutputError> {
     crate::output::replace::check_dir(dir, DATASET, is_dataset)
 }
 
@@ -71,7 +52,7 @@ pub fn stage(
     dir: &Path,
     seq: &Sequence,
     labels: &[usize],
-) -> Result<DatasetSummary, DatasetError> {
+) -> Result<DatasetSummary, OutputError> {
     let d = outputs.dir(dir, DATASET, is_dataset)?;
     write(&d, seq, labels)
 }
@@ -87,8 +68,8 @@ pub struct DatasetSummary {
     pub color: bool,
 }
 
-fn write_err(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
-    move |source| DatasetError::Write {
+fn write_err(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {
+    move |source| OutputError::Write {
         path: path.to_path_buf(),
         source,
     }
@@ -103,9 +84,9 @@ enum Color {
 /// Writes the dataset of `seq` labelled by `labels` (one class, a frame
 /// index, per frame from 0; a device's export may hold fewer frames than the
 /// sequence) into `dir`.
-pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSummary, DatasetError> {
+pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSummary, OutputError> {
     if labels.len() > seq.frames.len() {
-        return Err(DatasetError::Mismatch(format!(
+        return Err(OutputError::Mismatch(format!(
             "{} labels for a sequence of {} frames",
             labels.len(),
             seq.frames.len()
@@ -116,7 +97,7 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
         .enumerate()
         .find(|&(_, &c)| c >= labels.len() || labels[c] != c)
     {
-        return Err(DatasetError::Mismatch(format!(
+        return Err(OutputError::Mismatch(format!(
             "frame {i} has class {c}, which is not a database frame"
         )));
     }
@@ -142,7 +123,7 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
     let name = |i: usize| format!("{i:06}");
     frames
         .par_iter()
-        .try_for_each(|&i| -> Result<(), DatasetError> {
+        .try_for_each(|&i| -> Result<(), OutputError> {
             let in_db = labels[i] == i;
             let targets: Vec<&Path> = if in_db {
                 vec![dir, &database_dir]
@@ -173,7 +154,7 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
                         let ext = src.extension().and_then(|e| e.to_str()).unwrap_or("png");
                         for t in &targets {
                             let path = t.join("color").join(format!("{}.{ext}", name(i)));
-                            std::fs::copy(src, &path).map_err(|e| DatasetError::Write {
+                            std::fs::copy(src, &path).map_err(|e| OutputError::Write {
                                 source: std::io::Error::new(
                                     e.kind(),
                                     format!("copying {}: {e}", src.display()),
@@ -184,7 +165,7 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
                     }
                     _ => {
                         let img = seq.source.color(i)?.ok_or_else(|| {
-                            DatasetError::Mismatch(format!("frame {i}: colour vanished"))
+                            OutputError::Mismatch(format!("frame {i}: colour vanished"))
                         })?;
                         for t in &targets {
                             let path = t.join("color").join(format!("{}.png", name(i)));
@@ -244,6 +225,6 @@ fn write_png(
     width: u32,
     height: u32,
     samples: Samples<'_>,
-) -> Result<(), DatasetError> {
+) -> Result<(), OutputError> {
     crate::picture::png::write(path, width, height, samples).map_err(write_err(path))
 }

@@ -6,7 +6,7 @@
 use super::SelectArgs;
 use crate::cli::{open_sequence, solver_params, voxel_config};
 use crate::error::CommandError as Error;
-use crate::output::dataset::DatasetError;
+use crate::error::OutputError;
 use crate::output::{self, annotate, metrics_json, replace, topview};
 use crate::pipeline::{self, Solver};
 use crate::sessions::extension;
@@ -114,7 +114,7 @@ pub(super) fn run(a: SelectArgs, from: &Path) -> Result<(), Error> {
         annotate::render(&view, &caption)
             .image
             .write_png(&path)
-            .map_err(|source| DatasetError::Write { path, source })?;
+            .map_err(|source| OutputError::Write { path, source })?;
         extension::write(&dir.join(extension::FILE_NAME), &next)
     })?;
     if a.params.json {

@@ -2,7 +2,7 @@
 //! its colour file as it is when that is a JPEG, other colour re-encoded,
 //! and a rendering of its depth where the sequence has no colour.
 
-use crate::output::dataset::DatasetError;
+use crate::error::OutputError;
 use crate::picture::Image;
 use crate::sequence::Sequence;
 
@@ -14,9 +14,9 @@ pub const RENDER_FAR: f64 = 8.0;
 
 /// The bytes of frame `i`'s JPEG. Its size must be the depth images'
 /// (the exports' camera is the sequence's intrinsics).
-pub fn frame_jpeg(seq: &Sequence, i: usize) -> Result<Vec<u8>, DatasetError> {
+pub fn frame_jpeg(seq: &Sequence, i: usize) -> Result<Vec<u8>, OutputError> {
     let frame = seq.frames.get(i).ok_or_else(|| {
-        DatasetError::Mismatch(format!(
+        OutputError::Mismatch(format!(
             "frame {i} is not in the sequence of {} frames",
             seq.frames.len()
         ))
@@ -26,14 +26,14 @@ pub fn frame_jpeg(seq: &Sequence, i: usize) -> Result<Vec<u8>, DatasetError> {
         if size == (u32::from(w), u32::from(h)) {
             Ok(())
         } else {
-            Err(DatasetError::Mismatch(format!(
+            Err(OutputError::Mismatch(format!(
                 "frame {i}: {what} is {}x{}, the depth images (whose intrinsics the export's camera has) are {}x{}",
                 size.0, size.1, seq.size.0, seq.size.1
             )))
         }
     };
     if let Some(path) = &frame.color_path {
-        let bytes = std::fs::read(path).map_err(|source| DatasetError::Write {
+        let bytes = std::fs::read(path).map_err(|source| OutputError::Write {
             path: path.clone(),
             source,
         })?;
@@ -45,7 +45,7 @@ pub fn frame_jpeg(seq: &Sequence, i: usize) -> Result<Vec<u8>, DatasetError> {
         let shown = path.display().to_string();
         if ext == "jpg" || ext == "jpeg" {
             let size = jpeg_size(&bytes).ok_or_else(|| {
-                DatasetError::Mismatch(format!("{shown}: not a readable JPEG file"))
+                OutputError::Mismatch(format!("{shown}: not a readable JPEG file"))
             })?;
             check(
                 format!("colour image {shown}"),
@@ -54,7 +54,7 @@ pub fn frame_jpeg(seq: &Sequence, i: usize) -> Result<Vec<u8>, DatasetError> {
             return Ok(bytes);
         }
         let img = decode_png_rgb(&bytes).map_err(|e| {
-            DatasetError::Mismatch(format!("{shown}: cannot read the colour image: {e}"))
+            OutputError::Mismatch(format!("{shown}: cannot read the colour image: {e}"))
         })?;
         check(format!("colour image {shown}"), (img.width, img.height))?;
         return encode(&img.rgb, w, h, jpeg_encoder::ColorType::Rgb);
@@ -89,11 +89,11 @@ fn encode(
     w: u16,
     h: u16,
     colour: jpeg_encoder::ColorType,
-) -> Result<Vec<u8>, DatasetError> {
+) -> Result<Vec<u8>, OutputError> {
     let mut out = Vec::new();
     jpeg_encoder::Encoder::new(&mut out, QUALITY)
         .encode(data, w, h, colour)
-        .map_err(|e| DatasetError::Mismatch(format!("JPEG encoding failed: {e}")))?;
+        .map_err(|e| OutputError::Mismatch(format!("JPEG encoding failed: {e}")))?;
     Ok(out)
 }
 
