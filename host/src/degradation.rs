@@ -154,13 +154,6 @@ impl DeviceCounters {
     }
 }
 
-/// Prints each line as a `placedb: warning:` on stderr.
-pub fn warn_all(lines: &[String]) {
-    for line in lines {
-        crate::read::warn(line);
-    }
-}
-
 /// "1 frame", "2 frames", "0 frames".
 pub fn plural(n: u64, one: &str, many: &str) -> String {
     if n == 1 {

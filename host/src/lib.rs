@@ -26,6 +26,7 @@ pub mod synth;
 pub mod testing;
 pub mod vector_unit;
 pub mod voxelize;
+pub mod warning;
 pub mod yardstick;
 
 pub use error::ReadError;

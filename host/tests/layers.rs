@@ -30,6 +30,7 @@ const LAYERS: &[&str] = &[
     "vector_unit",
     "rng",
     "error",
+    "warning",
 ];
 
 fn src() -> PathBuf {

@@ -37,7 +37,7 @@ pub fn run(a: CompareArgs) -> Result<(), Error> {
     let mut all = Vec::new();
     // The input's losses are every solver's: warned once; the online
     // core's own, once per mu.
-    degradation::warn_all(&prep.losses.warnings());
+    crate::warning::warn_all(&prep.losses.warnings());
     for &mu in &a.mu {
         for solver in Solver::ALL {
             let mut o = pipeline::solve(&seq, &prep, solver, mu, &params, true)?;
@@ -47,7 +47,7 @@ pub fn run(a: CompareArgs) -> Result<(), Error> {
             if let Some(run) = &o.online {
                 let w = degradation::device_warnings(&DeviceCounters::of_selector(&run.status));
                 let w: Vec<String> = w.iter().map(|l| format!("at mu {mu}: {l}")).collect();
-                degradation::warn_all(&w);
+                crate::warning::warn_all(&w);
             }
             all.push((mu, o));
         }

@@ -3,7 +3,7 @@
 
 use super::{open_sequence, open_test, print_dataset, solver_params, voxel_config};
 use super::{ParamArgs, SeqArgs};
-use crate::degradation::{self, plural};
+use crate::degradation::plural;
 use crate::error::CommandError as Error;
 use crate::output::{self, dataset, metrics_json, topview};
 use crate::output::{annotate, exports, replace};
@@ -64,7 +64,7 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
         || topview::project(&seq, &prep.sets.sets, prep.sets.grid),
     );
     let mut o = solved?;
-    degradation::warn_all(&o.warnings(&prep));
+    crate::warning::warn_all(&o.warnings(&prep));
     let test_seq = match &a.params.test {
         Some(test) => Some(open_test(test, &a.seq)?),
         None => None,

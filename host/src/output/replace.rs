@@ -298,10 +298,10 @@ impl Outputs {
         for (_, old) in done {
             if let Some(old) = old {
                 if let Err(e) = remove(&old) {
-                    eprintln!(
-                        "placedb: warning: the previous output moved to {} could not be removed: {e}",
+                    crate::warning::warn(format!(
+                        "the previous output moved to {} could not be removed: {e}",
                         old.display()
-                    );
+                    ));
                 }
             }
         }

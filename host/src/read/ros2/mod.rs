@@ -31,6 +31,7 @@ use super::{text, ReadOptions};
 use crate::error::ReadError;
 use crate::picture::Image;
 use crate::sequence::{CameraModel, DepthImage, DepthSource, Format, FrameInfo, Sequence};
+use crate::warning::warn;
 use bag::{Channel, Location, Message};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -600,10 +601,6 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadErro
 
 fn layout((path, reason): bag::BagError) -> ReadError {
     ReadError::Layout { path, reason }
-}
-
-fn warn(msg: String) {
-    eprintln!("placedb: warning: {msg}");
 }
 
 /// The pinhole camera from the CameraInfo topic.
