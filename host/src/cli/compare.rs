@@ -110,16 +110,8 @@ pub fn run(a: CompareArgs) -> Result<(), Error> {
     }
     for (mu, o) in &all {
         if let Some(run) = &o.online {
-            let st = &run.status;
-            println!(
-                "online at mu {mu}: profile {}, window {}, {} by sketch, {} truncated, {} uncovered by capacity, {} outside the key range",
-                params.profile,
-                params.window,
-                plural(st.sketched_frames.into(), "frame", "frames"),
-                st.truncated_frames,
-                st.uncovered_frames,
-                plural(st.out_of_range_points.into(), "point", "points"),
-            );
+            let line = degradation::online_summary(&params.profile, params.window, &run.status);
+            println!("at mu {mu}: {line}");
         }
     }
     if all.iter().any(|(_, o)| matches!(o.exact, Some((false, _)))) {

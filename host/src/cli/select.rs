@@ -3,7 +3,7 @@
 
 use super::{open_sequence, open_test, print_dataset, solver_params, voxel_config};
 use super::{ParamArgs, SeqArgs};
-use crate::degradation::plural;
+use crate::degradation::{self, plural};
 use crate::error::CommandError as Error;
 use crate::output::{self, dataset, metrics_json, topview};
 use crate::output::{annotate, exports, replace};
@@ -166,15 +166,8 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
             );
         }
         if let Some(run) = &o.online {
-            let st = &run.status;
-            println!(
-                "  online core: profile {}, window {}, {} by sketch, {} truncated, {} uncovered by capacity",
-                params.profile,
-                params.window,
-                plural(st.sketched_frames.into(), "frame", "frames"),
-                st.truncated_frames,
-                st.uncovered_frames
-            );
+            let line = degradation::online_summary(&params.profile, params.window, &run.status);
+            println!("  {line}");
         }
         println!("  database frames: {:?}", o.database);
         println!(
