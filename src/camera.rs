@@ -848,17 +848,11 @@ mod tests {
     fn fast_path_matches_the_fixed_point_definition() {
         // Random poses, grids and depths (a small LCG; no std in this crate),
         // including voxels small enough for keys to leave the range.
-        let mut seed = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            seed = seed
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (seed >> 33) as u32
-        };
+        let mut rng = crate::test_rng::TestRng::new(0x2545_f491_4f6c_dd1d);
         let (mut checked, mut outside) = (0, 0);
         for case in 0..200 {
             let (grid, pose) = {
-                let mut unit = || next() as f32 / (1u64 << 31) as f32;
+                let mut unit = || rng.unit();
                 let voxel = [0.001, 0.05, 0.3, 2.0][case % 4];
                 let grid = VoxelGrid::new(voxel, [unit() * 50.0 - 25.0, 0.0, unit()]).unwrap();
                 let q = [unit() - 0.5, unit() - 0.5, unit() - 0.5, unit() + 0.1];
@@ -871,8 +865,8 @@ mod tests {
                 FrameProjector::new(&k(), 1000.0, DepthRange::default(), stride, &grid, &pose)
                     .unwrap();
             assert_eq!(proj.shift, MAX_SHIFT);
-            let v = (next() % 480) as u16 / stride * stride;
-            let row: [u16; 640] = core::array::from_fn(|_| (next() % 12_000) as u16);
+            let v = (rng.next31() % 480) as u16 / stride * stride;
+            let row: [u16; 640] = core::array::from_fn(|_| (rng.next31() % 12_000) as u16);
             let mut want = [None; 640];
             reference_keys(&proj, v, &row, &mut want);
             let (mut got, mut n, mut oor) = ([0u64; 640], 0, 0);
@@ -945,16 +939,10 @@ mod tests {
 
     #[test]
     fn rows_set_up_once_per_frame_give_the_defined_rays() {
-        let mut seed = 0x0123_4567_89ab_cdefu64;
-        let mut next = move || {
-            seed = seed
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (seed >> 33) as u32
-        };
+        let mut rng = crate::test_rng::TestRng::new(0x0123_4567_89ab_cdef);
         let (mut narrow, mut wide, mut rows) = (0, 0, 0);
         for case in 0..300 {
-            let mut unit = || next() as f32 / (1u64 << 31) as f32;
+            let mut unit = || rng.unit();
             let mut k = k();
             (k.fx, k.fy) = (200.0 + unit() * 800.0, 200.0 + unit() * 800.0);
             (k.cx, k.cy) = (unit() * 640.0, unit() * 480.0);
@@ -1070,16 +1058,10 @@ mod tests {
     /// and those runs the runs of the definition's keys.
     #[test]
     fn narrow_samples_give_the_keys_of_the_fast_samples() {
-        let mut seed = 0x5851_f42d_4c95_7f2du64;
-        let mut next = move || {
-            seed = seed
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (seed >> 33) as u32
-        };
+        let mut rng = crate::test_rng::TestRng::new(0x5851_f42d_4c95_7f2d);
         let (mut narrow_rows, mut keys, mut repeats) = (0, 0, 0);
         for case in 0..300 {
-            let mut unit = || next() as f32 / (1u64 << 31) as f32;
+            let mut unit = || rng.unit();
             let voxel = [0.05, 0.1, 0.3, 2.0][case % 4];
             let grid = VoxelGrid::new(voxel, [unit() * 50.0 - 25.0, 0.0, unit()]).unwrap();
             let q = [unit() - 0.5, unit() - 0.5, unit() - 0.5, unit() + 0.1];
@@ -1091,14 +1073,14 @@ mod tests {
                 FrameProjector::new(&k(), 1000.0, DepthRange::default(), stride, &grid, &pose)
                     .unwrap();
             narrow_rows += usize::from(proj.rows.narrow);
-            let v = (next() % 480) as u16 / stride * stride;
+            let v = (rng.next31() % 480) as u16 / stride * stride;
             // Smooth stretches (runs of one voxel) between random depths.
             let mut depth = 2000u32;
             let row: [u16; 640] = core::array::from_fn(|_| {
-                match next() % 8 {
-                    0 => depth = next() % 12_000,
+                match rng.next31() % 8 {
+                    0 => depth = rng.next31() % 12_000,
                     1 => depth = 0,
-                    _ => depth = (depth + next() % 8).min(12_000),
+                    _ => depth = (depth + rng.next31() % 8).min(12_000),
                 }
                 depth as u16
             });

@@ -76,6 +76,8 @@ pub mod profile;
 pub mod protocol;
 pub mod select;
 pub mod sketch;
+#[cfg(test)]
+mod test_rng;
 pub mod voxel;
 mod words;
 

@@ -331,15 +331,10 @@ impl<const K: usize> Sketch<K> {
 mod tests {
     use super::*;
 
-    /// A xorshift64* stream: reproducible random keys without a dependency.
+    /// A stream of random keys from the core's test generator.
     fn random(seed: u64) -> impl Iterator<Item = u64> + Clone {
-        let mut x = seed | 1;
-        core::iter::repeat_with(move || {
-            x ^= x >> 12;
-            x ^= x << 25;
-            x ^= x >> 27;
-            x.wrapping_mul(0x2545_f491_4f6c_dd1d)
-        })
+        let mut rng = crate::test_rng::TestRng::new(seed);
+        core::iter::repeat_with(move || rng.next_u64())
     }
 
     /// Keys at the edges: 0, all ones, each single bit and its complement,

@@ -474,28 +474,22 @@ mod tests {
     /// keys ascending either way.
     #[test]
     fn sorted_gives_the_distinct_keys_ascending() {
-        let mut seed = 0x5851_f42d_4c95_7f2du64;
-        let mut next = move || {
-            seed = seed
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (seed >> 33) as u32
-        };
+        let mut rng = crate::test_rng::TestRng::new(0x5851_f42d_4c95_7f2d);
         let mut set = FrameVoxels::<1024>::new();
         let mut want = [0u64; 2048];
         for case in 0..400 {
             set.clear();
             let span = [1, 8, 100, 255, 256, 5000][case % 6];
             let len = [1, 10, 300, 500, 700][case % 5];
-            let corner = |next: &mut dyn FnMut() -> u32| match case % 7 {
+            let corner = |rng: &mut crate::test_rng::TestRng| match case % 7 {
                 0 => VoxelKey::MIN,
                 1 => VoxelKey::MAX - span as i32 + 1,
-                _ => (next() % 2_000_000) as i32 - 1_000_000,
+                _ => (rng.next31() % 2_000_000) as i32 - 1_000_000,
             };
-            let base = [corner(&mut next), corner(&mut next), corner(&mut next)];
+            let base = [corner(&mut rng), corner(&mut rng), corner(&mut rng)];
             let mut n = 0;
             for _ in 0..len * 2 {
-                let mut c = || (next() % span) as i32;
+                let mut c = || (rng.next31() % span) as i32;
                 let key = VoxelKey::new(base[0] + c(), base[1] + c(), base[2] + c());
                 set.insert(key);
                 want[n] = key.to_bits();
@@ -529,22 +523,16 @@ mod tests {
     #[test]
     fn reused_set_sorts_like_a_btreeset() {
         fn run<const CAP: usize>(seed: u64) {
-            let mut seed = seed;
-            let mut next = move || {
-                seed = seed
-                    .wrapping_mul(6_364_136_223_846_793_005)
-                    .wrapping_add(1_442_695_040_888_963_407);
-                (seed >> 33) as u32
-            };
+            let mut rng = crate::test_rng::TestRng::new(seed);
             let limit = FrameVoxels::<CAP>::LIMIT;
             let mut set = std::boxed::Box::new(FrameVoxels::<CAP>::new());
             for frame in 0..600 {
                 let span = [2, 5, 12, 40, 300][frame % 5];
-                let len = next() as usize % (limit + limit / 2 + 1);
-                let base = (next() % 4) as i32 - 2;
+                let len = rng.next31() as usize % (limit + limit / 2 + 1);
+                let base = (rng.next31() % 4) as i32 - 2;
                 let mut want = std::collections::BTreeSet::new();
                 for _ in 0..len {
-                    let mut c = || base + (next() % span) as i32;
+                    let mut c = || base + (rng.next31() % span) as i32;
                     let key = VoxelKey::new(c(), c(), c());
                     let kept = want.contains(&key.to_bits()) || want.len() < limit;
                     if kept {

@@ -172,10 +172,7 @@ fn bag(data: &[u8]) {
                 assert_eq!(d.data.len(), usize::from(d.width) * usize::from(d.height));
             }
             if let Ok(Some(c)) = seq.source.color(i) {
-                assert_eq!(
-                    c.rgb.len(),
-                    3 * usize::from(c.width) * usize::from(c.height)
-                );
+                assert_eq!(c.rgb.len(), 3 * c.width as usize * c.height as usize);
             }
         }
     }

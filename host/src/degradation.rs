@@ -83,6 +83,19 @@ impl Losses {
     }
 }
 
+/// The one summary line of an online run (`select`, `select --extend` and
+/// `compare` print it): the core's profile and window, then each of its
+/// counters, zero or not.
+pub fn online_summary(profile: &str, window: u16, st: &placedb::Status) -> String {
+    format!(
+        "online core: profile {profile}, window {window}, {} by sketch, {} truncated, {} uncovered by capacity, {} outside the key range",
+        plural(st.sketched_frames.into(), "frame", "frames"),
+        st.truncated_frames,
+        st.uncovered_frames,
+        plural(st.out_of_range_points.into(), "point", "points"),
+    )
+}
+
 /// The degradations the online core (a device, or its replay) counted
 /// beyond [`Losses`], as warning lines: empty when it lost nothing.
 pub fn device_warnings(st: &DeviceCounters) -> Vec<String> {
@@ -151,13 +164,6 @@ impl DeviceCounters {
             uncovered_frames: st.uncovered_frames.into(),
             labels_dropped: st.labels_dropped.into(),
         }
-    }
-}
-
-/// Prints each line as a `placedb: warning:` on stderr.
-pub fn warn_all(lines: &[String]) {
-    for line in lines {
-        crate::read::warn(line);
     }
 }
 

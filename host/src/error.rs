@@ -72,6 +72,28 @@ pub enum ReadError {
     },
 }
 
+/// Why an output of a run could not be written: the database directory,
+/// the top view, the extension file, a dataset or an export (the one error
+/// of `output/`).
+#[derive(Debug, thiserror::Error)]
+pub enum OutputError {
+    /// Reading a frame (or a colour file) for it failed.
+    #[error(transparent)]
+    Read(#[from] ReadError),
+    /// Writing a file failed.
+    #[error("{path}: {source}")]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// A target refused, or labels, a database or a frame that do not fit
+    /// the sequence.
+    #[error("{0}")]
+    Mismatch(String),
+}
+
 /// A duration in an error message, in plain seconds ("30 s", "2.5 s"):
 /// rounded to the millisecond, so a deadline computed by subtraction
 /// (29.999999642 s) reads as the timeout the user knows.

@@ -14,6 +14,7 @@ pub mod device;
 pub mod error;
 pub mod frame_rows;
 pub mod output;
+pub mod picture;
 pub mod pipeline;
 pub mod read;
 pub mod replay;
@@ -25,8 +26,9 @@ pub mod synth;
 pub mod testing;
 pub mod vector_unit;
 pub mod voxelize;
+pub mod warning;
 pub mod yardstick;
 
 pub use error::ReadError;
-pub use sequence::{CameraModel, ColorImage, DepthImage, DepthSource, Format, FrameInfo, Sequence};
+pub use sequence::{CameraModel, DepthImage, DepthSource, Format, FrameInfo, Sequence};
 pub use voxelize::{voxelize, voxelize_on, GridOrigin, VoxelConfig, VoxelSets};

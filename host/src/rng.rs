@@ -1,7 +1,9 @@
 //! The project's one pseudo-random generator (splitmix64): the synthetic
 //! scene and path, the fault injector and the tests' random inputs must be
 //! bit-identical on every machine and every run, so no `rand` crate and no
-//! platform-dependent state.
+//! platform-dependent state. The host's unit and integration tests draw
+//! from it too; the core's unit tests, which cannot import the host, have
+//! the core's one test generator (`src/test_rng.rs`).
 
 /// splitmix64 (Steele, Lea, Flood 2014): 64 bits of state, full period.
 #[derive(Debug, Clone)]

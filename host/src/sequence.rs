@@ -3,6 +3,7 @@
 //! memory), whatever the source: files on disk or the built-in renderer.
 
 use crate::error::ReadError;
+use crate::picture::Image;
 use std::path::PathBuf;
 
 /// A decoded depth image: row-major `u16`, 0 = no measurement.
@@ -81,17 +82,6 @@ pub enum Format {
     Synthetic,
 }
 
-/// A colour image: `width * height` RGB triples, row after row.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct ColorImage {
-    /// Width in pixels.
-    pub width: u16,
-    /// Height in pixels.
-    pub height: u16,
-    /// `3 * width * height` bytes.
-    pub rgb: Vec<u8>,
-}
-
 /// Produces the depth image of frame `i` on demand.
 pub trait DepthSource: Send + Sync {
     /// Decodes (or renders) frame `i`'s depth.
@@ -107,7 +97,7 @@ pub trait DepthSource: Send + Sync {
     /// Frame `i`'s colour image when the source holds it itself (a ROS 2
     /// bag); `None` when it has none, or when colour is a file
     /// ([`FrameInfo::color_path`]).
-    fn color(&self, _i: usize) -> Result<Option<ColorImage>, ReadError> {
+    fn color(&self, _i: usize) -> Result<Option<Image>, ReadError> {
         Ok(None)
     }
 }

@@ -26,9 +26,11 @@ const LAYERS: &[&str] = &[
     "synth",
     "read",
     "sequence",
+    "picture",
     "vector_unit",
     "rng",
     "error",
+    "warning",
 ];
 
 fn src() -> PathBuf {

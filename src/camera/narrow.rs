@@ -222,13 +222,7 @@ mod tests {
     /// keys out of range and rows `fits` refuses (counted, not compared).
     #[test]
     fn narrow_loop_gives_the_keys_of_fast_loop() {
-        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = move || {
-            seed = seed
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (seed >> 33) as u32
-        };
+        let mut rng = crate::test_rng::TestRng::new(0x9e37_79b9_7f4a_7c15);
         let k = Intrinsics {
             width: 640,
             height: 480,
@@ -239,7 +233,7 @@ mod tests {
         };
         let (mut compared, mut refused, mut outside) = (0usize, 0usize, 0usize);
         for case in 0..400 {
-            let mut unit = || next() as f32 / (1u64 << 31) as f32;
+            let mut unit = || rng.unit();
             let voxel = [0.02, 0.1, 0.3, 2.0][case % 4];
             let grid = VoxelGrid::new(voxel, [unit() * 50.0 - 25.0, 0.0, unit()]).unwrap();
             let q = [unit() - 0.5, unit() - 0.5, unit() - 0.5, unit() + 0.1];
@@ -255,8 +249,8 @@ mod tests {
             let stride = 1 + (case % 3) as u16;
             let range = DepthRange::default();
             let proj = FrameProjector::new(&k, 1000.0, range, stride, &grid, &pose).unwrap();
-            let v = (next() % 480) as u16 / stride * stride;
-            let row: [u16; 640] = core::array::from_fn(|_| (next() % 12_000) as u16);
+            let v = (rng.next31() % 480) as u16 / stride * stride;
+            let row: [u16; 640] = core::array::from_fn(|_| (rng.next31() % 12_000) as u16);
             let samples = usize::from(proj.samples_per_row());
             let mut sampled = [0u16; 640];
             for (s, &r) in sampled
@@ -302,13 +296,8 @@ mod tests {
     /// from an edge, which the translation sets to within `2^32` of it.
     #[test]
     fn narrow_loop_is_exact_next_to_voxel_edges() {
-        let mut seed = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            seed = seed
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (seed >> 33) as i64
-        };
+        let mut rng = crate::test_rng::TestRng::new(0x2545_f491_4f6c_dd1d);
+        let mut next = move || i64::from(rng.next31());
         // Valid raws 1..=1000: `1000 (2^21 + 2^7) < 2^31 - 2^25`, so it fits.
         let (lo, span) = (1u32, 999u32);
         let (mut compared, mut banded) = (0usize, 0usize);

@@ -37,7 +37,7 @@ pub fn run(a: CompareArgs) -> Result<(), Error> {
     let mut all = Vec::new();
     // The input's losses are every solver's: warned once; the online
     // core's own, once per mu.
-    degradation::warn_all(&prep.losses.warnings());
+    crate::warning::warn_all(&prep.losses.warnings());
     for &mu in &a.mu {
         for solver in Solver::ALL {
             let mut o = pipeline::solve(&seq, &prep, solver, mu, &params, true)?;
@@ -47,7 +47,7 @@ pub fn run(a: CompareArgs) -> Result<(), Error> {
             if let Some(run) = &o.online {
                 let w = degradation::device_warnings(&DeviceCounters::of_selector(&run.status));
                 let w: Vec<String> = w.iter().map(|l| format!("at mu {mu}: {l}")).collect();
-                degradation::warn_all(&w);
+                crate::warning::warn_all(&w);
             }
             all.push((mu, o));
         }
@@ -110,16 +110,8 @@ pub fn run(a: CompareArgs) -> Result<(), Error> {
     }
     for (mu, o) in &all {
         if let Some(run) = &o.online {
-            let st = &run.status;
-            println!(
-                "online at mu {mu}: profile {}, window {}, {} by sketch, {} truncated, {} uncovered by capacity, {} outside the key range",
-                params.profile,
-                params.window,
-                plural(st.sketched_frames.into(), "frame", "frames"),
-                st.truncated_frames,
-                st.uncovered_frames,
-                plural(st.out_of_range_points.into(), "point", "points"),
-            );
+            let line = degradation::online_summary(&params.profile, params.window, &run.status);
+            println!("at mu {mu}: {line}");
         }
     }
     if all.iter().any(|(_, o)| matches!(o.exact, Some((false, _)))) {

@@ -7,7 +7,7 @@ use crate::device::client::connect;
 use crate::device::error::DeviceError;
 use crate::device::export::{self, export_to, Export, ExportOptions};
 use crate::error::CommandError as Error;
-use crate::output::dataset::DatasetError;
+use crate::error::OutputError;
 use crate::output::exports::{write_all, ExportTargets, Selection};
 use crate::output::replace::Outputs;
 use crate::output::{self, dataset, replace};
@@ -184,7 +184,7 @@ pub fn write_from_device(
     export: &Export,
     quiet: bool,
     outputs: &mut Outputs,
-) -> Result<Vec<String>, DatasetError> {
+) -> Result<Vec<String>, OutputError> {
     if !flags.any() {
         return Ok(Vec::new());
     }
@@ -199,8 +199,8 @@ pub fn write_from_device(
                 ..VoxelConfig::default()
             };
             let prep = crate::pipeline::prepare(seq, config, quiet).map_err(|e| match e {
-                VoxelizeError::Read(r) => DatasetError::Read(r),
-                other => DatasetError::Mismatch(other.to_string()),
+                VoxelizeError::Read(r) => OutputError::Read(r),
+                other => OutputError::Mismatch(other.to_string()),
             })?;
             Some(prep)
         }

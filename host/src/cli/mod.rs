@@ -229,7 +229,7 @@ pub(crate) fn warn_voxel_memory(seq: &Sequence, a: &SeqArgs) {
     let voxels = counts.iter().sum::<usize>() as f64 / counts.len() as f64;
     let per_frame = voxels * BYTES_PER_VOXEL;
     if per_frame >= LARGE_FRAME_BYTES {
-        read::warn(format!(
+        crate::warning::warn(format!(
             "--voxel {}: about {:.1} MB a frame ({:.0} voxels a frame, {:.0} bytes each while \
              the overlaps are counted), about {} for the {n} frames; a larger --voxel \
              or --stride takes less",

@@ -64,7 +64,7 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
         || topview::project(&seq, &prep.sets.sets, prep.sets.grid),
     );
     let mut o = solved?;
-    degradation::warn_all(&o.warnings(&prep));
+    crate::warning::warn_all(&o.warnings(&prep));
     let test_seq = match &a.params.test {
         Some(test) => Some(open_test(test, &a.seq)?),
         None => None,
@@ -105,7 +105,7 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
                 annotate::render(&view, &caption)
                     .image
                     .write_png(&path)
-                    .map_err(|source| dataset::DatasetError::Write { path, source })
+                    .map_err(|source| crate::error::OutputError::Write { path, source })
             },
         );
         written?;
@@ -166,15 +166,8 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
             );
         }
         if let Some(run) = &o.online {
-            let st = &run.status;
-            println!(
-                "  online core: profile {}, window {}, {} by sketch, {} truncated, {} uncovered by capacity",
-                params.profile,
-                params.window,
-                plural(st.sketched_frames.into(), "frame", "frames"),
-                st.truncated_frames,
-                st.uncovered_frames
-            );
+            let line = degradation::online_summary(&params.profile, params.window, &run.status);
+            println!("  {line}");
         }
         println!("  database frames: {:?}", o.database);
         println!(

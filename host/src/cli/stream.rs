@@ -262,7 +262,7 @@ pub fn stream_cmd(
     }
     .warnings();
     warnings.extend(degradation::device_warnings(&DeviceCounters::of_device(st)));
-    degradation::warn_all(&warnings);
+    crate::warning::warn_all(&warnings);
     match out {
         Some(dir) => {
             let opts = recovery.export_options();

@@ -31,5 +31,5 @@ pub enum DeviceError {
     Input(String),
     /// An output (directory or file) refused or not written; names it.
     #[error(transparent)]
-    Output(#[from] crate::output::dataset::DatasetError),
+    Output(#[from] crate::error::OutputError),
 }

@@ -13,7 +13,7 @@ use crate::device::client::{ask_status, device_profile, Client, Received, Wait};
 use crate::device::error::DeviceError;
 use crate::device::link::Link;
 use crate::device::log_records;
-use crate::output::dataset::DatasetError;
+use crate::error::OutputError;
 use crate::output::replace::{self, Outputs};
 use crate::output::{self, metrics_json};
 use crate::sessions::extension::{self, Extension};
@@ -438,7 +438,7 @@ pub fn pull<L: Link>(
         None => Vec::new(),
     };
     let saving = |e: io::Error| {
-        DeviceError::Output(DatasetError::Write {
+        DeviceError::Output(OutputError::Write {
             path: partial.clone(),
             source: e,
         })
@@ -486,7 +486,7 @@ pub fn stage(
     out: &Path,
     export: &Export,
     extra: &[(&str, String)],
-) -> Result<(), DatasetError> {
+) -> Result<(), OutputError> {
     let dir = output::stage_database_dir(outputs, out)?;
     let (timestamps, labels) = export.labels();
     let rows = output::rows_from_records(&export.database());
@@ -517,7 +517,7 @@ pub fn stage(
 pub fn finished(out: &Path, export: &Export, quiet: bool) -> Result<(), DeviceError> {
     let partial = resume_file(out);
     remove_if_there(&partial).map_err(|source| {
-        DeviceError::Output(DatasetError::Write {
+        DeviceError::Output(OutputError::Write {
             path: partial.clone(),
             source,
         })

@@ -11,7 +11,6 @@ pub mod emulator;
 pub mod error;
 pub mod export;
 pub mod flash_timing;
-pub mod flash_words;
 pub mod link;
 pub mod log_records;
 pub mod pacing;

@@ -184,8 +184,12 @@ impl RealtimeReport {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::device::client::Client;
     use crate::device::link::LocalLink;
+    use crate::device::scan::StreamOptions;
     use crate::synth::{self, SynthConfig};
+    use crate::VoxelConfig;
+    use placedb::SelectorConfig;
     use std::io;
 
     fn demo(frames: usize) -> Sequence {

@@ -21,33 +21,15 @@
 //! (a ROS 2 bag's colour topic) is written as PNG. When some frames have no
 //! colour, `color/` is left out (the layout needs one per depth image).
 
-use crate::error::ReadError;
-use crate::sequence::{ColorImage, Sequence};
+use crate::error::OutputError;
+use crate::picture::png::Samples;
+use crate::sequence::Sequence;
 use rayon::prelude::*;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 /// Depth units per metre of the layout's depth PNGs.
 pub const DEPTH_SCALE: f64 = 1000.0;
-
-/// Why a dataset could not be written.
-#[derive(Debug, thiserror::Error)]
-pub enum DatasetError {
-    /// Reading a frame failed.
-    #[error(transparent)]
-    Read(#[from] ReadError),
-    /// Writing a file failed.
-    #[error("{path}: {source}")]
-    Write {
-        /// The file.
-        path: PathBuf,
-        /// Why.
-        source: std::io::Error,
-    },
-    /// Labels or database that do not fit the sequence.
-    #[error("{0}")]
-    Mismatch(String),
-}
 
 /// The dataset's name in a refusal.
 pub const DATASET: &str = "a dataset";
@@ -59,7 +41,7 @@ pub fn is_dataset(dir: &Path) -> bool {
 }
 
 /// Refuses, before the work, a target [`stage`] would refuse.
-pub fn check(dir: &Path) -> Result<(), DatasetError> {
+pub fn check(dir: &Path) -> Result<(), OutputError> {
     crate::output::replace::check_dir(dir, DATASET, is_dataset)
 }
 
@@ -70,7 +52,7 @@ pub fn stage(
     dir: &Path,
     seq: &Sequence,
     labels: &[usize],
-) -> Result<DatasetSummary, DatasetError> {
+) -> Result<DatasetSummary, OutputError> {
     let d = outputs.dir(dir, DATASET, is_dataset)?;
     write(&d, seq, labels)
 }
@@ -86,8 +68,8 @@ pub struct DatasetSummary {
     pub color: bool,
 }
 
-fn write_err(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
-    move |source| DatasetError::Write {
+fn write_err(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {
+    move |source| OutputError::Write {
         path: path.to_path_buf(),
         source,
     }
@@ -102,9 +84,9 @@ enum Color {
 /// Writes the dataset of `seq` labelled by `labels` (one class, a frame
 /// index, per frame from 0; a device's export may hold fewer frames than the
 /// sequence) into `dir`.
-pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSummary, DatasetError> {
+pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSummary, OutputError> {
     if labels.len() > seq.frames.len() {
-        return Err(DatasetError::Mismatch(format!(
+        return Err(OutputError::Mismatch(format!(
             "{} labels for a sequence of {} frames",
             labels.len(),
             seq.frames.len()
@@ -115,7 +97,7 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
         .enumerate()
         .find(|&(_, &c)| c >= labels.len() || labels[c] != c)
     {
-        return Err(DatasetError::Mismatch(format!(
+        return Err(OutputError::Mismatch(format!(
             "frame {i} has class {c}, which is not a database frame"
         )));
     }
@@ -141,7 +123,7 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
     let name = |i: usize| format!("{i:06}");
     frames
         .par_iter()
-        .try_for_each(|&i| -> Result<(), DatasetError> {
+        .try_for_each(|&i| -> Result<(), OutputError> {
             let in_db = labels[i] == i;
             let targets: Vec<&Path> = if in_db {
                 vec![dir, &database_dir]
@@ -163,7 +145,8 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
                 .collect();
             for t in &targets {
                 let path = t.join("depth").join(format!("{}.png", name(i)));
-                write_png16(&path, depth.width, depth.height, &mm)?;
+                let (w, h) = (u32::from(depth.width), u32::from(depth.height));
+                write_png(&path, w, h, Samples::Grey16(&mm))?;
             }
             if color {
                 match &colors[i] {
@@ -171,7 +154,7 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
                         let ext = src.extension().and_then(|e| e.to_str()).unwrap_or("png");
                         for t in &targets {
                             let path = t.join("color").join(format!("{}.{ext}", name(i)));
-                            std::fs::copy(src, &path).map_err(|e| DatasetError::Write {
+                            std::fs::copy(src, &path).map_err(|e| OutputError::Write {
                                 source: std::io::Error::new(
                                     e.kind(),
                                     format!("copying {}: {e}", src.display()),
@@ -182,11 +165,11 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
                     }
                     _ => {
                         let img = seq.source.color(i)?.ok_or_else(|| {
-                            DatasetError::Mismatch(format!("frame {i}: colour vanished"))
+                            OutputError::Mismatch(format!("frame {i}: colour vanished"))
                         })?;
                         for t in &targets {
                             let path = t.join("color").join(format!("{}.png", name(i)));
-                            write_png_rgb(&path, &img)?;
+                            write_png(&path, img.width, img.height, Samples::Rgb8(&img.rgb))?;
                         }
                     }
                 }
@@ -236,51 +219,12 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
     })
 }
 
-fn write_png16(path: &Path, w: u16, h: u16, data: &[u16]) -> Result<(), DatasetError> {
-    let bytes: Vec<u8> = data.iter().flat_map(|v| v.to_be_bytes()).collect();
-    write_png(
-        path,
-        u32::from(w),
-        u32::from(h),
-        png::ColorType::Grayscale,
-        png::BitDepth::Sixteen,
-        &bytes,
-    )
-}
-
-fn write_png_rgb(path: &Path, img: &ColorImage) -> Result<(), DatasetError> {
-    write_png(
-        path,
-        u32::from(img.width),
-        u32::from(img.height),
-        png::ColorType::Rgb,
-        png::BitDepth::Eight,
-        &img.rgb,
-    )
-}
-
+/// Writes `path` with the one PNG writer ([`crate::picture::png`]).
 fn write_png(
     path: &Path,
-    w: u32,
-    h: u32,
-    color: png::ColorType,
-    depth: png::BitDepth,
-    bytes: &[u8],
-) -> Result<(), DatasetError> {
-    let png_err = |e: png::EncodingError| DatasetError::Write {
-        path: path.to_path_buf(),
-        source: std::io::Error::other(e),
-    };
-    // Encoded in memory and written in one call, so that a failing write
-    // (a full disk) is an error, not a file cut short when a buffer drops.
-    let mut out = Vec::with_capacity(bytes.len() / 2 + 1024);
-    let mut enc = png::Encoder::new(&mut out, w, h);
-    enc.set_color(color);
-    enc.set_depth(depth);
-    // Fast compression: a dataset of thousands of frames is written once.
-    enc.set_compression(png::Compression::Fast);
-    let mut writer = enc.write_header().map_err(png_err)?;
-    writer.write_image_data(bytes).map_err(png_err)?;
-    writer.finish().map_err(png_err)?;
-    std::fs::write(path, out).map_err(write_err(path))
+    width: u32,
+    height: u32,
+    samples: Samples<'_>,
+) -> Result<(), OutputError> {
+    crate::picture::png::write(path, width, height, samples).map_err(write_err(path))
 }

@@ -13,7 +13,7 @@ pub mod replace;
 pub mod session_columns;
 pub mod topview;
 
-use crate::output::dataset::DatasetError;
+use crate::error::OutputError;
 use crate::output::replace::Outputs;
 use crate::sequence::Sequence;
 use std::fmt::Write as _;
@@ -101,7 +101,7 @@ pub fn is_database_dir(dir: &Path) -> bool {
 
 /// Refuses, before the work, a database directory `dir` that
 /// [`stage_database_dir`] would refuse.
-pub fn check_database_dir(dir: &Path) -> Result<(), DatasetError> {
+pub fn check_database_dir(dir: &Path) -> Result<(), OutputError> {
     replace::check_dir(dir, DATABASE_DIR, is_database_dir)
 }
 
@@ -112,7 +112,7 @@ pub fn check_outputs(
     out: &Path,
     dataset: Option<&Path>,
     exports: &exports::ExportTargets,
-) -> Result<(), DatasetError> {
+) -> Result<(), OutputError> {
     check_database_dir(out)?;
     if let Some(dir) = dataset {
         dataset::check(dir)?;
@@ -126,7 +126,7 @@ pub fn check_outputs(
 
 /// The temporary directory, beside `dir`, to write the database directory
 /// into; it becomes `dir` with the run's other outputs.
-pub fn stage_database_dir(outputs: &mut Outputs, dir: &Path) -> Result<PathBuf, DatasetError> {
+pub fn stage_database_dir(outputs: &mut Outputs, dir: &Path) -> Result<PathBuf, OutputError> {
     outputs.dir(dir, DATABASE_DIR, is_database_dir)
 }
 
@@ -141,9 +141,9 @@ pub fn write_database_dir(
     labels: &[usize],
     metrics: &serde_json::Value,
     sessions: Option<session_columns::SessionOf<'_>>,
-) -> Result<(), DatasetError> {
+) -> Result<(), OutputError> {
     let metrics_path = dir.join("metrics.json");
-    let metrics = metrics_json::text(metrics).map_err(|source| DatasetError::Write {
+    let metrics = metrics_json::text(metrics).map_err(|source| OutputError::Write {
         path: metrics_path.clone(),
         source,
     })?;

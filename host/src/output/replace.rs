@@ -16,27 +16,27 @@
 
 mod stale;
 
+use crate::error::OutputError;
 use crate::error::ReadError;
-use crate::output::dataset::DatasetError;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
-    move |source| DatasetError::Write {
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {
+    move |source| OutputError::Write {
         path: path.to_path_buf(),
         source,
     }
 }
 
-fn refused(text: String) -> DatasetError {
-    DatasetError::Mismatch(text)
+fn refused(text: String) -> OutputError {
+    OutputError::Mismatch(text)
 }
 
 /// Numbers the temporary siblings of one process apart.
 static NEXT_SIBLING: AtomicUsize = AtomicUsize::new(0);
 
 /// `target`'s folder and its file name.
-fn split(target: &Path) -> Result<(PathBuf, String), DatasetError> {
+fn split(target: &Path) -> Result<(PathBuf, String), OutputError> {
     let name = target
         .file_name()
         .and_then(|n| n.to_str())
@@ -55,7 +55,7 @@ fn split(target: &Path) -> Result<(PathBuf, String), DatasetError> {
 }
 
 /// A fresh hidden sibling name of `target`, `.NAME.WHAT-PID-K`.
-fn sibling(target: &Path, what: &str) -> Result<PathBuf, DatasetError> {
+fn sibling(target: &Path, what: &str) -> Result<PathBuf, OutputError> {
     let (parent, name) = split(target)?;
     let k = NEXT_SIBLING.fetch_add(1, Ordering::Relaxed);
     Ok(parent.join(format!(".{name}.{what}-{}-{k}", std::process::id())))
@@ -65,7 +65,7 @@ fn sibling(target: &Path, what: &str) -> Result<PathBuf, DatasetError> {
 /// ancestor is a directory in which a directory can be made (tried, and
 /// removed at once), so that a path under a regular file or in a read-only
 /// place fails before the work, naming it.
-fn check_parent(target: &Path) -> Result<(), DatasetError> {
+fn check_parent(target: &Path) -> Result<(), OutputError> {
     let (parent, _) = split(target)?;
     let mut at = parent.as_path();
     while !at.exists() {
@@ -104,7 +104,7 @@ pub fn check_dir(
     target: &Path,
     kind: &str,
     is_ours: impl Fn(&Path) -> bool,
-) -> Result<(), DatasetError> {
+) -> Result<(), OutputError> {
     split(target)?;
     if target.exists() {
         if !target.is_dir() {
@@ -129,7 +129,7 @@ pub fn check_dir(
 
 /// Whether file `target` may be written: not a directory, a name, in a
 /// folder that can be written.
-pub fn check_file(target: &Path) -> Result<(), DatasetError> {
+pub fn check_file(target: &Path) -> Result<(), OutputError> {
     if target.is_dir() {
         return Err(refused(format!(
             "{} is a directory: give a file name",
@@ -158,7 +158,7 @@ fn normal(path: &Path) -> PathBuf {
 
 /// The outputs of one run lie apart: none is another, or inside another
 /// (each is replaced whole, so one would replace the other).
-pub fn check_apart(targets: &[&Path]) -> Result<(), DatasetError> {
+pub fn check_apart(targets: &[&Path]) -> Result<(), OutputError> {
     let normal: Vec<PathBuf> = targets.iter().map(|t| normal(t)).collect();
     for (i, a) in normal.iter().enumerate() {
         for (j, b) in normal.iter().enumerate() {
@@ -196,7 +196,7 @@ impl Outputs {
         Self::default()
     }
 
-    fn stage(&mut self, target: &Path, partial: PathBuf) -> Result<(), DatasetError> {
+    fn stage(&mut self, target: &Path, partial: PathBuf) -> Result<(), OutputError> {
         let mut all: Vec<&Path> = self.staged.iter().map(|s| s.target.as_path()).collect();
         all.push(target);
         check_apart(&all)?;
@@ -217,7 +217,7 @@ impl Outputs {
         target: &Path,
         kind: &str,
         is_ours: impl Fn(&Path) -> bool,
-    ) -> Result<PathBuf, DatasetError> {
+    ) -> Result<PathBuf, OutputError> {
         check_dir(target, kind, is_ours)?;
         let partial = sibling(target, "partial")?;
         self.stage(target, partial.clone())?;
@@ -227,7 +227,7 @@ impl Outputs {
 
     /// File output `target` (see [`check_file`]): returns the temporary
     /// file name beside it to write the output to.
-    pub fn file(&mut self, target: &Path) -> Result<PathBuf, DatasetError> {
+    pub fn file(&mut self, target: &Path) -> Result<PathBuf, OutputError> {
         check_file(target)?;
         let partial = sibling(target, "partial")?;
         self.stage(target, partial.clone())?;
@@ -236,7 +236,7 @@ impl Outputs {
 
     /// `e` with a temporary sibling's path in it shown as its target's (a
     /// disk full while writing `OUT/metrics.json` names that file).
-    pub fn named(&self, e: DatasetError) -> DatasetError {
+    pub fn named(&self, e: OutputError) -> OutputError {
         let rename = |path: PathBuf| {
             for s in &self.staged {
                 if let Ok(rest) = path.strip_prefix(&s.partial) {
@@ -250,18 +250,16 @@ impl Outputs {
             path
         };
         match e {
-            DatasetError::Write { path, source } => DatasetError::Write {
+            OutputError::Write { path, source } => OutputError::Write {
                 path: rename(path),
                 source,
             },
-            DatasetError::Read(ReadError::Io { path, source }) => {
-                DatasetError::Read(ReadError::Io {
-                    path: rename(path),
-                    source,
-                })
-            }
-            DatasetError::Read(ReadError::Png { path, reason }) => {
-                DatasetError::Read(ReadError::Png {
+            OutputError::Read(ReadError::Io { path, source }) => OutputError::Read(ReadError::Io {
+                path: rename(path),
+                source,
+            }),
+            OutputError::Read(ReadError::Png { path, reason }) => {
+                OutputError::Read(ReadError::Png {
                     path: rename(path),
                     reason,
                 })
@@ -273,7 +271,7 @@ impl Outputs {
     /// Renames every output into place, each replacing its target whole. If
     /// one rename fails, those already made are undone, so that every target
     /// is as before.
-    pub fn commit(mut self) -> Result<(), DatasetError> {
+    pub fn commit(mut self) -> Result<(), OutputError> {
         let staged = std::mem::take(&mut self.staged);
         // (target, its previous content moved aside if any)
         let mut done: Vec<(&Staged, Option<PathBuf>)> = Vec::new();
@@ -300,10 +298,10 @@ impl Outputs {
         for (_, old) in done {
             if let Some(old) = old {
                 if let Err(e) = remove(&old) {
-                    eprintln!(
-                        "placedb: warning: the previous output moved to {} could not be removed: {e}",
+                    crate::warning::warn(format!(
+                        "the previous output moved to {} could not be removed: {e}",
                         old.display()
-                    );
+                    ));
                 }
             }
         }
@@ -312,7 +310,7 @@ impl Outputs {
 
     /// Moves `s.target` aside (if it exists) and `s.partial` into its place;
     /// returns where the previous content went.
-    fn swap(s: &Staged) -> Result<Option<PathBuf>, DatasetError> {
+    fn swap(s: &Staged) -> Result<Option<PathBuf>, OutputError> {
         let old = if std::fs::symlink_metadata(&s.target).is_ok() {
             let old = sibling(&s.target, "old")?;
             std::fs::rename(&s.target, &old).map_err(io_err(&s.target))?;
@@ -343,8 +341,8 @@ impl Drop for Outputs {
 /// fails, or a rename does, every target is left as it was. An error names
 /// the target's path, not the temporary one.
 pub fn together<T>(
-    fill: impl FnOnce(&mut Outputs) -> Result<T, DatasetError>,
-) -> Result<T, DatasetError> {
+    fill: impl FnOnce(&mut Outputs) -> Result<T, OutputError>,
+) -> Result<T, OutputError> {
     let mut outputs = Outputs::new();
     match fill(&mut outputs) {
         // A failed rename names its target already.
@@ -365,7 +363,7 @@ fn remove(path: &Path) -> std::io::Result<()> {
 
 /// Writes `text` to the file `path` (a staged output's temporary file, or a
 /// file inside a staged directory), naming it in an error.
-pub fn write_text(path: &Path, text: &str) -> Result<(), DatasetError> {
+pub fn write_text(path: &Path, text: &str) -> Result<(), OutputError> {
     std::fs::write(path, text).map_err(io_err(path))
 }
 
@@ -390,7 +388,7 @@ mod tests {
     }
 
     /// Writes `mark` = `text` (and `extra` when given) as output `target`.
-    fn run(target: &Path, text: &str, extra: bool, fail: bool) -> Result<(), DatasetError> {
+    fn run(target: &Path, text: &str, extra: bool, fail: bool) -> Result<(), OutputError> {
         let mut outputs = Outputs::new();
         let d = outputs.dir(target, "an export", |d| d.join("mark").exists())?;
         write_text(&d.join("mark"), text)?;
@@ -398,7 +396,7 @@ mod tests {
             write_text(&d.join("extra"), text)?;
         }
         if fail {
-            return Err(DatasetError::Mismatch("broken".into()));
+            return Err(OutputError::Mismatch("broken".into()));
         }
         outputs.commit()
     }

@@ -4,11 +4,11 @@
 //! The work is split in two so that the drawing can be tested on plain data:
 //! [`topview`] projects the sequence and the voxel sets onto the horizontal
 //! plane ([`TopView`]), and [`TopView::render`] rasterises that into an
-//! [`Image`] without touching the file system.
+//! [`Image`] without touching the file system ([`Image::write_png`] writes it).
 
+use crate::picture::Image;
 use crate::sequence::Sequence;
 use std::collections::HashMap;
-use std::path::Path;
 
 /// White: nothing there.
 pub const BACKGROUND: [u8; 3] = [255, 255, 255];
@@ -27,108 +27,32 @@ const MARGIN: u32 = 24;
 const MAX_SIDE: f64 = 8192.0;
 /// Side of the blank image written when there is nothing to draw.
 const BLANK_SIDE: u32 = 64;
-/// Radius of the disc marking a database frame, pixels.
-const DISC_RADIUS: i64 = 4;
-/// Length of the view-direction line of a database frame, pixels.
+/// Radius of the disc marking a database frame, pixels (the annotated
+/// picture rings it one pixel wider).
+pub const DISC_RADIUS: i64 = 4;
+/// Length of the view-direction line of a database frame in the plain
+/// picture, pixels (the annotated one draws its own length, see
+/// [`crate::output::annotate`]).
 const VIEW_LENGTH: f64 = 12.0;
+/// Classes in turn take these colours (by the rank of their database frame),
+/// none of them grey (the map) or white.
+pub const CLASS_PALETTE: [[u8; 3]; 9] = [
+    [31, 119, 180],
+    [255, 127, 14],
+    [44, 160, 44],
+    [214, 39, 40],
+    [148, 103, 189],
+    [140, 86, 75],
+    [227, 119, 194],
+    [188, 189, 34],
+    [23, 190, 207],
+];
+/// Text, frame, ticks, the ring of a database frame, and the trajectory of
+/// a frame whose class is no database frame.
+pub const INK: [u8; 3] = [20, 20, 20];
 /// Lightest and darkest grey of an occupied column (the legend draws the ramp).
 pub const GREY_LIGHT: f64 = 225.0;
 pub const GREY_DARK: f64 = 50.0;
-
-/// An 8-bit RGB raster, row-major, three bytes per pixel.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Image {
-    /// Width in pixels.
-    pub width: u32,
-    /// Height in pixels.
-    pub height: u32,
-    /// `width * height * 3` bytes, row after row.
-    pub rgb: Vec<u8>,
-}
-
-impl Image {
-    /// A `width` x `height` image filled with `color`.
-    pub fn filled(width: u32, height: u32, color: [u8; 3]) -> Image {
-        let n = width as usize * height as usize;
-        Image {
-            width,
-            height,
-            // `repeat` copies in doubling blocks, where a byte-by-byte
-            // cycle took a millisecond for a 900-pixel square.
-            rgb: color.repeat(n),
-        }
-    }
-
-    /// Colour of pixel `(x, y)`; `None` outside the image.
-    pub fn pixel(&self, x: i64, y: i64) -> Option<[u8; 3]> {
-        let i = self.index(x, y)?;
-        Some([self.rgb[i], self.rgb[i + 1], self.rgb[i + 2]])
-    }
-
-    /// Sets pixel `(x, y)`; pixels outside the image are ignored.
-    pub fn set(&mut self, x: i64, y: i64, color: [u8; 3]) {
-        if let Some(i) = self.index(x, y) {
-            self.rgb[i..i + 3].copy_from_slice(&color);
-        }
-    }
-
-    fn index(&self, x: i64, y: i64) -> Option<usize> {
-        let inside = (0..self.width as i64).contains(&x) && (0..self.height as i64).contains(&y);
-        inside.then(|| 3 * (y as usize * self.width as usize + x as usize))
-    }
-
-    /// A straight 1-pixel line from `a` to `b` (Bresenham), clipped to the image.
-    pub fn line(&mut self, a: (i64, i64), b: (i64, i64), color: [u8; 3]) {
-        let (mut x, mut y) = a;
-        let dx = (b.0 - x).abs();
-        let dy = -(b.1 - y).abs();
-        let sx = if x < b.0 { 1 } else { -1 };
-        let sy = if y < b.1 { 1 } else { -1 };
-        let mut err = dx + dy;
-        loop {
-            self.set(x, y, color);
-            if (x, y) == b {
-                break;
-            }
-            let e2 = 2 * err;
-            if e2 >= dy {
-                err += dy;
-                x += sx;
-            }
-            if e2 <= dx {
-                err += dx;
-                y += sy;
-            }
-        }
-    }
-
-    /// A filled disc of radius `r` centred on `c`, clipped to the image.
-    pub fn disc(&mut self, c: (i64, i64), r: i64, color: [u8; 3]) {
-        for dy in -r..=r {
-            for dx in -r..=r {
-                if dx * dx + dy * dy <= r * r {
-                    self.set(c.0 + dx, c.1 + dy, color);
-                }
-            }
-        }
-    }
-
-    /// Writes the image as an 8-bit RGB PNG.
-    /// Encoded in memory and written in one call, so that a failing write
-    /// (a full disk) is an error, not a file cut short when a buffer drops.
-    pub fn write_png(&self, path: &Path) -> std::io::Result<()> {
-        let mut bytes = Vec::new();
-        let mut enc = png::Encoder::new(&mut bytes, self.width, self.height);
-        enc.set_color(png::ColorType::Rgb);
-        enc.set_depth(png::BitDepth::Eight);
-        let mut writer = enc.write_header().map_err(std::io::Error::other)?;
-        writer
-            .write_image_data(&self.rgb)
-            .map_err(std::io::Error::other)?;
-        writer.finish().map_err(std::io::Error::other)?;
-        std::fs::write(path, bytes)
-    }
-}
 
 /// Everything the picture shows, already projected onto the horizontal plane
 /// (metres, in image orientation: first coordinate to the right, second
@@ -151,8 +75,9 @@ pub struct TopView {
     /// are ignored.
     pub database: Vec<usize>,
     /// Per position, its class (the database frame that covers it); when
-    /// given, every frame is drawn in its class's colour
-    /// ([`crate::output::annotate::class_colours`]); empty: one trajectory colour.
+    /// given, every frame is drawn in its class's colour ([`class_colours`])
+    /// and the database frames are left to the annotation
+    /// ([`crate::output::annotate`]); empty: one trajectory colour.
     pub classes: Vec<usize>,
 }
 
@@ -195,15 +120,31 @@ impl TopView {
             .filter(|(_, p)| finite2(*p))
     }
 
-    /// Each database frame's view direction, a line `length` pixels long
-    /// in `colour` (drawn before the discs, so that no line covers one).
-    pub(crate) fn draw_view_lines(
+    /// The one painter of database frames, for the plain and the annotated
+    /// picture alike: first every database frame's view direction, a line
+    /// `marks.view_length` pixels long in `marks.line` (all lines before the
+    /// discs, so that no line covers one), then each frame's disc of
+    /// [`DISC_RADIUS`] in `disc(frame index)`, ringed one pixel wider in
+    /// `marks.ring` when it is given.
+    pub fn paint_database(
         &self,
         img: &mut Image,
         frame: &Frame,
-        length: f64,
-        colour: [u8; 3],
+        marks: &Marks,
+        disc: impl Fn(usize) -> [u8; 3],
     ) {
+        self.draw_view_lines(img, frame, marks.view_length, marks.line);
+        for (i, p) in self.database_points() {
+            if let Some(ring) = marks.ring {
+                img.disc(frame.pixel(p), DISC_RADIUS + 1, ring);
+            }
+            img.disc(frame.pixel(p), DISC_RADIUS, disc(i));
+        }
+    }
+
+    /// Each database frame's view direction, a line `length` pixels long
+    /// in `colour`.
+    fn draw_view_lines(&self, img: &mut Image, frame: &Frame, length: f64, colour: [u8; 3]) {
         for (i, p) in self.database_points() {
             let Some(&d) = self.view_dirs.get(i) else {
                 continue;
@@ -222,7 +163,9 @@ impl TopView {
     /// Rasterises the view: grey map columns (white background, darker = more
     /// voxels in the column, relative to the fullest column), the trajectory as
     /// a blue polyline, then database frames as red discs with a short red
-    /// line in their view direction.
+    /// line in their view direction. With classes, the trajectory is drawn in
+    /// their colours and the frames' marks are left to the annotation, which
+    /// draws them its own way.
     ///
     /// The longer side of the bounding box of the columns and the positions is
     /// scaled to about 900 pixels, or more so that a cell is at least one
@@ -307,7 +250,7 @@ impl TopView {
         }
 
         // Trajectory, each step in the colour of the frame it reaches.
-        let colours = crate::output::annotate::class_colours(self);
+        let colours = class_colours(self);
         let colour = |k: usize| colours.get(k).copied().unwrap_or(TRAJECTORY);
         let mut last: Option<(i64, i64)> = None;
         for (k, &p) in self.positions.iter().enumerate() {
@@ -322,18 +265,49 @@ impl TopView {
             }
             last = Some(q);
         }
-        if !colours.is_empty() {
-            crate::output::annotate::mark_frames(&mut img, &frame, self, &colours);
-            return (img, Some(frame));
-        }
-
-        // Database frames: view lines first so that no line covers a disc.
-        self.draw_view_lines(&mut img, &frame, VIEW_LENGTH, DATABASE);
-        for (_, p) in self.database_points() {
-            img.disc(frame.pixel(p), DISC_RADIUS, DATABASE);
+        if colours.is_empty() {
+            let marks = Marks {
+                view_length: VIEW_LENGTH,
+                line: DATABASE,
+                ring: None,
+            };
+            self.paint_database(&mut img, &frame, &marks, |_| DATABASE);
         }
         (img, Some(frame))
     }
+}
+
+/// How [`TopView::paint_database`] marks a database frame (its disc's
+/// colour is the caller's, frame by frame).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Marks {
+    /// Length of the view-direction line, pixels.
+    pub view_length: f64,
+    /// Colour of the view-direction line.
+    pub line: [u8; 3],
+    /// Colour of a ring one pixel around the disc; `None`: no ring.
+    pub ring: Option<[u8; 3]>,
+}
+
+/// Per position of `view`, the colour of its class; empty when the view
+/// has no classes. A class is a database frame; the database frames in
+/// ascending order take the palette's colours in turn, so that
+/// neighbouring classes differ.
+pub fn class_colours(view: &TopView) -> Vec<[u8; 3]> {
+    if view.classes.is_empty() {
+        return Vec::new();
+    }
+    let mut database = view.database.clone();
+    database.sort_unstable();
+    database.dedup();
+    let rank: HashMap<usize, usize> = database.iter().enumerate().map(|(r, &d)| (d, r)).collect();
+    view.classes
+        .iter()
+        .map(|c| match rank.get(c) {
+            Some(r) => CLASS_PALETTE[r % CLASS_PALETTE.len()],
+            None => INK,
+        })
+        .collect()
 }
 
 /// World axis that is vertical, and its sign.
@@ -488,7 +462,7 @@ mod tests {
     use super::*;
     use crate::error::ReadError;
     use crate::sequence::{CameraModel, DepthImage, DepthSource, Format, FrameInfo};
-    use std::path::PathBuf;
+    use std::path::{Path, PathBuf};
 
     fn is_grey(p: [u8; 3]) -> bool {
         p[0] == p[1] && p[1] == p[2] && p[0] < 255

@@ -29,6 +29,7 @@ pub mod vprdb;
 
 use crate::error::ReadError;
 use crate::sequence::{CameraModel, DepthImage, Format, FrameInfo, Sequence};
+use crate::warning::warn;
 use std::path::{Path, PathBuf};
 
 /// How to read a sequence; `Default` detects the format and uses its defaults.
@@ -135,12 +136,6 @@ pub fn detect(path: &Path) -> Result<Format, ReadError> {
             ),
         )),
     }
-}
-
-/// Prints a reader's warning (a default taken, frames skipped) on stderr,
-/// where the command line's own warnings go.
-pub(crate) fn warn(msg: impl std::fmt::Display) {
-    eprintln!("placedb: warning: {msg}");
 }
 
 /// Decodes a 16-bit greyscale depth PNG as stored (no value mapping).

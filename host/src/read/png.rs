@@ -543,14 +543,11 @@ mod tests {
     /// Deterministic depth-like values: smooth runs, jumps and holes, so
     /// every filter meets carries, ties and wrap-around.
     fn test_depths(n: usize, seed: u64) -> Vec<u16> {
-        let mut x = seed;
+        let mut rng = crate::rng::SplitMix64::new(seed);
         let mut v = 1500u16;
         (0..n)
             .map(|_| {
-                x = x
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                let r = (x >> 33) as u32;
+                let r = (rng.next_u64() >> 32) as u32;
                 v = match r % 16 {
                     0 => 0,
                     1 => u16::MAX,
@@ -607,7 +604,10 @@ mod tests {
     fn native_order_and_blanking_match_the_pixel_at_a_time_form() {
         for width in 1..=41usize {
             let height = 3;
-            let values = test_depths(width * height, width as u64);
+            let mut values = test_depths(width * height, width as u64);
+            // A 65535 in every image, so that the blanking is met whatever
+            // the draws give.
+            values[width * height / 2] = u16::MAX;
             let mut scanlines = Vec::new();
             for row in values.chunks_exact(width) {
                 scanlines.push(4); // the filter byte, ignored here
@@ -622,7 +622,6 @@ mod tests {
                     .collect();
                 assert_eq!(out, want, "width {width} invalid_65535 {invalid_65535}");
             }
-            assert!(width < 16 || values.contains(&u16::MAX), "width {width}");
         }
     }
 

@@ -122,7 +122,7 @@ pub(crate) fn read(dir: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError
     without_depth.sort();
     if let Some(first) = without_depth.first() {
         let shown: Vec<&str> = without_depth.iter().take(10).map(|n| n.as_str()).collect();
-        super::warn(format!(
+        crate::warning::warn(format!(
             "{}: {} of {} frames have a pose file but no depth image ({}{}; from \
              {first}, the depth image of the same number is missing): skipped (a \
              frame's timestamp stays its frame number)",

@@ -214,7 +214,7 @@ pub(crate) fn read(dir: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError
         if frames.is_empty() {
             return Err(text::layout(dir, msg));
         }
-        super::warn(format!("{msg}: skipped"));
+        crate::warning::warn(format!("{msg}: skipped"));
     }
     let size = super::first_size(dir, &paths)?;
     let camera = match given {
@@ -246,7 +246,7 @@ fn default_camera(dir: &Path, size: (u16, u16)) -> Result<CameraModel, ReadError
         k.fx, k.cx, k.cy
     );
     if size == (640, 480) {
-        super::warn(format!(
+        crate::warning::warn(format!(
             "{}: no intrinsics.txt: using {default} (the Freiburg cameras' ROS default; \
              write intrinsics.txt or give --intrinsics fx,fy,cx,cy when they differ)",
             dir.display()

@@ -366,13 +366,8 @@ mod tests {
 
     #[test]
     fn every_filter_mix_matches_the_specification_on_every_vector_unit() {
-        let mut x = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            x
-        };
+        let mut rng = crate::rng::SplitMix64::new(0x2545_f491_4f6c_dd1d);
+        let mut next = move || rng.next_u64();
         let units = VectorUnit::available();
         // Widths around each wavefront's minimum (and odd ones), heights
         // around each group size; the last rows of a height that is not a

@@ -19,7 +19,7 @@
 //! truncated file, another magic, a newer version, a damaged CRC and a
 //! payload whose parts contradict each other.
 
-use crate::output::dataset::DatasetError;
+use crate::error::OutputError;
 use placedb::key_pool::Aabb;
 use serde::{Deserialize, Serialize};
 use std::io;
@@ -400,10 +400,10 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<Extension, ExtensionError> {
 
 /// Writes `ext` to `path` (a file inside a staged output), naming it in an
 /// error.
-pub fn write(path: &Path, ext: &Extension) -> Result<(), DatasetError> {
+pub fn write(path: &Path, ext: &Extension) -> Result<(), OutputError> {
     encode(ext)
         .and_then(|bytes| std::fs::write(path, bytes))
-        .map_err(|source| DatasetError::Write {
+        .map_err(|source| OutputError::Write {
             path: path.to_path_buf(),
             source,
         })

@@ -5,7 +5,8 @@
 
 use super::shade::shade;
 use crate::error::ReadError;
-use crate::sequence::{DepthImage, Sequence};
+use crate::picture::png::Samples;
+use crate::sequence::Sequence;
 use indicatif::ProgressBar;
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
@@ -39,14 +40,17 @@ pub fn write_tum(
         .try_for_each(|f| -> Result<(), ReadError> {
             let depth = seq.depth(f.index)?;
             let ts = stamp(f.timestamp);
-            write_depth_png(&dir.join(format!("depth/{ts}.png")), &depth)?;
+            let size = (depth.width, depth.height);
+            write_png(
+                &dir.join(format!("depth/{ts}.png")),
+                size,
+                Samples::Grey16(&depth.data),
+            )?;
             let rgb = shade(&depth, &seq.camera, seq.depth_scale, f.rotation);
             write_png(
                 &dir.join(format!("rgb/{ts}.png")),
-                (depth.width, depth.height),
-                png::ColorType::Rgb,
-                png::BitDepth::Eight,
-                &rgb,
+                size,
+                Samples::Rgb8(&rgb),
             )?;
             if let Some(p) = progress {
                 p.inc(1);
@@ -86,41 +90,12 @@ fn stamp(t: f64) -> String {
     format!("{t:.6}")
 }
 
-/// Writes a 16-bit grey PNG of `depth`.
-fn write_depth_png(path: &Path, depth: &DepthImage) -> Result<(), ReadError> {
-    let bytes: Vec<u8> = depth.data.iter().flat_map(|d| d.to_be_bytes()).collect();
-    write_png(
-        path,
-        (depth.width, depth.height),
-        png::ColorType::Grayscale,
-        png::BitDepth::Sixteen,
-        &bytes,
-    )
-}
-
-/// Encodes `data` (already in PNG sample order, big-endian for 16 bits) and
-/// writes it to `path`.
-fn write_png(
-    path: &Path,
-    size: (u16, u16),
-    color: png::ColorType,
-    depth: png::BitDepth,
-    data: &[u8],
-) -> Result<(), ReadError> {
-    let encoding = |e: png::EncodingError| ReadError::Png {
-        path: PathBuf::from(path),
-        reason: e.to_string(),
-    };
-    let mut bytes = Vec::with_capacity(data.len() / 2 + 1024);
-    let mut enc = png::Encoder::new(&mut bytes, size.0 as u32, size.1 as u32);
-    enc.set_color(color);
-    enc.set_depth(depth);
-    enc.set_compression(png::Compression::Fast);
-    let mut writer = enc.write_header().map_err(encoding)?;
-    writer.write_image_data(data).map_err(encoding)?;
-    writer.finish().map_err(encoding)?;
-    std::fs::write(path, bytes).map_err(|source| ReadError::Io {
-        path: PathBuf::from(path),
-        source,
+/// Writes `samples` as a PNG with the one PNG writer ([`crate::picture::png`]).
+fn write_png(path: &Path, (w, h): (u16, u16), samples: Samples<'_>) -> Result<(), ReadError> {
+    crate::picture::png::write(path, u32::from(w), u32::from(h), samples).map_err(|source| {
+        ReadError::Io {
+            path: PathBuf::from(path),
+            source,
+        }
     })
 }

@@ -751,13 +751,8 @@ mod tests {
         let p = check_rows(&slide, 40);
         assert!(p[0] > 50 && p[1] >= 3, "{p:?}");
         // Unrelated consecutive frames over a small world (dense path).
-        let mut state = 1u64;
-        let mut next = move || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            state >> 33
-        };
+        let mut rng = crate::rng::SplitMix64::new(1);
+        let mut next = move || rng.next_u64();
         let shuffled: Vec<Vec<u64>> = (0..80)
             .map(|_| {
                 let mut s: Vec<u64> = (0..40)

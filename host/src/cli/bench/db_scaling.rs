@@ -9,7 +9,6 @@
 //! all live in flash, so both counts include reading every nearby stored
 //! frame back: the worst case for the bigger database.
 
-use crate::device::flash_words::{log_error, restore_failure};
 use crate::device::scan;
 use crate::frame_rows::{row_chunks, sampled_rows, RowChunk};
 use crate::synth::{self, SynthConfig};
@@ -116,7 +115,7 @@ pub fn prepare(dir: &Path, frames: usize) -> Result<(u32, u32), String> {
     let mut device = Box::new(Device256K::new());
     let end = (SECTORS * SimFlash::SECTOR) as u32;
     let mut log = Log::open(SimFlash::new(SECTORS), 0, end)
-        .map_err(|e| format!("the simulated flash log does not open: {}", log_error(e)))?;
+        .map_err(|e| format!("the simulated flash log does not open: {e}"))?;
     let mut seq_no = 0;
     let mut hello = Vec::new();
     encode_frame(&mut seq_no, HostMessage::Hello(building.cfg), &mut hello);
@@ -164,15 +163,12 @@ pub fn run_probe(flash: &Path, frames: usize) -> Result<(), String> {
     sim.bytes_mut().copy_from_slice(&bytes);
     let end = u32::try_from(bytes.len())
         .map_err(|_| format!("{name}: {} bytes, more than a flash log spans", bytes.len()))?;
-    let mut log = Log::open(sim, 0, end)
-        .map_err(|e| format!("{name}: not a flash log image: {}", log_error(e)))?;
+    let mut log =
+        Log::open(sim, 0, end).map_err(|e| format!("{name}: not a flash log image: {e}"))?;
     let mut device = Box::new(Device256K::new());
-    let records = device.restore(&mut log).map_err(|e| {
-        format!(
-            "{name}: the device restores no scan from it: {}",
-            restore_failure(e)
-        )
-    })?;
+    let records = device
+        .restore(&mut log)
+        .map_err(|e| format!("{name}: the device restores no scan from it: {e}"))?;
     // An erased or foreign image restores nothing: the probe frame would
     // meet an unconfigured device and count nothing worth reporting.
     if records == 0 {

@@ -120,12 +120,8 @@ impl PicoFlashLink {
             count: Arc::clone(&count),
         };
         let end = (LOCAL_FLASH_SECTORS * SimFlash::SECTOR) as u32;
-        let mut log = Log::open(EraseAhead::new(flash), 0, end).map_err(|e| {
-            format!(
-                "the simulated flash log does not open: {}",
-                crate::device::flash_words::log_error(e)
-            )
-        })?;
+        let mut log = Log::open(EraseAhead::new(flash), 0, end)
+            .map_err(|e| format!("the simulated flash log does not open: {e}"))?;
         let mut device = Box::new(Device256K::new());
         // As the firmware boots: restore (an erased log restores nothing).
         let _ = device.restore(&mut log);

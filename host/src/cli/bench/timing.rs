@@ -33,7 +33,7 @@ pub fn table(a: &BenchOptions) -> Result<(), Error> {
         if p.is_dir() {
             inputs.push((name.into(), vec![p.display().to_string()]));
         } else {
-            eprintln!("placedb bench: {} not found, skipped", p.display());
+            crate::warning::warn(format!("{} not found, skipped", p.display()));
         }
     }
     println!(

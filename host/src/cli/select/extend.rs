@@ -5,8 +5,9 @@
 
 use super::SelectArgs;
 use crate::cli::{open_sequence, solver_params, voxel_config};
+use crate::degradation;
 use crate::error::CommandError as Error;
-use crate::output::dataset::DatasetError;
+use crate::error::OutputError;
 use crate::output::{self, annotate, metrics_json, replace, topview};
 use crate::pipeline::{self, Solver};
 use crate::sessions::extension;
@@ -114,7 +115,7 @@ pub(super) fn run(a: SelectArgs, from: &Path) -> Result<(), Error> {
         annotate::render(&view, &caption)
             .image
             .write_png(&path)
-            .map_err(|source| DatasetError::Write { path, source })?;
+            .map_err(|source| OutputError::Write { path, source })?;
         extension::write(&dir.join(extension::FILE_NAME), &next)
     })?;
     if a.params.json {
@@ -152,11 +153,8 @@ pub(super) fn run(a: SelectArgs, from: &Path) -> Result<(), Error> {
         println!("  {absent} earlier database frames have no voxel set in the file (a device keeps only the keys it compared exactly): counted as empty in the metrics");
     }
     if let Some(run) = &o.online {
-        let st = &run.status;
-        println!(
-            "  online core: profile {}, window {}, {} frames by sketch, {} truncated, {} uncovered by capacity",
-            params.profile, params.window, st.sketched_frames, st.truncated_frames, st.uncovered_frames
-        );
+        let line = degradation::online_summary(&params.profile, params.window, &run.status);
+        println!("  {line}");
     }
     println!(
         "  time: voxelize {:.3} s, solve {:.3} s, total {:.3} s",

@@ -3,7 +3,7 @@
 //! font file. Each glyph is seven rows, top first, the five low bits of a
 //! row its columns (bit 4 the leftmost).
 
-use crate::output::topview::Image;
+use crate::picture::Image;
 
 /// Glyph width in font pixels.
 pub const WIDTH: i64 = 5;

@@ -7,75 +7,41 @@
 pub mod font;
 
 use crate::output::topview::{
-    finite2, Frame, Image, Projection, TopView, BACKGROUND, GREY_DARK, GREY_LIGHT,
+    class_colours, finite2, Frame, Marks, Projection, TopView, BACKGROUND, CLASS_PALETTE,
+    DISC_RADIUS, GREY_DARK, GREY_LIGHT, INK,
 };
+use crate::picture::Image;
 use font::{draw_text, text_height, text_width};
-use std::collections::HashMap;
 
-/// Classes in turn take these colours (by the rank of their database frame),
-/// none of them grey (the map) or white.
-pub const CLASS_PALETTE: [[u8; 3]; 9] = [
-    [31, 119, 180],
-    [255, 127, 14],
-    [44, 160, 44],
-    [214, 39, 40],
-    [148, 103, 189],
-    [140, 86, 75],
-    [227, 119, 194],
-    [188, 189, 34],
-    [23, 190, 207],
-];
-/// Text, frame, ticks and the ring of a database frame.
-pub const INK: [u8; 3] = [20, 20, 20];
 /// Scale of the text: image pixels per font pixel.
 const TEXT_SCALE: i64 = 2;
 /// Blank space around the picture's parts, pixels.
 const PAD: i64 = 12;
-/// Radius of a database frame's disc (inside its ring), pixels.
-const DISC_RADIUS: i64 = 4;
-/// Length of a database frame's view line, pixels.
+/// Length of a database frame's view line, pixels: longer than the plain
+/// picture's, so that it shows past the ring.
 const VIEW_LENGTH: f64 = 14.0;
 /// Shortest distance between two ticks, pixels (room for their labels).
 const TICK_SPACING: f64 = 90.0;
 /// Length of a tick, pixels.
 const TICK: i64 = 6;
 
-/// Per position of `view`, the colour of its class; empty when the view
-/// has no classes. A class is a database frame; the database frames in
-/// ascending order take the palette's colours in turn, so that
-/// neighbouring classes differ.
-pub fn class_colours(view: &TopView) -> Vec<[u8; 3]> {
-    if view.classes.is_empty() {
-        return Vec::new();
-    }
-    let mut database = view.database.clone();
-    database.sort_unstable();
-    database.dedup();
-    let rank: HashMap<usize, usize> = database.iter().enumerate().map(|(r, &d)| (d, r)).collect();
-    view.classes
-        .iter()
-        .map(|c| match rank.get(c) {
-            Some(r) => CLASS_PALETTE[r % CLASS_PALETTE.len()],
-            None => INK,
-        })
-        .collect()
-}
-
 /// The frames' marks over a class-coloured trajectory: a dot per frame in
-/// its class colour, and per database frame a view line and a disc in its
-/// colour, ringed in ink.
+/// its class colour, and per database frame a view line in ink and a disc
+/// in its colour, ringed in ink ([`TopView::paint_database`]).
 pub fn mark_frames(img: &mut Image, frame: &Frame, view: &TopView, colours: &[[u8; 3]]) {
     for (k, &p) in view.positions.iter().enumerate() {
         if let (true, Some(&c)) = (finite2(p), colours.get(k)) {
             img.disc(frame.pixel(p), 1, c);
         }
     }
-    view.draw_view_lines(img, frame, VIEW_LENGTH, INK);
-    for (i, p) in view.database_points() {
-        let c = colours.get(i).copied().unwrap_or(INK);
-        img.disc(frame.pixel(p), DISC_RADIUS + 1, INK);
-        img.disc(frame.pixel(p), DISC_RADIUS, c);
-    }
+    let marks = Marks {
+        view_length: VIEW_LENGTH,
+        line: INK,
+        ring: Some(INK),
+    };
+    view.paint_database(img, frame, &marks, |i| {
+        colours.get(i).copied().unwrap_or(INK)
+    });
 }
 
 /// What the title and the axes say.
@@ -197,7 +163,11 @@ fn rect(img: &mut Image, (x0, y0): (i64, i64), (x1, y1): (i64, i64), colour: [u8
 
 /// Renders `view` ([`TopView::render`]) and annotates it with `caption`.
 pub fn render(view: &TopView, caption: &Caption) -> Annotated {
-    let (map, frame) = view.render_mapped();
+    let (mut map, frame) = view.render_mapped();
+    let colours = class_colours(view);
+    if let (Some(f), false) = (&frame, colours.is_empty()) {
+        mark_frames(&mut map, f, view, &colours);
+    }
     let line = text_height(TEXT_SCALE) + 8;
     let (east, north) = east_north(&caption.projection);
     let subtitle = format!(

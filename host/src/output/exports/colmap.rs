@@ -17,7 +17,7 @@
 //! a pixel.
 
 use super::{image_name, Selection};
-use crate::output::dataset::DatasetError;
+use crate::error::OutputError;
 use crate::output::DbRow;
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use rayon::prelude::*;
@@ -45,7 +45,7 @@ pub fn world_to_camera(pose: &[f64; 7]) -> ([f64; 4], [f64; 3]) {
 }
 
 /// Writes the model of `sel`'s database into `dir`; returns the images.
-pub fn write(dir: &Path, sel: &Selection) -> Result<usize, DatasetError> {
+pub fn write(dir: &Path, sel: &Selection) -> Result<usize, OutputError> {
     let model = dir.join(MODEL);
     let images = dir.join("images");
     for d in [&model, &images] {
@@ -92,7 +92,7 @@ pub fn write(dir: &Path, sel: &Selection) -> Result<usize, DatasetError> {
         std::fs::write(&path, body).map_err(super::write_err(&path))?;
     }
     rows.par_iter()
-        .try_for_each(|&(i, _, _): &DbRow| -> Result<(), DatasetError> {
+        .try_for_each(|&(i, _, _): &DbRow| -> Result<(), OutputError> {
             let bytes = super::image::frame_jpeg(sel.seq, i)?;
             let path = images.join(image_name(i));
             std::fs::write(&path, bytes).map_err(super::write_err(&path))

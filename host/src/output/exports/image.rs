@@ -2,8 +2,9 @@
 //! its colour file as it is when that is a JPEG, other colour re-encoded,
 //! and a rendering of its depth where the sequence has no colour.
 
-use crate::output::dataset::DatasetError;
-use crate::sequence::{ColorImage, Sequence};
+use crate::error::OutputError;
+use crate::picture::Image;
+use crate::sequence::Sequence;
 
 /// JPEG quality of re-encoded colour and of depth renderings.
 pub const QUALITY: u8 = 95;
@@ -13,25 +14,26 @@ pub const RENDER_FAR: f64 = 8.0;
 
 /// The bytes of frame `i`'s JPEG. Its size must be the depth images'
 /// (the exports' camera is the sequence's intrinsics).
-pub fn frame_jpeg(seq: &Sequence, i: usize) -> Result<Vec<u8>, DatasetError> {
+pub fn frame_jpeg(seq: &Sequence, i: usize) -> Result<Vec<u8>, OutputError> {
     let frame = seq.frames.get(i).ok_or_else(|| {
-        DatasetError::Mismatch(format!(
+        OutputError::Mismatch(format!(
             "frame {i} is not in the sequence of {} frames",
             seq.frames.len()
         ))
     })?;
-    let check = |what: String, size: (u16, u16)| {
-        if size == seq.size {
+    let (w, h) = seq.size;
+    let check = |what: String, size: (u32, u32)| {
+        if size == (u32::from(w), u32::from(h)) {
             Ok(())
         } else {
-            Err(DatasetError::Mismatch(format!(
+            Err(OutputError::Mismatch(format!(
                 "frame {i}: {what} is {}x{}, the depth images (whose intrinsics the export's camera has) are {}x{}",
                 size.0, size.1, seq.size.0, seq.size.1
             )))
         }
     };
     if let Some(path) = &frame.color_path {
-        let bytes = std::fs::read(path).map_err(|source| DatasetError::Write {
+        let bytes = std::fs::read(path).map_err(|source| OutputError::Write {
             path: path.clone(),
             source,
         })?;
@@ -43,30 +45,23 @@ pub fn frame_jpeg(seq: &Sequence, i: usize) -> Result<Vec<u8>, DatasetError> {
         let shown = path.display().to_string();
         if ext == "jpg" || ext == "jpeg" {
             let size = jpeg_size(&bytes).ok_or_else(|| {
-                DatasetError::Mismatch(format!("{shown}: not a readable JPEG file"))
+                OutputError::Mismatch(format!("{shown}: not a readable JPEG file"))
             })?;
-            check(format!("colour image {shown}"), size)?;
+            check(
+                format!("colour image {shown}"),
+                (u32::from(size.0), u32::from(size.1)),
+            )?;
             return Ok(bytes);
         }
         let img = decode_png_rgb(&bytes).map_err(|e| {
-            DatasetError::Mismatch(format!("{shown}: cannot read the colour image: {e}"))
+            OutputError::Mismatch(format!("{shown}: cannot read the colour image: {e}"))
         })?;
         check(format!("colour image {shown}"), (img.width, img.height))?;
-        return encode(
-            &img.rgb,
-            img.width,
-            img.height,
-            jpeg_encoder::ColorType::Rgb,
-        );
+        return encode(&img.rgb, w, h, jpeg_encoder::ColorType::Rgb);
     }
     if let Some(img) = seq.source.color(i)? {
         check("its colour image".into(), (img.width, img.height))?;
-        return encode(
-            &img.rgb,
-            img.width,
-            img.height,
-            jpeg_encoder::ColorType::Rgb,
-        );
+        return encode(&img.rgb, w, h, jpeg_encoder::ColorType::Rgb);
     }
     let depth = seq.depth(i)?;
     let grey: Vec<u8> = depth
@@ -94,11 +89,11 @@ fn encode(
     w: u16,
     h: u16,
     colour: jpeg_encoder::ColorType,
-) -> Result<Vec<u8>, DatasetError> {
+) -> Result<Vec<u8>, OutputError> {
     let mut out = Vec::new();
     jpeg_encoder::Encoder::new(&mut out, QUALITY)
         .encode(data, w, h, colour)
-        .map_err(|e| DatasetError::Mismatch(format!("JPEG encoding failed: {e}")))?;
+        .map_err(|e| OutputError::Mismatch(format!("JPEG encoding failed: {e}")))?;
     Ok(out)
 }
 
@@ -134,7 +129,7 @@ pub fn jpeg_size(bytes: &[u8]) -> Option<(u16, u16)> {
 
 /// An 8-bit RGB image from a PNG file's bytes (grey, palette, alpha and
 /// 16-bit samples converted).
-fn decode_png_rgb(bytes: &[u8]) -> Result<ColorImage, String> {
+fn decode_png_rgb(bytes: &[u8]) -> Result<Image, String> {
     let mut dec = png::Decoder::new(std::io::Cursor::new(bytes));
     dec.set_transformations(png::Transformations::normalize_to_color8());
     let mut reader = dec.read_info().map_err(|e| e.to_string())?;
@@ -155,10 +150,9 @@ fn decode_png_rgb(bytes: &[u8]) -> Result<ColorImage, String> {
             _ => [p[0], p[1], p[2]],
         })
         .collect();
-    let size = |v: u32| u16::try_from(v).map_err(|_| format!("{v} pixels is too large"));
-    Ok(ColorImage {
-        width: size(info.width)?,
-        height: size(info.height)?,
+    Ok(Image {
+        width: info.width,
+        height: info.height,
         rgb,
     })
 }

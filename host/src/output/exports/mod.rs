@@ -11,7 +11,7 @@ pub mod image;
 pub mod pairs;
 pub mod vpr_eval;
 
-use crate::output::dataset::DatasetError;
+use crate::error::OutputError;
 use crate::output::replace::{self, Outputs};
 use crate::output::topview::Projection;
 use crate::output::DbRow;
@@ -50,7 +50,7 @@ impl ExportTargets {
     }
 
     /// Refuses, before any work, a target [`write_all`] would refuse.
-    pub fn check_targets(&self) -> Result<(), DatasetError> {
+    pub fn check_targets(&self) -> Result<(), OutputError> {
         if let Some(dir) = &self.colmap {
             replace::check_dir(dir, COLMAP, colmap::is_export)?;
         }
@@ -106,23 +106,23 @@ impl Selection<'_> {
     }
 
     /// Database rows, labels and sequence agree.
-    fn check(&self) -> Result<(), DatasetError> {
+    fn check(&self) -> Result<(), OutputError> {
         let n = self.seq.frames.len();
         if self.labels.len() > n {
-            return Err(DatasetError::Mismatch(format!(
+            return Err(OutputError::Mismatch(format!(
                 "{} labels for a sequence of {n} frames",
                 self.labels.len()
             )));
         }
         for &(i, _, _) in self.rows {
             if i >= self.labels.len() || self.labels[i] != i {
-                return Err(DatasetError::Mismatch(format!(
+                return Err(OutputError::Mismatch(format!(
                     "database frame {i} is not labelled as its own class in the {} labelled frames",
                     self.labels.len()
                 )));
             }
             if self.overlaps.is_some_and(|co| i >= co.len()) {
-                return Err(DatasetError::Mismatch(format!(
+                return Err(OutputError::Mismatch(format!(
                     "database frame {i} has no overlaps computed"
                 )));
             }
@@ -142,8 +142,8 @@ pub fn east_north_of(proj: &Projection, p: [f64; 3]) -> [f64; 2] {
     [es * p[e], ns * p[n]]
 }
 
-fn write_err(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
-    move |source| DatasetError::Write {
+fn write_err(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {
+    move |source| OutputError::Write {
         path: path.to_path_buf(),
         source,
     }
@@ -155,7 +155,7 @@ pub fn write_all(
     flags: &ExportTargets,
     sel: &Selection,
     outputs: &mut Outputs,
-) -> Result<Vec<String>, DatasetError> {
+) -> Result<Vec<String>, OutputError> {
     let mut said = Vec::new();
     if !flags.any() {
         return Ok(said);

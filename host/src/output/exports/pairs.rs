@@ -4,16 +4,16 @@
 //! the voxel sets the solver saw), best first; ties in frame order.
 
 use super::{image_name, Selection};
-use crate::output::dataset::DatasetError;
+use crate::error::OutputError;
 use std::fmt::Write as _;
 
 /// The text of the pairs file.
-pub fn text(sel: &Selection) -> Result<String, DatasetError> {
+pub fn text(sel: &Selection) -> Result<String, OutputError> {
     let co = sel.overlaps.ok_or_else(|| {
-        DatasetError::Mismatch("--pairs needs the frames' overlaps, which were not computed".into())
+        OutputError::Mismatch("--pairs needs the frames' overlaps, which were not computed".into())
     })?;
     if co.len() < sel.labels.len() {
-        return Err(DatasetError::Mismatch(format!(
+        return Err(OutputError::Mismatch(format!(
             "overlaps of {} frames for {} labelled frames",
             co.len(),
             sel.labels.len()

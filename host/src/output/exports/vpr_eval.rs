@@ -13,7 +13,7 @@
 //! reads fields 1 and 2, so `DIR` itself must hold no `@`.
 
 use super::{east_north_of, Selection};
-use crate::output::dataset::DatasetError;
+use crate::error::OutputError;
 use crate::sequence::Sequence;
 use rayon::prelude::*;
 use std::path::Path;
@@ -39,9 +39,9 @@ pub fn parse(name: &str) -> Option<([f64; 2], usize)> {
 }
 
 /// What was written: database images and query images.
-pub fn write(dir: &Path, sel: &Selection) -> Result<(usize, usize), DatasetError> {
+pub fn write(dir: &Path, sel: &Selection) -> Result<(usize, usize), OutputError> {
     if dir.to_string_lossy().contains('@') {
-        return Err(DatasetError::Mismatch(format!(
+        return Err(OutputError::Mismatch(format!(
             "{}: VPR-methods-evaluation reads coordinates between '@'s, so the directory's path must hold none",
             dir.display()
         )));
@@ -71,7 +71,7 @@ pub fn write(dir: &Path, sel: &Selection) -> Result<(usize, usize), DatasetError
         }))
         .collect();
     jobs.par_iter()
-        .try_for_each(|&(seq, i, en, d)| -> Result<(), DatasetError> {
+        .try_for_each(|&(seq, i, en, d)| -> Result<(), OutputError> {
             let bytes = super::image::frame_jpeg(seq, i)?;
             let path = d.join(name(i, en));
             std::fs::write(&path, bytes).map_err(super::write_err(&path))

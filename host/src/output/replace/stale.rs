@@ -69,10 +69,10 @@ pub fn remove_stale(parent: &Path, name: &str) {
         }
         let path = entry.path();
         if let Err(e) = super::remove(&path) {
-            eprintln!(
-                "placedb: warning: {}, left by a run that was killed, could not be removed: {e}",
+            crate::warning::warn(format!(
+                "{}, left by a run that was killed, could not be removed: {e}",
                 path.display()
-            );
+            ));
         }
     }
 }

@@ -29,9 +29,9 @@ pub mod msgs;
 
 use super::{text, ReadOptions};
 use crate::error::ReadError;
-use crate::sequence::{
-    CameraModel, ColorImage, DepthImage, DepthSource, Format, FrameInfo, Sequence,
-};
+use crate::picture::Image;
+use crate::sequence::{CameraModel, DepthImage, DepthSource, Format, FrameInfo, Sequence};
+use crate::warning::warn;
 use bag::{Channel, Location, Message};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -603,10 +603,6 @@ fn layout((path, reason): bag::BagError) -> ReadError {
     ReadError::Layout { path, reason }
 }
 
-fn warn(msg: String) {
-    eprintln!("placedb: warning: {msg}");
-}
-
 /// The pinhole camera from the CameraInfo topic.
 fn camera(
     path: &Path,
@@ -796,7 +792,7 @@ impl DepthSource for BagSource {
         decode_depth(&img, self.depth_scale).map_err(at)
     }
 
-    fn color(&self, i: usize) -> Result<Option<ColorImage>, ReadError> {
+    fn color(&self, i: usize) -> Result<Option<Image>, ReadError> {
         let Some(Some(r)) = self.color.get(i) else {
             return Ok(None);
         };
@@ -891,7 +887,7 @@ pub fn decode_depth(img: &msgs::Image<'_>, depth_scale: f64) -> Result<DepthImag
 }
 
 /// A colour Image as RGB bytes.
-pub fn decode_color(img: &msgs::Image<'_>) -> Result<ColorImage, String> {
+pub fn decode_color(img: &msgs::Image<'_>) -> Result<Image, String> {
     let (width, height) = sides(img)?;
     let (bpp, order): (usize, [usize; 3]) = match img.encoding.as_str() {
         "rgb8" => (3, [0, 1, 2]),
@@ -907,7 +903,11 @@ pub fn decode_color(img: &msgs::Image<'_>) -> Result<ColorImage, String> {
             rgb.extend(order.map(|c| px[c]));
         }
     }
-    Ok(ColorImage { width, height, rgb })
+    Ok(Image {
+        width: width.into(),
+        height: height.into(),
+        rgb,
+    })
 }
 
 #[cfg(test)]
