@@ -44,9 +44,9 @@ use placedb::protocol::{
     PROTOCOL_VERSION,
 };
 use placedb::{Intrinsics, Pose, SelectorConfig};
-use placedb_host::fault::damaged_frame;
+use placedb_host::device::link::fault::damaged_frame;
 use placedb_host::synth::{self, SynthConfig};
-use placedb_host::{device_cli, DepthImage, VoxelConfig};
+use placedb_host::{device::scan, DepthImage, VoxelConfig};
 use std::time::Instant;
 
 use ErrorKind::*;
@@ -81,13 +81,13 @@ impl Scan {
             stride: STRIDE,
             ..VoxelConfig::default()
         };
-        let scan = device_cli::scan_config(&seq, &vcfg).unwrap();
+        let scan = scan::scan_config(&seq, &vcfg).unwrap();
         let sel = SelectorConfig {
             mu: 0.3,
             window: 2,
             sketch_margin: 0.05,
         };
-        let cfg = device_cli::device_config(&scan, &sel).unwrap();
+        let cfg = scan::device_config(&scan, &sel).unwrap();
         let picks: Vec<usize> = (0..FRAMES as usize).map(|k| k * SPACING).collect();
         Scan {
             cfg,

@@ -1,7 +1,7 @@
 //! End to end on the emulated board: the QEMU firmware (boards/qemu-mps2-an386,
 //! profile ram512k, protocol on UART0) is fed real and synthetic depth through
 //! its UART; what it exports is byte-identical to the host replay of the core
-//! (`placedb select --solver online`: `placedb_host::online::replay` and the
+//! (`placedb select --solver online`: `placedb_host::replay::replay` and the
 //! `placedb_host::output` writers) with the same profile and configuration.
 //! Bad input over the wire gets typed errors and changes nothing.
 //!
@@ -18,9 +18,15 @@ use placedb::protocol::{
     CapacitySlot, DeviceMessage, ErrorKind, ExportRecord, HostMessage, Phase, MAX_FRAME_LEN,
 };
 use placedb::{SelectorConfig, VoxelGrid};
-use placedb_host::device_cli::{self, ExportOptions, StreamOptions, StreamReport};
-use placedb_host::fault::damaged_frame;
-use placedb_host::link::{Client, Qemu, QemuOptions, Received};
+use placedb_host::device::client::Client;
+use placedb_host::device::client::Received;
+use placedb_host::device::emulator::qemu::Qemu;
+use placedb_host::device::emulator::qemu::QemuOptions;
+use placedb_host::device::export::ExportOptions;
+use placedb_host::device::link::fault::damaged_frame;
+use placedb_host::device::scan::StreamOptions;
+use placedb_host::device::scan::StreamReport;
+use placedb_host::device::{export, scan};
 use placedb_host::read::{self, ReadOptions};
 use placedb_host::synth::{self, SynthConfig};
 use placedb_host::testing::qemu_firmware as firmware;
@@ -116,10 +122,9 @@ fn stream_and_compare(
     vcfg: &VoxelConfig,
     sel: SelectorConfig,
 ) -> (StreamReport, Vec<ExportRecord>) {
-    let scan = device_cli::scan_config(seq, vcfg).unwrap();
-    let cfg = device_cli::device_config(&scan, &sel).unwrap();
-    let report =
-        device_cli::stream(client, seq, &cfg, PROFILE, &StreamOptions::default(), None).unwrap();
+    let scan = scan::scan_config(seq, vcfg).unwrap();
+    let cfg = scan::device_config(&scan, &sel).unwrap();
+    let report = scan::stream(client, seq, &cfg, PROFILE, &StreamOptions::default(), None).unwrap();
     assert_eq!(report.status.phase, Phase::Finished);
     assert_eq!(report.status.frames_seen as usize, seq.frames.len());
     assert!(report.decisions.iter().all(Option::is_some));
@@ -180,7 +185,7 @@ fn real_and_synthetic_scans_match_the_host_replay() {
         ..ExportOptions::default()
     };
     let mut batches = 0;
-    let resumed = device_cli::export(&mut client, records[..k].to_vec(), &opts, None, &mut |_| {
+    let resumed = export::export(&mut client, records[..k].to_vec(), &opts, None, &mut |_| {
         batches += 1;
         Ok(())
     })
@@ -222,18 +227,18 @@ fn real_and_synthetic_scans_match_the_host_replay() {
 }
 
 /// The Cortex-M4F's instructions per valid pixel, protocol included
-/// (`placedb_host::pixelcost`: the same frames at two strides; what the
+/// (`placedb_host::cli::bench::pixel_cost`: the same frames at two strides; what the
 /// firmware counts under `-icount shift=0`, exact up to a SysTick tick per
 /// clock reading): at most 100 on 7-Scenes, the core's share reported.
 #[test]
 fn a_valid_pixel_costs_at_most_100_instructions() {
-    use placedb_host::pixelcost::{self, SELECTOR, STRIDES};
+    use placedb_host::cli::bench::pixel_cost::{self, SELECTOR, STRIDES};
     let mut client = boot(Duration::from_secs(600));
     let data = placedb_host::testing::data("7scenes-1000");
     let mut real = read::open(&data, &ReadOptions::default()).unwrap();
     real.frames.truncate(3);
     let vcfg = VoxelConfig::default();
-    let cost = pixelcost::measure(&mut client, &real, &vcfg, SELECTOR, PROFILE, STRIDES).unwrap();
+    let cost = pixel_cost::measure(&mut client, &real, &vcfg, SELECTOR, PROFILE, STRIDES).unwrap();
     let (total, core) = (cost.per_pixel(), cost.core_per_pixel());
     println!(
         "7scenes-1000, strides {STRIDES:?}: {total:.1} instructions per valid pixel \
@@ -269,14 +274,14 @@ fn bad_input_gets_typed_errors_and_changes_nothing() {
         window: 3,
         sketch_margin: 0.05,
     };
-    let scan = device_cli::scan_config(&demo, &vcfg).unwrap();
+    let scan = scan::scan_config(&demo, &vcfg).unwrap();
     assert_eq!(scan.grid, VoxelGrid::new(0.3, [0.0; 3]).unwrap());
-    let cfg = device_cli::device_config(&scan, &sel).unwrap();
+    let cfg = scan::device_config(&scan, &sel).unwrap();
     let opts = StreamOptions {
         in_flight: 1,
         ..StreamOptions::default()
     };
-    device_cli::stream(&mut client, &demo, &cfg, PROFILE, &opts, None).unwrap();
+    scan::stream(&mut client, &demo, &cfg, PROFILE, &opts, None).unwrap();
     let before = export_all(&mut client);
     assert!(before.status.database_size >= 1);
 

@@ -21,8 +21,8 @@ use placedb::protocol::{
     FrameDecoder, HostFrame, HostMessage, Status, MAX_FRAME_LEN, MAX_REPLY_LEN,
 };
 use placedb::SelectorConfig;
-use placedb_host::device_cli;
-use placedb_host::online::sampled_rows;
+use placedb_host::device::scan;
+use placedb_host::frame_rows::sampled_rows;
 use placedb_host::synth::{self, SynthConfig};
 use placedb_host::VoxelConfig;
 use std::alloc::{GlobalAlloc, Layout, System};
@@ -117,13 +117,13 @@ fn load(frames: usize, checkpoint: usize) -> Load {
         stride: 1,
         ..VoxelConfig::default()
     };
-    let scan = device_cli::scan_config(&seq, &vcfg).unwrap();
+    let scan = scan::scan_config(&seq, &vcfg).unwrap();
     let sel = SelectorConfig {
         mu: 0.3,
         window: 32,
         sketch_margin: 0.05,
     };
-    let cfg: Config = device_cli::device_config(&scan, &sel).unwrap();
+    let cfg: Config = scan::device_config(&scan, &sel).unwrap();
     let width = cfg.width_sent();
     let rows_per_msg = usize::from(depth_rows_per_message(width));
     let started = Instant::now();

@@ -44,9 +44,9 @@ use placedb::{
     DbRecord, Decision, DepthRange, FrameDecision, FrameMeta, FrameProjector, Intrinsics, Pose,
     ScanConfig, Selector, SelectorConfig, Status, VoxelGrid,
 };
-use placedb_host::graph::CoObservation;
 use placedb_host::rng::SplitMix64 as Rng;
-use placedb_host::solve::{in_order, is_dominating};
+use placedb_host::yardstick::graph::CoObservation;
+use placedb_host::yardstick::solve::{in_order, is_dominating};
 use proptest::prelude::*;
 
 // ---------------------------------------------------------------------------
@@ -213,7 +213,7 @@ impl Scan {
     }
 
     /// Sampled rows of frame `f` as a board receives them (see
-    /// `placedb_host::online::sampled_rows`): row `r` is image row
+    /// `placedb_host::frame_rows::sampled_rows`): row `r` is image row
     /// `r * stride`, sample `i` is column `i * stride`.
     fn sampled(&self, f: usize) -> (usize, Vec<u16>) {
         let s = self.scan.stride as usize;

@@ -67,9 +67,9 @@ use placedb::protocol::{
     ExportRecord, HostMessage, Phase, RecordKind, Status,
 };
 use placedb::{Pose, SelectorConfig};
-use placedb_host::row_chunks::{row_chunks, RowChunk};
+use placedb_host::frame_rows::{row_chunks, RowChunk};
 use placedb_host::synth::{self, SynthConfig};
-use placedb_host::{device_cli, online, VoxelConfig};
+use placedb_host::{device::scan, VoxelConfig};
 use std::collections::{BTreeMap, BTreeSet};
 use std::ops::{Deref, DerefMut};
 use std::sync::atomic::Ordering;
@@ -127,18 +127,18 @@ impl Scan {
             stride: 8,
             ..VoxelConfig::default()
         };
-        let scan = device_cli::scan_config(&seq, &vcfg).unwrap();
+        let scan = scan::scan_config(&seq, &vcfg).unwrap();
         let sel = SelectorConfig {
             mu,
             window,
             sketch_margin: 0.05,
         };
-        let cfg = device_cli::device_config(&scan, &sel).unwrap();
+        let cfg = scan::device_config(&scan, &sel).unwrap();
         let per_msg = usize::from(depth_rows_per_message(cfg.width_sent()));
         let frames = (skip..skip + frames)
             .map(|i| {
                 let img = seq.depth(i).unwrap();
-                let (w, values) = online::sampled_rows(&img, cfg.stride);
+                let (w, values) = placedb_host::frame_rows::sampled_rows(&img, cfg.stride);
                 assert_eq!(w, usize::from(cfg.width_sent()));
                 let rows = row_chunks(w, &values, per_msg).collect();
                 Frame {

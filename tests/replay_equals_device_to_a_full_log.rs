@@ -1,5 +1,5 @@
 //! The host replay (`select --solver online`: the profile's selector over
-//! `online::MemStore`) decides exactly as the device (the same selector over
+//! `replay::MemStore`) decides exactly as the device (the same selector over
 //! its flash log) up to the last frame the device's log accepts, on a scan
 //! that fills the log while the key budget still lasts: one rule says when
 //! a database frame's exact keys are stored (the selector's, see
@@ -22,7 +22,7 @@ use placedb::profile::Ram512K;
 use placedb::protocol::{Config, DecisionKind, DepthRows, DeviceMessage, ErrorKind, HostMessage};
 use placedb::select::database::KEY_BUDGET;
 use placedb::{DepthRange, FrameMeta, Intrinsics, Pose, ScanConfig, SelectorConfig, VoxelGrid};
-use placedb_host::online::MemStore;
+use placedb_host::replay::MemStore;
 
 const WIDTH: u16 = 16;
 /// Places of the scan: more than the log holds.

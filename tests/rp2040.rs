@@ -1,6 +1,6 @@
 //! End to end on the real board's firmware: `boards/rp-pico` (RP2040,
 //! Cortex-M0+, profile ram256k, USB CDC-ACM) run instruction by instruction
-//! under rp2040js (`placedb_host::rp2040`, the Node harness in
+//! under rp2040js (`placedb_host::device::emulator::rp2040`, the Node harness in
 //! `boards/rp-pico/emulator`): boot ROM, boot2, the 2 MiB QSPI flash behind the
 //! ROM's flash functions, and a USB host bridging the CDC-ACM data endpoints
 //! to TCP. What the emulated Pico exports is byte-identical to the host replay
@@ -20,13 +20,17 @@ mod common;
 use common::{demo, host_replay, killed_mid_scan_restores_and_resumes, Board};
 use placedb::protocol::{Phase, Status};
 use placedb::SelectorConfig;
+use placedb_host::cli::bench::pixel_cost;
+use placedb_host::device::client::Client;
+use placedb_host::device::emulator::rp2040::{Rp2040, Rp2040Options};
+use placedb_host::device::export::ExportOptions;
 use placedb_host::device::flash_timing::FlashTiming;
-use placedb_host::device_cli::{self, ExportOptions, StreamOptions, StreamReport};
-use placedb_host::fault::{FaultConfig, FaultInjector};
-use placedb_host::link::{Client, Link};
-use placedb_host::pixelcost;
-use placedb_host::rp2040::{Rp2040, Rp2040Options};
-use placedb_host::session::{DepthFrame, Session};
+use placedb_host::device::link::fault::{FaultConfig, FaultInjector};
+use placedb_host::device::link::Link;
+use placedb_host::device::scan::StreamOptions;
+use placedb_host::device::scan::StreamReport;
+use placedb_host::device::session::{DepthFrame, Session};
+use placedb_host::device::{client, export, scan};
 use placedb_host::testing::rp2040_firmware as firmware;
 use placedb_host::testing::{selector as sel, voxel_config as stride};
 use placedb_host::{Sequence, VoxelConfig};
@@ -53,7 +57,7 @@ fn seven_scenes(frames: usize) -> Sequence {
 }
 
 fn export_csv<L: Link>(client: &mut Client<L>, opts: &ExportOptions) -> (String, String) {
-    device_cli::export(client, Vec::new(), opts, None, &mut |_| Ok(()))
+    export::export(client, Vec::new(), opts, None, &mut |_| Ok(()))
         .unwrap()
         .csv()
 }
@@ -65,9 +69,9 @@ fn stream<L: Link>(
     sel: SelectorConfig,
     opts: &StreamOptions,
 ) -> StreamReport {
-    let scan = device_cli::scan_config(seq, vcfg).unwrap();
-    let cfg = device_cli::device_config(&scan, &sel).unwrap();
-    device_cli::stream(client, seq, &cfg, PROFILE, opts, None)
+    let scan = scan::scan_config(seq, vcfg).unwrap();
+    let cfg = scan::device_config(&scan, &sel).unwrap();
+    scan::stream(client, seq, &cfg, PROFILE, opts, None)
         .unwrap_or_else(|e| panic!("stream of {} failed: {e}", seq.name))
 }
 
@@ -135,7 +139,7 @@ fn the_emulated_pico_matches_the_host_replay() {
 }
 
 /// The marginal cost of a valid pixel on the Cortex-M0+
-/// (`placedb_host::pixelcost`: the same frames at two strides; the difference
+/// (`placedb_host::cli::bench::pixel_cost`: the same frames at two strides; the difference
 /// in cycles over the difference in valid pixels, so what a frame costs
 /// besides its pixels cancels out).
 #[test]
@@ -150,13 +154,13 @@ fn cortex_m0_cycles_per_valid_pixel() {
     let board = Rp2040::start_with(&firmware(), &options).unwrap_or_else(|e| panic!("{e}"));
     let mut client = Client::new(board);
     for (name, seq) in [("7scenes-1000", seven_scenes(3)), ("synthetic", demo(6))] {
-        let cost = pixelcost::measure(
+        let cost = pixel_cost::measure(
             &mut client,
             &seq,
             &stride(1),
             sel(16),
             PROFILE,
-            pixelcost::STRIDES,
+            pixel_cost::STRIDES,
         )
         .unwrap_or_else(|e| panic!("{name}: {e}"));
         let [f, c] = [cost.fine, cost.coarse];
@@ -382,8 +386,8 @@ fn a_pico_cut_during_an_erase_restores_and_resumes() {
     let _ = std::fs::remove_file(&flash);
     let seq = demo(40);
     let (vcfg, sel) = (stride(8), sel(8));
-    let scan = device_cli::scan_config(&seq, &vcfg).unwrap();
-    let cfg = device_cli::device_config(&scan, &sel).unwrap();
+    let scan = scan::scan_config(&seq, &vcfg).unwrap();
+    let cfg = scan::device_config(&scan, &sel).unwrap();
     // Erase 1 readies the head sector at boot, 2 the next one after the
     // Hello: the third is in the middle of the scan.
     let board = boot_timed(Some(&flash), FlashTiming::Max, Some(3));
@@ -416,7 +420,7 @@ fn a_pico_cut_during_an_erase_restores_and_resumes() {
     drop(board);
 
     let mut client = Client::new(boot_timed(Some(&flash), FlashTiming::Max, None));
-    let st = device_cli::status(&mut client, REPLY).unwrap();
+    let st = client::status(&mut client, REPLY).unwrap();
     assert!(st.frames_decided as usize >= acknowledged.len());
     let (_, labels) = export_csv(&mut client, &ExportOptions::default());
     for &(frame, kind) in &acknowledged {

@@ -27,10 +27,11 @@ mod pico;
 use new_places::new_place_every_frame;
 use pico::{boot, exit_field, export_csv, latency, stream, Cut, PROFILE};
 use placedb::protocol::DecisionKind;
+use placedb_host::device::client::Client;
 use placedb_host::device::flash_timing::FlashTiming;
-use placedb_host::device_cli::{self, StreamOptions};
-use placedb_host::link::Client;
-use placedb_host::session::{DepthFrame, Session};
+use placedb_host::device::scan::StreamOptions;
+use placedb_host::device::session::{DepthFrame, Session};
+use placedb_host::device::{client, scan};
 use placedb_host::testing::{replay_csv as host_replay, selector};
 use std::collections::BTreeSet;
 use std::time::{Duration, Instant};
@@ -131,8 +132,8 @@ fn cut_restore_and_resume(cut: Cut, min_acknowledged: usize) {
     let _ = std::fs::remove_file(&flash);
     let seq = new_place_every_frame(FRAMES);
     let (vcfg, sel) = (new_places::voxel_config(), selector(WINDOW));
-    let scan = device_cli::scan_config(&seq, &vcfg).unwrap();
-    let cfg = device_cli::device_config(&scan, &sel).unwrap();
+    let scan = scan::scan_config(&seq, &vcfg).unwrap();
+    let cfg = scan::device_config(&scan, &sel).unwrap();
     let (want_db, want_labels) = host_replay(PROFILE, &seq, &vcfg, sel);
 
     let board = boot(Some(&flash), FlashTiming::Max, cut);
@@ -170,7 +171,7 @@ fn cut_restore_and_resume(cut: Cut, min_acknowledged: usize) {
     );
 
     let mut client = Client::new(boot(Some(&flash), FlashTiming::Max, Cut::Never));
-    let st = device_cli::status(&mut client, StreamOptions::default().reply_timeout).unwrap();
+    let st = client::status(&mut client, StreamOptions::default().reply_timeout).unwrap();
     let decided = st.frames_decided as usize;
     assert!(
         decided >= acknowledged.len(),

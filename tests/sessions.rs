@@ -28,9 +28,9 @@ use placedb::protocol::{
     ErrorKind, ExportRecord, HostMessage, Phase, RecordKind,
 };
 use placedb::{DepthRange, Intrinsics, Pose, ScanConfig, SelectorConfig, VoxelGrid};
-use placedb_host::row_chunks::{row_chunks, RowChunk};
+use placedb_host::frame_rows::{row_chunks, RowChunk};
 use placedb_host::synth::{self, SynthConfig};
-use placedb_host::{device_cli, online, VoxelConfig};
+use placedb_host::{device::scan, VoxelConfig};
 use std::collections::BTreeMap;
 
 /// The device of the power cuts: window 8, sketches of 16 hashes, 64
@@ -62,18 +62,18 @@ fn route() -> (Config, Vec<Frame>) {
         stride: 8,
         ..VoxelConfig::default()
     };
-    let scan = device_cli::scan_config(&seq, &vcfg).unwrap();
+    let scan = scan::scan_config(&seq, &vcfg).unwrap();
     let sel = SelectorConfig {
         mu: 0.3,
         window: 8,
         sketch_margin: 0.05,
     };
-    let cfg = device_cli::device_config(&scan, &sel).unwrap();
+    let cfg = scan::device_config(&scan, &sel).unwrap();
     let per_msg = usize::from(depth_rows_per_message(cfg.width_sent()));
     let frames = (0..seq.frames.len())
         .map(|i| {
             let img = seq.depth(i).unwrap();
-            let (w, values) = online::sampled_rows(&img, cfg.stride);
+            let (w, values) = placedb_host::frame_rows::sampled_rows(&img, cfg.stride);
             Frame {
                 timestamp: seq.frames[i].timestamp,
                 pose: seq.frames[i].pose().unwrap(),

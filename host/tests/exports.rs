@@ -5,9 +5,12 @@
 //! one, and a device's exports equal to select's.
 
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
-use placedb_host::device_cli::{self, StreamOptions};
-use placedb_host::link::{Client, LocalLink};
-use placedb_host::output::exports::{self, vpr_eval, ExportFlags, StreamedWith};
+use placedb_host::cli::export::{write_from_device, StreamedWith};
+use placedb_host::device::client::Client;
+use placedb_host::device::link::LocalLink;
+use placedb_host::device::scan::StreamOptions;
+use placedb_host::device::{export, scan};
+use placedb_host::output::exports::{self, vpr_eval, ExportTargets};
 use placedb_host::output::replace;
 use placedb_host::pipeline::{self, SolverParams};
 use placedb_host::read::{self, ReadOptions};
@@ -362,10 +365,10 @@ fn a_devices_exports_are_selects() {
         window: 32,
         sketch_margin: SolverParams::default().sketch_margin,
     };
-    let scan = device_cli::scan_config(&seq, &VoxelConfig::default()).unwrap();
-    let cfg = device_cli::device_config(&scan, &sel).unwrap();
+    let scan = scan::scan_config(&seq, &VoxelConfig::default()).unwrap();
+    let cfg = scan::device_config(&scan, &sel).unwrap();
     let mut client = Client::new(LocalLink::start("ram512k").unwrap());
-    device_cli::stream(
+    scan::stream(
         &mut client,
         &seq,
         &cfg,
@@ -374,9 +377,9 @@ fn a_devices_exports_are_selects() {
         None,
     )
     .unwrap();
-    let export = device_cli::export_to(&mut client, &root.join("device/out"), None, true).unwrap();
+    let export = export::export_to(&mut client, &root.join("device/out"), None, true).unwrap();
     let (colmap2, vpr2, pairs2) = dirs("device");
-    let flags = ExportFlags {
+    let flags = ExportTargets {
         colmap: Some(colmap2.clone()),
         vpr_eval: Some(vpr2.clone()),
         pairs: Some(pairs2.clone()),
@@ -386,10 +389,8 @@ fn a_devices_exports_are_selects() {
         voxel: 0.3,
         test: None,
     };
-    replace::together(|outputs| {
-        exports::device::write_from_device(&flags, &streamed, &seq, &export, true, outputs)
-    })
-    .unwrap();
+    replace::together(|outputs| write_from_device(&flags, &streamed, &seq, &export, true, outputs))
+        .unwrap();
     assert_eq!(
         std::fs::read(root.join("select/out/database.csv")).unwrap(),
         std::fs::read(root.join("device/out/database.csv")).unwrap()

@@ -11,11 +11,13 @@
 //! written; a run without `--extend` writing the columns it always wrote.
 
 use placedb::profile::Ram512K;
-use placedb_host::extend::record::{self, SessionRun};
-use placedb_host::output::{self, extension};
+use placedb_host::output;
 use placedb_host::pipeline::{self, Solver, SolverParams};
 use placedb_host::read::{self, ReadOptions};
-use placedb_host::replay::{self, MemStore};
+use placedb_host::replay::MemStore;
+use placedb_host::replay::Seed;
+use placedb_host::sessions::extension;
+use placedb_host::sessions::record::{self, SessionRun};
 use placedb_host::yardstick::metrics;
 use placedb_host::{voxelize, VoxelConfig};
 use std::collections::BTreeMap;
@@ -584,7 +586,7 @@ fn seeding_from_the_file_restores_the_state_the_first_session_ended_in() {
         .spawn(move || {
             let mut sel = Box::new(Ram512K::new());
             let mut store = MemStore::default();
-            let next = replay::seed(&mut *sel, &mut store, &ext, scan, cfg).unwrap();
+            let next = ext.seed(&mut *sel, &mut store, scan, cfg).unwrap();
             let records: Vec<_> = (0..sel.database_len())
                 .map(|i| sel.database_record(i, &mut store))
                 .collect();

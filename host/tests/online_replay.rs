@@ -1,5 +1,5 @@
 //! The online replay fed from the yardstick's voxel sets
-//! (`online::replay_voxelized`, what `select --solver online` runs) decides
+//! (`replay::replay_voxelized`, what `select --solver online` runs) decides
 //! exactly as the replay that decodes and pushes every frame's rows, as a
 //! board receives them: same decisions, database records and counters, on
 //! a recorded sequence at every profile, and where frames overflow the
@@ -7,7 +7,7 @@
 
 use placedb::SelectorConfig;
 use placedb_host::voxelize::{voxelize, VoxelConfig};
-use placedb_host::{device_cli, online, Sequence};
+use placedb_host::{device::scan, replay, Sequence};
 
 fn seven_scenes(frames: usize) -> Sequence {
     placedb_host::testing::sample("7scenes-1000", frames)
@@ -17,14 +17,14 @@ fn seven_scenes(frames: usize) -> Sequence {
 /// the device truncated.
 fn both_agree(seq: &Sequence, vcfg: &VoxelConfig, profile: &str, mu: f32) -> u32 {
     let sets = voxelize(seq, vcfg, None).unwrap();
-    let scan = device_cli::scan_config(seq, vcfg).unwrap();
+    let scan = scan::scan_config(seq, vcfg).unwrap();
     let cfg = SelectorConfig {
         mu,
         window: 32,
         sketch_margin: 0.05,
     };
-    let pushed = online::replay(seq, profile, scan, cfg, 8, None).unwrap();
-    let filled = online::replay_voxelized(seq, &sets, profile, scan, cfg, 8, None).unwrap();
+    let pushed = replay::replay(seq, profile, scan, cfg, 8, None).unwrap();
+    let filled = replay::replay_voxelized(seq, &sets, profile, scan, cfg, 8, None).unwrap();
     let what = format!("{profile} mu {mu} voxel {}", vcfg.voxel);
     assert_eq!(pushed.decisions, filled.decisions, "{what}");
     assert_eq!(pushed.labels, filled.labels, "{what}");

@@ -10,7 +10,7 @@ use placedb_host::pipeline::{self, Solver, SolverParams};
 use placedb_host::read::ros2::msgs::{self, CameraInfo, Header, Image, PoseMsg, Transform};
 use placedb_host::read::ros2::Ros2Options;
 use placedb_host::read::{self, ReadOptions};
-use placedb_host::{dataset, output, Format, ReadError, Sequence, VoxelConfig};
+use placedb_host::{output, output::dataset, Format, ReadError, Sequence, VoxelConfig};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 

@@ -6,10 +6,10 @@
 //! `cargo test --release -p placedb-host --test solvers -- --ignored --nocapture`.
 
 use placedb::voxel::{intersection_size, iou};
-use placedb_host::graph::{CoObservation, OverlapGraph};
-use placedb_host::metrics::evaluate;
 use placedb_host::rng::SplitMix64 as Rng;
-use placedb_host::solve::{exact, greedy, in_order, is_dominating, labels};
+use placedb_host::yardstick::graph::{CoObservation, OverlapGraph};
+use placedb_host::yardstick::metrics::evaluate;
+use placedb_host::yardstick::solve::{exact, greedy, in_order, is_dominating, labels};
 use std::time::{Duration, Instant};
 
 fn random_graph(rng: &mut Rng, n: usize, p: f64) -> OverlapGraph {

@@ -3,10 +3,14 @@
 //! through the host library, and reading the harness's exit lines.
 
 use placedb::SelectorConfig;
+use placedb_host::device::client::Client;
+use placedb_host::device::emulator::rp2040::{Rp2040, Rp2040Options};
+use placedb_host::device::export::ExportOptions;
 use placedb_host::device::flash_timing::FlashTiming;
-use placedb_host::device_cli::{self, ExportOptions, StreamOptions, StreamReport};
-use placedb_host::link::{Client, Link};
-use placedb_host::rp2040::{Rp2040, Rp2040Options};
+use placedb_host::device::link::Link;
+use placedb_host::device::scan::StreamOptions;
+use placedb_host::device::scan::StreamReport;
+use placedb_host::device::{export, scan};
 use placedb_host::testing::rp2040_firmware as firmware;
 use placedb_host::{Sequence, VoxelConfig};
 use std::path::Path;
@@ -59,7 +63,7 @@ pub fn boot(flash: Option<&Path>, timing: FlashTiming, cut: Cut) -> Rp2040 {
 
 /// `database.csv` and `labels.csv` of everything the board holds.
 pub fn export_csv<L: Link>(client: &mut Client<L>) -> (String, String) {
-    device_cli::export(
+    export::export(
         client,
         Vec::new(),
         &ExportOptions::default(),
@@ -78,9 +82,9 @@ pub fn stream<L: Link>(
     sel: SelectorConfig,
     opts: &StreamOptions,
 ) -> StreamReport {
-    let scan = device_cli::scan_config(seq, vcfg).unwrap();
-    let cfg = device_cli::device_config(&scan, &sel).unwrap();
-    device_cli::stream(client, seq, &cfg, PROFILE, opts, None)
+    let scan = scan::scan_config(seq, vcfg).unwrap();
+    let cfg = scan::device_config(&scan, &sel).unwrap();
+    scan::stream(client, seq, &cfg, PROFILE, opts, None)
         .unwrap_or_else(|e| panic!("stream of {} failed: {e}", seq.name))
 }
 
