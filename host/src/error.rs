@@ -1,7 +1,7 @@
 //! Errors of the host tools: each names the file (and line) it is about, so a
 //! user can fix the input without reading code.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// Why a `placedb` command failed: any error, printed as
 /// `placedb: error: {error}`.
@@ -92,6 +92,17 @@ pub enum OutputError {
     /// the sequence.
     #[error("{0}")]
     Mismatch(String),
+}
+
+impl OutputError {
+    /// The error of a failed write (or directory creation) of `path`, for
+    /// `map_err`: the one way `output/` names the file it could not write.
+    pub fn writing(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {
+        move |source| OutputError::Write {
+            path: path.to_path_buf(),
+            source,
+        }
+    }
 }
 
 /// A duration in an error message, in plain seconds ("30 s", "2.5 s"):

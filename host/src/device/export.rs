@@ -437,12 +437,7 @@ pub fn pull<L: Link>(
         }
         None => Vec::new(),
     };
-    let saving = |e: io::Error| {
-        DeviceError::Output(OutputError::Write {
-            path: partial.clone(),
-            source: e,
-        })
-    };
+    let saving = |e: io::Error| DeviceError::Output(OutputError::writing(&partial)(e));
     // Rewrite the resume file with exactly what is kept.
     remove_if_there(&partial).map_err(saving)?;
     let mut head = vec![DeviceMessage::Status(now)];
@@ -516,12 +511,8 @@ pub fn stage(
 /// printed unless `quiet`.
 pub fn finished(out: &Path, export: &Export, quiet: bool) -> Result<(), DeviceError> {
     let partial = resume_file(out);
-    remove_if_there(&partial).map_err(|source| {
-        DeviceError::Output(OutputError::Write {
-            path: partial.clone(),
-            source,
-        })
-    })?;
+    remove_if_there(&partial)
+        .map_err(|e| DeviceError::Output(OutputError::writing(&partial)(e)))?;
     if !quiet {
         let firsts = export.sessions();
         println!(

@@ -68,13 +68,6 @@ pub struct DatasetSummary {
     pub color: bool,
 }
 
-fn write_err(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {
-    move |source| OutputError::Write {
-        path: path.to_path_buf(),
-        source,
-    }
-}
-
 /// Where frame `i`'s colour comes from.
 enum Color {
     File(PathBuf),
@@ -115,9 +108,9 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
     let color = !colors.is_empty() && colors.iter().all(Option::is_some);
     let database_dir = dir.join("database");
     for d in [dir, &database_dir] {
-        std::fs::create_dir_all(d.join("depth")).map_err(write_err(d))?;
+        std::fs::create_dir_all(d.join("depth")).map_err(OutputError::writing(d))?;
         if color {
-            std::fs::create_dir_all(d.join("color")).map_err(write_err(d))?;
+            std::fs::create_dir_all(d.join("color")).map_err(OutputError::writing(d))?;
         }
     }
     let name = |i: usize| format!("{i:06}");
@@ -209,7 +202,7 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
             ("classes.csv", classes(which)),
         ] {
             let path = d.join(file);
-            std::fs::write(&path, text).map_err(write_err(&path))?;
+            std::fs::write(&path, text).map_err(OutputError::writing(&path))?;
         }
     }
     Ok(DatasetSummary {
@@ -226,5 +219,5 @@ fn write_png(
     height: u32,
     samples: Samples<'_>,
 ) -> Result<(), OutputError> {
-    crate::picture::png::write(path, width, height, samples).map_err(write_err(path))
+    crate::picture::png::write(path, width, height, samples).map_err(OutputError::writing(path))
 }

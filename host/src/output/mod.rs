@@ -143,10 +143,7 @@ pub fn write_database_dir(
     sessions: Option<session_columns::SessionOf<'_>>,
 ) -> Result<(), OutputError> {
     let metrics_path = dir.join("metrics.json");
-    let metrics = metrics_json::text(metrics).map_err(|source| OutputError::Write {
-        path: metrics_path.clone(),
-        source,
-    })?;
+    let metrics = metrics_json::text(metrics).map_err(OutputError::writing(&metrics_path))?;
     let (database, labels) = match sessions {
         Some(session_of) => (
             session_columns::database_csv(rows, session_of),

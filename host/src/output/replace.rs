@@ -21,13 +21,6 @@ use crate::error::ReadError;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {
-    move |source| OutputError::Write {
-        path: path.to_path_buf(),
-        source,
-    }
-}
-
 fn refused(text: String) -> OutputError {
     OutputError::Mismatch(text)
 }
@@ -114,7 +107,7 @@ pub fn check_dir(
             )));
         }
         let empty = std::fs::read_dir(target)
-            .map_err(io_err(target))?
+            .map_err(OutputError::writing(target))?
             .next()
             .is_none();
         if !empty && !is_ours(target) {
@@ -201,7 +194,7 @@ impl Outputs {
         all.push(target);
         check_apart(&all)?;
         let (parent, name) = split(target)?;
-        std::fs::create_dir_all(&parent).map_err(io_err(&parent))?;
+        std::fs::create_dir_all(&parent).map_err(OutputError::writing(&parent))?;
         stale::remove_stale(&parent, &name);
         self.staged.push(Staged {
             target: target.to_path_buf(),
@@ -221,7 +214,7 @@ impl Outputs {
         check_dir(target, kind, is_ours)?;
         let partial = sibling(target, "partial")?;
         self.stage(target, partial.clone())?;
-        std::fs::create_dir(&partial).map_err(io_err(&partial))?;
+        std::fs::create_dir(&partial).map_err(OutputError::writing(&partial))?;
         Ok(partial)
     }
 
@@ -313,7 +306,7 @@ impl Outputs {
     fn swap(s: &Staged) -> Result<Option<PathBuf>, OutputError> {
         let old = if std::fs::symlink_metadata(&s.target).is_ok() {
             let old = sibling(&s.target, "old")?;
-            std::fs::rename(&s.target, &old).map_err(io_err(&s.target))?;
+            std::fs::rename(&s.target, &old).map_err(OutputError::writing(&s.target))?;
             Some(old)
         } else {
             None
@@ -322,7 +315,7 @@ impl Outputs {
             if let Some(old) = &old {
                 let _ = std::fs::rename(old, &s.target);
             }
-            return Err(io_err(&s.target)(e));
+            return Err(OutputError::writing(&s.target)(e));
         }
         Ok(old)
     }
@@ -364,7 +357,7 @@ fn remove(path: &Path) -> std::io::Result<()> {
 /// Writes `text` to the file `path` (a staged output's temporary file, or a
 /// file inside a staged directory), naming it in an error.
 pub fn write_text(path: &Path, text: &str) -> Result<(), OutputError> {
-    std::fs::write(path, text).map_err(io_err(path))
+    std::fs::write(path, text).map_err(OutputError::writing(path))
 }
 
 #[cfg(test)]

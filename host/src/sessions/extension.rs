@@ -403,10 +403,7 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<Extension, ExtensionError> {
 pub fn write(path: &Path, ext: &Extension) -> Result<(), OutputError> {
     encode(ext)
         .and_then(|bytes| std::fs::write(path, bytes))
-        .map_err(|source| OutputError::Write {
-            path: path.to_path_buf(),
-            source,
-        })
+        .map_err(OutputError::writing(path))
 }
 
 /// Reads the extension file at `path` (see [`decode`]).

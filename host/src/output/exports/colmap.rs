@@ -49,7 +49,7 @@ pub fn write(dir: &Path, sel: &Selection) -> Result<usize, OutputError> {
     let model = dir.join(MODEL);
     let images = dir.join("images");
     for d in [&model, &images] {
-        std::fs::create_dir_all(d).map_err(super::write_err(d))?;
+        std::fs::create_dir_all(d).map_err(OutputError::writing(d))?;
     }
     let k = &sel.seq.camera;
     let (w, h) = sel.seq.size;
@@ -89,13 +89,13 @@ pub fn write(dir: &Path, sel: &Selection) -> Result<usize, OutputError> {
         ("points3D.txt", points),
     ] {
         let path = model.join(file);
-        std::fs::write(&path, body).map_err(super::write_err(&path))?;
+        std::fs::write(&path, body).map_err(OutputError::writing(&path))?;
     }
     rows.par_iter()
         .try_for_each(|&(i, _, _): &DbRow| -> Result<(), OutputError> {
             let bytes = super::image::frame_jpeg(sel.seq, i)?;
             let path = images.join(image_name(i));
-            std::fs::write(&path, bytes).map_err(super::write_err(&path))
+            std::fs::write(&path, bytes).map_err(OutputError::writing(&path))
         })?;
     Ok(rows.len())
 }

@@ -142,13 +142,6 @@ pub fn east_north_of(proj: &Projection, p: [f64; 3]) -> [f64; 2] {
     [es * p[e], ns * p[n]]
 }
 
-fn write_err(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {
-    move |source| OutputError::Write {
-        path: path.to_path_buf(),
-        source,
-    }
-}
-
 /// Writes every export `flags` asks for into `outputs` (renamed into place
 /// with the run's other outputs); returns a line about each.
 pub fn write_all(

@@ -49,7 +49,7 @@ pub fn write(dir: &Path, sel: &Selection) -> Result<(usize, usize), OutputError>
     let database = dir.join("database");
     let queries = dir.join("queries");
     for d in [&database, &queries] {
-        std::fs::create_dir_all(d).map_err(super::write_err(d))?;
+        std::fs::create_dir_all(d).map_err(OutputError::writing(d))?;
     }
     let proj = sel.projection();
     // Database frames at the poses of database.csv.
@@ -74,7 +74,7 @@ pub fn write(dir: &Path, sel: &Selection) -> Result<(usize, usize), OutputError>
         .try_for_each(|&(seq, i, en, d)| -> Result<(), OutputError> {
             let bytes = super::image::frame_jpeg(seq, i)?;
             let path = d.join(name(i, en));
-            std::fs::write(&path, bytes).map_err(super::write_err(&path))
+            std::fs::write(&path, bytes).map_err(OutputError::writing(&path))
         })?;
     Ok((db.len(), query.len()))
 }
