@@ -280,7 +280,7 @@ struct RowSetUp {
     /// 1 for yes, 0 for no: not a `bool`, whose niche would make the
     /// `Option<(FrameMeta, FrameProjector)>` in the device state a non-zero
     /// byte when `None`, and so move the whole device static from `.bss`
-    /// into flash (`tests/end_to_end.rs`, `firmware_fits_its_budget`).
+    /// into flash (`host/tests/board_qemu.rs`, `firmware_fits_its_budget`).
     narrow: u8,
 }
 

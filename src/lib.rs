@@ -87,7 +87,3 @@ pub use select::{
     DbRecord, Decision, FrameDecision, SelectError, Selector, SelectorConfig, Status,
 };
 pub use voxel::{FrameVoxels, VoxelGrid, VoxelKey};
-
-/// The key pool's former path.
-#[doc(hidden)]
-pub use key_pool as store;

@@ -14,9 +14,9 @@
 //! 2.3 m to the side sees 40 % of the wall (IoU ~0.25, below mu 0.3).
 
 use placedb::device::harness::{on_big_stack, Harness};
+use placedb::key_pool::key_of;
 use placedb::protocol::{Config, DecisionKind, DepthRows, DeviceMessage, HostMessage};
 use placedb::select::{DbSnapshot, FrameStore};
-use placedb::store::key_of;
 use placedb::voxel::intersection_size;
 use placedb::{
     Decision, DepthRange, FrameMeta, Intrinsics, Pose, ScanConfig, Selector, SelectorConfig,

@@ -1,7 +1,9 @@
 //! Fuzz harnesses of placedb. The checks live in [`harness`] (the core) and
-//! [`readers`] (the host's sequence readers), which the root test
-//! `tests/fuzz_corpus.rs` includes too, so the committed corpus replays the
-//! very same checks under `cargo test`.
+//! [`readers`] (the host's sequence readers), which `tests/fuzz_corpus.rs`
+//! and `host/tests/fuzz_corpus_readers.rs` include too (with [`corpus`], the
+//! replay of a target's files), so the committed corpus replays the very same
+//! checks under `cargo test`.
 
+pub mod corpus;
 pub mod harness;
 pub mod readers;

@@ -1,7 +1,7 @@
 //! Fuzz checks of the host's sequence readers, the two paths that take bytes
 //! a user's file holds: ROS 2 recordings (MCAP records, CDR messages) and
 //! depth PNGs (chunks, inflate, the row unfilter). Shared by the fuzz
-//! targets `ros2` and `depth_png` and by `tests/fuzz_corpus.rs`, which
+//! targets `ros2` and `depth_png` and by `host/tests/fuzz_corpus_readers.rs`, which
 //! replays the committed corpus through the same checks on stable.
 //!
 //! Every input must end in `Ok` or an error, never a panic, a hang or an

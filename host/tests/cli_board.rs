@@ -3,7 +3,7 @@
 //! `placedb stream` and a `placedb export`, as a real board does.
 //!
 //! Needs `qemu-system-arm` and the QEMU firmware (built first, as in
-//! tests/end_to_end.rs, unless `PLACEDB_QEMU_FIRMWARE` names one).
+//! host/tests/board_qemu.rs, unless `PLACEDB_QEMU_FIRMWARE` names one).
 
 mod cli_common;
 

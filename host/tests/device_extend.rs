@@ -10,7 +10,7 @@
 //! directory of its own (links to the sample's files in a temp dir).
 //!
 //! The QEMU test needs `qemu-system-arm` and builds the firmware (as
-//! tests/end_to_end.rs does).
+//! host/tests/board_qemu.rs does).
 
 use placedb::SelectorConfig;
 use placedb_host::device::client::Client;

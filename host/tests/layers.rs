@@ -347,3 +347,39 @@ fn the_checker_reads_paths_as_the_compiler_does() {
         vec!["crate::a::b", "crate::a::c::d", "crate::g::h", "super::e"]
     );
 }
+
+/// The core is testable alone (docs/CONTRIBUTING.md, "Tests"): its
+/// dev-dependencies name no host crate, and no test file of `tests/` uses
+/// one, so `cargo test -p placedb` builds no host code and no C++.
+#[test]
+fn the_core_tests_without_the_host() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
+    let manifest = std::fs::read_to_string(root.join("Cargo.toml")).unwrap();
+    let dev_deps: Vec<&str> = manifest
+        .split("\n[")
+        .filter(|table| table.starts_with("dev-dependencies]"))
+        .flat_map(|table| table.lines().skip(1))
+        .filter(|line| !line.trim_start().starts_with('#'))
+        .collect();
+    assert!(
+        !dev_deps.is_empty(),
+        "the root Cargo.toml has no [dev-dependencies]"
+    );
+    for line in &dev_deps {
+        assert!(
+            !line.contains("host") && !line.contains("png"),
+            "the core's dev-dependencies name a host crate: {line}"
+        );
+    }
+    let mut tests = Vec::new();
+    rust_files(&root.join("tests"), &mut tests);
+    assert!(!tests.is_empty(), "no test files in tests/");
+    for file in tests {
+        let code = code_of(&std::fs::read_to_string(&file).unwrap());
+        assert!(
+            !code.contains("placedb_host"),
+            "{} uses the host crate: it belongs in host/tests/",
+            file.display()
+        );
+    }
+}

@@ -1,8 +1,8 @@
 //! The host's side of a conversation with one in-process [`Device`], for
 //! tests (feature `sim-flash`, which needs `std`): the one harness of the
 //! device's unit tests (`src/device/tests.rs`) and of the integration tests
-//! that drive a device over its wire protocol (`tests/bad_inputs.rs`,
-//! `tests/power_cut.rs`); the fuzz targets (`fuzz/src/harness.rs`) decode
+//! that drive a device over its wire protocol (`host/tests/device_bad_inputs.rs`,
+//! `host/tests/device_power_cut.rs`); the fuzz targets (`fuzz/src/harness.rs`) decode
 //! and check replies with its [`decode_reply`], [`terminal`] and
 //! [`check_export`].
 //!
@@ -98,7 +98,7 @@ pub struct Harness<D> {
     /// The sequence number of the last message sent.
     pub seq: u32,
     /// While this flag is set the host hears nothing the device sends
-    /// (`tests/power_cut.rs` sets it to the flash's power switch: a device
+    /// (`host/tests/device_power_cut.rs` sets it to the flash's power switch: a device
     /// without power sends nothing). `None`: the host hears everything.
     pub silent_while: Option<Arc<AtomicBool>>,
 }

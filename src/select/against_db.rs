@@ -31,7 +31,7 @@
 
 use super::database::{DbEntry, DbIndex, FrameStore, NOWHERE};
 use super::{better, Best, SelectorConfig, Stored};
-use crate::store::{Fresh, KeyPool};
+use crate::key_pool::{Fresh, KeyPool};
 use crate::voxel::iou;
 
 /// The database as the overlap step reads it.

@@ -21,7 +21,7 @@
 //!
 //! Nothing here depends on the RP2040: the link is generic over
 //! [`UsbBus`], and the [`UsbDevice`] is the caller's (every method takes it),
-//! so host tests (`host/tests/usb_link.rs`) drive this file over emulated
+//! so host tests (`host/tests/board_usb_link.rs`) drive this file over emulated
 //! buses, with the descriptors of [`device`].
 
 #[path = "tx_queue.rs"]

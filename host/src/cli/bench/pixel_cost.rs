@@ -20,7 +20,7 @@ use placedb::protocol::{Config, HostMessage, Status};
 use placedb::SelectorConfig;
 
 /// The strides compared (fine, coarse), as `placedb bench --device`, the
-/// README's figures and tests/end_to_end.rs use them.
+/// README's figures and host/tests/board_qemu.rs use them.
 pub const STRIDES: [u16; 2] = [2, 4];
 
 /// The selection settings of those measurements (`placedb stream`'s mu, the

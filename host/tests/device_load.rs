@@ -12,7 +12,7 @@
 //! the core's frame rate and every high-water mark.
 //!
 //! The 20,000-frame scan (the size of the paper's largest sequence) runs in
-//! release builds (`cargo test --release --test load -- --nocapture`, about
+//! release builds (`cargo test -p placedb-host --release --test device_load -- --nocapture`, about
 //! 10 s) and is ignored in debug builds; a 4,000-frame version always runs.
 
 use placedb::device::Device512K;

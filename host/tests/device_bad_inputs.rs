@@ -33,7 +33,7 @@
 //!
 //! Other tests check some of these piecemeal (src/device/tests.rs
 //! `refused_messages_change_nothing`, src/protocol/tests.rs,
-//! tests/capacities.rs, tests/end_to_end.rs); this file is the one readable
+//! tests/capacities.rs, host/tests/board_qemu.rs); this file is the one readable
 //! list of every case.
 
 use placedb::device::harness::{durable_part, on_big_stack, Harness};

@@ -1,6 +1,6 @@
 //! The link to the emulated board: host -> loopback TCP -> QEMU UART0 ->
 //! firmware -> `placedb::device::Device` -> UART0 -> host. (The full scan
-//! end to end is tests/end_to_end.rs at the workspace root.)
+//! end to end is host/tests/board_qemu.rs at the workspace root.)
 //!
 //! Needs `qemu-system-arm` and the firmware built first:
 //! `cd boards/qemu-mps2-an386 && cargo build --release`

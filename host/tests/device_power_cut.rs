@@ -402,7 +402,7 @@ fn parse(export: &[ExportRecord], scan: &Scan, ctx: &str) -> Parsed {
                 );
                 classes.push(class);
             }
-            // This scan has one session (sessions: tests/sessions.rs).
+            // This scan has one session (sessions: host/tests/device_sessions.rs).
             RecordKind::Session { .. } => panic!("{ctx}: a session record: {r:?}"),
         }
     }

@@ -1,5 +1,5 @@
-//! What the emulated-board tests share (tests/end_to_end.rs, the QEMU board;
-//! tests/rp2040.rs, the Pico under rp2040js): the host replay their exports
+//! What the emulated-board tests share (host/tests/board_qemu.rs, the QEMU board;
+//! host/tests/board_rp2040.rs, the Pico under rp2040js): the host replay their exports
 //! must equal, and the power cut in the middle of a scan with its resume,
 //! written once over a [`Board`] that boots on a flash file and loses power.
 

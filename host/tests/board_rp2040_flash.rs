@@ -15,13 +15,13 @@
 //! the idle turns the firmware gets while the host is slow vary, and the
 //! erases between frames do not need them).
 //!
-//! Needs what tests/rp2040.rs needs (Node 20, `npm ci` in
+//! Needs what host/tests/board_rp2040.rs needs (Node 20, `npm ci` in
 //! `boards/rp-pico/emulator`, the firmware built). Run with `--nocapture`
 //! for the figures.
 
-#[path = "common/new_places.rs"]
+#[path = "board_common/new_places.rs"]
 mod new_places;
-#[path = "common/pico.rs"]
+#[path = "board_common/pico.rs"]
 mod pico;
 
 use new_places::new_place_every_frame;

@@ -34,7 +34,7 @@ use placedb_host::{device::scan, VoxelConfig};
 use std::collections::BTreeMap;
 
 /// The device of the power cuts: window 8, sketches of 16 hashes, 64
-/// database frames, all resident (as tests/power_cut.rs's small device).
+/// database frames, all resident (as host/tests/device_power_cut.rs's small device).
 type Small = Device<4096, 16384, 64, 8, 16, 512>;
 const SECTORS: usize = 64;
 const TEARS: [Tear; 3] = [Tear::Before, Tear::Half, Tear::After];
@@ -213,7 +213,7 @@ fn a_power_cut_anywhere_in_the_second_session_restores_both() {
 // ------------------------------------------------------------ a full flash
 
 /// One row of 16 pixels on a wall 3.05 m ahead (16 voxels), places 10 m
-/// apart: every frame is a new place (tests/replay_equals_device_to_a_full_log.rs).
+/// apart: every frame is a new place (host/tests/replay_equals_device.rs).
 fn wall_config() -> Config {
     let scan = ScanConfig {
         intrinsics: Intrinsics {

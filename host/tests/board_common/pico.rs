@@ -1,4 +1,4 @@
-//! The emulated Pico for the tests of its flash (tests/rp2040_flash.rs):
+//! The emulated Pico for the tests of its flash (host/tests/board_rp2040_flash.rs):
 //! booting it with a flash timing and a power cut, streaming and exporting
 //! through the host library, and reading the harness's exit lines.
 

@@ -8,7 +8,7 @@
 //!
 //! - in-process (`local:` device, no QEMU): 10 % drops and 10 % corruption
 //!   each way, several seeds;
-//! - the emulated board (QEMU firmware, as tests/end_to_end.rs): 5 % drops and
+//! - the emulated board (QEMU firmware, as host/tests/board_qemu.rs): 5 % drops and
 //!   5 % corruption each way, 20 frames of the synthetic scan at stride 8.
 //!
 //! Run with `--nocapture` to see what was injected and how long recovery took.

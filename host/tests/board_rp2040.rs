@@ -15,9 +15,9 @@
 //! valid pixel (rp2040js counts cycles; the firmware's timer is read at
 //! 125 cycles per microsecond); run with `--nocapture` to see them.
 
-mod common;
+mod board_common;
 
-use common::{demo, host_replay, killed_mid_scan_restores_and_resumes, Board};
+use board_common::{demo, host_replay, killed_mid_scan_restores_and_resumes, Board};
 use placedb::protocol::{Phase, Status};
 use placedb::SelectorConfig;
 use placedb_host::cli::bench::pixel_cost;

@@ -11,9 +11,9 @@
 //! rate over the emulated UART and the instructions per frame (QEMU runs with
 //! `-icount shift=0`); run with `--nocapture` to see them.
 
-mod common;
+mod board_common;
 
-use common::{export_all, host_replay, killed_mid_scan_restores_and_resumes, Board};
+use board_common::{export_all, host_replay, killed_mid_scan_restores_and_resumes, Board};
 use placedb::protocol::{
     CapacitySlot, DeviceMessage, ErrorKind, ExportRecord, HostMessage, Phase, MAX_FRAME_LEN,
 };

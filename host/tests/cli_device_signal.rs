@@ -5,8 +5,8 @@
 //! it (`PR_SET_PDEATHSIG`). Linux only (reads `/proc`).
 //!
 //! Needs `qemu-system-arm` and the QEMU firmware (built first, as in
-//! tests/end_to_end.rs, unless `PLACEDB_QEMU_FIRMWARE` names one); the
-//! RP2040 case needs what tests/rp2040.rs needs (Node 20, `npm ci` in
+//! host/tests/board_qemu.rs, unless `PLACEDB_QEMU_FIRMWARE` names one); the
+//! RP2040 case needs what host/tests/board_rp2040.rs needs (Node 20, `npm ci` in
 //! boards/rp-pico/emulator, the Pico firmware, the boot ROM).
 #![cfg(target_os = "linux")]
 

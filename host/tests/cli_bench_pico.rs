@@ -6,7 +6,7 @@
 //! each stride's scan after a warm-up (here of one frame, to keep the test
 //! cheap), its cycles and pixels kept apart from the frames measured.
 //!
-//! Needs what tests/rp2040.rs needs: Node 20 and `npm ci` in
+//! Needs what host/tests/board_rp2040.rs needs: Node 20 and `npm ci` in
 //! boards/rp-pico/emulator, the boot ROM in ../shared/rp2040; the firmware
 //! is built on first use.
 

@@ -1,5 +1,5 @@
 //! A scan built to fill a device's flash log fast, for the tests of its
-//! erases (tests/rp2040_flash.rs): every frame a new place, and each of its
+//! erases (host/tests/board_rp2040_flash.rs): every frame a new place, and each of its
 //! samples a voxel of its own, so that every frame is taken and stored with
 //! some 2.5 KiB of exact keys beside its database record, where a real scan
 //! stores a database frame every few dozen frames: about 1.4 frames fill a
