@@ -1,5 +1,5 @@
 //! A robot-side program streaming live depth frames to a placedb device
-//! through the client API (`placedb_host::device::session`): open the port,
+//! through the client API (`placedb_host::board::session`): open the port,
 //! configure the scan once, push each frame from memory as the camera
 //! delivers it, react to decisions as they arrive, finish, export.
 //!
@@ -13,8 +13,8 @@
 //! (e.g. a ROS 2 node's `sensor_msgs/Image` callback: 16UC1 data is the
 //! `u16` buffer as it is, with `depth_scale` 1000) and its localisation.
 
-use placedb_host::device::scan::StreamOptions;
-use placedb_host::device::session::{DepthFrame, Session};
+use placedb_host::board::scan::StreamOptions;
+use placedb_host::board::session::{DepthFrame, Session};
 use placedb_host::synth::{self, SynthConfig};
 use std::path::PathBuf;
 
@@ -74,7 +74,7 @@ fn main() -> Result<(), Error> {
 
 /// What the robot does with decisions as they arrive (here: print the frames
 /// that join the database).
-fn report<L: placedb_host::device::link::Link>(session: &mut Session<L>) {
+fn report<L: placedb_host::board::link::Link>(session: &mut Session<L>) {
     for (frame, decision) in session.take_decisions() {
         if decision == placedb::protocol::DecisionKind::Taken {
             println!("frame {frame} joins the database");

@@ -1,16 +1,20 @@
 //! placedb host tools: sequence readers, the offline yardstick (exact overlap
 //! graph, dominating-set solvers, baselines, metrics), replay of the core, the
-//! device client, and the `placedb` command line built on them.
+//! client of a board, and the `placedb` command line built on them.
 //!
-//! The folders are the jobs, and imports go one way, from the command line
-//! down: [`cli`] (one file per subcommand) → [`device`] (session, scan and
-//! export → client → link and emulators), [`pipeline`] (voxelize → yardstick
-//! or replay) and [`bench`] → [`output`] (the one writer of a run's files),
-//! [`read`] and [`synth`] (sequences in) → [`sequence`].
+//! The folders are the jobs, in layers that import only downward
+//! (docs/ARCHITECTURE.md; `host/tests/layers.rs` checks it): [`cli`] (each
+//! command's arguments, printing and orchestration) → [`board`] (the client
+//! of the device on a board: session, scan and export → client → link and
+//! emulators) → [`sessions`] (a later session on an earlier database) →
+//! [`output`] (the one writer of a run's files) → [`pipeline`] (voxelize →
+//! yardstick or replay) → [`replay`], [`yardstick`], [`voxelize`] → the
+//! readers ([`read`], [`synth`]) → [`sequence`] and the small shared parts
+//! ([`picture`], [`vector_unit`], [`rng`], [`error`], [`warning`]).
 
+pub mod board;
 pub mod cli;
 pub mod degradation;
-pub mod device;
 pub mod error;
 pub mod frame_rows;
 pub mod output;

@@ -5,8 +5,8 @@
 //! export must equal. Behind the `testing` feature (as the core's
 //! `sim-flash`): no command uses it.
 
-use crate::device::emulator::{qemu, rp2040};
-use crate::device::scan::scan_config;
+use crate::board::emulator::{qemu, rp2040};
+use crate::board::scan::scan_config;
 use crate::output;
 use crate::read::{self, ReadOptions};
 use crate::replay;

@@ -18,15 +18,15 @@ use placedb::protocol::{
     CapacitySlot, DeviceMessage, ErrorKind, ExportRecord, HostMessage, Phase, MAX_FRAME_LEN,
 };
 use placedb::{SelectorConfig, VoxelGrid};
-use placedb_host::device::client::Client;
-use placedb_host::device::client::Received;
-use placedb_host::device::emulator::qemu::Qemu;
-use placedb_host::device::emulator::qemu::QemuOptions;
-use placedb_host::device::export::ExportOptions;
-use placedb_host::device::link::fault::damaged_frame;
-use placedb_host::device::scan::StreamOptions;
-use placedb_host::device::scan::StreamReport;
-use placedb_host::device::{export, scan};
+use placedb_host::board::client::Client;
+use placedb_host::board::client::Received;
+use placedb_host::board::emulator::qemu::Qemu;
+use placedb_host::board::emulator::qemu::QemuOptions;
+use placedb_host::board::export::ExportOptions;
+use placedb_host::board::link::fault::damaged_frame;
+use placedb_host::board::scan::StreamOptions;
+use placedb_host::board::scan::StreamReport;
+use placedb_host::board::{export, scan};
 use placedb_host::read::{self, ReadOptions};
 use placedb_host::synth::{self, SynthConfig};
 use placedb_host::testing::qemu_firmware as firmware;

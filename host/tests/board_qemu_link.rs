@@ -7,10 +7,10 @@
 //! (or point `PLACEDB_QEMU_FIRMWARE` at another ELF).
 
 use placedb::protocol::{DeviceMessage, ErrorKind, HostMessage, Phase, MAX_FRAME_LEN};
-use placedb_host::device::client::Client;
-use placedb_host::device::client::Received;
-use placedb_host::device::emulator::qemu::Qemu;
-use placedb_host::device::link::fault::damaged_frame;
+use placedb_host::board::client::Client;
+use placedb_host::board::client::Received;
+use placedb_host::board::emulator::qemu::Qemu;
+use placedb_host::board::link::fault::damaged_frame;
 use placedb_host::testing::qemu_firmware as firmware;
 use std::time::Duration;
 

@@ -1,6 +1,6 @@
 //! End to end on the real board's firmware: `boards/rp-pico` (RP2040,
 //! Cortex-M0+, profile ram256k, USB CDC-ACM) run instruction by instruction
-//! under rp2040js (`placedb_host::device::emulator::rp2040`, the Node harness in
+//! under rp2040js (`placedb_host::board::emulator::rp2040`, the Node harness in
 //! `boards/rp-pico/emulator`): boot ROM, boot2, the 2 MiB QSPI flash behind the
 //! ROM's flash functions, and a USB host bridging the CDC-ACM data endpoints
 //! to TCP. What the emulated Pico exports is byte-identical to the host replay
@@ -20,17 +20,17 @@ mod board_common;
 use board_common::{demo, host_replay, killed_mid_scan_restores_and_resumes, Board};
 use placedb::protocol::{Phase, Status};
 use placedb::SelectorConfig;
+use placedb_host::board::client::Client;
+use placedb_host::board::emulator::rp2040::{Rp2040, Rp2040Options};
+use placedb_host::board::export::ExportOptions;
+use placedb_host::board::flash_timing::FlashTiming;
+use placedb_host::board::link::fault::{FaultConfig, FaultInjector};
+use placedb_host::board::link::Link;
+use placedb_host::board::scan::StreamOptions;
+use placedb_host::board::scan::StreamReport;
+use placedb_host::board::session::{DepthFrame, Session};
+use placedb_host::board::{client, export, scan};
 use placedb_host::cli::bench::pixel_cost;
-use placedb_host::device::client::Client;
-use placedb_host::device::emulator::rp2040::{Rp2040, Rp2040Options};
-use placedb_host::device::export::ExportOptions;
-use placedb_host::device::flash_timing::FlashTiming;
-use placedb_host::device::link::fault::{FaultConfig, FaultInjector};
-use placedb_host::device::link::Link;
-use placedb_host::device::scan::StreamOptions;
-use placedb_host::device::scan::StreamReport;
-use placedb_host::device::session::{DepthFrame, Session};
-use placedb_host::device::{client, export, scan};
 use placedb_host::testing::rp2040_firmware as firmware;
 use placedb_host::testing::{selector as sel, voxel_config as stride};
 use placedb_host::{Sequence, VoxelConfig};
@@ -347,7 +347,7 @@ fn boot_timed(flash: Option<&Path>, timing: FlashTiming, cut: Option<u32>) -> Rp
 /// At the datasheet's maximum flash timing (400 ms a sector erase, 3 ms a
 /// page, the core held that long in emulated time) the host neither gives
 /// up nor resends (its reply timeout outlasts the worst stall:
-/// `placedb_host::device::flash_timing`), and the export equals the host replay.
+/// `placedb_host::board::flash_timing`), and the export equals the host replay.
 #[test]
 fn the_emulated_pico_at_max_flash_timing_matches_the_host_replay() {
     let started = Instant::now();

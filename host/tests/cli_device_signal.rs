@@ -95,14 +95,14 @@ fn sigterm_ends_the_emulator(board: &str, firmware: PathBuf, comm: &str) {
 #[test]
 fn sigterm_to_placedb_device_qemu_ends_qemu() {
     let firmware =
-        placedb_host::device::emulator::qemu::built_firmware().unwrap_or_else(|e| panic!("{e}"));
+        placedb_host::board::emulator::qemu::built_firmware().unwrap_or_else(|e| panic!("{e}"));
     sigterm_ends_the_emulator("--qemu", firmware, "qemu-system-arm");
 }
 
 #[test]
 fn sigterm_to_placedb_device_rp2040_ends_the_emulator() {
     let firmware =
-        placedb_host::device::emulator::rp2040::built_firmware().unwrap_or_else(|e| panic!("{e}"));
+        placedb_host::board::emulator::rp2040::built_firmware().unwrap_or_else(|e| panic!("{e}"));
     sigterm_ends_the_emulator("--rp2040", firmware, "node");
 }
 
@@ -113,7 +113,7 @@ fn sigkill_to_placedb_device_qemu_ends_qemu() {
     // SAFETY: prctl(2) with integer arguments.
     assert_eq!(unsafe { libc::prctl(libc::PR_SET_CHILD_SUBREAPER, 1) }, 0);
     let firmware =
-        placedb_host::device::emulator::qemu::built_firmware().unwrap_or_else(|e| panic!("{e}"));
+        placedb_host::board::emulator::qemu::built_firmware().unwrap_or_else(|e| panic!("{e}"));
     let mut placedb = placedb_device("--qemu", firmware);
     let qemu = child_named(&mut placedb, "qemu-system-arm", Duration::from_secs(60));
     signal(placedb.id(), libc::SIGKILL);

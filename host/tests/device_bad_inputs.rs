@@ -44,7 +44,7 @@ use placedb::protocol::{
     PROTOCOL_VERSION,
 };
 use placedb::{Intrinsics, Pose, SelectorConfig};
-use placedb_host::device::link::fault::damaged_frame;
+use placedb_host::board::link::fault::damaged_frame;
 use placedb_host::synth::{self, SynthConfig};
 use placedb_host::{device::scan, DepthImage, VoxelConfig};
 use std::time::Instant;

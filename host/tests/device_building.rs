@@ -10,10 +10,10 @@
 
 use placedb::protocol::{degradation, CapacitySlot, RecordKind, Status};
 use placedb::{Pose, SelectorConfig};
-use placedb_host::device::client::Client;
-use placedb_host::device::link::LocalLink;
-use placedb_host::device::scan::{device_config, scan_config, DepthFrame, StreamOptions};
-use placedb_host::device::session::Session;
+use placedb_host::board::client::Client;
+use placedb_host::board::link::LocalLink;
+use placedb_host::board::scan::{device_config, scan_config, DepthFrame, StreamOptions};
+use placedb_host::board::session::Session;
 use placedb_host::pipeline::{self, Prepared, Solver, SolverParams};
 use placedb_host::synth::{self, SynthConfig};
 use placedb_host::yardstick::metrics;

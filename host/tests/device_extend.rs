@@ -13,12 +13,12 @@
 //! host/tests/board_qemu.rs does).
 
 use placedb::SelectorConfig;
-use placedb_host::device::client::Client;
-use placedb_host::device::emulator::qemu::Qemu;
-use placedb_host::device::emulator::qemu::QemuOptions;
-use placedb_host::device::export::export_to;
-use placedb_host::device::link::{Link, LocalLink};
-use placedb_host::device::scan::{stream, stream_config, StreamOptions};
+use placedb_host::board::client::Client;
+use placedb_host::board::emulator::qemu::Qemu;
+use placedb_host::board::emulator::qemu::QemuOptions;
+use placedb_host::board::export::export_to;
+use placedb_host::board::link::{Link, LocalLink};
+use placedb_host::board::scan::{stream, stream_config, StreamOptions};
 use placedb_host::read::{self, ReadOptions};
 use placedb_host::sessions::extension::{self, Extension};
 use placedb_host::testing::qemu_firmware;

@@ -21,7 +21,7 @@ use placedb::protocol::{
     FrameDecoder, HostFrame, HostMessage, Status, MAX_FRAME_LEN, MAX_REPLY_LEN,
 };
 use placedb::SelectorConfig;
-use placedb_host::device::scan;
+use placedb_host::board::scan;
 use placedb_host::frame_rows::sampled_rows;
 use placedb_host::synth::{self, SynthConfig};
 use placedb_host::VoxelConfig;

@@ -5,11 +5,11 @@
 //! one, and a device's exports equal to select's.
 
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use placedb_host::board::client::Client;
+use placedb_host::board::link::LocalLink;
+use placedb_host::board::scan::StreamOptions;
+use placedb_host::board::{export, scan};
 use placedb_host::cli::export::{write_from_device, StreamedWith};
-use placedb_host::device::client::Client;
-use placedb_host::device::link::LocalLink;
-use placedb_host::device::scan::StreamOptions;
-use placedb_host::device::{export, scan};
 use placedb_host::output::exports::{self, vpr_eval, ExportTargets};
 use placedb_host::output::replace;
 use placedb_host::pipeline::{self, SolverParams};

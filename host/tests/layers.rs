@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 const LAYERS: &[&str] = &[
     "testing",
     "cli",
-    "device",
+    "board",
     "sessions",
     "output",
     "pipeline",

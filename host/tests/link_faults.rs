@@ -1,5 +1,5 @@
 //! Fault injection: frames dropped and corrupted in both directions of the
-//! link (`placedb_host::device::link::fault::FaultInjector`, seeded), recovered by
+//! link (`placedb_host::board::link::fault::FaultInjector`, seeded), recovered by
 //! retransmission (stop-and-wait, same sequence number; the device answers a
 //! repeat from its cache without applying it twice) and by re-requested
 //! export batches (checked by count and CRC). The exported database.csv and
@@ -14,12 +14,12 @@
 //! Run with `--nocapture` to see what was injected and how long recovery took.
 
 use placedb::SelectorConfig;
-use placedb_host::device::client::Client;
-use placedb_host::device::emulator::qemu::{Qemu, QemuOptions};
-use placedb_host::device::export::{self, ExportOptions};
-use placedb_host::device::link::fault::{FaultConfig, FaultInjector, FaultStats};
-use placedb_host::device::link::{Link, LocalLink};
-use placedb_host::device::scan::{self, StreamOptions};
+use placedb_host::board::client::Client;
+use placedb_host::board::emulator::qemu::{Qemu, QemuOptions};
+use placedb_host::board::export::{self, ExportOptions};
+use placedb_host::board::link::fault::{FaultConfig, FaultInjector, FaultStats};
+use placedb_host::board::link::{Link, LocalLink};
+use placedb_host::board::scan::{self, StreamOptions};
 use placedb_host::testing::{demo, qemu_firmware, replay_csv, selector, voxel_config};
 use placedb_host::{Sequence, VoxelConfig};
 use std::time::{Duration, Instant};

@@ -1,12 +1,12 @@
-//! `placedb stream --realtime` (`placedb_host::device::pacing`): a replay
+//! `placedb stream --realtime` (`placedb_host::board::pacing`): a replay
 //! whose sent frames gave the device no valid depth pixel measured nothing
 //! and is an error, never a success, however many frames went out; the
 //! frames it skipped are counted and named in it. The device is the
 //! in-process one (`local:`) behind a link that answers late, so that the
 //! frames after the first are due while it is busy, whatever the machine.
 
+use placedb_host::board::link::{Link, LocalLink};
 use placedb_host::cli::stream::realtime::realtime_on;
-use placedb_host::device::link::{Link, LocalLink};
 use placedb_host::testing::{demo, selector, voxel_config};
 use placedb_host::{DepthImage, DepthSource, ReadError};
 use std::collections::VecDeque;

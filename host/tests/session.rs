@@ -1,4 +1,4 @@
-//! The device client API (`placedb_host::device::session`): frames pushed from
+//! The device client API (`placedb_host::board::session`): frames pushed from
 //! memory reach the device (in-process `local:` device, no hardware) and
 //! give the decisions, database and labels of the host replay of the core
 //! (`placedb select --solver online`), with and without retransmission;
@@ -6,10 +6,10 @@
 
 use placedb::protocol::DecisionKind;
 use placedb::{Decision, SelectorConfig};
-use placedb_host::device::error::DeviceError;
-use placedb_host::device::link::Link;
-use placedb_host::device::scan::{scan_config, StreamOptions};
-use placedb_host::device::session::{DepthFrame, Session};
+use placedb_host::board::error::DeviceError;
+use placedb_host::board::link::Link;
+use placedb_host::board::scan::{scan_config, StreamOptions};
+use placedb_host::board::session::{DepthFrame, Session};
 use placedb_host::testing::{demo, selector, voxel_config};
 use placedb_host::{output, replay, Sequence, VoxelConfig};
 

@@ -18,7 +18,7 @@
 //!     -object memory-backend-file,id=placedb-flash,size=16M,mem-path=FILE,share=on ...
 //! ```
 //!
-//! (`placedb_host::device::emulator::qemu::QemuOptions::flash` does this, and creates FILE
+//! (`placedb_host::board::emulator::qemu::QemuOptions::flash` does this, and creates FILE
 //! filled with 0xFF, an erased chip, when it is missing). Without it the PSRAM
 //! is anonymous memory: zero at every start of QEMU, which this driver reads
 //! as programmed-to-zero flash, not as erased. The ELF loaded by `-kernel` and

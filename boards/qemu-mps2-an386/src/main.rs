@@ -13,7 +13,7 @@
 //! The scan is durable: the device writes its decisions to a log in an
 //! emulated NOR flash (the board's PSRAM, see [`flash`]) before it
 //! acknowledges them, and restores them at boot. Start QEMU with the PSRAM
-//! backed by a file (`placedb_host::device::emulator::qemu::QemuOptions::flash`) for the log to
+//! backed by a file (`placedb_host::board::emulator::qemu::QemuOptions::flash`) for the log to
 //! outlive the emulator; without it every boot starts empty.
 //!
 //! Semihosting prints a boot line, what was restored, the SysTick

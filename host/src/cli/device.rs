@@ -1,9 +1,9 @@
 //! `placedb device`: an emulated board (QEMU or the Pico under rp2040js) in
 //! the foreground, its port printed.
 
-use crate::device::emulator::rp2040::{self, Rp2040Options};
-use crate::device::emulator::{qemu, wait_in_foreground};
-use crate::device::flash_timing::FlashTiming;
+use crate::board::emulator::rp2040::{self, Rp2040Options};
+use crate::board::emulator::{qemu, wait_in_foreground};
+use crate::board::flash_timing::FlashTiming;
 use crate::error::CommandError as Error;
 use clap::Args;
 use std::path::PathBuf;

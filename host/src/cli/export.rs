@@ -3,9 +3,10 @@
 //! exported labels when asked.
 
 use super::{print_dataset, Ros2Args};
-use crate::device::client::connect;
-use crate::device::error::DeviceError;
-use crate::device::export::{self, export_to, Export, ExportOptions};
+use crate::board::client::connect;
+use crate::board::error::DeviceError;
+use crate::board::export::{self, export_to, Export, ExportOptions};
+use crate::degradation::plural;
 use crate::error::CommandError as Error;
 use crate::error::OutputError;
 use crate::output::exports::{write_all, ExportTargets, Selection};
@@ -13,9 +14,11 @@ use crate::output::replace::Outputs;
 use crate::output::{self, dataset, replace};
 use crate::read::{self, ReadOptions};
 use crate::sequence::Sequence;
+use crate::sessions::extension;
 use crate::voxelize::{VoxelConfig, VoxelizeError};
 use crate::Format;
 use clap::Args;
+use placedb::protocol::CapacitySlot;
 use std::path::{Path, PathBuf};
 
 /// `placedb export`.
@@ -146,7 +149,10 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
         let exported = write_from_device(&targets, &a.streamed, seq, &export, a.quiet, outputs)?;
         Ok((dataset, exported))
     })?;
-    export::finished(&a.out, &export, a.quiet)?;
+    export::finished(&a.out)?;
+    if !a.quiet {
+        print_exported(&a.out, &export);
+    }
     if let Some((dir, d)) = &dataset {
         print_dataset(dir, d);
     }
@@ -169,7 +175,37 @@ pub fn export_cmd(
 ) -> Result<Export, DeviceError> {
     output::check_database_dir(out)?;
     let mut client = connect(port)?;
-    export_to(&mut client, out, from, quiet)
+    let export = export_to(&mut client, out, from, quiet)?;
+    if !quiet {
+        print_exported(out, &export);
+    }
+    Ok(export)
+}
+
+/// The line saying what an export pulled and wrote to `out`.
+fn print_exported(out: &Path, export: &Export) {
+    let firsts = export.sessions();
+    println!(
+        "exported {} ({}, {}{}), checked by count and CRC{}; wrote {}/{{database.csv,labels.csv,metrics.json{}}}",
+        plural(export.records.len() as u64, "record", "records"),
+        plural(export.status.database_size.into(), "database frame", "database frames"),
+        plural(export.status.capacity(CapacitySlot::Labels).used.into(), "label", "labels"),
+        match firsts.len() {
+            1 => String::new(),
+            n => format!(", {n} sessions"),
+        },
+        if export.retried > 0 {
+            format!(" ({} batches retried)", export.retried)
+        } else {
+            String::new()
+        },
+        out.display(),
+        if export.extension.is_some() {
+            format!(",{}", extension::FILE_NAME)
+        } else {
+            String::new()
+        }
+    );
 }
 
 /// The exports of `placedb export --sequence SEQ`: writes those `flags`

@@ -2,12 +2,12 @@
 //! emulator or `local:PROFILE`), with a live status line and a summary.
 
 use super::{open_sequence, voxel_config, SeqArgs};
+use crate::board::client::Client;
+use crate::board::error::DeviceError;
+use crate::board::export;
+use crate::board::link::{self, fault::FaultConfig, fault::FaultInjector};
+use crate::board::scan::{status_line, stream, stream_config, Recovery, StreamReport};
 use crate::degradation::{self, plural, DeviceCounters};
-use crate::device::client::Client;
-use crate::device::error::DeviceError;
-use crate::device::export;
-use crate::device::link::{self, fault::FaultConfig, fault::FaultInjector};
-use crate::device::scan::{status_line, stream, stream_config, Recovery, StreamReport};
 use crate::error::CommandError as Error;
 use crate::pipeline::SolverParams;
 use crate::sequence::Sequence;

@@ -5,10 +5,10 @@
 
 use placedb::protocol::Phase;
 use placedb::protocol::{degradation, CapacitySlot, DecisionKind, DeviceMessage, HostMessage};
-use placedb_host::device::client::{self, Client, Received};
-use placedb_host::device::export::{self, Export, ExportOptions};
-use placedb_host::device::link::Link;
-use placedb_host::device::scan::{self, StreamOptions};
+use placedb_host::board::client::{self, Client, Received};
+use placedb_host::board::export::{self, Export, ExportOptions};
+use placedb_host::board::link::Link;
+use placedb_host::board::scan::{self, StreamOptions};
 pub use placedb_host::testing::demo;
 use placedb_host::testing::{selector, voxel_config};
 use std::path::Path;

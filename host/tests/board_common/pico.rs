@@ -3,14 +3,14 @@
 //! through the host library, and reading the harness's exit lines.
 
 use placedb::SelectorConfig;
-use placedb_host::device::client::Client;
-use placedb_host::device::emulator::rp2040::{Rp2040, Rp2040Options};
-use placedb_host::device::export::ExportOptions;
-use placedb_host::device::flash_timing::FlashTiming;
-use placedb_host::device::link::Link;
-use placedb_host::device::scan::StreamOptions;
-use placedb_host::device::scan::StreamReport;
-use placedb_host::device::{export, scan};
+use placedb_host::board::client::Client;
+use placedb_host::board::emulator::rp2040::{Rp2040, Rp2040Options};
+use placedb_host::board::export::ExportOptions;
+use placedb_host::board::flash_timing::FlashTiming;
+use placedb_host::board::link::Link;
+use placedb_host::board::scan::StreamOptions;
+use placedb_host::board::scan::StreamReport;
+use placedb_host::board::{export, scan};
 use placedb_host::testing::rp2040_firmware as firmware;
 use placedb_host::{Sequence, VoxelConfig};
 use std::path::Path;

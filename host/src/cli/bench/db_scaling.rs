@@ -9,7 +9,7 @@
 //! all live in flash, so both counts include reading every nearby stored
 //! frame back: the worst case for the bigger database.
 
-use crate::device::scan;
+use crate::board::scan;
 use crate::frame_rows::{row_chunks, sampled_rows, RowChunk};
 use crate::synth::{self, SynthConfig};
 use crate::VoxelConfig;

@@ -24,7 +24,7 @@
 //! emulator's for the frames the emulator streams, and
 //! `host/tests/cli_reports.rs` tests that they agree.
 
-use crate::device::link::{Link, LOCAL_FLASH_SECTORS};
+use crate::board::link::{Link, LOCAL_FLASH_SECTORS};
 use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
 use placedb::device::Device256K;
 use placedb::persist::sim::{SimFlash, SimFlashError};

@@ -4,8 +4,8 @@
 //! and a large database (`--db-scaling`).
 
 use super::{db_scaling, figure, pixel_cost, BenchOptions};
-use crate::device::client::Client;
-use crate::device::emulator::qemu::{self, Qemu, QemuOptions};
+use crate::board::client::Client;
+use crate::board::emulator::qemu::{self, Qemu, QemuOptions};
 use crate::error::CommandError as Error;
 use crate::read::{self, ReadOptions};
 use crate::synth::{self, SynthConfig};

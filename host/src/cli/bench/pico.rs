@@ -44,11 +44,11 @@
 use super::figure;
 use super::flash_count::{FlashCount, PicoFlashLink};
 use super::pixel_cost::{self as pixelcost, PixelCost, StrideCost, SELECTOR, STRIDES};
-use crate::device::client::Client;
-use crate::device::emulator::rp2040::{self, Rp2040, Rp2040Options};
-use crate::device::flash_timing::FlashTiming;
-use crate::device::link::Link;
-use crate::device::scan::{self, StreamOptions};
+use crate::board::client::Client;
+use crate::board::emulator::rp2040::{self, Rp2040, Rp2040Options};
+use crate::board::flash_timing::FlashTiming;
+use crate::board::link::Link;
+use crate::board::scan::{self, StreamOptions};
 use crate::read::{self, ReadOptions};
 use crate::synth::{self, SynthConfig};
 use crate::{Sequence, VoxelConfig};

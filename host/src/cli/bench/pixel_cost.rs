@@ -11,10 +11,10 @@
 //!
 //! [`FrameCost::core`]: placedb::protocol::FrameCost::core
 
-use crate::device::client::Client;
-use crate::device::error::DeviceError;
-use crate::device::link::Link;
-use crate::device::scan::{self, ScanState, StreamOptions};
+use crate::board::client::Client;
+use crate::board::error::DeviceError;
+use crate::board::link::Link;
+use crate::board::scan::{self, ScanState, StreamOptions};
 use crate::{Sequence, VoxelConfig};
 use placedb::protocol::{Config, HostMessage, Status};
 use placedb::SelectorConfig;

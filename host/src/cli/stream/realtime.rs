@@ -1,13 +1,13 @@
 //! `placedb stream --realtime`: a recorded sequence replayed to a device at
-//! its recorded rate ([`crate::device::pacing::stream_realtime`]), frames
+//! its recorded rate ([`crate::board::pacing::stream_realtime`]), frames
 //! the device is still busy for skipped and named, and the summary printed.
 
-use crate::device::client::Client;
-use crate::device::error::DeviceError;
-use crate::device::link::{self, Link};
-use crate::device::pacing::{index_ranges, stream_realtime, RealtimeReport};
-use crate::device::scan::{stream_config, StreamOptions};
-use crate::device::session::Session;
+use crate::board::client::Client;
+use crate::board::error::DeviceError;
+use crate::board::link::{self, Link};
+use crate::board::pacing::{index_ranges, stream_realtime, RealtimeReport};
+use crate::board::scan::{stream_config, StreamOptions};
+use crate::board::session::Session;
 use crate::sequence::Sequence;
 use crate::voxelize::VoxelConfig;
 use placedb::SelectorConfig;

@@ -8,19 +8,18 @@
 //! extension file of a finished scan, rebuilt from the device's flash log:
 //! [`log_records`]).
 
-use crate::degradation::plural;
-use crate::device::client::{ask_status, device_profile, Client, Received, Wait};
-use crate::device::error::DeviceError;
-use crate::device::link::Link;
-use crate::device::log_records;
+use crate::board::client::{ask_status, device_profile, Client, Received, Wait};
+use crate::board::error::DeviceError;
+use crate::board::link::Link;
+use crate::board::log_records;
 use crate::error::OutputError;
 use crate::output::replace::{self, Outputs};
 use crate::output::{self, metrics_json};
 use crate::sessions::extension::{self, Extension};
 use indicatif::ProgressBar;
 use placedb::protocol::{
-    encode, export_crc, CapacitySlot, DeviceMessage, ExportRecord, Feed, FrameDecoder, HostMessage,
-    Phase, RecordKind, Status, MAX_FRAME_LEN,
+    encode, export_crc, DeviceMessage, ExportRecord, Feed, FrameDecoder, HostMessage, Phase,
+    RecordKind, Status, MAX_FRAME_LEN,
 };
 use placedb::DbRecord;
 use std::io;
@@ -385,7 +384,7 @@ pub fn export_to_with<L: Link>(
     output::check_database_dir(out)?;
     let export = pull(client, out, from, quiet, opts)?;
     replace::together(|outputs| stage(outputs, out, &export, extra))?;
-    finished(out, &export, quiet)?;
+    finished(out)?;
     Ok(export)
 }
 
@@ -507,37 +506,10 @@ pub fn stage(
     Ok(())
 }
 
-/// After `export` is in place in `out`: its resume file removed, a line
-/// printed unless `quiet`.
-pub fn finished(out: &Path, export: &Export, quiet: bool) -> Result<(), DeviceError> {
+/// After `export` is in place in `out`: its resume file removed.
+pub fn finished(out: &Path) -> Result<(), DeviceError> {
     let partial = resume_file(out);
-    remove_if_there(&partial)
-        .map_err(|e| DeviceError::Output(OutputError::writing(&partial)(e)))?;
-    if !quiet {
-        let firsts = export.sessions();
-        println!(
-            "exported {} ({}, {}{}), checked by count and CRC{}; wrote {}/{{database.csv,labels.csv,metrics.json{}}}",
-            plural(export.records.len() as u64, "record", "records"),
-            plural(export.status.database_size.into(), "database frame", "database frames"),
-            plural(export.status.capacity(CapacitySlot::Labels).used.into(), "label", "labels"),
-            match firsts.len() {
-                1 => String::new(),
-                n => format!(", {n} sessions"),
-            },
-            if export.retried > 0 {
-                format!(" ({} batches retried)", export.retried)
-            } else {
-                String::new()
-            },
-            out.display(),
-            if export.extension.is_some() {
-                format!(",{}", extension::FILE_NAME)
-            } else {
-                String::new()
-            }
-        );
-    }
-    Ok(())
+    remove_if_there(&partial).map_err(|e| DeviceError::Output(OutputError::writing(&partial)(e)))
 }
 
 /// Removes file `path` if it is there.

@@ -2,7 +2,7 @@
 //! [`Recovery`] for a lossy link), the scan and Hello configuration of a
 //! sequence, one depth frame in memory ([`DepthFrame`]), what a scan has sent
 //! and been told ([`ScanState`], which the public
-//! [`Session`](crate::device::session::Session) drives too), and [`stream`],
+//! [`Session`](crate::board::session::Session) drives too), and [`stream`],
 //! which sends a recorded sequence (`placedb stream`).
 //!
 //! The device is the core's [`placedb::device::Device`], on a board or
@@ -11,17 +11,17 @@
 //!
 //! Over a lossy link ([`StreamOptions::retries`] > 0, e.g. `placedb stream
 //! --drop-chance 0.05 --corrupt-chance 0.05`, which wraps the link in a
-//! [`crate::device::link::fault::FaultInjector`]) the host goes stop-and-wait
+//! [`crate::board::link::fault::FaultInjector`]) the host goes stop-and-wait
 //! and retransmits a message with the same sequence number when its reply is
 //! late or says the frame was damaged
-//! ([`exchange`](crate::device::client::exchange)); the device answers a
+//! ([`exchange`](crate::board::client::exchange)); the device answers a
 //! repeat without applying it twice.
 
-use crate::device::client::{ask_status, check_profile, send_and_wait, Client, Received, Wait};
-use crate::device::error::DeviceError;
-use crate::device::export::ExportOptions;
-use crate::device::link::fault::FaultConfig;
-use crate::device::link::Link;
+use crate::board::client::{ask_status, check_profile, send_and_wait, Client, Received, Wait};
+use crate::board::error::DeviceError;
+use crate::board::export::ExportOptions;
+use crate::board::link::fault::FaultConfig;
+use crate::board::link::Link;
 use crate::frame_rows::{row_chunks, sampled_rows_of};
 use crate::sequence::Sequence;
 use crate::voxelize::{self, GridOrigin, VoxelConfig};
@@ -44,7 +44,7 @@ pub struct StreamOptions {
     pub in_flight: usize,
     /// Longest wait for one reply. The default outlasts the longest flash
     /// stall of a Pico reply at the datasheet's maximum timing
-    /// ([`crate::device::flash_timing::WorstStall`]).
+    /// ([`crate::board::flash_timing::WorstStall`]).
     pub reply_timeout: Duration,
     /// Reset the device before the Hello (a new scan).
     pub reset: bool,
@@ -233,7 +233,7 @@ pub fn status_line(st: &Status) -> String {
 /// every frame as FrameBegin, DepthRows, FrameEnd (and a StatusRequest for
 /// the live line), then Finish. The device must run capacity profile
 /// `profile`. The frames go through the client API's code
-/// ([`ScanState`], what [`crate::device::session::Session`] runs), as a robot's would.
+/// ([`ScanState`], what [`crate::board::session::Session`] runs), as a robot's would.
 pub fn stream<L: Link>(
     client: &mut Client<L>,
     seq: &Sequence,
@@ -394,7 +394,7 @@ pub struct DepthFrame<'a> {
 
 /// What a scan has sent and been told: messages in flight, decisions, the
 /// last status, counters. Works on a client it is handed, so that a
-/// [`Session`](crate::device::session::Session) (owning its client) and
+/// [`Session`](crate::board::session::Session) (owning its client) and
 /// [`stream`] (borrowing one) run the very same code.
 pub(crate) struct ScanState {
     opts: StreamOptions,
@@ -851,9 +851,9 @@ impl ScanState {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::device::client::status;
-    use crate::device::export::{append_frames, export_to, read_partial, resume_file};
-    use crate::device::link::LocalLink;
+    use crate::board::client::status;
+    use crate::board::export::{append_frames, export_to, read_partial, resume_file};
+    use crate::board::link::LocalLink;
     use crate::output;
     use crate::testing::{demo, selector, voxel_config};
     use placedb::protocol::{DeviceMessage, ErrorKind};

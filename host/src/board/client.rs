@@ -3,8 +3,8 @@
 //! wait for its terminal reply ([`send_and_wait`]), with the one parser of a
 //! status reply ([`status_of`]).
 
-use crate::device::error::DeviceError;
-use crate::device::link::{self, Link};
+use crate::board::error::DeviceError;
+use crate::board::link::{self, Link};
 use placedb::profile::{Capacities, PROFILES};
 use placedb::protocol::{
     encode, CapacitySlot, DeviceMessage, FrameDecoder, HostFrame, HostMessage, ProtocolError, Push,
@@ -367,7 +367,7 @@ pub fn connect(port: &str) -> Result<Client<Box<dyn Link>>, DeviceError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::device::link::open;
+    use crate::board::link::open;
     use placedb::protocol::{ErrorKind, Feed, Phase, Status};
     use std::io::{Read, Write};
     use std::net::TcpListener;

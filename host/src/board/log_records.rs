@@ -8,9 +8,9 @@
 //! records ([`LoggedScan::extension`]), so that a later `select --extend`
 //! meets the database this device would restore.
 
-use crate::device::client::{send_and_wait, Client, Received, Wait};
-use crate::device::error::DeviceError;
-use crate::device::link::Link;
+use crate::board::client::{send_and_wait, Client, Received, Wait};
+use crate::board::error::DeviceError;
+use crate::board::link::Link;
 use crate::sessions::extension::{DbFrame, Extension, Fate, FrameEntry, OnlineConfig, RunConfig};
 use placedb::frame::FrameMeta;
 use placedb::key_pool::{key_of, Aabb};
@@ -323,8 +323,8 @@ pub fn session_of(firsts: &[u32], index: u32) -> (u32, u32) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::device::link::LocalLink;
-    use crate::device::scan::{device_config, scan_config, stream, StreamOptions};
+    use crate::board::link::LocalLink;
+    use crate::board::scan::{device_config, scan_config, stream, StreamOptions};
     use crate::testing::{demo, selector, voxel_config};
     use std::time::Duration;
 

@@ -1,4 +1,6 @@
-//! The device client, one layer, bottom up: transports and fault injection
+//! The host's side of a board: the client of the device that runs on it
+//! (the core's `placedb::device::Device`, on a board, an emulator or
+//! in-process), one layer, bottom up: transports and fault injection
 //! ([`link`]), the emulated boards ([`emulator`]), the protocol client with
 //! the one send-and-wait ([`client`]), streaming a scan ([`scan`]), pulling
 //! its results ([`export`]; the flash log's records for the extension file:

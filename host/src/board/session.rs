@@ -3,8 +3,8 @@
 //! calls, and what `placedb stream` calls for a recorded sequence.
 //!
 //! ```no_run
-//! use placedb_host::device::session::{DepthFrame, Session};
-//! use placedb_host::device::scan::StreamOptions;
+//! use placedb_host::board::session::{DepthFrame, Session};
+//! use placedb_host::board::scan::StreamOptions;
 //! # fn frames() -> Vec<(f64, placedb::Pose, Vec<u16>)> { Vec::new() }
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! let intrinsics = placedb::Intrinsics {
@@ -34,20 +34,20 @@
 //!
 //! Messages are pipelined ([`StreamOptions::in_flight`]) unless
 //! [`StreamOptions::retries`] > 0, which goes stop-and-wait and retransmits
-//! a message whose reply is late or damaged (see [`crate::device::scan`]):
+//! a message whose reply is late or damaged (see [`crate::board::scan`]):
 //! the same protocol behaviour whoever drives it. Decisions arrive as the
 //! device makes them; [`Session::take_decisions`] hands over the new ones.
 
-use crate::device::client::Client;
-use crate::device::error::DeviceError;
-use crate::device::export::{self, Export, ExportOptions};
-use crate::device::link::{self, Link};
-use crate::device::scan::{ScanState, StreamOptions};
+use crate::board::client::Client;
+use crate::board::error::DeviceError;
+use crate::board::export::{self, Export, ExportOptions};
+use crate::board::link::{self, Link};
+use crate::board::scan::{ScanState, StreamOptions};
 use placedb::protocol::{Config, DecisionKind, HostMessage, Status};
 use placedb::{ScanConfig, SelectorConfig};
 use std::time::Duration;
 
-pub use crate::device::scan::DepthFrame;
+pub use crate::board::scan::DepthFrame;
 
 /// One scan on a device: configure, push frames, read decisions and status,
 /// finish, export. Owns the protocol client ([`Client`]) of its link.
@@ -82,7 +82,7 @@ impl<L: Link> Session<L> {
         scan: &ScanConfig,
         sel: &SelectorConfig,
     ) -> Result<Status, DeviceError> {
-        let cfg = crate::device::scan::device_config(scan, sel)?;
+        let cfg = crate::board::scan::device_config(scan, sel)?;
         self.state.begin(&mut self.client, &cfg, None, None)
     }
 

@@ -18,9 +18,9 @@
 //!
 //! `placedb stream --drop-chance P --corrupt-chance P --fault-seed S` wraps
 //! its link in a [`FaultInjector`]; the host recovers by retransmission (see
-//! [`crate::device::scan::StreamOptions::retries`]).
+//! [`crate::board::scan::StreamOptions::retries`]).
 
-use crate::device::link::Link;
+use crate::board::link::Link;
 use crate::rng::SplitMix64;
 use std::io;
 use std::time::{Duration, Instant};

@@ -130,7 +130,7 @@ impl WorstStall {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::device::scan::StreamOptions;
+    use crate::board::scan::StreamOptions;
 
     /// The Pico runs profile ram256k: its window.
     fn pico_window() -> usize {

@@ -2,8 +2,8 @@
 //! command line, its flash file, building its firmware, and [`Qemu`], the
 //! running board as a [`Link`] (its UART0 over loopback TCP).
 
-use crate::device::error::DeviceError;
-use crate::device::link::{Link, TcpLink};
+use crate::board::error::DeviceError;
+use crate::board::link::{Link, TcpLink};
 use std::io::{self, Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::path::{Path, PathBuf};

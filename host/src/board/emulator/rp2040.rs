@@ -11,9 +11,9 @@
 //! Needs Node (20 or later) and the harness's packages:
 //! `cd boards/rp-pico/emulator && npm ci`.
 
-use crate::device::error::DeviceError;
-use crate::device::flash_timing::FlashTiming;
-use crate::device::link::{Link, TcpLink};
+use crate::board::error::DeviceError;
+use crate::board::flash_timing::FlashTiming;
+use crate::board::link::{Link, TcpLink};
 use std::io::{self, BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};

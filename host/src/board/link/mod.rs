@@ -5,8 +5,8 @@
 //! `/dev/ttyACM0`: a board over USB CDC-ACM or a UART), [`LocalLink`]
 //! (`local:PROFILE`: the device state machine of the core in-process, no
 //! hardware) and [`fault::FaultInjector`] (faults on any link). The emulated
-//! boards are links too ([`crate::device::emulator`]); the protocol client on
-//! top is [`crate::device::client::Client`].
+//! boards are links too ([`crate::board::emulator`]); the protocol client on
+//! top is [`crate::board::client::Client`].
 //!
 //! Every link reads in a background thread into a channel, so writing a long
 //! stream never deadlocks against a device that is itself blocked writing

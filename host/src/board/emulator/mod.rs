@@ -1,4 +1,4 @@
-//! The emulated boards, each a [`Link`](crate::device::link::Link) once it
+//! The emulated boards, each a [`Link`](crate::board::link::Link) once it
 //! runs: the QEMU board ([`qemu`]) and the Pico under rp2040js ([`rp2040`]);
 //! what both share: building their firmware ([`build_board`]) and running
 //! one in the foreground for `placedb device` ([`wait_in_foreground`], with
@@ -8,7 +8,7 @@ pub mod foreground;
 pub mod qemu;
 pub mod rp2040;
 
-use crate::device::error::DeviceError;
+use crate::board::error::DeviceError;
 use std::io;
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -184,9 +184,9 @@ impl RealtimeReport {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::device::client::Client;
-    use crate::device::link::LocalLink;
-    use crate::device::scan::StreamOptions;
+    use crate::board::client::Client;
+    use crate::board::link::LocalLink;
+    use crate::board::scan::StreamOptions;
     use crate::synth::{self, SynthConfig};
     use crate::VoxelConfig;
     use placedb::SelectorConfig;
@@ -208,8 +208,8 @@ mod tests {
             window: 8,
             sketch_margin: 0.05,
         };
-        crate::device::scan::device_config(
-            &crate::device::scan::scan_config(seq, &vcfg).unwrap(),
+        crate::board::scan::device_config(
+            &crate::board::scan::scan_config(seq, &vcfg).unwrap(),
             &sel,
         )
         .unwrap()
