@@ -46,7 +46,7 @@ use placedb::protocol::{
 use placedb::{Intrinsics, Pose, SelectorConfig};
 use placedb_host::board::link::fault::damaged_frame;
 use placedb_host::synth::{self, SynthConfig};
-use placedb_host::{device::scan, DepthImage, VoxelConfig};
+use placedb_host::{board::scan, DepthImage, VoxelConfig};
 use std::time::Instant;
 
 use ErrorKind::*;

@@ -69,7 +69,7 @@ use placedb::protocol::{
 use placedb::{Pose, SelectorConfig};
 use placedb_host::frame_rows::{row_chunks, RowChunk};
 use placedb_host::synth::{self, SynthConfig};
-use placedb_host::{device::scan, VoxelConfig};
+use placedb_host::{board::scan, VoxelConfig};
 use std::collections::{BTreeMap, BTreeSet};
 use std::ops::{Deref, DerefMut};
 use std::sync::atomic::Ordering;

@@ -30,7 +30,7 @@ use placedb::protocol::{
 use placedb::{DepthRange, Intrinsics, Pose, ScanConfig, SelectorConfig, VoxelGrid};
 use placedb_host::frame_rows::{row_chunks, RowChunk};
 use placedb_host::synth::{self, SynthConfig};
-use placedb_host::{device::scan, VoxelConfig};
+use placedb_host::{board::scan, VoxelConfig};
 use std::collections::BTreeMap;
 
 /// The device of the power cuts: window 8, sketches of 16 hashes, 64

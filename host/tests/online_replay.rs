@@ -7,7 +7,7 @@
 
 use placedb::SelectorConfig;
 use placedb_host::voxelize::{voxelize, VoxelConfig};
-use placedb_host::{device::scan, replay, Sequence};
+use placedb_host::{board::scan, replay, Sequence};
 
 fn seven_scenes(frames: usize) -> Sequence {
     placedb_host::testing::sample("7scenes-1000", frames)
