@@ -8,7 +8,9 @@
 //! size no larger than `in-order` on all the frames together and within a
 //! factor of `greedy` on them; a chain of three sessions; a mismatched
 //! configuration and a damaged extension file refused in words with nothing
-//! written; a run without `--extend` writing the columns it always wrote.
+//! written; a run without `--extend` writing the columns it always wrote;
+//! the same frames, or a part of them, scanned again adding no database
+//! frame.
 
 use placedb::profile::Ram512K;
 use placedb_host::output;
@@ -65,10 +67,10 @@ fn refused(args: &[&str]) -> String {
     String::from_utf8(out.stderr).unwrap()
 }
 
-/// 7-Scenes frames `range` as a sequence directory of their own (links
-/// to the sample's depth and pose files; frame numbers, which are the
-/// timestamps, kept).
-fn seven_scenes(dir: &Path, range: std::ops::Range<usize>) -> PathBuf {
+/// 7-Scenes frames `frames` (sample frame numbers) as a sequence directory
+/// of their own (links to the sample's depth and pose files; frame numbers,
+/// which are the timestamps, kept).
+fn seven_scenes(dir: &Path, frames: impl IntoIterator<Item = usize>) -> PathBuf {
     std::fs::create_dir_all(dir).unwrap();
     let src = Path::new(SEVEN_SCENES);
     std::fs::copy(
@@ -76,7 +78,7 @@ fn seven_scenes(dir: &Path, range: std::ops::Range<usize>) -> PathBuf {
         dir.join("camera-intrinsics.txt"),
     )
     .unwrap();
-    for i in range {
+    for i in frames {
         for ext in ["depth.png", "pose.txt"] {
             let name = format!("frame-{i:06}.{ext}");
             std::os::unix::fs::symlink(src.join(&name), dir.join(&name)).unwrap();
@@ -653,6 +655,66 @@ fn database_frames_without_voxel_sets_extend_online_and_refuse_offline_solvers()
             assert!(msg.contains("has no voxel set"), "{msg}");
             assert!(msg.contains("--solver online"), "{msg}");
             assert!(!out_ab.exists());
+        }
+    }
+}
+
+/// Database frames `select --extend` adds to `a` (its output `out`).
+fn added(a: &Path, out: &Path) -> Vec<usize> {
+    let before = database(a).len();
+    let after = database(out);
+    after[before..].to_vec()
+}
+
+#[test]
+fn the_same_place_scanned_again_adds_no_database_frame() {
+    // A session of frames a database already covers (the very frames it
+    // came from, a contiguous part of them, every third of them) adds
+    // nothing, for every solver of `--extend` (online with the exact keys
+    // of every frame it took, those taken by the end of the scan too),
+    // from the paper's in-order rule (window 1) to the largest window of a
+    // profile (48), mu up to 0.95.
+    let root = temp("again");
+    let n = 120;
+    let first = seven_scenes(&root.join("all"), 0..n);
+    let parts = [
+        ("same", first.clone()),
+        ("part", seven_scenes(&root.join("part"), 30..90)),
+        (
+            "third",
+            seven_scenes(&root.join("third"), (0..n).step_by(3)),
+        ),
+    ];
+    let cases: &[(&str, &str, &str)] = &[
+        ("0.3", "1", "ram512k"),
+        ("0.5", "8", "ram256k"),
+        ("0.7", "32", "ram512k"),
+        ("0.9", "32", "ram512k"),
+        ("0.95", "48", "ram1m"),
+    ];
+    for &(mu, window, profile) in cases {
+        for solver in ["online", "in-order", "greedy"] {
+            let a = root.join(format!("a-{mu}-{window}-{solver}"));
+            let mut common = vec!["--mu", mu, "--solver", solver];
+            if solver == "online" {
+                common.extend(["--window", window, "--profile", profile]);
+            }
+            let mut args = vec!["select", first.to_str().unwrap(), "-o", a.to_str().unwrap()];
+            args.extend(&common);
+            ok(&args);
+            for (name, seq) in &parts {
+                let out = root.join(format!("b-{mu}-{window}-{solver}-{name}"));
+                let mut args = vec!["select", seq.to_str().unwrap(), "-o", out.to_str().unwrap()];
+                args.extend(["--extend", a.to_str().unwrap()]);
+                args.extend(&common);
+                ok(&args);
+                assert_eq!(
+                    added(&a, &out),
+                    Vec::<usize>::new(),
+                    "mu {mu}, window {window} ({profile}), --solver {solver}, \
+                     extended with {name}: database frames added"
+                );
+            }
         }
     }
 }

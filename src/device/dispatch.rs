@@ -39,11 +39,7 @@ impl<
             }
         };
         let key = MessageKey::of(&msg);
-        let same_hello = match msg {
-            HostMessage::Hello(cfg) | HostMessage::Extend(cfg) => self.hello == Some(cfg),
-            _ => true,
-        };
-        if key == Some(self.last.key) && self.last.seq == seq && same_hello {
+        if key == Some(self.last.key) && self.last.seq == seq {
             // A retransmission of the message just handled: same reply, no effect.
             let reply = self.last.reply();
             return self.out(send).reply(&reply);
@@ -216,8 +212,8 @@ impl<
             _ => return Err(ErrorKind::FrameEndWithoutBegin),
         }
         // Room for this step (with the key chunks it may write) and, after
-        // it, a Finish of a full window (which writes no keys), so that a
-        // scan whose log is full still ends with every frame decided.
+        // it, a Finish of a full window without keys, so that a scan whose
+        // log is full still ends with every frame decided.
         let records = 2 * step_records(W) + 1;
         let key_chunks = self.selector.key_chunks_next_frame();
         let ticks = self.decide(
@@ -265,12 +261,28 @@ impl<
         if self.finished {
             return Ok(());
         }
+        // The frames taken now keep their keys (a later session is compared
+        // with them) when the log has room for them; FrameEnd reserved room
+        // for a Finish without keys, so a full log still finishes.
+        let records = step_records(W) + 1;
+        let key_chunks = self.selector.key_chunks_finish();
+        let keyed = key_chunks > 0
+            && journal.has_room_then(
+                (key_chunks, durable::KEY_RECORD_LEN),
+                (records, Self::STEP_RECORD_LEN),
+            );
         self.decide(
             journal,
-            (step_records(W) + 1, 0),
+            (records, if keyed { key_chunks } else { 0 }),
             true,
             send,
-            |s, store, emit| s.finish_with(store, emit),
+            |s, store, emit| {
+                if keyed {
+                    s.finish_with(store, emit)
+                } else {
+                    s.finish_without_keys(store, emit)
+                }
+            },
         )?;
         self.finished = true;
         self.persist(journal, &Record::Finished);

@@ -40,12 +40,16 @@ impl Applied {
 
 /// What identifies a state-changing message besides its sequence number (so
 /// that a restarted host reusing sequence numbers is not taken for a retry).
-/// A Hello (or an Extend) is identified by its configuration: the one in force.
+/// A Hello (or an Extend) is identified by the configuration it carries, so
+/// that a refused one (another stride, say) followed by the right one with
+/// the same sequence number (a host run again) gets its own answer, not the
+/// refusal again.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) struct MessageKey {
     /// 0: none; 1 Hello, 2 FrameBegin, 3 DepthRows, 4 FrameEnd, 5 Finish,
     /// 6 Reset, 7 FrameAbort, 8 Extend.
     tag: u8,
+    /// The frame, or a Hello's or an Extend's [`crate::protocol::Config::fingerprint`].
     frame: u32,
     first_row: u16,
     row_count: u16,
@@ -68,14 +72,14 @@ impl MessageKey {
             row_count,
         };
         Some(match *msg {
-            HostMessage::Hello(_) => key(1, 0, 0, 0),
+            HostMessage::Hello(cfg) => key(1, cfg.fingerprint(), 0, 0),
             HostMessage::FrameBegin { frame, .. } => key(2, frame, 0, 0),
             HostMessage::DepthRows(r) => key(3, r.frame, r.first_row, r.row_count),
             HostMessage::FrameEnd { frame } => key(4, frame, 0, 0),
             HostMessage::Finish => key(5, 0, 0, 0),
             HostMessage::Reset => key(6, 0, 0, 0),
             HostMessage::FrameAbort { frame } => key(7, frame, 0, 0),
-            HostMessage::Extend(_) => key(8, 0, 0, 0),
+            HostMessage::Extend(cfg) => key(8, cfg.fingerprint(), 0, 0),
             HostMessage::StatusRequest
             | HostMessage::ExportRequest { .. }
             | HostMessage::LogRead { .. } => return None,

@@ -182,6 +182,17 @@ pub struct Config {
 }
 
 impl Config {
+    /// A CRC-32 of the configuration's encoding: two configurations that
+    /// differ in any field differ here but for a 2^-32 chance. The
+    /// retransmission cache tells a resent Hello or Extend from another
+    /// one by it.
+    pub fn fingerprint(&self) -> u32 {
+        // Every field of a Config encodes in well under 96 bytes.
+        let mut buf = [0u8; 96];
+        let bytes = postcard::to_slice(self, &mut buf).map_or(&[][..], |b| &*b);
+        super::CRC.checksum(bytes)
+    }
+
     /// The configuration that sets up a device exactly as `scan` and `sel` set
     /// up a [`crate::Selector`] (what the host's replay of the core uses).
     pub fn new(scan: &ScanConfig, sel: &SelectorConfig) -> Config {

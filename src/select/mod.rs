@@ -307,9 +307,9 @@ pub struct Selector<
 /// rule for when keys are stored, and the selector alone applies it: a
 /// frame taken while deciding for a new frame (`end_frame_with`) offers its
 /// keys when they take at most [`crate::persist::keys::MAX_KEY_CHUNKS`]
-/// chunks and fit what is left of [`database::KEY_BUDGET`]; a frame taken
-/// by `finish_with` offers none (no later frame is compared with it). A
-/// store keeps every key it is offered: the host replay's store always can,
+/// chunks and fit what is left of [`database::KEY_BUDGET`], and so does a
+/// frame taken by `finish_with` (a later session is compared with it);
+/// `finish_without_keys` offers none. A store keeps every key it is offered: the host replay's store always can,
 /// and a device refuses the frame (`StorageFull`) before its log could not
 /// ([`Selector::key_chunks_next_frame`]), so a replay and a device decide
 /// alike up to the last frame the device's log accepts.
@@ -533,15 +533,20 @@ impl<
     /// holds more than `KEY_CHUNK_BYTES - 5` bytes). A device reserves log
     /// room for them before it accepts the frame.
     pub fn key_chunks_next_frame(&self) -> usize {
-        use crate::persist::keys::{KEY_CHUNK_BYTES, MAX_KEY_CHUNKS};
         let window = self
             .config
             .as_ref()
             .map_or(1, |(_, c)| usize::from(c.window));
         // The frames that leave the window when the next frame ends.
-        let takes = (self.len + 1).saturating_sub(window.saturating_sub(1));
+        self.key_chunks_for((self.len + 1).saturating_sub(window.saturating_sub(1)))
+    }
+
+    /// The most key chunk records `takes` frames taken may write, within
+    /// what is left of the key budget.
+    fn key_chunks_for(&self, takes: usize) -> usize {
+        use crate::persist::keys::{KEY_CHUNK_BYTES, MAX_KEY_CHUNKS};
         let left = KEY_BUDGET.saturating_sub(self.status.stored_key_bytes) as usize;
-        if left == 0 {
+        if left == 0 || takes == 0 {
             return 0;
         }
         let by_budget = left / (KEY_CHUNK_BYTES - 5) + takes;
@@ -765,20 +770,50 @@ impl<
     }
 
     /// Decides every frame still in the window (end of scan). The selector
-    /// stays usable: later frames start with an empty window.
-    #[inline(never)]
+    /// stays usable: later frames start with an empty window. A frame taken
+    /// now offers its exact keys as a frame taken mid-scan does (within the
+    /// key budget): a later session is compared with it, and compared by
+    /// sketch it could count a frame it covers as uncovered and store the
+    /// same place again.
     pub fn finish_with(
         &mut self,
         store: &mut dyn FrameStore<K>,
+        emit: impl FnMut(FrameDecision),
+    ) -> Result<(), SelectError> {
+        self.finish_offering(store, KeyOffer::WithinBudget, emit)
+    }
+
+    /// [`Self::finish_with`] for a store with no room left for keys (a
+    /// device whose log is nearly full): the frames taken now keep none, and
+    /// a later session compares them by sketch.
+    pub fn finish_without_keys(
+        &mut self,
+        store: &mut dyn FrameStore<K>,
+        emit: impl FnMut(FrameDecision),
+    ) -> Result<(), SelectError> {
+        self.finish_offering(store, KeyOffer::None, emit)
+    }
+
+    /// The most key chunk records [`Self::finish_with`] may write: those of
+    /// every frame in the window, within what is left of the key budget. A
+    /// device checks its log has room for them, else it finishes
+    /// [`Self::finish_without_keys`].
+    pub fn key_chunks_finish(&self) -> usize {
+        self.key_chunks_for(self.len)
+    }
+
+    #[inline(never)]
+    fn finish_offering(
+        &mut self,
+        store: &mut dyn FrameStore<K>,
+        offer: KeyOffer,
         mut emit: impl FnMut(FrameDecision),
     ) -> Result<(), SelectError> {
         if self.ingest.current().is_some() {
             return Err(SelectError::FrameInProgress);
         }
-        // No later frame is compared with a frame taken now: its keys
-        // would cost the store for nothing (see `KeyOffer`).
         while self.len > 0 {
-            self.decide_oldest(store, KeyOffer::None, &mut emit);
+            self.decide_oldest(store, offer, &mut emit);
         }
         Ok(())
     }

@@ -403,3 +403,41 @@ fn log_read_gives_every_record_byte_for_byte() {
         assert_eq!(read(&mut none, 0, 0), Err(ErrorKind::ExportPastEnd));
     });
 }
+
+#[test]
+fn a_refused_extend_or_hello_leaves_the_device_taking_the_right_one() {
+    // A host run again numbers its messages from the start: the right
+    // Extend (or Hello) after a refused one can carry the refused one's
+    // sequence number, and must be answered for itself, not with the
+    // cached refusal.
+    on_big_stack(|| {
+        let cfg = config(8);
+        let mut b = bench::<Small>();
+        b.ok(HostMessage::Hello(cfg));
+        for i in 0..4 {
+            frame_as(&mut b, i, i);
+        }
+        // A scan in progress: a Hello of another configuration is refused,
+        // the right one (the same sequence number) resumes it.
+        let refused_seq = b.seq;
+        assert_ne!(b.refused(HostMessage::Hello(config(4))), ErrorKind::BadCrc);
+        b.seq = refused_seq;
+        b.ok(HostMessage::Hello(cfg));
+        for i in 4..A_FRAMES {
+            frame_as(&mut b, i, i);
+        }
+        b.ok(HostMessage::Finish);
+        let refused_seq = b.seq;
+        assert_eq!(
+            b.refused(HostMessage::Extend(config(4))),
+            ErrorKind::ExtendOtherConfig
+        );
+        b.seq = refused_seq;
+        b.ok(HostMessage::Extend(cfg));
+        assert_eq!(b.status().sessions, 2);
+        // And a retransmission of the accepted one is still a no-op.
+        b.seq = refused_seq;
+        b.ok(HostMessage::Extend(cfg));
+        assert_eq!(b.status().sessions, 2);
+    });
+}
