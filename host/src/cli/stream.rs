@@ -25,7 +25,9 @@ pub mod realtime;
 pub struct StreamArgs {
     #[command(flatten)]
     seq: SeqArgs,
-    /// Device: a serial port (/dev/ttyACM0), tcp:HOST:PORT (the emulator) or local:PROFILE.
+    /// Device: a serial port (/dev/ttyACM0), a board's USB serial number
+    /// (placedb.example:E6614103E7452D2F) or the end of its hex ID (2D2F),
+    /// tcp:HOST:PORT (the emulator) or local:PROFILE.
     #[arg(long)]
     port: String,
     /// IoU threshold, from 0 to below 1: frames overlap when IoU > mu.
