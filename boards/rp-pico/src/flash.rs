@@ -8,8 +8,11 @@
 //! 256-byte page, the bytes not written padded with 0xFF, which leaves them as
 //! they are) call the boot ROM's flash functions from a RAM function with
 //! interrupts disabled, then re-run a RAM copy of the second-stage bootloader
-//! to restore fast XIP, as the Pico SDK does. The same RAM routine reads
-//! the chip's 64-bit unique ID ([`unique_id`], the USB serial number).
+//! to restore fast XIP, as the Pico SDK does. Every erase and program is
+//! read back (the ROM's functions return nothing): a sector not all 0xFF, or
+//! page bytes not as programmed, is an error, never `Ok`, so the log does
+//! not acknowledge what did not take. The same RAM routine reads the chip's
+//! 64-bit unique ID ([`unique_id`], the USB serial number).
 //!
 //! Not supported: the second core running from flash, DMA reading flash, or
 //! an interrupt handler in flash during an operation (this firmware starts no
@@ -39,7 +42,10 @@ const PAGE: usize = 256;
 /// The second-stage bootloader's size (memory.x BOOT2).
 const BOOT2_WORDS: usize = 64;
 
-/// The last 1 MiB of the Pico's flash. Errors are bounds and alignment only.
+/// The last 1 MiB of the Pico's flash. Errors: bounds and alignment
+/// (checked before anything is done), and `Other` when an erase or a
+/// program does not read back as asked (the boot ROM's functions report
+/// nothing, so every one is read back through XIP after the cache flush).
 pub struct PicoFlash {
     _private: (),
 }
@@ -85,6 +91,15 @@ impl NorFlash for PicoFlash {
         check_erase(self, from, to)?;
         for sector in (from..to).step_by(Self::ERASE_SIZE) {
             rom_op(REGION_OFFSET + sector, None);
+            // Read back: a sector that is not all 0xFF now did not erase
+            // (protect bits left set, a worn sector, the supply too low).
+            let mut chunk = [0u8; PAGE];
+            for at in (sector..sector + Self::ERASE_SIZE as u32).step_by(PAGE) {
+                self.read(at, &mut chunk)?;
+                if chunk.iter().any(|&b| b != 0xFF) {
+                    return Err(NorFlashErrorKind::Other);
+                }
+            }
         }
         Ok(())
     }
@@ -98,6 +113,12 @@ impl NorFlash for PicoFlash {
             let mut buf = [0xFF_u8; PAGE];
             buf[skip..skip + n].copy_from_slice(&rest[..n]);
             rom_op(REGION_OFFSET + page as u32, Some(&buf));
+            // Read back: bytes that are not what was programmed did not take.
+            let mut got = [0u8; PAGE];
+            self.read(at as u32, &mut got[..n])?;
+            if got[..n] != rest[..n] {
+                return Err(NorFlashErrorKind::Other);
+            }
             (at, rest) = (at + n, &rest[n..]);
         }
         Ok(())
