@@ -29,6 +29,9 @@ use usbd_class_tester::prelude::*;
 /// emulated bus.
 struct Pico;
 
+/// The flash unique ID the tests' board reports (as the chip sends it).
+const ID: [u8; 8] = [0x01, 0x23, 0x45, 0x67, 0x89, 0xAB, 0xCD, 0xEF];
+
 impl UsbDeviceCtx for Pico {
     type C<'c> = Link<'c, EmulatedUsbBus>;
 
@@ -43,7 +46,10 @@ impl UsbDeviceCtx for Pico {
         &mut self,
         alloc: &'a UsbBusAllocator<EmulatedUsbBus>,
     ) -> AnyResult<UsbDevice<'a, EmulatedUsbBus>> {
-        link::device(alloc).map_err(AnyUsbError::UsbDeviceBuilder)
+        // The serial number lives as long as the test's bus (leaked: a few
+        // bytes per test).
+        let serial: &'static link::SerialNumber = Box::leak(Box::new(link::SerialNumber::new(ID)));
+        link::device(alloc, serial.as_str()).map_err(AnyUsbError::UsbDeviceBuilder)
     }
 }
 
@@ -107,7 +113,14 @@ fn check_descriptors<'a>(mut link: Link<'a, EmulatedUsbBus>, mut host: Host<'a>)
         .iter()
         .map(|&i| host.device_get_string(&mut link, i, lang).unwrap())
         .collect();
-    assert_eq!(strings, ["placedb", "placedb device", "0001"]);
+    assert_eq!(
+        strings,
+        [
+            "placedb",
+            "placedb device",
+            "placedb.example:0123456789ABCDEF"
+        ]
+    );
 
     let config = config_descriptor(&mut link, &mut host);
     assert_eq!(config[1], 2);
@@ -450,7 +463,8 @@ fn every_transfer_ends_with_a_short_packet() {
     let wire = Arc::new(Mutex::new(Wire::default()));
     let bus = UsbBusAllocator::new(WireBus(wire.clone()));
     let mut link = Link::new(&bus);
-    let mut usb = link::device(&bus).unwrap();
+    let serial = link::SerialNumber::new(ID);
+    let mut usb = link::device(&bus, serial.as_str()).unwrap();
     configure(&wire, &mut link, &mut usb);
     assert_eq!(SHORT_PACKET_INTERVAL, 10);
     wire.lock().unwrap().reading = true;
@@ -484,7 +498,8 @@ fn reply_queue_backpressure() {
     let wire = Arc::new(Mutex::new(Wire::default()));
     let bus = UsbBusAllocator::new(WireBus(wire.clone()));
     let mut link = Link::new(&bus);
-    let mut usb = link::device(&bus).unwrap();
+    let serial = link::SerialNumber::new(ID);
+    let mut usb = link::device(&bus, serial.as_str()).unwrap();
     configure(&wire, &mut link, &mut usb);
     let out_ep = bulk_index(&wire, UsbDirection::Out);
     let in_ep = bulk_index(&wire, UsbDirection::In);
@@ -592,7 +607,8 @@ fn flush_waits_for_the_host_and_gives_up_on_one_that_does_not_read() {
     let wire = Arc::new(Mutex::new(Wire::default()));
     let bus = UsbBusAllocator::new(WireBus(wire.clone()));
     let mut link = Link::new(&bus);
-    let mut usb = link::device(&bus).unwrap();
+    let serial = link::SerialNumber::new(ID);
+    let mut usb = link::device(&bus, serial.as_str()).unwrap();
     configure(&wire, &mut link, &mut usb);
     let in_ep = bulk_index(&wire, UsbDirection::In);
 
@@ -622,4 +638,25 @@ fn flush_waits_for_the_host_and_gives_up_on_one_that_does_not_read() {
         "a reply byte had not left when flush returned"
     );
     assert!(w.polls < polls + u64::from(FLUSH_POLLS) + 100);
+}
+
+/// The serial number: the domain, ":", the unique ID's bytes in the order
+/// the chip sent them as 16 upper-case hex digits; the host's lookup by
+/// serial number (`--port`) expects the same domain.
+#[test]
+fn the_serial_number_is_the_domain_then_the_flash_id_in_hex() {
+    let serial = link::SerialNumber::new([0xE6, 0x61, 0x41, 0x03, 0xE7, 0x45, 0x2D, 0x2F]);
+    assert_eq!(serial.as_str(), "placedb.example:E6614103E7452D2F");
+    assert_eq!(serial.as_str().len(), link::SERIAL_LEN);
+    assert_eq!(
+        link::SerialNumber::new([0; 8]).as_str(),
+        "placedb.example:0000000000000000"
+    );
+    assert_eq!(
+        link::SERIAL_DOMAIN,
+        placedb_host::board::link::usb_serial::SERIAL_DOMAIN
+    );
+    assert!(placedb_host::board::link::usb_serial::looks_like_serial(
+        serial.as_str()
+    ));
 }

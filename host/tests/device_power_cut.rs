@@ -1305,6 +1305,50 @@ fn a_failing_flash_degrades_and_restores_a_prefix() {
 /// frame (it was taken for a decision the log does not hold) and no frame
 /// was seen, so a Hello with another configuration starts a new scan; that
 /// scan must hold nothing of the old one.
+/// A fault of the simulated flash, named.
+type FlashFault = (&'static str, fn(&mut SimFlash));
+
+/// A flash that reports success for writes that did not take (bits that
+/// do not program in a worn sector, a write-protected sector): the log reads
+/// every write back, so the device counts as durable only what a reboot
+/// restores, stops writing, says so in its status, and the host turns that
+/// into words (what `placedb stream` prints).
+#[test]
+fn a_flash_that_does_not_take_writes_is_never_durable_and_is_said_in_words() {
+    on_big_stack(|| {
+        let scan = Scan::synthetic(0, 40, 8);
+        let faults: [FlashFault; 2] = [
+            ("bits dropped in sector 1", |f| f.drop_bits(1, 0x10)),
+            ("sector 1 protected", |f| f.protect(1)),
+        ];
+        for (ctx, fault) in faults {
+            let (mut rig, _) = Rig::<Small>::boot(SimFlash::new(SECTORS));
+            fault(rig.flash());
+            let mut seen = Seen::default();
+            assert!(drive(&mut rig, &scan, &mut seen, ctx), "{ctx}");
+            let st = rig.status();
+            assert_ne!(st.degradation & degradation::STORAGE_FAILED, 0, "{ctx}");
+            let words = placedb_host::board::client::flash_warnings(&st).join("\n");
+            assert!(words.contains("flash failed a write"), "{ctx}: {words}");
+            assert!(
+                words.contains(&format!("only {} records", st.stored_records)),
+                "{ctx}: {words}"
+            );
+            assert!(
+                !words.contains("StorageFailed"),
+                "{ctx}: no type names: {words}"
+            );
+            let (mut again, restored) = Rig::<Small>::boot(rig.into_flash());
+            assert_eq!(
+                restored,
+                Ok(st.stored_records),
+                "{ctx}: exactly the records counted durable restore"
+            );
+            assert_eq!(again.status().stored_records, st.stored_records, "{ctx}");
+        }
+    });
+}
+
 #[test]
 fn a_new_scan_after_a_restore_holds_nothing_of_the_old_one() {
     on_big_stack(|| {

@@ -1168,3 +1168,45 @@ fn receive_message_stops_after_each_frame() {
         assert_eq!(replies.len(), 4);
     });
 }
+
+/// A fault of the simulated flash, named.
+type FlashFault = (&'static str, fn(&mut SimFlash));
+
+/// A flash that reports success for what did not take (bits that do not
+/// program, a protected sector): the device never counts a record as
+/// durable that a reboot does not restore, and tells the host in its
+/// status (`STORAGE_FAILED`) that writing stopped.
+#[test]
+fn a_flash_that_does_not_take_a_write_is_never_acknowledged_durable() {
+    on_big_stack(|| {
+        let faults: [FlashFault; 2] = [
+            ("bits dropped", |f| f.drop_bits(1, 0x01)),
+            ("sector protected", |f| f.protect(1)),
+        ];
+        for (what, fault) in faults {
+            let mut b = bench::<Small>();
+            fault(b.flash());
+            b.ok(HostMessage::Hello(config(4)));
+            let mut frames = 0;
+            while b.status().degradation & degradation::STORAGE_FAILED == 0 {
+                assert!(
+                    frames < 200,
+                    "{what}: the log never reached the faulty sector"
+                );
+                frame(&mut b, frames, 5);
+                frames += 1;
+            }
+            // The scan goes on (replies still go out), writing nothing more.
+            frame(&mut b, frames, 5);
+            let st = b.status();
+            assert!(st.stored_records > 1, "{what}");
+            let (mut again, restored) = Harness::<Small>::boot(b.into_flash());
+            assert_eq!(
+                restored,
+                Ok(st.stored_records),
+                "{what}: every record counted durable restores, and no other"
+            );
+            assert_eq!(again.status().stored_records, st.stored_records, "{what}");
+        }
+    });
+}

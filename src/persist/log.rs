@@ -33,6 +33,13 @@
 //!   *sealed*): a byte that a torn write may have touched is never written
 //!   again before an erase, and no intact record ever follows a damaged one
 //!   within a sector.
+//! - A flash may report success for what did not take (bits that do not
+//!   program in a worn sector, protect bits left set, a supply below the
+//!   part's minimum; the RP2040's boot ROM reports nothing at all). So every
+//!   record is read back after it is written, and every sector the log
+//!   opens is read back erased (all 0xFF) before its first record: a
+//!   mismatch is a failed write ([`LogError::Flash`]), handled as any other
+//!   (the sector sealed, or opened again), and never acknowledged.
 //!
 //! # Dropping a tail
 //!
@@ -809,12 +816,15 @@ impl<F: NorFlash> Log<F> {
                     return Err(LogError::Full);
                 }
                 let at = self.sector_offset(live.head + live.sectors);
-                // Counted as used only once erased: the walk at restore
-                // stops at a sector that does not open with the next record,
-                // so a sector that failed must be retried, not skipped.
+                // Counted as used only once erased, and read back erased (a
+                // flash may report success for an erase that did not
+                // happen): the walk at restore stops at a sector that does
+                // not open with the next record, so a sector that failed
+                // must be retried, not skipped.
                 self.flash
                     .erase(at, at + self.sector_len())
                     .map_err(flash_err)?;
+                self.check_erased(at)?;
                 live.sectors += 1;
                 0
             }
@@ -826,22 +836,61 @@ impl<F: NorFlash> Log<F> {
         for (b, v) in record.iter_mut().zip(head.iter().chain(payload)) {
             *b = *v;
         }
-        if let Err(e) = self.flash.write(at, record) {
+        let written = self
+            .flash
+            .write(at, record)
+            .map_err(flash_err)
+            .and_then(|()| self.check_written(at, total));
+        if let Err(e) = written {
             // Bytes a failed write may have touched are never written again:
             // the sector is sealed, or erased again if this was its first
             // record (a sector that does not open with the next record ends
-            // the generation at restore).
+            // the generation at restore). A write that reported success but
+            // reads back otherwise (bits that did not program, a protected
+            // sector) is a failed write: never acknowledged.
             if offset == 0 {
                 live.sectors -= 1;
             }
             live.offset = None;
             self.live = Some(live);
-            return Err(flash_err(e));
+            return Err(e);
         }
         live.records += 1;
         live.offset = Some(offset + total as u32);
         self.live = Some(live);
         Ok(self.position(live.head + live.sectors - 1, offset))
+    }
+
+    /// Reads the sector at `at` back: an error unless every byte is 0xFF.
+    fn check_erased(&mut self, at: u32) -> Result<(), LogError> {
+        let mut chunk = [0u8; MAX_ALIGN];
+        let step = MAX_ALIGN.max(self.align);
+        for offset in (0..self.sector_len()).step_by(step) {
+            let part = chunk.get_mut(..step).ok_or(LogError::BadRange)?;
+            self.flash.read(at + offset, part).map_err(flash_err)?;
+            if part.iter().any(|&b| b != 0xFF) {
+                return Err(LogError::Flash(FlashErrorKind::Other));
+            }
+        }
+        Ok(())
+    }
+
+    /// Reads the `len` bytes just written at `at` back: an error unless they
+    /// are the record in `buf`.
+    fn check_written(&mut self, at: u32, len: usize) -> Result<(), LogError> {
+        let mut chunk = [0u8; MAX_ALIGN];
+        let step = MAX_ALIGN.max(self.align);
+        for offset in (0..len).step_by(step) {
+            let n = step.min(len - offset);
+            let part = chunk.get_mut(..n).ok_or(LogError::BadRange)?;
+            self.flash
+                .read(at + offset as u32, part)
+                .map_err(flash_err)?;
+            if self.buf.get(offset..offset + n) != Some(&*part) {
+                return Err(LogError::Flash(FlashErrorKind::Other));
+            }
+        }
+        Ok(())
     }
 
     /// Whether `count` more records of up to `len` payload bytes each are
@@ -1243,5 +1292,77 @@ mod tests {
         let all = owned(&[b"first", b"landed", b"next"]);
         assert_eq!(found, all);
         assert_eq!(read_all(&mut log), all);
+    }
+
+    /// Appends `payload` records until one is refused; the acknowledged
+    /// ones (and the error that ended it).
+    fn fill(log: &mut Log<SimFlash>, count: usize) -> (Vec<Vec<u8>>, Option<LogError>) {
+        let mut acked = Vec::new();
+        for i in 0..count {
+            let payload = vec![i as u8; 300];
+            match log.append(&payload) {
+                Ok(_) => acked.push(payload),
+                Err(e) => return (acked, Some(e)),
+            }
+        }
+        (acked, None)
+    }
+
+    #[test]
+    fn a_program_that_drops_bits_is_a_failed_write_and_the_log_goes_on_elsewhere() {
+        // Sector 1 starts dropping bit 0 of every byte it programs once two
+        // records are in it: the third fails, its sector is sealed and the
+        // log goes on in sector 2.
+        let mut log = open(SimFlash::new(SECTORS));
+        log.start(b"head").unwrap();
+        let (mut acked, end) = fill(&mut log, 14);
+        assert_eq!(end, None);
+        acked.insert(0, b"head".to_vec());
+        assert_eq!(log.sectors_used(), 2);
+        log.flash().drop_bits(1, 0x01);
+        let refused = vec![0xAA; 300];
+        assert_eq!(
+            log.append(&refused),
+            Err(LogError::Flash(FlashErrorKind::Other)),
+            "a record that did not take is never acknowledged"
+        );
+        let records = log.records();
+        let after = vec![0x55; 300];
+        log.append(&after).unwrap();
+        assert_eq!(log.records(), records + 1);
+        assert_eq!(log.sectors_used(), 3, "went on in the next sector");
+        acked.push(after);
+        let (_, found) = reboot(log);
+        assert_eq!(found, acked, "exactly the acknowledged records restore");
+    }
+
+    #[test]
+    fn a_protected_sector_is_never_acknowledged_written_or_erased() {
+        // A blank protected sector: erasing it "works" (it reads erased),
+        // programming it changes nothing.
+        let mut flash = SimFlash::new(SECTORS);
+        flash.protect(1);
+        let mut log = open(flash);
+        log.start(b"head").unwrap();
+        let (mut acked, end) = fill(&mut log, 40);
+        acked.insert(0, b"head".to_vec());
+        assert_eq!(end, Some(LogError::Flash(FlashErrorKind::Other)));
+        assert_eq!(log.records() as usize, acked.len());
+        let (_, found) = reboot(log);
+        assert_eq!(found, acked);
+
+        // A protected sector holding old bytes: the erase reads back
+        // unerased and is refused before anything is written there.
+        let mut flash = SimFlash::new(SECTORS);
+        flash.bytes_mut()[SimFlash::SECTOR + 100] = 0x12;
+        flash.protect(1);
+        let mut log = open(flash);
+        log.start(b"head").unwrap();
+        let (mut acked, end) = fill(&mut log, 40);
+        acked.insert(0, b"head".to_vec());
+        assert_eq!(end, Some(LogError::Flash(FlashErrorKind::Other)));
+        assert_eq!(log.sectors_used(), 1, "the unerased sector is not used");
+        let (_, found) = reboot(log);
+        assert_eq!(found, acked);
     }
 }

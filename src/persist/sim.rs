@@ -7,6 +7,13 @@
 //! `write` call is one *step*; [`SimFlash::cut_at`] makes step `n` the last
 //! one before the power goes, torn as [`Tear`] says, and every operation after
 //! it fails until [`SimFlash::power_on`].
+//!
+//! Faults a real part has and a driver cannot see without reading back
+//! (the RP2040 boot ROM's erase and program return nothing):
+//! [`SimFlash::drop_bits`] makes every program in a sector leave some bits
+//! unprogrammed (a worn sector, a supply below the part's minimum), and
+//! [`SimFlash::protect`] makes a sector's erases and programs do nothing
+//! (protect bits left set by earlier firmware); both report success.
 
 // Host-only test code: plain indexing of its own vector is fine here.
 #![allow(clippy::indexing_slicing)]
@@ -62,6 +69,10 @@ pub struct SimFlash {
     steps: u64,
     cut: Option<(u64, Tear)>,
     off: Arc<AtomicBool>,
+    /// A sector whose programs leave these bits of every byte at 1.
+    weak: Option<(usize, u8)>,
+    /// A sector whose erases and programs do nothing.
+    protected: Option<usize>,
 }
 
 impl SimFlash {
@@ -75,7 +86,28 @@ impl SimFlash {
             steps: 0,
             cut: None,
             off: Arc::new(AtomicBool::new(false)),
+            weak: None,
+            protected: None,
         }
+    }
+
+    /// Every program in sector `sector` from now on leaves the bits of
+    /// `mask` at 1 in each byte it should clear them in, and reports
+    /// success.
+    pub fn drop_bits(&mut self, sector: usize, mask: u8) {
+        self.weak = Some((sector, mask));
+    }
+
+    /// Erases and programs of sector `sector` from now on change nothing
+    /// and report success (its protect bits are set).
+    pub fn protect(&mut self, sector: usize) {
+        self.protected = Some(sector);
+    }
+
+    fn is_protected(&self, range: &std::ops::Range<usize>) -> bool {
+        self.protected.is_some_and(|s| {
+            range.start / Self::SECTOR <= s && s < range.end.div_ceil(Self::SECTOR)
+        })
     }
 
     /// Erase and write steps taken so far.
@@ -219,6 +251,14 @@ impl NorFlash for SimFlash {
         let range = self.range(from, len, Self::SECTOR)?;
         let tear = self.step()?;
         let n = landed(len, tear);
+        if self.is_protected(&range) {
+            // Protected: the part ignores the command (a whole-range erase
+            // here spans one sector at a time in the log).
+            return match tear {
+                Some(_) => Err(SimFlashError::PowerCut),
+                None => Ok(()),
+            };
+        }
         self.bytes[range.start..range.start + n].fill(0xFF);
         if tear == Some(Tear::Half) {
             // The rest is left as it was but weakened: some bits set.
@@ -234,16 +274,27 @@ impl NorFlash for SimFlash {
 
     fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Self::Error> {
         let range = self.range(offset, data.len(), Self::WRITE_SIZE)?;
+        if self.is_protected(&range) {
+            // The part ignores the command: nothing changes, success.
+            return match self.step()? {
+                Some(_) => Err(SimFlashError::PowerCut),
+                None => Ok(()),
+            };
+        }
         if self.bytes[range.clone()].iter().any(|&b| b != 0xFF) {
             return Err(SimFlashError::NotErased);
         }
         let tear = self.step()?;
         let n = landed(data.len(), tear);
+        let keep = match self.weak {
+            Some((sector, mask)) if range.start / Self::SECTOR == sector => mask,
+            _ => 0,
+        };
         for (b, d) in self.bytes[range.start..range.start + n]
             .iter_mut()
             .zip(data)
         {
-            *b &= d;
+            *b &= d | keep;
         }
         if tear == Some(Tear::Half) {
             if let (Some(b), Some(d)) = (self.bytes.get_mut(range.start + n), data.get(n)) {
@@ -280,5 +331,24 @@ mod tests {
         f.power_on();
         f.read(0, &mut buf).unwrap();
         assert_eq!(buf, [0; 4]);
+    }
+
+    #[test]
+    fn dropped_bits_and_protected_sectors_report_success() {
+        let mut f = SimFlash::new(3);
+        f.drop_bits(1, 0x01);
+        f.protect(2);
+        f.write(0, &[0; 4]).unwrap();
+        assert_eq!(&f.bytes()[..4], &[0; 4]);
+        f.write(4096, &[0x00, 0x10, 0xFE, 0xFF]).unwrap();
+        assert_eq!(&f.bytes()[4096..4100], &[0x01, 0x11, 0xFF, 0xFF]);
+        f.write(8192, &[0; 4]).unwrap();
+        assert_eq!(&f.bytes()[8192..8196], &[0xFF; 4]);
+        f.bytes_mut()[8192] = 0x12;
+        f.erase(8192, 12288).unwrap();
+        assert_eq!(f.bytes()[8192], 0x12, "a protected sector is not erased");
+        f.erase(4096, 8192).unwrap();
+        assert_eq!(&f.bytes()[4096..4100], &[0xFF; 4], "a weak sector erases");
+        assert_eq!(f.steps(), 5);
     }
 }

@@ -7,11 +7,12 @@
 //   node harness.mjs --elf FIRMWARE.elf --bootrom bootrom-b1.bin
 //                    [--port N] [--flash FILE] [--deadline SECONDS]
 //                    [--flash-timing none|typical|max] [--cut-during-erase N]
-//                    [--cut-during-program N]
+//                    [--cut-during-program N] [--unique-id HEX16]
 //
 // stdout, one line each (tests and `placedb device --rp2040` read them):
 //   "listening tcp:127.0.0.1:PORT"     ready for the host (one client at a time)
-//   "usb configured ..."               enumeration done, descriptors parsed
+//   "usb configured ... serial S ..."  enumeration done, descriptors parsed
+//                                      (S: the serial number string descriptor)
 //   "client connected" / "client closed"
 //   "stats cycles=N ..."               on exit (SIGTERM, SIGINT, deadline)
 //   "latency frames=N ..."             on exit: frame answer latencies (below)
@@ -26,6 +27,10 @@
 // (counted from 1): the page's first half is programmed, the rest left as
 // it was (a torn program), then "power cut during the program of flash
 // offset 0x..." and exit code 4.
+// --unique-id HEX16: the flash chip's 64-bit unique ID (what its 0x4B
+// command answers, 16 hex digits, first byte sent first; default
+// E6614103E7452D2F), which the firmware makes its USB serial number: two
+// emulated boards with different IDs differ as two real ones do.
 //
 // Flash: rp2040js does not model the QSPI flash chip; the boot ROM's flash
 // functions run but change nothing. This harness stops the core at the
@@ -75,6 +80,8 @@ const NANOS_PER_CYCLE = 8; // clk_sys 125 MHz, as rp2040-hal's init_clocks_and_p
 const CHUNK = 200000; // instructions between looks at the event loop
 /** Busy time per sector erase and per page program, nanoseconds (see the
  * header: Winbond W25Q16JV datasheet, tSE and tPP). */
+/** The flash chip's unique ID unless --unique-id says otherwise. */
+const DEFAULT_UNIQUE_ID = 'E6614103E7452D2F';
 const FLASH_TIMING = {
   none: { erase: 0, program: 0 },
   typical: { erase: 45e6, program: 0.4e6 },
@@ -84,13 +91,13 @@ const FLASH_TIMING = {
 function usage(msg) {
   if (msg) process.stderr.write(`error: ${msg}\n`);
   process.stderr.write(
-    'usage: node harness.mjs --elf FIRMWARE.elf --bootrom bootrom-b1.bin [--port N] [--flash FILE] [--deadline SECONDS] [--flash-timing none|typical|max] [--cut-during-erase N] [--cut-during-program N]\n',
+    'usage: node harness.mjs --elf FIRMWARE.elf --bootrom bootrom-b1.bin [--port N] [--flash FILE] [--deadline SECONDS] [--flash-timing none|typical|max] [--cut-during-erase N] [--cut-during-program N] [--unique-id HEX16]\n',
   );
   process.exit(2);
 }
 
 function parseArgs(argv) {
-  const opts = { port: 0, flash: null, deadline: 0, elf: null, bootrom: null, quiet: false, timing: 'typical', cutErase: 0, cutProgram: 0 };
+  const opts = { port: 0, flash: null, deadline: 0, elf: null, bootrom: null, quiet: false, timing: 'typical', cutErase: 0, cutProgram: 0, uniqueId: DEFAULT_UNIQUE_ID };
   for (let i = 0; i < argv.length; i++) {
     const a = argv[i];
     const value = () => {
@@ -135,6 +142,12 @@ function parseArgs(argv) {
         const n = Number(value());
         if (!Number.isInteger(n) || n < 1) usage('--cut-during-program takes a page number from 1');
         opts.cutProgram = n;
+        break;
+      }
+      case '--unique-id': {
+        const h = value();
+        if (!/^[0-9a-fA-F]{16}$/.test(h)) usage('--unique-id takes 16 hex digits (the flash chip\'s 64-bit unique ID)');
+        opts.uniqueId = h.toUpperCase();
         break;
       }
       case '--quiet':
@@ -215,6 +228,7 @@ function openFlashFile(path) {
 // ---------------------------------------------------------------- machine
 
 const opts = parseArgs(process.argv.slice(2));
+const uniqueId = Buffer.from(opts.uniqueId, 'hex');
 const debug = process.env.PICO_DEBUG ? (line) => process.stderr.write(`debug: ${line}\n`) : () => {};
 const log = (line) => {
   if (!opts.quiet || line.startsWith('listening') || line.startsWith('stats')) {
@@ -261,7 +275,8 @@ Object.defineProperty(mcu.qspi[1], 'inputValue', { get: () => true });
  * ROM cannot load boot2): one response byte per byte sent. Commands: 0x03
  * read data (3 address bytes, then data until chip select goes high), 0x05 /
  * 0x35 read status register 1 / 2 (not busy; QE set, so boot2 leaves the
- * status registers alone), 0x9F JEDEC id (W25Q16JV), anything else answered
+ * status registers alone), 0x9F JEDEC id (W25Q16JV), 0x4B unique ID (four
+ * dummy bytes, then the 8 bytes of --unique-id), anything else answered
  * with 0. Erase and program are not done here: the ROM's functions for them
  * are stopped at their entry (see flashCall). A transaction ends when the
  * chip select is forced high (IO_QSPI SS override) or the SSI is disabled. */
@@ -295,6 +310,8 @@ const spi = {
         return 0x02;
       case 0x9f:
         return [0xef, 0x40, 0x15][i] ?? 0;
+      case 0x4b:
+        return i < 4 ? 0 : uniqueId[i - 4] ?? 0;
       default:
         return 0;
     }
@@ -342,8 +359,12 @@ class IoQspi extends BasePeripheral {
     return this.regs[offset >> 2] ?? 0;
   }
   writeUint32(offset, value) {
+    const before = this.regs[3];
     if (offset >> 2 < this.regs.length) this.regs[offset >> 2] = value;
-    if (offset === 0x0c && ((value >> 8) & 3) === 3) spi.end(); // SS_CTRL OUTOVER: high
+    // SS_CTRL OUTOVER: forced high ends a transaction, forced low (from
+    // anything else) starts one.
+    const outover = (value >> 8) & 3;
+    if (offset === 0x0c && (outover === 3 || (outover === 2 && ((before >> 8) & 3) !== 2))) spi.end();
   }
 }
 mcu.peripherals[0x40018] = new IoQspi(mcu, 'IO_QSPI_BASE');
@@ -685,6 +706,23 @@ function enumerate() {
         );
       },
     }),
+    // The string descriptors' languages, then the serial number in the
+    // first (what a host names the port by: /dev/serial/by-id/, COM ports).
+    Object.assign(setup(0x80, 6, 0x0300, 0, 255, null, 'GET_DESCRIPTOR(string 0)'), {
+      onDone: (b) => {
+        const lang = b.length >= 4 ? b.readUInt16LE(2) : 0x0409;
+        const index = host.descriptors.device?.[16] ?? 0;
+        if (index === 0) return fatal('the device descriptor names no serial number string');
+        host.queue.unshift(
+          Object.assign(setup(0x80, 6, 0x0300 | index, lang, 255, null, 'GET_DESCRIPTOR(string serial)'), {
+            onDone: (d) => {
+              if (d.length < 2 || d[1] !== 3) return fatal(`serial number string descriptor is not one (${d.toString('hex')})`);
+              host.descriptors.serial = d.subarray(2, Math.min(d[0], d.length)).toString('utf16le');
+            },
+          }),
+        );
+      },
+    }),
     setup(0x00, 9, 1, 0, 0, null, 'SET_CONFIGURATION'),
     // CDC-ACM class requests, to the communication interface.
     setup(0x21, 0x20, 0, 0, 7, lineCoding, 'SET_LINE_CODING'),
@@ -699,7 +737,7 @@ function enumerate() {
         const lc = host.descriptors.lineCoding ?? Buffer.alloc(0);
         const baud = lc.length === 7 ? lc.readUInt32LE(0) : 0;
         log(
-          `usb configured ${vidpid} ep0 ${d[7] ?? '?'} B, bulk in ${host.bulkIn} out ${host.bulkOut}, ` +
+          `usb configured ${vidpid} serial ${host.descriptors.serial ?? '?'} ep0 ${d[7] ?? '?'} B, bulk in ${host.bulkIn} out ${host.bulkOut}, ` +
             `line coding ${baud} baud, at ${(mcu.clock.nanos / 1e6).toFixed(1)} ms`,
         );
         feedOut();
@@ -753,6 +791,10 @@ usb.onEndpointWrite = (ep, buffer) => {
         }
       } else if (c.awaitingStatus) {
         controlDone(c); // not expected: IN status on an IN transfer
+      } else if (c.received.length) {
+        // A zero-length packet ends a data stage that filled its last packet.
+        c.awaitingStatus = true;
+        answerEp0Out();
       }
     } else if (buffer.length === 0) {
       // The status stage of a control OUT (or no-data) transfer.

@@ -8,7 +8,11 @@
 //! 256-byte page, the bytes not written padded with 0xFF, which leaves them as
 //! they are) call the boot ROM's flash functions from a RAM function with
 //! interrupts disabled, then re-run a RAM copy of the second-stage bootloader
-//! to restore fast XIP, as the Pico SDK does.
+//! to restore fast XIP, as the Pico SDK does. Every erase and program is
+//! read back (the ROM's functions return nothing): a sector not all 0xFF, or
+//! page bytes not as programmed, is an error, never `Ok`, so the log does
+//! not acknowledge what did not take. The same RAM routine reads the chip's
+//! 64-bit unique ID ([`unique_id`], the USB serial number).
 //!
 //! Not supported: the second core running from flash, DMA reading flash, or
 //! an interrupt handler in flash during an operation (this firmware starts no
@@ -38,7 +42,10 @@ const PAGE: usize = 256;
 /// The second-stage bootloader's size (memory.x BOOT2).
 const BOOT2_WORDS: usize = 64;
 
-/// The last 1 MiB of the Pico's flash. Errors are bounds and alignment only.
+/// The last 1 MiB of the Pico's flash. Errors: bounds and alignment
+/// (checked before anything is done), and `Other` when an erase or a
+/// program does not read back as asked (the boot ROM's functions report
+/// nothing, so every one is read back through XIP after the cache flush).
 pub struct PicoFlash {
     _private: (),
 }
@@ -84,6 +91,15 @@ impl NorFlash for PicoFlash {
         check_erase(self, from, to)?;
         for sector in (from..to).step_by(Self::ERASE_SIZE) {
             rom_op(REGION_OFFSET + sector, None);
+            // Read back: a sector that is not all 0xFF now did not erase
+            // (protect bits left set, a worn sector, the supply too low).
+            let mut chunk = [0u8; PAGE];
+            for at in (sector..sector + Self::ERASE_SIZE as u32).step_by(PAGE) {
+                self.read(at, &mut chunk)?;
+                if chunk.iter().any(|&b| b != 0xFF) {
+                    return Err(NorFlashErrorKind::Other);
+                }
+            }
         }
         Ok(())
     }
@@ -97,6 +113,12 @@ impl NorFlash for PicoFlash {
             let mut buf = [0xFF_u8; PAGE];
             buf[skip..skip + n].copy_from_slice(&rest[..n]);
             rom_op(REGION_OFFSET + page as u32, Some(&buf));
+            // Read back: bytes that are not what was programmed did not take.
+            let mut got = [0u8; PAGE];
+            self.read(at as u32, &mut got[..n])?;
+            if got[..n] != rest[..n] {
+                return Err(NorFlashErrorKind::Other);
+            }
             (at, rest) = (at + n, &rest[n..]);
         }
         Ok(())
@@ -117,20 +139,56 @@ struct RomOp {
     enter_xip: usize,
     addr: u32,
     data: *const u8,
+    /// If not null: a [`CMD_LEN`]-byte buffer sent to the flash as one
+    /// command with chip select held low, each byte replaced by the one the
+    /// chip sent back meanwhile (pico-sdk's `flash_do_cmd`).
+    cmd: *mut u8,
+    /// The SSI's base address (its SR at +0x28, DR0 at +0x60).
+    ssi: usize,
+    /// IO_QSPI's GPIO_QSPI_SS_CTRL: its OUTOVER field (bits 9:8) forces
+    /// the chip select low (2) or high (3).
+    ss_ctrl: usize,
+}
+
+/// Bytes of the unique-ID command: 0x4B, four dummy bytes, the 8-byte ID.
+const CMD_LEN: usize = 13;
+/// The SSI (the QSPI controller) and the chip select's pad control.
+const SSI_BASE: usize = 0x1800_0000;
+const IO_QSPI_SS_CTRL: usize = 0x4001_800C;
+
+/// The flash chip's 64-bit unique ID (W25Q16JV "Read Unique ID Number",
+/// 0x4B), its bytes in the order the chip sends them; read with interrupts
+/// off through the same RAM routine as erase and program (XIP is off while
+/// the command runs), as pico-sdk's `flash_get_unique_id` does.
+pub fn unique_id() -> [u8; 8] {
+    let mut cmd = [0u8; CMD_LEN];
+    cmd[0] = 0x4B;
+    run(0, None, false, cmd.as_mut_ptr());
+    let mut id = [0u8; 8];
+    id.copy_from_slice(&cmd[CMD_LEN - 8..]);
+    id
 }
 
 /// Erases the 4 KiB sector at flash offset `addr`, or programs the 256-byte
 /// page there with `page`, with interrupts disabled.
 fn rom_op(addr: u32, page: Option<&[u8; PAGE]>) {
+    run(addr, page, page.is_none(), core::ptr::null_mut());
+}
+
+/// One trip through [`ram_rom_op`]: an erase of the sector at `addr` if
+/// `erase`, else a program of `page` there if given, else the command in
+/// `cmd` if not null.
+fn run(addr: u32, page: Option<&[u8; PAGE]>, erase: bool, cmd: *mut u8) {
     // SAFETY: copies the 256-byte boot2 from the start of the XIP window
     // (always mapped and readable) into a word-aligned RAM buffer.
     let boot2 = unsafe { core::ptr::read(XIP_BASE as *const [u32; BOOT2_WORDS]) };
     let op = RomOp {
         connect_internal_flash: rom_data::connect_internal_flash::ptr() as usize,
         flash_exit_xip: rom_data::flash_exit_xip::ptr() as usize,
-        flash_range_erase: match page {
-            None => rom_data::flash_range_erase::ptr() as usize,
-            Some(_) => 0,
+        flash_range_erase: if erase {
+            rom_data::flash_range_erase::ptr() as usize
+        } else {
+            0
         },
         flash_range_program: match page {
             Some(_) => rom_data::flash_range_program::ptr() as usize,
@@ -140,13 +198,17 @@ fn rom_op(addr: u32, page: Option<&[u8; PAGE]>) {
         enter_xip: boot2.as_ptr() as usize | 1,
         addr,
         data: page.map_or(core::ptr::null(), |p| p.as_ptr()),
+        cmd,
+        ssi: SSI_BASE,
+        ss_ctrl: IO_QSPI_SS_CTRL,
     };
     critical_section::with(|_| {
         // SAFETY: interrupts are off and, per `PicoFlash::new`'s contract,
-        // nothing else reads flash; `op`, `boot2` and the page (a stack copy)
-        // are in RAM; `addr` is a sector/page inside the storage region, which
-        // holds no code or data (memory.x); boot2 is the pico-sdk W25Q080
-        // image, callable as a function once copied to RAM.
+        // nothing else reads flash; `op`, `boot2`, the page and the command
+        // buffer (stack copies) are in RAM; `addr` is a sector/page inside the
+        // storage region, which holds no code or data (memory.x); the command
+        // (0x4B, read-only) is `CMD_LEN` bytes long; boot2 is the pico-sdk
+        // W25Q080 image, callable as a function once copied to RAM.
         unsafe { ram_rom_op(&op) }
     });
 }
@@ -167,6 +229,51 @@ unsafe fn ram_rom_op(op: *const RomOp) {
             "blx r5", // connect_internal_flash()
             "ldr r5, [r4, #4]",
             "blx r5", // flash_exit_xip()
+            // The command in op.cmd, if any (pico-sdk's flash_do_cmd): chip
+            // select forced low, then every byte sent while the chip's
+            // answers are read back into the same buffer, then high. r1 is
+            // the buffer, r2 the bytes sent, r3 the bytes received. The 13
+            // bytes fit the SSI's 16-entry FIFOs, so nothing overflows.
+            "ldr r1, [r4, #32]",
+            "cmp r1, #0",
+            "beq 5f",
+            "ldr r0, [r4, #40]",
+            "ldr r5, [r0]",
+            "movs r2, #3",
+            "lsls r2, r2, #8",
+            "bics r5, r2",
+            "movs r2, #2",
+            "lsls r2, r2, #8",
+            "orrs r5, r2",
+            "str r5, [r0]", // SS_CTRL.OUTOVER = low
+            "ldr r0, [r4, #36]",
+            "movs r2, #0",
+            "movs r3, #0",
+            "6:",
+            "cmp r2, #13",
+            "bhs 7f",
+            "ldr r5, [r0, #0x28]",
+            "lsrs r5, r5, #2", // SR.TFNF (bit 1) into carry
+            "bcc 7f",
+            "ldrb r5, [r1, r2]",
+            "str r5, [r0, #0x60]", // DR0 = byte to send
+            "adds r2, #1",
+            "7:",
+            "ldr r5, [r0, #0x28]",
+            "lsrs r5, r5, #4", // SR.RFNE (bit 3) into carry
+            "bcc 6b",
+            "ldr r5, [r0, #0x60]",
+            "strb r5, [r1, r3]", // the byte the chip sent
+            "adds r3, #1",
+            "cmp r3, #13",
+            "blo 6b",
+            "ldr r0, [r4, #40]",
+            "ldr r5, [r0]",
+            "movs r2, #3",
+            "lsls r2, r2, #8",
+            "orrs r5, r2",
+            "str r5, [r0]", // SS_CTRL.OUTOVER = high
+            "5:",
             "ldr r5, [r4, #8]",
             "cmp r5, #0",
             "beq 3f",

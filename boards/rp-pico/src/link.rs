@@ -59,20 +59,65 @@ pub const SHORT_PACKET_INTERVAL: u32 = 10;
 /// reads, and a bound on the wait for one that does not.
 pub const FLUSH_POLLS: u32 = 20_000;
 
-/// Shared VID/PID for CDC-ACM test devices (not for products).
+/// Shared VID/PID for CDC-ACM test devices (not for products): obdev's
+/// rules for this pair tell the devices on it apart by serial number, which
+/// must start with a domain (or e-mail address) the vendor owns, then ":".
 pub const USB_VID_PID: UsbVidPid = UsbVidPid(0x16c0, 0x27dd);
 pub const MANUFACTURER: &str = "placedb";
 pub const PRODUCT: &str = "placedb device";
-pub const SERIAL_NUMBER: &str = "0001";
+/// The domain that opens every serial number. `placedb.example` is a
+/// placeholder: `.example` is reserved (RFC 2606) and owned by no one, so
+/// whoever ships these boards must replace it with a domain the project
+/// owns (obdev's rules for 16c0:27dd), or move to a VID:PID of its own.
+pub const SERIAL_DOMAIN: &str = "placedb.example";
+/// Characters of a serial number: the domain, ":", 16 hex digits.
+pub const SERIAL_LEN: usize = SERIAL_DOMAIN.len() + 1 + 16;
 
-/// The firmware's USB device on `bus`: [`USB_VID_PID`], the strings above,
-/// device class CDC and EP0 packets of 64 bytes. Call it after [`Link::new`]
-/// (usb-device allocates the class's endpoints first).
-pub fn device<B: UsbBus>(bus: &UsbBusAllocator<B>) -> Result<UsbDevice<'_, B>, BuilderError> {
+/// A board's USB serial number: [`SERIAL_DOMAIN`], ":", then the flash
+/// chip's 64-bit unique ID (its 0x4B command) as 16 upper-case hex digits,
+/// first byte read first: `placedb.example:E6614103E7452D2F`. Unique per
+/// unit, so two boards on one host differ (`/dev/serial/by-id/`, Windows'
+/// COM port numbers, `placedb --port SERIAL`).
+pub struct SerialNumber([u8; SERIAL_LEN]);
+
+impl SerialNumber {
+    /// The serial number of the board whose flash answered `id` (its eight
+    /// bytes in the order the chip sent them).
+    pub fn new(id: [u8; 8]) -> Self {
+        const HEX: &[u8; 16] = b"0123456789ABCDEF";
+        let mut s = [b'0'; SERIAL_LEN];
+        let (domain, rest) = s.split_at_mut(SERIAL_DOMAIN.len());
+        domain.copy_from_slice(SERIAL_DOMAIN.as_bytes());
+        if let Some((colon, digits)) = rest.split_first_mut() {
+            *colon = b':';
+            for (pair, byte) in digits.chunks_exact_mut(2).zip(id) {
+                if let [hi, lo] = pair {
+                    *hi = HEX[usize::from(byte >> 4)];
+                    *lo = HEX[usize::from(byte & 0xF)];
+                }
+            }
+        }
+        SerialNumber(s)
+    }
+
+    /// The serial number as the string descriptor carries it.
+    pub fn as_str(&self) -> &str {
+        core::str::from_utf8(&self.0).unwrap_or(SERIAL_DOMAIN)
+    }
+}
+
+/// The firmware's USB device on `bus`: [`USB_VID_PID`], the strings above
+/// with `serial` (a [`SerialNumber`]), device class CDC and EP0 packets of
+/// 64 bytes. Call it after [`Link::new`] (usb-device allocates the class's
+/// endpoints first).
+pub fn device<'a, B: UsbBus>(
+    bus: &'a UsbBusAllocator<B>,
+    serial: &'a str,
+) -> Result<UsbDevice<'a, B>, BuilderError> {
     let strings = StringDescriptors::default()
         .manufacturer(MANUFACTURER)
         .product(PRODUCT)
-        .serial_number(SERIAL_NUMBER);
+        .serial_number(serial);
     // EP0 packets of 64 bytes (usb-device's default is 8): the whole 9-byte
     // configuration descriptor header fits one packet, which full-speed
     // hosts (and the rp2040js USB host the CI harness uses) expect.

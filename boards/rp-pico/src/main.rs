@@ -142,6 +142,10 @@ fn main() -> ! {
     );
     let mut led = pins.gpio25.into_push_pull_output();
 
+    // Each board its own USB serial number: the flash chip's unique ID,
+    // read before USB starts (XIP is off while it is read).
+    let serial = link::SerialNumber::new(flash::unique_id());
+
     let bus = UsbBusAllocator::new(UsbBus::new(
         pac.USBCTRL_REGS,
         pac.USBCTRL_DPRAM,
@@ -150,7 +154,7 @@ fn main() -> ! {
         &mut pac.RESETS,
     ));
     let mut link = link::Link::new(&bus);
-    let Ok(mut usb) = link::device(&bus) else {
+    let Ok(mut usb) = link::device(&bus, serial.as_str()) else {
         halt()
     };
 

@@ -330,6 +330,33 @@ pub fn status_of(replies: &[Received]) -> Result<Status, DeviceError> {
     }
 }
 
+/// What a status says of the device's flash, in words for a user: a
+/// write that failed (reported by the flash, or read back otherwise than
+/// written: a worn or protected sector, a supply too low), after which the
+/// device writes nothing more in the scan; records dropped at boot.
+pub fn flash_warnings(st: &Status) -> Vec<String> {
+    let mut out = Vec::new();
+    if st.degradation & placedb::protocol::degradation::STORAGE_FAILED != 0 {
+        out.push(format!(
+            "the device's flash failed a write (it reported an error, or the bytes read back \
+             were not those written: a worn or write-protected sector, or a supply too low): \
+             the device stopped writing, so only {} records of this scan are durable and a \
+             power cut now would lose the rest (export it now; reset the device to start \
+             again on fresh sectors)",
+            st.stored_records
+        ));
+    }
+    if st.degradation & placedb::protocol::degradation::TAIL_DROPPED != 0 {
+        out.push(
+            "at boot the device found records in its flash log that no scan can hold \
+             (damaged flash) and dropped them with everything after them; the scan went on \
+             from the last good record"
+                .to_string(),
+        );
+    }
+    out
+}
+
 /// The profile whose capacities the device reports, if any.
 pub fn device_profile(st: &Status) -> Option<&'static Capacities> {
     PROFILES.iter().find(|p| {

@@ -4,6 +4,8 @@
 use crate::board::emulator::rp2040::{self, Rp2040Options};
 use crate::board::emulator::{qemu, wait_in_foreground};
 use crate::board::flash_timing::FlashTiming;
+use crate::board::link::usb_serial::SERIAL_DOMAIN;
+use crate::cli::params;
 use crate::error::CommandError as Error;
 use clap::Args;
 use std::path::PathBuf;
@@ -39,6 +41,12 @@ pub struct DeviceArgs {
     /// 0.4 ms, max 400 ms and 3 ms; none: no time).
     #[arg(long, default_value = "typical", requires = "rp2040")]
     flash_timing: FlashTiming,
+    /// With --rp2040: the emulated flash chip's 64-bit unique ID, 16 hex
+    /// digits (default E6614103E7452D2F). The firmware makes its USB serial
+    /// number from it, so two emulated Picos given different IDs differ as
+    /// two real ones do.
+    #[arg(long, value_parser = params::unique_id, requires = "rp2040")]
+    unique_id: Option<u64>,
 }
 
 /// Runs `placedb device`.
@@ -81,6 +89,7 @@ fn run_rp2040(a: DeviceArgs) -> Result<Option<i32>, Error> {
         port: a.port,
         deadline: Duration::ZERO,
         flash_timing,
+        unique_id: a.unique_id.unwrap_or(rp2040::DEFAULT_UNIQUE_ID),
         ..Rp2040Options::default()
     };
     rp2040::check_setup(&firmware, &options)?;
@@ -89,6 +98,10 @@ fn run_rp2040(a: DeviceArgs) -> Result<Option<i32>, Error> {
         "  flash timing {flash_timing}: {:?} per sector erase, {:?} per page program (W25Q16JV datasheet), in emulated time",
         flash_timing.sector_erase(),
         flash_timing.page_program()
+    );
+    println!(
+        "  flash unique ID {:016X}: USB serial number {}:{:016X}",
+        options.unique_id, SERIAL_DOMAIN, options.unique_id
     );
     println!("  e.g. placedb stream --port tcp:127.0.0.1:PORT --profile ram256k --demo --stride 8 --max-frames 30");
     println!("       placedb export --port tcp:127.0.0.1:PORT -o out");

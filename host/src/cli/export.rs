@@ -24,7 +24,9 @@ use std::path::{Path, PathBuf};
 /// `placedb export`.
 #[derive(Args)]
 pub struct ExportArgs {
-    /// Device: a serial port (/dev/ttyACM0), tcp:HOST:PORT (the emulator) or local:PROFILE.
+    /// Device: a serial port (/dev/ttyACM0), a board's USB serial number
+    /// (placedb.example:E6614103E7452D2F) or the end of its hex ID (2D2F),
+    /// tcp:HOST:PORT (the emulator) or local:PROFILE.
     #[arg(long)]
     port: String,
     /// Output directory for database.csv, labels.csv, metrics.json.

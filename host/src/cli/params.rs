@@ -21,6 +21,17 @@ fn number<T: std::str::FromStr>(s: &str) -> Result<T, String> {
         .map_err(|_| format!("`{}` is not a number", s.trim()))
 }
 
+/// `--unique-id`: a flash chip's 64-bit unique ID, 16 hex digits.
+pub fn unique_id(s: &str) -> Result<u64, String> {
+    let s = s.trim();
+    if s.len() != 16 || !s.bytes().all(|b| b.is_ascii_hexdigit()) {
+        return Err(format!(
+            "a unique ID is 16 hex digits (64 bits, as E6614103E7452D2F), got `{s}`"
+        ));
+    }
+    u64::from_str_radix(s, 16).map_err(|_| format!("`{s}` is not 16 hex digits"))
+}
+
 /// `--mu`: the IoU threshold, from 0 to below 1 (two frames overlap when
 /// their IoU is above it, so at 1 no frame would overlap another).
 pub fn mu(s: &str) -> Result<f32, String> {

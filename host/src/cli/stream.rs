@@ -2,7 +2,7 @@
 //! emulator or `local:PROFILE`), with a live status line and a summary.
 
 use super::{open_sequence, voxel_config, SeqArgs};
-use crate::board::client::Client;
+use crate::board::client::{self, Client};
 use crate::board::error::DeviceError;
 use crate::board::export;
 use crate::board::link::{self, fault::FaultConfig, fault::FaultInjector};
@@ -25,7 +25,9 @@ pub mod realtime;
 pub struct StreamArgs {
     #[command(flatten)]
     seq: SeqArgs,
-    /// Device: a serial port (/dev/ttyACM0), tcp:HOST:PORT (the emulator) or local:PROFILE.
+    /// Device: a serial port (/dev/ttyACM0), a board's USB serial number
+    /// (placedb.example:E6614103E7452D2F) or the end of its hex ID (2D2F),
+    /// tcp:HOST:PORT (the emulator) or local:PROFILE.
     #[arg(long)]
     port: String,
     /// IoU threshold, from 0 to below 1: frames overlap when IoU > mu.
@@ -210,19 +212,8 @@ pub fn stream_cmd(
             1e3 * t / f64::from(st.cost.clock_hz)
         );
     }
-    if st.degradation & placedb::protocol::degradation::STORAGE_FAILED != 0 {
-        println!(
-            "  WARNING: the device's flash failed a write: only {} records of this scan are \
-             durable; a power cut now would lose the rest (export it now)",
-            st.stored_records
-        );
-    }
-    if st.degradation & placedb::protocol::degradation::TAIL_DROPPED != 0 {
-        println!(
-            "  WARNING: at boot the device found records in its flash log that no scan can \
-             hold (damaged flash) and dropped them with everything after them; the scan went \
-             on from the last good record"
-        );
+    for warning in client::flash_warnings(st) {
+        println!("  WARNING: {warning}");
     }
     if let Some(k) = report.log_full_at {
         println!(

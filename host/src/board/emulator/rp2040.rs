@@ -96,7 +96,16 @@ pub struct Rp2040Options {
     /// page's first half is programmed and the emulator exits at once
     /// (code 4).
     pub cut_during_program: Option<u32>,
+    /// The flash chip's 64-bit unique ID (its 0x4B command's answer, first
+    /// byte sent first in the high byte), from which the firmware makes its
+    /// USB serial number: two boards with different IDs differ as two real
+    /// Picos do. Default [`DEFAULT_UNIQUE_ID`].
+    pub unique_id: u64,
 }
+
+/// The emulated flash chip's unique ID unless told otherwise (the harness's
+/// default too).
+pub const DEFAULT_UNIQUE_ID: u64 = 0xE661_4103_E745_2D2F;
 
 impl Default for Rp2040Options {
     fn default() -> Self {
@@ -110,6 +119,7 @@ impl Default for Rp2040Options {
             flash_timing: FlashTiming::default(),
             cut_during_erase: None,
             cut_during_program: None,
+            unique_id: DEFAULT_UNIQUE_ID,
         }
     }
 }
@@ -126,7 +136,9 @@ pub fn harness_command(firmware: &Path, options: &Rp2040Options) -> Command {
         .arg("--port")
         .arg(options.port.to_string())
         .arg("--flash-timing")
-        .arg(options.flash_timing.name());
+        .arg(options.flash_timing.name())
+        .arg("--unique-id")
+        .arg(format!("{:016X}", options.unique_id));
     if let Some(flash) = &options.flash {
         command.arg("--flash").arg(flash);
     }
@@ -222,6 +234,13 @@ impl Rp2040 {
         }
         let link = TcpLink::connect(("127.0.0.1", port), Duration::from_secs(5))?;
         board.into_board(link)
+    }
+
+    /// The USB serial number the firmware reported when the harness
+    /// enumerated it (its serial number string descriptor, read as a host
+    /// reads it), if the harness printed one.
+    pub fn serial_number(&self) -> Option<String> {
+        usb_serial_number(&self.console())
     }
 
     /// Everything the harness printed so far.
@@ -347,6 +366,13 @@ impl Drop for Booting {
     }
 }
 
+/// The serial number of the harness's "usb configured ... serial S ..." line.
+fn usb_serial_number(console: &str) -> Option<String> {
+    let line = console.lines().find(|l| l.starts_with("usb configured "))?;
+    let serial = line.split(" serial ").nth(1)?.split(' ').next()?;
+    (serial != "?").then(|| serial.to_string())
+}
+
 /// The port of the harness's "listening tcp:127.0.0.1:PORT" line.
 fn listening_port(console: &str) -> Option<u16> {
     let rest = console.split("listening tcp:127.0.0.1:").nth(1)?;
@@ -428,7 +454,24 @@ mod tests {
         assert!(args.windows(2).any(|w| w == ["--flash-timing", "typical"]));
         assert!(args
             .windows(2)
+            .any(|w| w == ["--unique-id", "E6614103E7452D2F"]));
+        assert!(args
+            .windows(2)
             .any(|w| w[0] == "--bootrom" && w[1].ends_with("bootrom-b1.bin")));
+    }
+
+    #[test]
+    fn the_serial_number_is_read_from_the_enumeration_line() {
+        let console = "listening tcp:127.0.0.1:4000\nusb configured 16c0:27dd serial placedb.example:0123456789ABCDEF ep0 64 B, bulk in 2 out 1\n";
+        assert_eq!(
+            usb_serial_number(console).as_deref(),
+            Some("placedb.example:0123456789ABCDEF")
+        );
+        assert_eq!(
+            usb_serial_number("usb configured 16c0:27dd serial ? ep0 64 B"),
+            None
+        );
+        assert_eq!(usb_serial_number("listening tcp:127.0.0.1:4000"), None);
     }
 
     #[test]

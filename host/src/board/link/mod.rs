@@ -2,7 +2,8 @@
 //! receive timeout, and its implementations: [`TcpLink`] (`tcp:HOST:PORT`:
 //! an emulator such as `placedb device --qemu`, or a serial-to-TCP bridge),
 //! [`SerialLink`] (`serial:PATH` or a bare device path such as
-//! `/dev/ttyACM0`: a board over USB CDC-ACM or a UART), [`LocalLink`]
+//! `/dev/ttyACM0`, or a board's USB serial number or the end of it,
+//! [`usb_serial`]: a board over USB CDC-ACM or a UART), [`LocalLink`]
 //! (`local:PROFILE`: the device state machine of the core in-process, no
 //! hardware) and [`fault::FaultInjector`] (faults on any link). The emulated
 //! boards are links too ([`crate::board::emulator`]); the protocol client on
@@ -16,6 +17,7 @@ pub mod fault;
 pub mod local;
 pub mod serial;
 pub mod tcp;
+pub mod usb_serial;
 
 pub use local::{LocalLink, LOCAL_FLASH_SECTORS};
 pub use serial::SerialLink;
@@ -48,8 +50,10 @@ impl<L: Link + ?Sized> Link for Box<L> {
 }
 
 /// Opens a link from its command-line spelling: `tcp:HOST:PORT`,
-/// `serial:PATH` (or a bare path such as `/dev/ttyACM0` or `COM3`), or
-/// `local:PROFILE` (`local:ram512k`: the core's device in-process).
+/// `serial:PATH` (or a bare path such as `/dev/ttyACM0` or `COM3`), a
+/// board's USB serial number (`placedb.example:E6614103E7452D2F`) or the
+/// end of its hex ID (`2D2F`), or `local:PROFILE` (`local:ram512k`: the
+/// core's device in-process).
 pub fn open(spec: &str, timeout: Duration) -> io::Result<Box<dyn Link>> {
     if let Some(addr) = spec.strip_prefix("tcp:") {
         return Ok(Box::new(TcpLink::connect(addr, timeout)?));
@@ -58,17 +62,22 @@ pub fn open(spec: &str, timeout: Duration) -> io::Result<Box<dyn Link>> {
         return Ok(Box::new(LocalLink::start(profile)?));
     }
     let path = spec.strip_prefix("serial:").unwrap_or(spec);
-    let looks_like_port = spec.starts_with("serial:")
-        || path.starts_with('/')
-        || path.to_ascii_uppercase().starts_with("COM");
+    let com = path.get(..3).is_some_and(|c| c.eq_ignore_ascii_case("COM"))
+        && path.len() > 3
+        && path.bytes().skip(3).all(|b| b.is_ascii_digit());
+    let looks_like_port = spec.starts_with("serial:") || path.starts_with('/') || com;
     if looks_like_port && !path.is_empty() {
         return Ok(Box::new(SerialLink::open(path)?));
+    }
+    if usb_serial::looks_like_serial(spec) {
+        return Ok(Box::new(SerialLink::open(&usb_serial::find(spec)?)?));
     }
     Err(io::Error::new(
         io::ErrorKind::InvalidInput,
         format!(
             "unknown port `{spec}`: expected tcp:HOST:PORT, a serial device path \
-             (/dev/ttyACM0, serial:PATH) or local:PROFILE"
+             (/dev/ttyACM0, serial:PATH), a board's USB serial number (or the end \
+             of its hex ID) or local:PROFILE"
         ),
     ))
 }
@@ -163,6 +172,17 @@ mod tests {
                 .err()
                 .map(|e| e.kind()),
             Some(io::ErrorKind::InvalidInput)
+        );
+        // A serial number no connected board has: said in words.
+        let err = open(
+            "placedb.example:0000000000000BAD",
+            Duration::from_millis(10),
+        )
+        .err()
+        .unwrap();
+        assert!(
+            err.to_string().contains("no board has a USB serial number"),
+            "{err}"
         );
         assert_eq!(
             open("udp:1.2.3.4:5", Duration::from_millis(10))
