@@ -34,5 +34,5 @@ pub mod warning;
 pub mod yardstick;
 
 pub use error::ReadError;
-pub use sequence::{CameraModel, DepthImage, DepthSource, Format, FrameInfo, Sequence};
+pub use sequence::{CameraModel, Clock, DepthImage, DepthSource, Format, FrameInfo, Sequence};
 pub use voxelize::{voxelize, voxelize_on, GridOrigin, VoxelConfig, VoxelSets};

@@ -82,6 +82,26 @@ pub enum Format {
     Synthetic,
 }
 
+/// What [`FrameInfo::timestamp`] counts, so a replay at the camera's rate
+/// (`placedb stream --realtime`) knows the camera's clock.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Clock {
+    /// Seconds the camera stamped each frame with (TUM's depth.txt, a ROS 2
+    /// header stamp, the reference layout's poses file with a timestamp
+    /// column, the synthetic camera's 30 Hz).
+    Seconds,
+    /// Frame numbers or positions, no time (7-Scenes, the reference layout
+    /// without a timestamp column): the camera ran at `hz` frames per second.
+    FrameNumbers {
+        /// The layout's camera rate (7-Scenes' Kinect: 30).
+        hz: f64,
+    },
+}
+
+/// The rate of a layout that numbers its frames instead of stamping them:
+/// 7-Scenes was recorded with a Kinect at 30 frames per second.
+pub const FRAME_NUMBER_HZ: f64 = 30.0;
+
 /// Produces the depth image of frame `i` on demand.
 pub trait DepthSource: Send + Sync {
     /// Decodes (or renders) frame `i`'s depth.
@@ -116,6 +136,8 @@ pub struct Sequence {
     pub size: (u16, u16),
     /// Every frame, in sequence order.
     pub frames: Vec<FrameInfo>,
+    /// What the frames' timestamps count (seconds or frame numbers).
+    pub clock: Clock,
     /// Frames of the source that the reader skipped with a warning (a depth
     /// image without a pose): `frames_skipped` of metrics.json.
     pub frames_skipped: usize,

@@ -11,6 +11,7 @@ use super::link::Link;
 use super::scan::DepthFrame;
 use super::session::Session;
 use crate::degradation::plural;
+use crate::sequence::Clock;
 use crate::Sequence;
 use placedb::protocol::{Config, Status};
 use std::time::{Duration, Instant};
@@ -48,6 +49,73 @@ impl<L: Link> Session<L> {
     }
 }
 
+/// When each frame of a real-time replay is due, and where that rate came
+/// from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Pace {
+    /// Seconds after the first frame's due time that frame `i` is due.
+    pub offsets: Vec<f64>,
+    /// Frames per second of the replay: the rate given, the layout's, or
+    /// the recorded timestamps' mean (0 for a single frame).
+    pub rate: f64,
+    /// Where the rate comes from, for the summary ("--rate 10", "the
+    /// 7-Scenes layout's camera rate", "the recorded timestamps").
+    pub source: String,
+}
+
+/// The most frames per second `--rate` takes.
+pub const MAX_RATE: f64 = 1000.0;
+
+impl Pace {
+    /// The pace of `seq`: with `rate` (`--rate HZ`), frame `i` is due `i /
+    /// rate` seconds after the first; else a layout that numbers its frames
+    /// ([`Clock::FrameNumbers`], 7-Scenes) is replayed at its camera's
+    /// rate by position in the sequence, so a gap in the numbering (a
+    /// renumbered or thinned-out sequence) never idles; a stamped layout
+    /// ([`Clock::Seconds`]) is replayed at its stamps, as `ros2 bag play`
+    /// does.
+    pub fn of(seq: &Sequence, rate: Option<f64>) -> Result<Pace, DeviceError> {
+        let n = seq.frames.len();
+        let by_position = |hz: f64, source: String| Pace {
+            offsets: (0..n).map(|i| i as f64 / hz).collect(),
+            rate: hz,
+            source,
+        };
+        if let Some(hz) = rate {
+            if !(hz > 0.0 && hz <= MAX_RATE) {
+                return Err(DeviceError::Input(format!(
+                    "--rate {hz}: a replay rate is from above 0 to {MAX_RATE} frames per second"
+                )));
+            }
+            return Ok(by_position(hz, format!("--rate {hz}")));
+        }
+        match seq.clock {
+            Clock::FrameNumbers { hz } => Ok(by_position(
+                hz,
+                format!("the layout's camera rate, {hz} Hz: its frames are numbered, not stamped"),
+            )),
+            Clock::Seconds => {
+                let first = seq.frames.first().map_or(0.0, |f| f.timestamp);
+                let offsets: Vec<f64> = seq
+                    .frames
+                    .iter()
+                    .map(|f| (f.timestamp - first).max(0.0))
+                    .collect();
+                let duration = offsets.last().copied().unwrap_or(0.0);
+                Ok(Pace {
+                    rate: if n > 1 && duration > 0.0 {
+                        (n - 1) as f64 / duration
+                    } else {
+                        0.0
+                    },
+                    offsets,
+                    source: "the recorded timestamps".to_string(),
+                })
+            }
+        }
+    }
+}
+
 /// What a real-time replay did.
 #[derive(Debug, Clone)]
 pub struct RealtimeReport {
@@ -57,34 +125,29 @@ pub struct RealtimeReport {
     /// Sequence frames skipped because the device was busy when they were
     /// due: they have no label.
     pub skipped: Vec<usize>,
-    /// The recorded rate, frames per second (from the timestamps).
+    /// The replay's rate, frames per second ([`Pace::rate`]).
     pub rate: f64,
+    /// Where the rate came from ([`Pace::source`]).
+    pub rate_source: String,
     /// Wall time from the first frame's due time to the last reply.
     pub wall: Duration,
     /// The device's status after Finish.
     pub status: Status,
 }
 
-/// Replays `seq` on `session` at its recorded rate (frame `i` is due
-/// `timestamp[i] - timestamp[0]` seconds after the first, divided by
-/// `speed`), skipping every frame that finds the device busy, then ends the
-/// scan with Finish. Frames are read from disk before they are due (as a
-/// camera driver delivers them ready); a host that falls behind offers each
-/// frame as soon as it has it.
+/// Replays `seq` on `session` at `pace` (frame `i` is due
+/// `pace.offsets[i]` seconds after the first), skipping every frame that
+/// finds the device busy, then ends the scan with Finish. Frames are read
+/// from disk before they are due (as a camera driver delivers them ready);
+/// a host that falls behind offers each frame as soon as it has it.
 pub fn stream_realtime<L: Link>(
     session: &mut Session<L>,
     seq: &Sequence,
     cfg: &Config,
     profile: &str,
-    speed: f64,
+    pace: &Pace,
 ) -> Result<RealtimeReport, DeviceError> {
-    if !(speed > 0.0 && speed.is_finite()) {
-        return Err(DeviceError::Input(format!(
-            "replay speed {speed}: must be a positive number"
-        )));
-    }
     session.start(cfg, Some(profile))?;
-    let first = seq.frames.first().map_or(0.0, |f| f.timestamp);
     let mut sent = Vec::new();
     let mut skipped = Vec::new();
     let start = Instant::now();
@@ -95,7 +158,7 @@ pub fn stream_realtime<L: Link>(
         let pose = info
             .pose()
             .map_err(|e| DeviceError::Input(format!("frame {i}: pose: {e}")))?;
-        let offset = ((info.timestamp - first) / speed).max(0.0);
+        let offset = pace.offsets.get(i).copied().unwrap_or(0.0);
         let due = start + Duration::from_secs_f64(offset);
         // Until it is due, take the replies (decisions) as they come.
         while let Some(left) = due.checked_duration_since(Instant::now()) {
@@ -115,16 +178,9 @@ pub fn stream_realtime<L: Link>(
         }
     }
     let status = session.finish()?;
-    let duration = match (seq.frames.first(), seq.frames.last()) {
-        (Some(a), Some(b)) if seq.frames.len() > 1 => b.timestamp - a.timestamp,
-        _ => 0.0,
-    };
     Ok(RealtimeReport {
-        rate: if duration > 0.0 {
-            (seq.frames.len() - 1) as f64 / duration
-        } else {
-            0.0
-        },
+        rate: pace.rate,
+        rate_source: pace.source.clone(),
         sent,
         skipped,
         wall: start.elapsed(),
@@ -313,7 +369,8 @@ mod tests {
         let cfg = config(&seq);
         let link = LocalLink::start("ram256k").unwrap();
         let mut session = Session::new(Client::new(link), StreamOptions::default());
-        let report = stream_realtime(&mut session, &seq, &cfg, "ram256k", 10.0).unwrap();
+        let pace = Pace::of(&seq, Some(300.0)).unwrap();
+        let report = stream_realtime(&mut session, &seq, &cfg, "ram256k", &pace).unwrap();
         let mut all: Vec<usize> = report.sent.iter().chain(&report.skipped).copied().collect();
         all.sort_unstable();
         assert_eq!(all, (0..20).collect::<Vec<_>>());
@@ -334,8 +391,50 @@ mod tests {
             timestamps, sent,
             "a label for every sent frame, none for a skipped one"
         );
-        assert!((report.rate - 30.0).abs() < 0.5, "{}", report.rate);
-        assert!(stream_realtime(&mut session, &seq, &cfg, "ram256k", 0.0).is_err());
+        assert_eq!(report.rate, 300.0);
+    }
+
+    /// `demo(n)` with frame numbers for timestamps (the 7-Scenes clock).
+    fn numbered(numbers: &[u32]) -> Sequence {
+        let mut seq = demo(numbers.len());
+        seq.clock = Clock::FrameNumbers { hz: 30.0 };
+        for (f, &n) in seq.frames.iter_mut().zip(numbers) {
+            f.timestamp = f64::from(n);
+        }
+        seq
+    }
+
+    #[test]
+    fn frame_numbers_are_paced_at_the_camera_rate_by_position_never_idling_on_a_gap() {
+        // Frames 0, 1, 2 and then 2,000 (a renumbered sequence): the fourth
+        // is due 3/30 s after the first, not 2,000 s (or 2,000/30 s).
+        let pace = Pace::of(&numbered(&[0, 1, 2, 2000]), None).unwrap();
+        let want = [0.0, 1.0 / 30.0, 2.0 / 30.0, 3.0 / 30.0];
+        assert_eq!(pace.offsets.len(), 4);
+        for (got, want) in pace.offsets.iter().zip(want) {
+            assert!((got - want).abs() < 1e-12, "{:?}", pace.offsets);
+        }
+        assert_eq!(pace.rate, 30.0);
+        assert!(pace.source.contains("camera rate"), "{}", pace.source);
+    }
+
+    #[test]
+    fn stamps_are_replayed_as_recorded_and_rate_overrides_them() {
+        // The synthetic camera stamps its frames at 30 Hz from 1.0 s.
+        let seq = demo(4);
+        assert_eq!(seq.clock, Clock::Seconds);
+        let pace = Pace::of(&seq, None).unwrap();
+        assert!((pace.offsets[3] - 0.1).abs() < 1e-5, "{:?}", pace.offsets);
+        assert!((pace.rate - 30.0).abs() < 0.01, "{}", pace.rate);
+        let fast = Pace::of(&seq, Some(10.0)).unwrap();
+        for (got, want) in fast.offsets.iter().zip([0.0, 0.1, 0.2, 0.3]) {
+            assert!((got - want).abs() < 1e-12, "{:?}", fast.offsets);
+        }
+        assert_eq!(fast.source, "--rate 10");
+        for bad in [0.0, -1.0, f64::NAN, f64::INFINITY, 1000.5] {
+            let e = Pace::of(&seq, Some(bad)).unwrap_err().to_string();
+            assert!(e.contains("from above 0 to 1000 frames per second"), "{e}");
+        }
     }
 
     #[test]

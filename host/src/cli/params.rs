@@ -130,6 +130,19 @@ pub fn count(s: &str) -> Result<usize, String> {
     }
 }
 
+/// `stream --rate`: frames per second, above 0 to
+/// [`crate::board::pacing::MAX_RATE`].
+pub fn rate(s: &str) -> Result<f64, String> {
+    let hz: f64 = number(s)?;
+    let max = crate::board::pacing::MAX_RATE;
+    if !(hz > 0.0 && hz <= max) {
+        return Err(format!(
+            "a replay rate is from above 0 to {max} frames per second, got {hz}"
+        ));
+    }
+    Ok(hz)
+}
+
 /// A chance from 0 to 1 (`stream --drop-chance`, `--corrupt-chance`).
 pub fn chance(s: &str) -> Result<f64, String> {
     let p: f64 = number(s)?;

@@ -78,8 +78,16 @@ pub struct StreamArgs {
     /// a frame due while the device is still busy with earlier ones is
     /// skipped (named in the output and in skipped.csv with -o; it has no
     /// label) instead of waiting.
+    /// The camera's rate is the layout's: a stamped sequence (TUM, ROS 2,
+    /// the reference layout with timestamps) at its stamps; one that only
+    /// numbers its frames (7-Scenes) at 30 frames/s by position, so gaps in
+    /// the numbering never idle.
     #[arg(long, conflicts_with_all = ["resume", "extend", "no_finish", "drop_chance", "corrupt_chance", "retries"])]
     realtime: bool,
+    /// With --realtime: replay at HZ frames per second (above 0 to 1000)
+    /// by position in the sequence, whatever the layout's rate or stamps.
+    #[arg(long, value_name = "HZ", requires = "realtime", value_parser = super::params::rate, allow_negative_numbers = true)]
+    rate: Option<f64>,
 }
 
 /// Runs `placedb stream`.
@@ -110,7 +118,7 @@ pub fn run(a: StreamArgs) -> Result<(), Error> {
     // is touched.
     degradation::check_depth(&seq, v.range, v.stride)?;
     if a.realtime {
-        realtime::realtime_cmd(&a.port, &seq, &v, sel, &a.profile, out)?;
+        realtime::realtime_cmd(&a.port, &seq, &v, sel, &a.profile, a.rate, out)?;
         return Ok(());
     }
     let recovery = Recovery {

@@ -645,6 +645,7 @@ mod tests {
                     color_path: None,
                 })
                 .collect(),
+            clock: crate::sequence::Clock::Seconds,
             frames_skipped: 0,
             source: Box::new(NoDepth),
         }

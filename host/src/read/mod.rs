@@ -28,7 +28,7 @@ mod unfilter;
 pub mod vprdb;
 
 use crate::error::ReadError;
-use crate::sequence::{CameraModel, DepthImage, Format, FrameInfo, Sequence};
+use crate::sequence::{CameraModel, Clock, DepthImage, Format, FrameInfo, Sequence};
 use crate::warning::warn;
 use std::path::{Path, PathBuf};
 
@@ -273,6 +273,8 @@ fn given_camera(
 /// `paths[i]`; `skipped` source frames were left out with a warning.
 struct Found {
     frames: Vec<FrameInfo>,
+    /// What the frames' timestamps count.
+    clock: Clock,
     paths: Vec<PathBuf>,
     skipped: usize,
 }
@@ -298,6 +300,7 @@ fn assemble(
 ) -> Result<Sequence, ReadError> {
     let Found {
         frames,
+        clock,
         paths,
         skipped,
     } = found;
@@ -310,6 +313,7 @@ fn assemble(
         depth_scale,
         size,
         frames,
+        clock,
         frames_skipped: skipped,
         source: Box::new(png::PngDepthSource {
             paths,

@@ -14,7 +14,7 @@
 
 use super::{text, ReadOptions};
 use crate::error::ReadError;
-use crate::sequence::{CameraModel, Format, FrameInfo, Sequence};
+use crate::sequence::{CameraModel, Clock, Format, FrameInfo, Sequence};
 use nalgebra::{Matrix3, UnitQuaternion};
 use std::collections::HashSet;
 use std::path::Path;
@@ -172,6 +172,9 @@ pub(crate) fn read(dir: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError
         opts.depth_scale.unwrap_or(DEPTH_SCALE),
         super::Found {
             frames,
+            clock: Clock::FrameNumbers {
+                hz: crate::sequence::FRAME_NUMBER_HZ,
+            },
             paths,
             skipped: without_depth.len(),
         },

@@ -20,7 +20,7 @@
 
 use super::{text, ReadOptions};
 use crate::error::ReadError;
-use crate::sequence::{CameraModel, Format, FrameInfo, Sequence};
+use crate::sequence::{CameraModel, Clock, Format, FrameInfo, Sequence};
 use std::path::{Path, PathBuf};
 
 /// Default intrinsics (TUM's "ROS default" for all Freiburg sequences).
@@ -228,6 +228,7 @@ pub(crate) fn read(dir: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError
         opts.depth_scale.unwrap_or(DEPTH_SCALE),
         super::Found {
             frames,
+            clock: Clock::Seconds,
             paths,
             skipped: skipped.len(),
         },

@@ -14,7 +14,7 @@
 
 use super::{text, ReadOptions};
 use crate::error::ReadError;
-use crate::sequence::{Format, FrameInfo, Sequence};
+use crate::sequence::{Clock, Format, FrameInfo, Sequence};
 use std::path::{Path, PathBuf};
 
 /// Depth units per metre.
@@ -192,6 +192,13 @@ pub(crate) fn read(dir: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError
         opts.depth_scale.unwrap_or(DEPTH_SCALE),
         super::Found {
             frames,
+            clock: if poses.iter().any(|p| p.timestamp.is_some()) {
+                Clock::Seconds
+            } else {
+                Clock::FrameNumbers {
+                    hz: crate::sequence::FRAME_NUMBER_HZ,
+                }
+            },
             paths,
             skipped: 0,
         },

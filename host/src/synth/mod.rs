@@ -164,6 +164,7 @@ pub fn sequence(cfg: &SynthConfig) -> Sequence {
         depth_scale: DEPTH_SCALE,
         size,
         frames,
+        clock: crate::sequence::Clock::Seconds,
         frames_skipped: 0,
         source: Box::new(SynthSource {
             scene,

@@ -62,6 +62,7 @@ pub fn new_place_every_frame(frames: usize) -> Sequence {
                 color_path: None,
             })
             .collect(),
+        clock: placedb_host::Clock::Seconds,
         frames_skipped: 0,
         source: Box::new(RoughSurface { frames }),
     }

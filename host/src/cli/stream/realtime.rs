@@ -5,7 +5,7 @@
 use crate::board::client::Client;
 use crate::board::error::DeviceError;
 use crate::board::link::{self, Link};
-use crate::board::pacing::{index_ranges, stream_realtime, RealtimeReport};
+use crate::board::pacing::{index_ranges, stream_realtime, Pace, RealtimeReport};
 use crate::board::scan::{stream_config, StreamOptions};
 use crate::board::session::Session;
 use crate::sequence::Sequence;
@@ -15,29 +15,44 @@ use std::path::Path;
 use std::time::Duration;
 
 /// `placedb stream --realtime`: replays `seq` to the device on `port` at
-/// its recorded rate ([`realtime_on`]). A refused `seq`, selector, profile
-/// or `out` fails before the port is opened.
+/// the camera's rate, or at `rate` frames per second (`--rate`)
+/// ([`realtime_on`], [`Pace::of`]). A refused `seq`, selector, profile,
+/// rate or `out` fails before the port is opened.
+#[allow(clippy::too_many_arguments)]
 pub fn realtime_cmd(
     port: &str,
     seq: &Sequence,
     vcfg: &VoxelConfig,
     sel: SelectorConfig,
     profile: &str,
+    rate: Option<f64>,
     out: Option<&Path>,
 ) -> Result<RealtimeReport, DeviceError> {
     stream_config(seq, vcfg, sel, profile)?;
+    Pace::of(seq, rate)?;
     if let Some(dir) = out {
         crate::output::check_database_dir(dir)?;
     }
     let link = link::open(port, Duration::from_secs(10))?;
-    realtime_on(link, port, seq, vcfg, sel, profile, out)
+    realtime_on(link, port, seq, vcfg, sel, profile, rate, out)
+}
+
+/// `count` things, `first` to `first + count - 1` in words: "frame 0",
+/// "frames 0 to 5".
+fn numbered(count: usize) -> String {
+    match count {
+        0 => "no frame".to_string(),
+        1 => "the 1 sent frame 0".to_string(),
+        n => format!("the {n} sent frames 0 to {}", n - 1),
+    }
 }
 
 /// `placedb stream --realtime` on `link` (the device on `port`):
-/// [`stream_realtime`] at the recorded rate, refused if it measured nothing
+/// [`stream_realtime`] at [`Pace::of`]`(seq, rate)`, refused if it measured nothing
 /// ([`RealtimeReport::check_measured`]); prints what was skipped and the
 /// database the device got, and with `out` exports it there, with
 /// `skipped.csv` (sequence frame and timestamp of every skipped frame).
+#[allow(clippy::too_many_arguments)]
 pub fn realtime_on<L: Link>(
     link: L,
     port: &str,
@@ -45,34 +60,40 @@ pub fn realtime_on<L: Link>(
     vcfg: &VoxelConfig,
     sel: SelectorConfig,
     profile: &str,
+    rate: Option<f64>,
     out: Option<&Path>,
 ) -> Result<RealtimeReport, DeviceError> {
     let (scan, sel, cfg) = stream_config(seq, vcfg, sel, profile)?;
+    let pace = Pace::of(seq, rate)?;
     let mut session = Session::new(Client::new(link), StreamOptions::default());
-    let report = stream_realtime(&mut session, seq, &cfg, profile, 1.0)?;
+    let report = stream_realtime(&mut session, seq, &cfg, profile, &pace)?;
     report.check_measured(seq)?;
     let n = seq.frames.len();
     println!(
-        "{}: {n} frames replayed at the recorded {:.1} frames/s in {:.1} s: {} sent, {} skipped \
+        "{}: {n} frames replayed at {:.1} frames/s ({}) in {:.1} s: {} sent, {} skipped \
          (the device was busy when they were due; they have no label)",
         seq.name,
         report.rate,
+        report.rate_source,
         report.wall.as_secs_f64(),
         report.sent.len(),
         report.skipped.len(),
     );
     if !report.skipped.is_empty() {
-        println!("  skipped frames: {}", index_ranges(&report.skipped));
+        println!(
+            "  skipped frames (positions in the sequence, from 0): {}",
+            index_ranges(&report.skipped)
+        );
     }
     println!(
-        "  database: {} frames on the device ({profile} profile, mu {}, window {}, stride {}); \
-         the device numbers the {} sent frames 0..{}",
-        report.status.database_size,
+        "  database: {} on the device ({profile} profile, mu {}, window {}, stride {}); \
+         the device numbers {} (positions {} of the sequence)",
+        crate::degradation::plural(u64::from(report.status.database_size), "frame", "frames"),
         sel.mu,
         sel.window,
         scan.stride,
-        report.sent.len(),
-        report.sent.len(),
+        numbered(report.sent.len()),
+        index_ranges(&report.sent),
     );
     match out {
         Some(dir) => {

@@ -588,6 +588,7 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadErro
         depth_scale: opts.depth_scale.unwrap_or(DEPTH_SCALE),
         size,
         frames,
+        clock: crate::sequence::Clock::Seconds,
         frames_skipped: skipped.len(),
         source: Box::new(BagSource {
             files,
