@@ -466,6 +466,20 @@ fn the_in_process_device_keeps_its_result() {
     assert!(text.contains("3 frames -> "), "{text}");
     assert!(t.join("kept/labels.csv").is_file());
     assert!(metrics(&t.join("kept"))["out_of_range_points"] == 0);
+    // Without -q, stream -o says what it exported and where, as export -o.
+    let text = succeeds(&placedb(&[
+        "stream",
+        &seq,
+        "--port",
+        "local:ram512k",
+        "-o",
+        &t.arg("said"),
+    ]));
+    let said = format!(
+        "labels), checked by count and CRC; wrote {}/{{database.csv,labels.csv,metrics.json",
+        t.join("said").display()
+    );
+    assert!(text.contains("exported ") && text.contains(&said), "{text}");
 }
 
 /// Item 11: "1 database frame", and the user's decimals in metrics.json.

@@ -184,8 +184,9 @@ pub fn export_cmd(
     Ok(export)
 }
 
-/// The line saying what an export pulled and wrote to `out`.
-fn print_exported(out: &Path, export: &Export) {
+/// The line saying what an export pulled and wrote to `out` (`export -o`
+/// and `stream -o`).
+pub fn print_exported(out: &Path, export: &Export) {
     let firsts = export.sessions();
     println!(
         "exported {} ({}, {}{}), checked by count and CRC{}; wrote {}/{{database.csv,labels.csv,metrics.json{}}}",

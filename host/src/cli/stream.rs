@@ -265,7 +265,10 @@ pub fn stream_cmd(
     match out {
         Some(dir) => {
             let opts = recovery.export_options();
-            export::export_to_with(&mut client, dir, None, quiet, &opts, &[])?;
+            let export = export::export_to_with(&mut client, dir, None, quiet, &opts, &[])?;
+            if !quiet {
+                super::export::print_exported(dir, &export);
+            }
         }
         None => println!("  pull the result with: placedb export --port {port} -o DIR"),
     }
