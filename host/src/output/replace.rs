@@ -11,9 +11,11 @@
 //! replaces other files. A file target is replaced unless it is a directory.
 //! [`check_dir`] and [`check_file`] apply the rule before a command's work,
 //! so that a refused or unwritable target fails the run before anything is
-//! computed. A partial sibling that a killed run left behind is removed by
-//! the next run writing that target ([`stale`]).
+//! computed. A run stopped by SIGINT or SIGTERM removes its partial
+//! siblings before it exits ([`interrupt`]); one that a run killed outright
+//! left behind is removed by the next run writing that target ([`stale`]).
 
+mod interrupt;
 mod stale;
 
 use crate::error::OutputError;
@@ -132,6 +134,28 @@ pub fn check_file(target: &Path) -> Result<(), OutputError> {
     check_parent(target)
 }
 
+/// Whether file `target` may be written as output `kind` (in words, e.g.
+/// "a pairs file"): [`check_file`], and an existing file is replaced only
+/// when it is empty or `is_ours` says it holds an earlier output of that
+/// kind, as a directory is ([`check_dir`]): a mistyped path never replaces
+/// a user's file.
+pub fn check_file_of(
+    target: &Path,
+    kind: &str,
+    is_ours: impl Fn(&Path) -> bool,
+) -> Result<(), OutputError> {
+    check_file(target)?;
+    if let Ok(m) = std::fs::metadata(target) {
+        if m.len() > 0 && !is_ours(target) {
+            return Err(refused(format!(
+                "{} exists and is not {kind}: give a new file name (or remove that file)",
+                target.display()
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// `path` made absolute and free of `.` and `..` (lexically), to compare
 /// targets.
 fn normal(path: &Path) -> PathBuf {
@@ -196,6 +220,7 @@ impl Outputs {
         let (parent, name) = split(target)?;
         std::fs::create_dir_all(&parent).map_err(OutputError::writing(&parent))?;
         stale::remove_stale(&parent, &name);
+        interrupt::register(&partial);
         self.staged.push(Staged {
             target: target.to_path_buf(),
             partial,
@@ -218,10 +243,15 @@ impl Outputs {
         Ok(partial)
     }
 
-    /// File output `target` (see [`check_file`]): returns the temporary
-    /// file name beside it to write the output to.
-    pub fn file(&mut self, target: &Path) -> Result<PathBuf, OutputError> {
-        check_file(target)?;
+    /// File output `target` of `kind` (see [`check_file_of`]): returns the
+    /// temporary file name beside it to write the output to.
+    pub fn file(
+        &mut self,
+        target: &Path,
+        kind: &str,
+        is_ours: impl Fn(&Path) -> bool,
+    ) -> Result<PathBuf, OutputError> {
+        check_file_of(target, kind, is_ours)?;
         let partial = sibling(target, "partial")?;
         self.stage(target, partial.clone())?;
         Ok(partial)
@@ -265,6 +295,9 @@ impl Outputs {
     /// one rename fails, those already made are undone, so that every target
     /// is as before.
     pub fn commit(mut self) -> Result<(), OutputError> {
+        // A SIGINT or SIGTERM now waits for the renames to end (all made or
+        // all undone) before it removes what is still partial.
+        let mut live = interrupt::live();
         let staged = std::mem::take(&mut self.staged);
         // (target, its previous content moved aside if any)
         let mut done: Vec<(&Staged, Option<PathBuf>)> = Vec::new();
@@ -288,6 +321,10 @@ impl Outputs {
             self.staged = staged;
             return Err(e);
         }
+        for s in &staged {
+            interrupt::forget(&mut live, &s.partial);
+        }
+        drop(live);
         for (_, old) in done {
             if let Some(old) = old {
                 if let Err(e) = remove(&old) {
@@ -325,6 +362,10 @@ impl Drop for Outputs {
     fn drop(&mut self) {
         for s in &self.staged {
             let _ = remove(&s.partial);
+        }
+        let mut live = interrupt::live();
+        for s in &self.staged {
+            interrupt::forget(&mut live, &s.partial);
         }
     }
 }
@@ -416,7 +457,7 @@ mod tests {
         let mut outputs = Outputs::new();
         let d = outputs.dir(&a, "an export", |_| false).unwrap();
         write_text(&d.join("mark"), "a").unwrap();
-        let f = outputs.file(&b).unwrap();
+        let f = outputs.file(&b, "a test file", |_| true).unwrap();
         write_text(&f, "b").unwrap();
         assert!(!a.exists() && !b.exists(), "nothing before the commit");
         outputs.commit().unwrap();
@@ -428,7 +469,7 @@ mod tests {
             .dir(&a, "an export", |d| d.join("mark").exists())
             .unwrap();
         write_text(&d.join("mark"), "a2").unwrap();
-        let f = outputs.file(&b).unwrap();
+        let f = outputs.file(&b, "a test file", |_| true).unwrap();
         write_text(&f, "b2").unwrap();
         std::fs::remove_file(&f).unwrap();
         let msg = outputs.commit().unwrap_err().to_string();

@@ -58,7 +58,7 @@ impl ExportTargets {
             replace::check_dir(dir, VPR_EVAL, vpr_eval::is_export)?;
         }
         if let Some(file) = &self.pairs {
-            replace::check_file(file)?;
+            replace::check_file_of(file, PAIRS, pairs::is_pairs)?;
         }
         Ok(())
     }
@@ -67,6 +67,7 @@ impl ExportTargets {
 /// The exports' names in a refusal.
 const COLMAP: &str = "a COLMAP export";
 const VPR_EVAL: &str = "a VPR-evaluation export";
+const PAIRS: &str = "a pairs file (lines of two image names)";
 
 /// A selection as the exports see it.
 pub struct Selection<'a> {
@@ -172,7 +173,7 @@ pub fn write_all(
     }
     if let Some(file) = &flags.pairs {
         let text = pairs::text(sel)?;
-        replace::write_text(&outputs.file(file)?, &text)?;
+        replace::write_text(&outputs.file(file, PAIRS, pairs::is_pairs)?, &text)?;
         said.push(format!(
             "  pairs: {} query-database pairs above mu {} in {}",
             text.lines().count(),

@@ -6,6 +6,15 @@
 use super::{image_name, Selection};
 use crate::error::OutputError;
 use std::fmt::Write as _;
+use std::path::Path;
+
+/// Whether `path` holds an earlier pairs file, which `--pairs` may replace:
+/// UTF-8 text whose every line is two names (hloc's pairs format). Any
+/// other file is the user's, and is refused.
+pub fn is_pairs(path: &Path) -> bool {
+    std::fs::read_to_string(path)
+        .is_ok_and(|text| text.lines().all(|l| l.split_whitespace().count() == 2))
+}
 
 /// The text of the pairs file.
 pub fn text(sel: &Selection) -> Result<String, OutputError> {

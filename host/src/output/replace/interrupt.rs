@@ -1,0 +1,105 @@
+//! All or nothing also when interrupted: the hidden partial siblings of the
+//! outputs a run is writing are registered here ([`register`], [`forget`]),
+//! and SIGINT or SIGTERM removes them before the process exits (130 or 143,
+//! as a shell reports a process those signals ended), so a Ctrl-C leaves
+//! every target as it was and no sibling beside it.
+//!
+//! The signal handler itself only writes the signal's number to a pipe (an
+//! async-signal-safe call); a watcher thread reads it, takes the registry's
+//! lock (which [`Outputs::commit`](super::Outputs::commit) holds while it
+//! renames the outputs into place, so a run stopped during its commit ends
+//! committed, never half), removes every registered sibling and exits.
+//! The handlers are installed when the first output is staged, so commands
+//! that write nothing keep the default signal behaviour.
+
+use std::path::{Path, PathBuf};
+use std::sync::{Mutex, MutexGuard};
+
+/// The partial siblings of the outputs being written.
+static LIVE: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+
+/// The registry, even if a thread panicked holding it.
+pub(super) fn live() -> MutexGuard<'static, Vec<PathBuf>> {
+    LIVE.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// `partial` is being written: removed if the process is stopped by
+/// SIGINT or SIGTERM before [`forget`].
+pub(super) fn register(partial: &Path) {
+    watch();
+    live().push(partial.to_path_buf());
+}
+
+/// `partial` is gone or has become its target (under the lock of
+/// [`live`], which the caller holds).
+pub(super) fn forget(live: &mut Vec<PathBuf>, partial: &Path) {
+    live.retain(|p| p != partial);
+}
+
+/// Removes every registered sibling (a few tries: a writer thread may
+/// still be creating a file inside a partial directory).
+fn remove_all(live: &[PathBuf]) {
+    for p in live {
+        for _ in 0..5 {
+            if super::remove(p).is_ok() {
+                break;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(2));
+        }
+    }
+}
+
+#[cfg(unix)]
+fn watch() {
+    use std::sync::atomic::{AtomicI32, Ordering};
+    use std::sync::Once;
+
+    /// The pipe's write end (-1 until installed).
+    static WRITE_END: AtomicI32 = AtomicI32::new(-1);
+
+    extern "C" fn on_signal(signal: libc::c_int) {
+        let fd = WRITE_END.load(Ordering::SeqCst);
+        let byte = signal as u8;
+        // SAFETY: write(2) is async-signal-safe; `byte` outlives the call.
+        unsafe { libc::write(fd, std::ptr::addr_of!(byte).cast(), 1) };
+    }
+
+    static ONCE: Once = Once::new();
+    ONCE.call_once(|| {
+        let mut fds = [0 as libc::c_int; 2];
+        // SAFETY: pipe(2) fills the two-element array it is given.
+        if unsafe { libc::pipe(fds.as_mut_ptr()) } != 0 {
+            return;
+        }
+        let [read_end, write_end] = fds;
+        WRITE_END.store(write_end, Ordering::SeqCst);
+        let spawned = std::thread::Builder::new()
+            .name("placedb-outputs-on-signal".into())
+            .spawn(move || loop {
+                let mut byte = 0u8;
+                // SAFETY: read(2) of one byte into a byte we own.
+                let n = unsafe { libc::read(read_end, std::ptr::addr_of_mut!(byte).cast(), 1) };
+                if n == 1 {
+                    let signal = libc::c_int::from(byte);
+                    let live = live();
+                    remove_all(&live);
+                    std::process::exit(128 + signal);
+                }
+                if n == 0 {
+                    return;
+                }
+            });
+        if spawned.is_err() {
+            return;
+        }
+        let handler = on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t;
+        for signal in [libc::SIGINT, libc::SIGTERM] {
+            // SAFETY: the handler only calls write(2), which is
+            // async-signal-safe.
+            unsafe { libc::signal(signal, handler) };
+        }
+    });
+}
+
+#[cfg(not(unix))]
+fn watch() {}
