@@ -7,6 +7,13 @@ use std::path::{Path, PathBuf};
 /// `placedb: error: {error}`.
 pub type CommandError = Box<dyn std::error::Error>;
 
+/// A command line refused after clap parsed it, for what takes two
+/// options to see (`--window` above `--profile`'s window): `placedb` exits
+/// with status 2 for it, as for a value out of its parser's range.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct UsageError(pub String);
+
 /// Why a sequence could not be read.
 #[derive(Debug, thiserror::Error)]
 pub enum ReadError {

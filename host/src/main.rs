@@ -81,7 +81,12 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("placedb: error: {e}");
-            ExitCode::FAILURE
+            // A refused command line exits as clap's refusals do.
+            if e.is::<placedb_host::error::UsageError>() {
+                ExitCode::from(2)
+            } else {
+                ExitCode::FAILURE
+            }
         }
     }
 }

@@ -62,17 +62,17 @@ pub struct BenchArgs {
     )]
     solvers: Vec<Solver>,
     /// Pixel stride, from 1 to 64 (as select's).
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=64))]
+    #[arg(long, default_value_t = 1, value_parser = super::params::whole::<u16>(1, 64), allow_negative_numbers = true)]
     stride: u16,
     /// Frames of the synthetic scan.
-    #[arg(long, default_value_t = 5000)]
+    #[arg(long, default_value_t = 5000, value_parser = super::params::whole::<usize>(1, super::params::MAX_SYNTH_FRAMES), allow_negative_numbers = true)]
     synthetic_frames: usize,
     /// Instead: count the core's instructions per frame and per valid pixel
     /// with valgrind's callgrind (repeatable counts, not seconds).
     #[arg(long)]
     core: bool,
     /// With --core: frames of 7scenes-1000 to replay.
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 20, value_parser = super::params::whole::<usize>(1, super::params::MAX_SYNTH_FRAMES), allow_negative_numbers = true)]
     core_frames: usize,
     /// Instead: count the instructions per valid pixel of the QEMU board's
     /// Cortex-M4F firmware (-icount shift=0), protocol included, and the
@@ -80,7 +80,7 @@ pub struct BenchArgs {
     #[arg(long)]
     device: bool,
     /// With --device: frames of 7scenes-1000 (twice as many synthetic ones).
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 3, value_parser = super::params::whole::<usize>(1, super::params::MAX_SYNTH_FRAMES), allow_negative_numbers = true)]
     device_frames: usize,
     /// Instead: the Pico's Cortex-M0+ under the RP2040 emulator: cycles per
     /// valid pixel and per frame (the --device frames at strides 2 and 4),
@@ -93,7 +93,7 @@ pub struct BenchArgs {
     /// With --pico: frames of each stride's scan streamed before the
     /// measured ones and not counted, so that those meet a full window as
     /// in a long scan (default: the 16 frames the window holds).
-    #[arg(long, requires = "pico", default_value_t = usize::from(pixel_cost::SELECTOR.window))]
+    #[arg(long, requires = "pico", default_value_t = usize::from(pixel_cost::SELECTOR.window), value_parser = super::params::whole::<usize>(0, super::params::MAX_SYNTH_FRAMES), allow_negative_numbers = true)]
     warm_up: usize,
     /// With --pico: print one JSON object instead of the tables.
     #[arg(long, requires = "pico")]
@@ -104,7 +104,7 @@ pub struct BenchArgs {
     #[arg(long)]
     db_scaling: bool,
     /// With --db-scaling: frames of the building (40 rooms).
-    #[arg(long, default_value_t = 20_000)]
+    #[arg(long, default_value_t = 20_000, value_parser = super::params::whole::<usize>(1, super::params::MAX_SYNTH_FRAMES), allow_negative_numbers = true)]
     building_frames: usize,
     /// Internal (the callgrind child of --db-scaling): the flash image.
     #[arg(long, hide = true)]
@@ -113,7 +113,7 @@ pub struct BenchArgs {
     /// turn; a row is its run of median wall time, a ratio to the floor the
     /// median of the rounds' (a single run of a half-second job moves by
     /// 10 % and more, and the machine's speed drifts).
-    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..))]
+    #[arg(long, default_value_t = 3, value_parser = super::params::whole::<u32>(1, 1000), allow_negative_numbers = true)]
     repeat: u32,
     /// Internal (a child of the timing table): only decode every depth
     /// image of this sequence, as select would, and exit.

@@ -27,7 +27,7 @@ pub struct DeviceArgs {
     #[arg(long)]
     firmware: Option<PathBuf>,
     /// Loopback TCP port for the board's UART or USB port (0: any free port).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = params::whole::<u16>(0, 65535), allow_negative_numbers = true)]
     port: u16,
     /// Run without -icount shift=0 (faster, but no exact instruction counts; QEMU only).
     #[arg(long)]

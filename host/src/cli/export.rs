@@ -33,7 +33,7 @@ pub struct ExportArgs {
     #[arg(short, long)]
     out: PathBuf,
     /// Resume an interrupted export into the same directory from record K.
-    #[arg(long)]
+    #[arg(long, value_parser = super::params::whole::<u32>(0, u32::MAX.into()), allow_negative_numbers = true)]
     from: Option<u32>,
     /// Also write a training-ready dataset (as `select --dataset`) from the
     /// exported labels and the frames of --sequence (the sequence streamed).

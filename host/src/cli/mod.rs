@@ -65,8 +65,8 @@ pub struct SeqArgs {
     /// Use the built-in synthetic office scan (600 frames, 320x240) instead of a directory.
     #[arg(long, conflicts_with = "seq")]
     demo: bool,
-    /// With --demo: walk the same office in this many frames.
-    #[arg(long, default_value_t = 600, requires = "demo")]
+    /// With --demo: walk the same office in this many frames (1 to 1000000).
+    #[arg(long, default_value_t = 600, requires = "demo", value_parser = params::whole::<usize>(1, params::MAX_SYNTH_FRAMES), allow_negative_numbers = true)]
     demo_frames: usize,
     /// Sequence layout; detected from the directory's files when omitted.
     #[arg(long, value_enum)]
@@ -82,7 +82,7 @@ pub struct SeqArgs {
     #[arg(long, default_value_t = 0.3, value_parser = params::voxel, allow_negative_numbers = true)]
     voxel: f32,
     /// Use every s-th pixel in u and v (1 = exact voxel sets).
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=64))]
+    #[arg(long, default_value_t = 1, value_parser = params::whole::<u16>(1, 64), allow_negative_numbers = true)]
     stride: u16,
     /// Valid depths "min,max" in metres: min < z <= max ("0.1,inf" keeps far points).
     #[arg(long, default_value = "0.1,10", value_parser = params::depth_range, allow_hyphen_values = true)]
@@ -90,8 +90,8 @@ pub struct SeqArgs {
     /// Anchor of the voxel grid: the world origin (as the device) or the scene's minimum corner (as the reference code).
     #[arg(long, value_enum, default_value_t = GridOrigin::World)]
     grid_origin: GridOrigin,
-    /// Use only the first N frames of the sequence.
-    #[arg(long)]
+    /// Use only the first N frames of the sequence (1 or more).
+    #[arg(long, value_parser = params::whole::<usize>(1, u64::MAX), allow_negative_numbers = true)]
     max_frames: Option<usize>,
     #[command(flatten)]
     ros2: Ros2Args,
@@ -137,7 +137,7 @@ impl Ros2Args {
 #[derive(Args, Clone)]
 pub struct ParamArgs {
     /// every-nth: take every N-th frame (N >= 1).
-    #[arg(long, default_value_t = 10, value_parser = params::count, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 10, value_parser = params::whole::<usize>(1, u64::MAX), allow_negative_numbers = true)]
     every_nth: usize,
     /// distance: take a frame each D metres of camera path (D > 0).
     #[arg(long, default_value_t = 0.5, value_parser = params::positive, allow_negative_numbers = true)]

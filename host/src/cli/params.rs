@@ -9,9 +9,9 @@
 //! `allow_negative_numbers` (or `allow_hyphen_values` for comma lists), so
 //! `--mu -1` reaches its parser as `--mu=-1` does and both get the range.
 
-use crate::error::CommandError as Error;
+use crate::error::UsageError;
 use crate::CameraModel;
-use clap::builder::{PossibleValuesParser, RangedI64ValueParser};
+use clap::builder::PossibleValuesParser;
 use placedb::{FrameProjector, VoxelGrid};
 
 /// A number, or words saying it is not one.
@@ -122,12 +122,55 @@ pub fn non_negative_seconds(s: &str) -> Result<f64, String> {
     Ok(x)
 }
 
-/// A count of at least 1 (`--every-nth`).
-pub fn count(s: &str) -> Result<usize, String> {
-    match number::<i64>(s)? {
-        n if n >= 1 => usize::try_from(n).map_err(|_| format!("{n} is too large")),
-        n => Err(format!("must be 1 or more, got {n}")),
+/// A whole number from `min` to `max` (`u64::MAX`: no upper end), for
+/// every count, size and seed of the command line (`--every-nth`,
+/// `--max-frames`, `--stride`, `--frames`, ...): refused in words with its
+/// range, a negative or a huge value as well as 0, so each says the same
+/// thing ("must be a whole number from 1 to 64, got 0").
+pub fn whole<T>(min: u64, max: u64) -> impl Fn(&str) -> Result<T, String> + Clone + Send + Sync
+where
+    T: TryFrom<u64> + Clone + Send + Sync + 'static,
+{
+    move |s: &str| {
+        let s = s.trim();
+        let range = if max == u64::MAX {
+            format!(", {min} or more")
+        } else {
+            format!(" from {min} to {max}")
+        };
+        let refused = || format!("must be a whole number{range}, got {s}");
+        let digits = s.strip_prefix('-').unwrap_or(s);
+        if digits.is_empty() || !digits.bytes().all(|b| b.is_ascii_digit()) {
+            return Err(format!("`{s}` is not a whole number; give one{range}"));
+        }
+        if max == u64::MAX && digits.len() > 19 && !s.starts_with('-') {
+            return Err(format!("{s} is too large{range}"));
+        }
+        // Too many digits for any count is out of range, not "no number".
+        let n: i128 = s.parse().map_err(|_| refused())?;
+        if max == u64::MAX && n > i128::from(max) {
+            return Err(format!("{s} is too large{range}"));
+        }
+        if n < i128::from(min) || n > i128::from(max) {
+            return Err(refused());
+        }
+        T::try_from(n as u64).map_err(|_| refused())
     }
+}
+
+/// The most frames of a synthetic scan (`--demo-frames`, `synth --frames`,
+/// the bench's scans): its poses and the sets of a million frames already
+/// take gigabytes.
+pub const MAX_SYNTH_FRAMES: u64 = 1_000_000;
+
+/// The most frames any profile holds undecided: the top of `--window`'s
+/// range ([`check_window`] then holds it to the chosen profile's).
+fn widest_window() -> u64 {
+    placedb::profile::PROFILES
+        .iter()
+        .map(|p| p.window as u64)
+        .max()
+        .unwrap_or(1)
 }
 
 /// `stream --rate`: frames per second, above 0 to
@@ -157,25 +200,29 @@ pub fn profile() -> PossibleValuesParser {
     PossibleValuesParser::new(placedb::profile::PROFILES.iter().map(|p| p.name))
 }
 
-/// `--window`: frames held undecided, at least 1; [`check_window`] then
-/// holds it to the chosen profile's window, naming it.
-pub fn window() -> RangedI64ValueParser<u16> {
-    RangedI64ValueParser::<u16>::new().range(1..)
+/// `--window`: frames held undecided, from 1 to the widest profile's
+/// window; [`check_window`] then holds it to the chosen profile's window,
+/// naming it.
+pub fn window() -> impl Fn(&str) -> Result<u16, String> + Clone + Send + Sync {
+    whole(1, widest_window())
 }
 
 /// Refuses a `--window` above what `profile` holds (the profile's window
 /// is the most frames a device of that profile keeps undecided), naming
-/// the cap, so the window printed and recorded is the one used.
-pub fn check_window(profile: &str, window: u16) -> Result<(), Error> {
-    let caps = placedb::profile::by_name(profile)
-        .ok_or_else(|| format!("unknown --profile `{profile}`; see `placedb budget`"))?;
+/// the cap, so the window printed and recorded is the one used; a usage
+/// error (status 2) as a value out of its parser's range is.
+pub fn check_window(profile: &str, window: u16) -> Result<(), UsageError> {
+    let caps = placedb::profile::by_name(profile).ok_or_else(|| {
+        UsageError(format!(
+            "unknown --profile `{profile}`; see `placedb budget`"
+        ))
+    })?;
     if window == 0 || usize::from(window) > caps.window {
-        return Err(format!(
+        return Err(UsageError(format!(
             "--window {window}: the {profile} profile holds from 1 to {} frames undecided; \
              give --window {} or less (or a larger --profile, see `placedb budget`)",
             caps.window, caps.window
-        )
-        .into());
+        )));
     }
     Ok(())
 }
@@ -209,8 +256,25 @@ mod tests {
         }
         assert_eq!(non_negative_seconds("0"), Ok(0.0));
         assert!(non_negative_seconds("-0.1").is_err());
+        let count = whole::<usize>(1, u64::MAX);
         assert_eq!(count("1"), Ok(1));
         assert!(count("0").is_err() && count("-3").is_err());
+        let stride = whole::<u16>(1, 64);
+        assert_eq!(stride("64"), Ok(64));
+        for bad in [
+            "0",
+            "65",
+            "-1",
+            "99999999999999999999999999999999999999999",
+            "1.5",
+        ] {
+            let e = stride(bad).unwrap_err();
+            assert!(e.contains("from 1 to 64"), "{bad}: {e}");
+        }
+        assert_eq!(
+            whole::<u16>(0, 65535)("65536").unwrap_err(),
+            "must be a whole number from 0 to 65535, got 65536"
+        );
         assert!(chance("1").is_ok() && chance("1.1").is_err() && chance("nan").is_err());
         assert!(intrinsics("0,525,320,240").is_err());
         assert!(intrinsics("525,525,320").is_err());

@@ -52,14 +52,14 @@ pub struct StreamArgs {
     #[arg(long, default_value_t = 0.0, value_parser = super::params::chance, allow_negative_numbers = true)]
     corrupt_chance: f64,
     /// Seed of the fault injector's PRNG (a run is reproducible).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = super::params::whole::<u64>(0, u64::MAX), allow_negative_numbers = true)]
     fault_seed: u64,
     /// Retransmissions per message (stop-and-wait). Default: 0 (pipelined, the
-    /// first error stops the stream) without fault injection, 20 with.
-    #[arg(long)]
+    /// first error stops the stream) without fault injection, 20 with; 0 to 1000.
+    #[arg(long, value_parser = super::params::whole::<usize>(0, 1000), allow_negative_numbers = true)]
     retries: Option<usize>,
-    /// With retransmission: wait this many milliseconds (1 or more) for a reply before sending again.
-    #[arg(long, default_value_t = 2000, value_parser = super::params::count)]
+    /// With retransmission: wait this many milliseconds (1 to 3600000) for a reply before sending again.
+    #[arg(long, default_value_t = 2000, value_parser = super::params::whole::<usize>(1, 3_600_000), allow_negative_numbers = true)]
     resend_ms: usize,
     /// Go on with the scan the device holds (e.g. restored from flash after a
     /// power cut) from its first undecided frame, instead of starting over.

@@ -1,6 +1,7 @@
 //! `placedb synth`: the built-in synthetic office (or a building) written
 //! as a TUM RGB-D sequence, all or nothing.
 
+use super::params;
 use crate::error::CommandError as Error;
 use crate::output::replace;
 use crate::synth::{self, SynthConfig};
@@ -11,20 +12,20 @@ use std::path::PathBuf;
 pub struct SynthArgs {
     /// Output directory (TUM layout).
     out: PathBuf,
-    /// Number of frames.
-    #[arg(long, default_value_t = 600)]
+    /// Number of frames, 1 to 1000000.
+    #[arg(long, default_value_t = 600, value_parser = params::whole::<usize>(1, params::MAX_SYNTH_FRAMES), allow_negative_numbers = true)]
     frames: usize,
-    /// Image width.
-    #[arg(long, default_value_t = 320)]
+    /// Image width, 2 to 8192 pixels.
+    #[arg(long, default_value_t = 320, value_parser = params::whole::<u16>(2, placedb::Intrinsics::MAX_SIDE.into()), allow_negative_numbers = true)]
     width: u16,
-    /// Image height.
-    #[arg(long, default_value_t = 240)]
+    /// Image height, 2 to 8192 pixels.
+    #[arg(long, default_value_t = 240, value_parser = params::whole::<u16>(2, placedb::Intrinsics::MAX_SIDE.into()), allow_negative_numbers = true)]
     height: u16,
     /// Seed of the furniture layout.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = params::whole::<u64>(0, u64::MAX), allow_negative_numbers = true)]
     seed: u64,
-    /// Number of rooms off the corridor.
-    #[arg(long, default_value_t = 4)]
+    /// Number of rooms off the corridor, 1 to 1000.
+    #[arg(long, default_value_t = 4, value_parser = params::whole::<usize>(1, 1000), allow_negative_numbers = true)]
     rooms: usize,
 }
 
