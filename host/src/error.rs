@@ -14,11 +14,46 @@ pub type CommandError = Box<dyn std::error::Error>;
 #[error("{0}")]
 pub struct UsageError(pub String);
 
+/// An I/O error in words, for every message that carries one: the
+/// operating system's reason without Rust's "(os error N)" suffix, the
+/// common ones said plainly ("no space left on the device"); an error made
+/// with words of our own keeps them.
+pub fn io_words(e: &std::io::Error) -> String {
+    use std::io::ErrorKind as K;
+    let said = match e.kind() {
+        K::NotFound => "no such file or directory",
+        K::PermissionDenied => "permission denied",
+        K::AlreadyExists => "it already exists",
+        K::StorageFull => "no space left on the device",
+        K::QuotaExceeded => "the disk quota is exceeded",
+        K::ReadOnlyFilesystem => "the file system is read-only",
+        K::NotADirectory => "a part of the path is not a directory",
+        K::IsADirectory => "it is a directory",
+        K::ConnectionReset => "the connection was reset by the board",
+        K::ConnectionAborted => "the connection was aborted",
+        K::ConnectionRefused => "the connection was refused (nothing listens there)",
+        K::BrokenPipe => "the other end closed the connection",
+        K::UnexpectedEof => "the other end closed the connection",
+        K::TimedOut => "no answer in time",
+        _ => "",
+    };
+    // Only the operating system's errors and bare kinds get our words: one
+    // made with a message (`io::Error::new`) already says what happened.
+    if e.get_ref().is_none() && !said.is_empty() {
+        return said.to_string();
+    }
+    let text = e.to_string();
+    match text.find(" (os error ") {
+        Some(at) => text[..at].to_string(),
+        None => text,
+    }
+}
+
 /// Why a sequence could not be read.
 #[derive(Debug, thiserror::Error)]
 pub enum ReadError {
     /// A file or directory could not be opened or read.
-    #[error("{path}: {source}")]
+    #[error("{}: {}", path.display(), io_words(source))]
     Io {
         /// The file.
         path: PathBuf,
@@ -88,7 +123,7 @@ pub enum OutputError {
     #[error(transparent)]
     Read(#[from] ReadError),
     /// Writing a file failed.
-    #[error("{path}: {source}")]
+    #[error("{}: {}", path.display(), io_words(source))]
     Write {
         /// The file.
         path: PathBuf,
@@ -130,7 +165,7 @@ pub struct NothingMeasured(pub String);
 
 #[cfg(test)]
 mod tests {
-    use super::seconds;
+    use super::{io_words, seconds};
     use std::time::Duration;
 
     #[test]
@@ -139,5 +174,28 @@ mod tests {
         assert_eq!(seconds(Duration::from_millis(2500)), "2.5 s");
         assert_eq!(seconds(Duration::from_millis(45)), "0.045 s");
         assert_eq!(seconds(Duration::ZERO), "0 s");
+    }
+
+    #[test]
+    fn io_errors_are_words_without_the_os_error_number() {
+        use std::io::{Error, ErrorKind};
+        for (code, words) in [
+            (28, "no space left on the device"),
+            (104, "the connection was reset by the board"),
+            (2, "no such file or directory"),
+        ] {
+            assert_eq!(io_words(&Error::from_raw_os_error(code)), words);
+        }
+        // An errno without words of ours: the system's text, no number.
+        let other = io_words(&Error::from_raw_os_error(5));
+        assert!(!other.contains("os error") && !other.is_empty(), "{other}");
+        assert_eq!(
+            io_words(&Error::new(ErrorKind::NotFound, "no board answers")),
+            "no board answers"
+        );
+        assert_eq!(
+            io_words(&ErrorKind::UnexpectedEof.into()),
+            "the other end closed the connection"
+        );
     }
 }

@@ -80,7 +80,11 @@ fn main() -> ExitCode {
     match r {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("placedb: error: {e}");
+            // An I/O error that reached here bare is said in words too.
+            match e.downcast_ref::<std::io::Error>() {
+                Some(io) => eprintln!("placedb: error: {}", placedb_host::error::io_words(io)),
+                None => eprintln!("placedb: error: {e}"),
+            }
             // A refused command line exits as clap's refusals do.
             if e.is::<placedb_host::error::UsageError>() {
                 ExitCode::from(2)

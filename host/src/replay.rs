@@ -330,7 +330,7 @@ fn ingest<const FV: usize>(
     let core_err = |reason: FrameError| match reason {
         FrameError::Camera(reason) => ReplayError::Read(VoxelizeError::Camera {
             frame: i,
-            name: seq.frames[i].depth_name.clone(),
+            name: seq.depth_where(i),
             reason,
         }),
         reason => ReplayError::Core {
@@ -342,7 +342,7 @@ fn ingest<const FV: usize>(
         .pose()
         .map_err(|reason| VoxelizeError::Camera {
             frame: i,
-            name: seq.frames[i].depth_name.clone(),
+            name: seq.depth_where(i),
             reason,
         })?;
     let mut ingest = Box::new(FrameIngest::<FV>::new());

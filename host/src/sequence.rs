@@ -120,6 +120,13 @@ pub trait DepthSource: Send + Sync {
     fn color(&self, _i: usize) -> Result<Option<Image>, ReadError> {
         Ok(None)
     }
+
+    /// The file frame `i`'s depth is read from, when it is one file (a
+    /// PNG of a file layout), so that a message names it with its
+    /// directory; `None` for a bag or the renderer.
+    fn depth_file(&self, _i: usize) -> Option<&std::path::Path> {
+        None
+    }
 }
 
 /// A sequence: metadata for every frame, camera, and a way to get depth.
@@ -158,12 +165,21 @@ impl Sequence {
         self.source.depth_into(i, img)?;
         if (img.width, img.height) != self.size {
             return Err(ReadError::SizeMismatch {
-                name: self.frames[i].depth_name.clone(),
+                name: self.depth_where(i),
                 expected: self.size,
                 found: (img.width, img.height),
             });
         }
         Ok(())
+    }
+
+    /// Frame `i`'s depth in a message: its file with the directory when it
+    /// is one file, else the reader's name for it (a bag's topic and stamp).
+    pub fn depth_where(&self, i: usize) -> String {
+        match self.source.depth_file(i) {
+            Some(path) => path.display().to_string(),
+            None => self.frames[i].depth_name.clone(),
+        }
     }
 
     /// The core's intrinsics for this sequence.

@@ -224,3 +224,44 @@ fn the_db_scaling_probe_refuses_a_flash_image_in_words() {
         assert!(err.contains(&path), "{name}: {err}");
     }
 }
+
+/// An I/O error is in words, without Rust's "(os error N)": a sequence
+/// that is not there is named, and the reason said plainly.
+#[test]
+fn io_errors_are_in_words_without_the_os_error_number() {
+    let tmp = TempDir::new("io-words");
+    let missing = tmp.arg("no-such-scan");
+    let err = select_fails(&tmp, &missing, &[]);
+    assert!(!err.contains("os error"), "{err}");
+    assert!(
+        err.contains(&format!("{missing}: no such file or directory")),
+        "{err}"
+    );
+}
+
+/// A depth image of another size than the sequence's is named with its
+/// directory, so the user finds the file.
+#[test]
+fn a_frame_of_the_wrong_size_is_named_with_its_directory() {
+    let tmp = TempDir::new("wrong-size");
+    let seq = tmp.path().join("seq");
+    seven_scenes_copy(&seq, 3, true);
+    let small = tmp.arg("small");
+    let synth = placedb(&[
+        "synth", &small, "--frames", "1", "--width", "64", "--height", "48",
+    ]);
+    assert!(synth.status.success(), "{}", stderr(&synth));
+    let png = std::fs::read_dir(tmp.path().join("small/depth"))
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    let bad = seq.join("frame-000001.depth.png");
+    std::fs::copy(&png, &bad).unwrap();
+    let err = select_fails(&tmp, &tmp.arg("seq"), &[]);
+    assert!(
+        err.contains(&format!("{}: depth image is 64x48", bad.display())),
+        "{err}"
+    );
+}

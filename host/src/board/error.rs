@@ -8,7 +8,7 @@ use std::io;
 #[derive(Debug, thiserror::Error)]
 pub enum DeviceError {
     /// The link failed or timed out.
-    #[error("link: {0}")]
+    #[error("link: {}", crate::error::io_words(.0))]
     Io(#[from] io::Error),
     /// The device refused a message with a typed error.
     #[error("the device refused {what} (seq {seq}): {kind}")]

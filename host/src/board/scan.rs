@@ -793,7 +793,10 @@ impl ScanState {
                 Err(e) => {
                     return Err(DeviceError::Io(io::Error::new(
                         e.kind(),
-                        format!("waiting for the reply to {what}: {e}"),
+                        format!(
+                            "waiting for the reply to {what}: {}",
+                            crate::error::io_words(&e)
+                        ),
                     )))
                 }
             };

@@ -150,7 +150,11 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
                             std::fs::copy(src, &path).map_err(|e| OutputError::Write {
                                 source: std::io::Error::new(
                                     e.kind(),
-                                    format!("copying {}: {e}", src.display()),
+                                    format!(
+                                        "copying {}: {}",
+                                        src.display(),
+                                        crate::error::io_words(&e)
+                                    ),
                                 ),
                                 path: path.clone(),
                             })?;

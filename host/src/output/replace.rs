@@ -287,8 +287,29 @@ impl Outputs {
                     reason,
                 })
             }
+            // Words that name a path in their text (a refusal, a frame
+            // that does not fit) name the target too, never the sibling.
+            OutputError::Mismatch(text) => OutputError::Mismatch(self.named_text(text)),
+            OutputError::Read(ReadError::Layout { path, reason }) => {
+                OutputError::Read(ReadError::Layout {
+                    path: rename(path),
+                    reason: self.named_text(reason),
+                })
+            }
             other => other,
         }
+    }
+
+    /// `text` with every temporary sibling's path in it shown as its
+    /// target's.
+    fn named_text(&self, mut text: String) -> String {
+        for s in &self.staged {
+            let partial = s.partial.display().to_string();
+            if text.contains(&partial) {
+                text = text.replace(&partial, &s.target.display().to_string());
+            }
+        }
+        text
     }
 
     /// Renames every output into place, each replacing its target whole. If
@@ -433,6 +454,32 @@ mod tests {
             return Err(OutputError::Mismatch("broken".into()));
         }
         outputs.commit()
+    }
+
+    /// An error about a file in a staged output names the user's target,
+    /// never the hidden sibling, whatever its form.
+    #[test]
+    fn errors_name_the_target_not_the_hidden_sibling() {
+        let root = temp("named");
+        let target = root.join("v@x");
+        let mut outputs = Outputs::new();
+        let d = outputs.dir(&target, "an export", |_| false).unwrap();
+        let inside = d.join("database").join("a.jpg");
+        let want = target.join("database").join("a.jpg").display().to_string();
+        let errors = [
+            OutputError::Write {
+                path: inside.clone(),
+                source: std::io::ErrorKind::StorageFull.into(),
+            },
+            OutputError::Mismatch(format!("{}: not a readable JPEG file", inside.display())),
+        ];
+        for e in errors {
+            let said = outputs.named(e).to_string();
+            assert!(said.contains(&want), "{said}");
+            assert!(!said.contains(".partial-"), "{said}");
+        }
+        drop(outputs);
+        std::fs::remove_dir_all(&root).ok();
     }
 
     #[test]

@@ -466,6 +466,10 @@ impl DepthSource for PngDepthSource {
             None => Err(self.no_frame(i)),
         }
     }
+
+    fn depth_file(&self, i: usize) -> Option<&Path> {
+        self.paths.get(i).map(PathBuf::as_path)
+    }
 }
 
 impl PngDepthSource {

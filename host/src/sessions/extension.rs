@@ -282,7 +282,7 @@ impl Extension {
 #[derive(Debug, thiserror::Error)]
 pub enum ExtensionError {
     /// The file could not be opened or read.
-    #[error("{}: cannot read the extension file: {source}", path.display())]
+    #[error("{}: cannot read the extension file: {}", path.display(), crate::error::io_words(source))]
     Io {
         /// The file.
         path: PathBuf,

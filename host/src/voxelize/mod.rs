@@ -176,7 +176,7 @@ fn frame_set(
 ) -> Result<FrameSet, VoxelizeError> {
     let camera_err = |reason| VoxelizeError::Camera {
         frame: i,
-        name: seq.frames[i].depth_name.clone(),
+        name: seq.depth_where(i),
         reason,
     };
     let t0 = Instant::now();
@@ -316,7 +316,7 @@ fn scene_min(
             let f = &seq.frames[i];
             let pose = f.pose().map_err(|reason| VoxelizeError::Camera {
                 frame: i,
-                name: f.depth_name.clone(),
+                name: seq.depth_where(i),
                 reason,
             })?;
             let r = pose.rotation_matrix();

@@ -26,7 +26,12 @@ pub fn build_board(board: &str, elf: PathBuf, build: bool, how: &str) -> Result<
             .args(["build", "--release"])
             .current_dir(&dir)
             .output()
-            .map_err(|e| format!("cannot run cargo to build the firmware: {e}"))?;
+            .map_err(|e| {
+                format!(
+                    "cannot run cargo to build the firmware: {}",
+                    crate::error::io_words(&e)
+                )
+            })?;
         if !out.status.success() {
             return Err(format!(
                 "building the firmware (`{how}`) failed:\n{}",

@@ -86,7 +86,11 @@ pub fn prepare_flash_file(path: &Path) -> io::Result<()> {
     written.map_err(|e| {
         io::Error::new(
             e.kind(),
-            format!("cannot create flash file {}: {e}", path.display()),
+            format!(
+                "cannot create flash file {}: {}",
+                path.display(),
+                crate::error::io_words(&e)
+            ),
         )
     })
 }
@@ -244,7 +248,11 @@ impl Qemu {
         let mut child = command.spawn().map_err(|e| {
             io::Error::new(
                 e.kind(),
-                format!("cannot start {}: {e}", options.program.display()),
+                format!(
+                    "cannot start {}: {}",
+                    options.program.display(),
+                    crate::error::io_words(&e)
+                ),
             )
         })?;
         let console = Arc::new(Mutex::new(Vec::new()));

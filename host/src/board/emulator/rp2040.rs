@@ -428,8 +428,12 @@ pub fn spawn_foreground(
     options: &Rp2040Options,
 ) -> Result<std::process::Child, DeviceError> {
     // The emulator ends with placedb, whatever stops it (foreground.rs).
-    super::foreground::spawn(&mut harness_command(firmware, options))
-        .map_err(|e| DeviceError::Input(format!("cannot start node (Node 20 or later): {e}")))
+    super::foreground::spawn(&mut harness_command(firmware, options)).map_err(|e| {
+        DeviceError::Input(format!(
+            "cannot start node (Node 20 or later): {}",
+            crate::error::io_words(&e)
+        ))
+    })
 }
 
 #[cfg(test)]

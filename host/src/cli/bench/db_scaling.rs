@@ -150,7 +150,8 @@ pub fn probe_step(device: &mut Device256K, log: &mut Log<SimFlash>, bytes: &[u8]
 /// again here (the building is deterministic).
 pub fn run_probe(flash: &Path, frames: usize) -> Result<(), String> {
     let name = flash.display();
-    let bytes = std::fs::read(flash).map_err(|e| format!("{name}: {e}"))?;
+    let bytes =
+        std::fs::read(flash).map_err(|e| format!("{name}: {}", crate::error::io_words(&e)))?;
     // Whole sectors, or the copy below would not fit the flash.
     if bytes.len() % SimFlash::SECTOR != 0 {
         return Err(format!(

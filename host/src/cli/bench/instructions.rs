@@ -39,7 +39,12 @@ fn callgrind_count(
         .arg(std::env::current_exe()?)
         .args(args)
         .output()
-        .map_err(|e| format!("cannot run valgrind ({e}); install it to count instructions"))?;
+        .map_err(|e| {
+            format!(
+                "cannot run valgrind ({}); install it to count instructions",
+                crate::error::io_words(&e)
+            )
+        })?;
     if !child.status.success() {
         return Err(format!(
             "callgrind run failed: {}",
@@ -141,7 +146,12 @@ pub fn device_cost(a: &BenchOptions) -> Result<(), Error> {
             ..QemuOptions::default()
         },
     )
-    .map_err(|e| format!("cannot start qemu-system-arm (apt-get install qemu-system-arm): {e}"))?;
+    .map_err(|e| {
+        format!(
+            "cannot start qemu-system-arm (apt-get install qemu-system-arm): {}",
+            crate::error::io_words(&e)
+        )
+    })?;
     if !qemu.wait_console("calibration", Duration::from_secs(10)) {
         return Err(format!("the firmware did not boot: {}", qemu.console()).into());
     }

@@ -301,8 +301,12 @@ fn measure(
         flash_timing: FlashTiming::None,
         ..Rp2040Options::default()
     };
-    let board = Rp2040::start_with(&firmware, &options)
-        .map_err(|e| format!("cannot start the RP2040 emulator: {e}"))?;
+    let board = Rp2040::start_with(&firmware, &options).map_err(|e| {
+        format!(
+            "cannot start the RP2040 emulator: {}",
+            crate::error::io_words(&e)
+        )
+    })?;
     let mut client = Client::new(board);
     let runs = pixelcost::measure_strides_warmed(
         &mut client,
