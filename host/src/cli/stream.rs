@@ -133,6 +133,29 @@ pub fn run(a: StreamArgs) -> Result<(), Error> {
     Ok(())
 }
 
+/// `e`, or, when the board went away mid-stream (reset, unplugged, its
+/// emulator ended), what to do: the board keeps its scan in flash, so the
+/// same command with `--resume` goes on from its first undecided frame.
+fn lost_board(e: DeviceError, port: &str) -> DeviceError {
+    use std::io::ErrorKind as K;
+    match &e {
+        DeviceError::Io(io)
+            if matches!(
+                io.kind(),
+                K::ConnectionReset | K::ConnectionAborted | K::BrokenPipe | K::UnexpectedEof
+            ) && !port.starts_with("local:") =>
+        {
+            DeviceError::Input(format!(
+                "the board on {port} went away mid-stream ({}): restart it (its scan is kept \
+                 in flash) and run the same command again with --resume to go on from its \
+                 first undecided frame",
+                crate::error::io_words(io)
+            ))
+        }
+        _ => e,
+    }
+}
+
 /// `placedb stream`: streams `seq` (configured by `vcfg` and `sel`, as
 /// `placedb select` is) to the device on `port`, which must run `profile`;
 /// prints a summary, and exports into `out` if given. `recovery` injects
@@ -171,7 +194,8 @@ pub fn stream_cmd(
         profile,
         &recovery.stream_options(),
         pb.as_ref(),
-    )?;
+    )
+    .map_err(|e| lost_board(e, port))?;
     if let Some(pb) = &pb {
         pb.finish_and_clear();
     }
