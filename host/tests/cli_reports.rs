@@ -189,18 +189,33 @@ fn no_valid_pixel_fails_every_solver_and_writes_nothing() {
     assert!(!t.join("out").exists());
 }
 
-/// Item 1: no frame at all is an error too.
+/// Item 1: no frame at all is refused too, now as the command line is
+/// parsed (status 2, the range in words) before any work.
 #[test]
 fn no_frame_fails() {
     let t = TempDir::new("no-frame");
     let seq = seven_scenes_copy(&t, "seq", 2);
     let out = t.arg("out");
     let r = placedb(&["select", &seq, "--max-frames", "0", "-q", "-o", &out]);
-    fails_with(&r, &["no frame to work on"]);
+    fails_with(
+        &r,
+        &["--max-frames", "must be a whole number, 1 or more, got 0"],
+    );
+    assert_eq!(r.status.code(), Some(2));
     let r = placedb(&["select", "--demo", "--demo-frames", "0", "-q", "-o", &out]);
-    fails_with(&r, &["synthetic", "no frame to work on"]);
+    fails_with(
+        &r,
+        &[
+            "--demo-frames",
+            "must be a whole number from 1 to 1000000, got 0",
+        ],
+    );
+    assert_eq!(r.status.code(), Some(2));
     let r = placedb(&["compare", &seq, "--max-frames", "0", "-q"]);
-    fails_with(&r, &["no frame to work on"]);
+    fails_with(
+        &r,
+        &["--max-frames", "must be a whole number, 1 or more, got 0"],
+    );
     assert!(!t.join("out").exists());
 }
 
@@ -251,7 +266,8 @@ fn compare_dataset_and_stream_refuse_a_run_that_measured_nothing() {
         "-o",
         &t.arg("exported"),
     ]);
-    fails_with(&r, &["no frame to work on"]);
+    fails_with(&r, &["must be a whole number, 1 or more, got 0"]);
+    assert_eq!(r.status.code(), Some(2));
     assert!(!t.join("exported").exists());
 }
 
