@@ -68,6 +68,10 @@ fn each_numeric_option_is_refused_with_its_range_before_any_work() {
         (&["--cube", "nan"], "above 0"),
         (&["--time-limit", "0"], "above 0"),
         (&["--time-limit", "-3"], "above 0"),
+        (
+            &["--time-limit", "1e300"],
+            "must be from above 0 to 1000000 seconds, got 1e300",
+        ),
         (&["--every-nth", "0"], "1 or more"),
         (&["--every-nth", "-2"], "1 or more"),
         (&["--pose-tolerance", "-1"], "0 or more"),

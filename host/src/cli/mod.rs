@@ -145,8 +145,8 @@ pub struct ParamArgs {
     /// cube: take the frame nearest the centre of each C-metre cube of the trajectory's box (C > 0).
     #[arg(long, default_value_t = 1.0, value_parser = params::positive, allow_negative_numbers = true)]
     cube: f64,
-    /// exact: time limit in seconds (> 0); past it the best set and a proven lower bound are reported.
-    #[arg(long, default_value_t = 60.0, value_parser = params::positive, allow_negative_numbers = true)]
+    /// exact: time limit in seconds (above 0 to 1000000); past it the best set and a proven lower bound are reported.
+    #[arg(long, default_value_t = 60.0, value_parser = params::time_limit, allow_negative_numbers = true)]
     time_limit: f64,
     /// online: device capacity profile (see `placedb budget`).
     #[arg(long, default_value = "ram512k", value_parser = params::profile())]

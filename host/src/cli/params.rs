@@ -101,12 +101,27 @@ pub fn intrinsics(s: &str) -> Result<CameraModel, String> {
     Ok(k)
 }
 
-/// A length or a duration that must be above zero (`--distance`, `--cube`,
-/// metres; `--time-limit`, seconds).
+/// A length that must be above zero (`--distance`, `--cube`, metres).
 pub fn positive(s: &str) -> Result<f64, String> {
     let x: f64 = number(s)?;
     if !(x.is_finite() && x > 0.0) {
         return Err(format!("must be a finite number above 0, got {x}"));
+    }
+    Ok(x)
+}
+
+/// The longest `--time-limit`, seconds (about 11.6 days): above it the
+/// limit would not fit a duration, and no run waits that long.
+pub const MAX_TIME_LIMIT: f64 = 1e6;
+
+/// `--time-limit`: seconds, above 0 to [`MAX_TIME_LIMIT`].
+pub fn time_limit(s: &str) -> Result<f64, String> {
+    let x: f64 = number(s)?;
+    if !(x > 0.0 && x <= MAX_TIME_LIMIT) {
+        return Err(format!(
+            "must be from above 0 to {MAX_TIME_LIMIT} seconds, got {}",
+            s.trim()
+        ));
     }
     Ok(x)
 }
@@ -254,6 +269,11 @@ mod tests {
         for bad in ["0", "-1", "nan", "inf"] {
             assert!(positive(bad).is_err(), "{bad}");
         }
+        for bad in ["0", "-1", "nan", "inf", "1e300"] {
+            let e = time_limit(bad).unwrap_err();
+            assert!(e.contains("from above 0 to 1000000 seconds"), "{bad}: {e}");
+        }
+        assert_eq!(time_limit("1000000"), Ok(1e6));
         assert_eq!(non_negative_seconds("0"), Ok(0.0));
         assert!(non_negative_seconds("-0.1").is_err());
         let count = whole::<usize>(1, u64::MAX);
