@@ -33,7 +33,8 @@ pub fn io_words(e: &std::io::Error) -> String {
         K::ConnectionAborted => "the connection was aborted",
         K::ConnectionRefused => "the connection was refused (nothing listens there)",
         K::BrokenPipe => "the other end closed the connection",
-        K::UnexpectedEof => "the other end closed the connection",
+        // A file read short as well as a link closed mid-message.
+        K::UnexpectedEof => "it ended before all its bytes were read",
         K::TimedOut => "no answer in time",
         _ => "",
     };
@@ -195,7 +196,7 @@ mod tests {
         );
         assert_eq!(
             io_words(&ErrorKind::UnexpectedEof.into()),
-            "the other end closed the connection"
+            "it ended before all its bytes were read"
         );
     }
 }

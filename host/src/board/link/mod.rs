@@ -98,7 +98,7 @@ pub(crate) fn reader_thread(
             loop {
                 match from.read(&mut buf) {
                     Ok(0) => {
-                        let _ = tx.send(Err(io::ErrorKind::UnexpectedEof.into()));
+                        let _ = tx.send(Err(closed_by_board()));
                         return;
                     }
                     Ok(n) => {
@@ -123,6 +123,16 @@ pub(crate) fn reader_thread(
     Ok((rx, handle))
 }
 
+/// The link's end of stream, in words: an `UnexpectedEof` (what a lost
+/// board's callers match) that says who closed it, since the same kind
+/// from a file means a short read.
+fn closed_by_board() -> io::Error {
+    io::Error::new(
+        io::ErrorKind::UnexpectedEof,
+        "the board closed the connection",
+    )
+}
+
 /// Waits on a reader channel, skipping empty keep-alive chunks.
 pub(crate) fn recv_channel(
     rx: &Receiver<io::Result<Vec<u8>>>,
@@ -130,7 +140,7 @@ pub(crate) fn recv_channel(
     timeout: Duration,
 ) -> io::Result<Vec<u8>> {
     if *closed {
-        return Err(io::ErrorKind::UnexpectedEof.into());
+        return Err(closed_by_board());
     }
     let end = Instant::now() + timeout;
     loop {
@@ -153,7 +163,7 @@ pub(crate) fn recv_channel(
             }
             Err(RecvTimeoutError::Disconnected) => {
                 *closed = true;
-                return Err(io::ErrorKind::UnexpectedEof.into());
+                return Err(closed_by_board());
             }
         }
     }
