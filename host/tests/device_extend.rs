@@ -308,11 +308,43 @@ fn an_extend_without_a_finished_scan_or_of_another_configuration_is_refused_in_w
         resume: true,
         ..StreamOptions::default()
     };
+    // A resume with another setting names it; the correct one is taken.
+    let other = placedb::protocol::Config {
+        stride: STRIDE * 2,
+        ..cfg
+    };
+    let err = stream(&mut client, &seq, &other, PROFILE, &resume, None).unwrap_err();
+    let said = format!(
+        "--resume: --stride {} where the device's scan has stride {STRIDE}: ",
+        STRIDE * 2
+    );
+    assert!(err.to_string().contains(&said), "{err}");
     stream(&mut client, &seq, &cfg, PROFILE, &resume, None).unwrap();
     let other = placedb::protocol::Config { mu: 0.5, ..cfg };
     let err = stream(&mut client, &seq, &other, PROFILE, &extend, None).unwrap_err();
-    assert!(err.to_string().contains("configured otherwise"), "{err}");
+    let said = format!("--extend: --mu 0.5 where the device's scan has mu {MU}: ");
+    assert!(err.to_string().contains(&said), "{err}");
     assert!(!err.to_string().contains("  "), "{err}");
+    // Another camera: named with both cameras, and refused as the host
+    // refuses nothing else of it (the device's log holds one camera).
+    let camera = placedb::Intrinsics {
+        fx: cfg.intrinsics.fx + 1.0,
+        ..cfg.intrinsics
+    };
+    let other = placedb::protocol::Config {
+        intrinsics: camera,
+        ..cfg
+    };
+    let err = stream(&mut client, &seq, &other, PROFILE, &extend, None).unwrap_err();
+    assert!(
+        err.to_string().contains(&format!(
+            "--extend: the camera {}x{} fx {} ",
+            camera.width, camera.height, camera.fx
+        )) && err
+            .to_string()
+            .contains("where the device's scan has the camera"),
+        "{err}"
+    );
     // Nothing changed: the same scan extends with its own configuration.
     let report = stream(&mut client, &seq, &cfg, PROFILE, &extend, None).unwrap();
     assert_eq!((report.first_index, report.status.sessions), (6, 2));

@@ -119,6 +119,20 @@ struct KeyChunk {
     bytes: u32,
 }
 
+/// The configuration the device's scan was made with: the `Begin` record
+/// that opens its log (`None` when the log holds no scan, it was reset, or
+/// the device keeps no log).
+pub fn scan_config<L: Link>(
+    client: &mut Client<L>,
+    wait: Wait,
+) -> Result<Option<Config>, DeviceError> {
+    let records = read_log(client, 1, wait)?;
+    Ok(match records.first().map(|r| Record::decode(&r.payload)) {
+        Some(Ok((Record::Begin(cfg), _))) => Some(cfg),
+        _ => None,
+    })
+}
+
 /// The finished scan `records` make (the records of one log generation,
 /// in order): a database frame's latest record counts (a scan resumed
 /// after a power cut writes a frame taken again anew), and the database is

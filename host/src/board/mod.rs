@@ -9,6 +9,7 @@
 //! → client → link, emulator → link, and every one may name [`error`].
 
 pub mod client;
+pub mod config_words;
 pub mod emulator;
 pub mod error;
 pub mod export;

@@ -18,10 +18,12 @@
 //! repeat without applying it twice.
 
 use crate::board::client::{ask_status, check_profile, send_and_wait, Client, Received, Wait};
+use crate::board::config_words;
 use crate::board::error::DeviceError;
 use crate::board::export::ExportOptions;
 use crate::board::link::fault::FaultConfig;
 use crate::board::link::Link;
+use crate::board::log_records;
 use crate::frame_rows::{row_chunks, sampled_rows_of};
 use crate::sequence::Sequence;
 use crate::voxelize::{self, GridOrigin, VoxelConfig};
@@ -518,7 +520,13 @@ impl ScanState {
             self.call(client, HostMessage::Reset, "Reset")?;
         }
         self.started = Some(Instant::now());
-        self.call(client, HostMessage::Hello(*cfg), "Hello")?;
+        match self.call(client, HostMessage::Hello(*cfg), "Hello") {
+            Err(DeviceError::Refused {
+                kind: ErrorKind::NeedsReset,
+                ..
+            }) if opts.resume => return Err(self.other_config(client, cfg, "--resume")),
+            other => other?,
+        };
         self.set_config(cfg);
         Ok(st)
     }
@@ -560,14 +568,7 @@ impl ScanState {
             Err(DeviceError::Refused {
                 kind: ErrorKind::ExtendOtherConfig,
                 ..
-            }) => {
-                return Err(DeviceError::Input(
-                    "--extend: the device's scan was configured otherwise: every session of a \
-                     scan needs the first one's camera, depth scale and range, stride, voxel \
-                     size, grid, --mu and --window (Reset the device for a new scan)"
-                        .into(),
-                ))
-            }
+            }) => return Err(self.other_config(client, cfg, "--extend")),
             other => other?,
         };
         let st = self.call_status(client)?;
@@ -582,6 +583,34 @@ impl ScanState {
         self.first_index = first;
         self.next_frame = seen;
         Ok(st)
+    }
+
+    /// The refusal of a command (`--extend`, `--resume`) whose
+    /// configuration `cfg` is not the device's scan's: names the first
+    /// setting that differs and both values, read from the device's log
+    /// (a device without one is told in general words). The device
+    /// changed nothing, so the same command with its settings is taken.
+    fn other_config<L: Link>(
+        &mut self,
+        client: &mut Client<L>,
+        cfg: &Config,
+        option: &str,
+    ) -> DeviceError {
+        let named = log_records::scan_config(client, self.opts.wait())
+            .ok()
+            .flatten()
+            .and_then(|device| config_words::difference(cfg, &device));
+        DeviceError::Input(match named {
+            Some(words) => format!(
+                "{option}: {words}: every session of a scan has the first one's configuration \
+                 (give the scan's setting, or Reset the device for a new scan)"
+            ),
+            None => format!(
+                "{option}: the device's scan was configured otherwise: every session of a scan \
+                 needs the first one's camera, depth scale and range, stride, voxel size, grid, \
+                 --mu and --window (Reset the device for a new scan)"
+            ),
+        })
     }
 
     /// Sends frame `i` of `seq` (its depth decoded, its pose), the one way a
