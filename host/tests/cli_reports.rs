@@ -496,6 +496,47 @@ fn the_in_process_device_keeps_its_result() {
         t.join("said").display()
     );
     assert!(text.contains("exported ") && text.contains(&said), "{text}");
+    // Its metrics.json has every key select --solver online writes, the
+    // scan's settings as the device scanned with them, and null (with the
+    // reason) for what only the sequence gives.
+    let same = ["--mu", "0.4", "--stride", "2", "--window", "8", "-q", "-o"];
+    let host_args = [&seq, "--solver", "online", "--profile", "ram512k"];
+    let select: Vec<&str> = ["select"].iter().chain(&host_args).copied().collect();
+    let mut select = select;
+    select.extend(same);
+    let host_dir = t.arg("host");
+    select.push(&host_dir);
+    succeeds(&placedb(&select));
+    let mut stream = vec!["stream", &seq, "--port", "local:ram512k"];
+    stream.extend(same);
+    let device_dir = t.arg("device");
+    stream.push(&device_dir);
+    succeeds(&placedb(&stream));
+    let host = metrics(&t.join("host"));
+    let device = metrics(&t.join("device"));
+    let missing: Vec<&String> = host
+        .as_object()
+        .unwrap()
+        .keys()
+        .filter(|k| device.get(k.as_str()).is_none())
+        .collect();
+    assert!(missing.is_empty(), "the export lacks {missing:?}: {device}");
+    for k in [
+        "mu",
+        "voxel",
+        "stride",
+        "depth_min",
+        "depth_max",
+        "window",
+        "grid_origin",
+        "size",
+    ] {
+        assert_eq!(device[k], host[k], "{k}");
+    }
+    assert!(device["spatial_coverage"].is_null(), "{device}");
+    let why = device["not_measured"].as_str().unwrap_or_default();
+    assert!(why.contains("coverage metrics need the sequence"), "{why}");
+    assert_eq!(device["restored_from_flash"], false);
 }
 
 /// Item 11: "1 database frame", and the user's decimals in metrics.json.

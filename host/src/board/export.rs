@@ -18,8 +18,8 @@ use crate::output::{self, metrics_json};
 use crate::sessions::extension::{self, Extension};
 use indicatif::ProgressBar;
 use placedb::protocol::{
-    encode, export_crc, DeviceMessage, ExportRecord, Feed, FrameDecoder, HostMessage, Phase,
-    RecordKind, Status, MAX_FRAME_LEN,
+    encode, export_crc, Config, DeviceMessage, ExportRecord, Feed, FrameDecoder, HostMessage,
+    Phase, RecordKind, Status, MAX_FRAME_LEN,
 };
 use placedb::DbRecord;
 use std::io;
@@ -73,6 +73,9 @@ pub struct Export {
     /// What a later session needs (`extension.bin`), read back from the
     /// device's flash log by [`pull`] when its scan is finished.
     pub extension: Option<Extension>,
+    /// The configuration the device scanned with, read from its flash
+    /// log's first record by [`pull`] (`None`: the device keeps no log).
+    pub config: Option<Config>,
 }
 
 /// One batch: records `from..from+max`, checked by count and CRC.
@@ -207,6 +210,7 @@ pub fn export<L: Link>(
         status: last,
         retried,
         extension: None,
+        config: None,
     })
 }
 
@@ -296,7 +300,12 @@ impl Export {
     /// need the sequence's voxel sets are computed by `placedb select`).
     pub fn metrics(&self) -> serde_json::Value {
         let profile = device_profile(&self.status).map(|p| p.name);
-        metrics_json::of_device(&self.status, self.records.len(), profile)
+        metrics_json::of_device(
+            &self.status,
+            self.config.as_ref(),
+            self.records.len(),
+            profile,
+        )
     }
 }
 
@@ -468,6 +477,9 @@ pub fn pull<L: Link>(
     }
     let mut export = export;
     export.extension = extension_of(client, &export, opts)?;
+    if export.status.stored_records > 0 {
+        export.config = log_records::scan_config(client, opts.wait())?;
+    }
     Ok(export)
 }
 

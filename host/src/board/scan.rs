@@ -29,8 +29,8 @@ use crate::sequence::Sequence;
 use crate::voxelize::{self, GridOrigin, VoxelConfig};
 use indicatif::ProgressBar;
 use placedb::protocol::{
-    depth_rows_per_message, CapacitySlot, Config, DecisionKind, DeviceMessage, ErrorKind,
-    HostMessage, Phase, Status,
+    degradation, depth_rows_per_message, CapacitySlot, Config, DecisionKind, DeviceMessage,
+    ErrorKind, HostMessage, Phase, Status,
 };
 use placedb::{Intrinsics, Pose, ScanConfig, SelectorConfig, VoxelGrid};
 use std::collections::VecDeque;
@@ -225,8 +225,14 @@ pub fn status_line(st: &Status) -> String {
             f64::from(st.cost.last_rows.saturating_add(st.cost.last_end)) / 1e6
         );
     }
-    if st.degradation != 0 {
-        s += &format!(" | degraded {:#x}", st.degradation);
+    // A scan restored from flash is a resume, not a degradation.
+    let restored = st.degradation & degradation::RESTORED != 0;
+    let degraded = st.degradation & !degradation::RESTORED;
+    if degraded != 0 {
+        s += &format!(" | degraded {degraded:#x}");
+    }
+    if restored {
+        s += " | restored from flash";
     }
     s
 }

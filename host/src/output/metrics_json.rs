@@ -4,7 +4,7 @@
 
 use crate::pipeline::{Outcome, Prepared, SolverParams};
 use crate::sequence::Sequence;
-use placedb::protocol::{CapacitySlot, Status};
+use placedb::protocol::{CapacitySlot, Config, Status};
 use std::io;
 
 /// Peak resident memory of this process so far, MB (Linux `VmHWM`).
@@ -105,8 +105,19 @@ pub fn of_select(
 }
 
 /// The `metrics.json` object of a device's export: what the device knows
-/// from its status (`profile`: the capacity profile it reports, if any).
-pub fn of_device(st: &Status, export_records: usize, profile: Option<&str>) -> serde_json::Value {
+/// from its status and, when it keeps a flash log, the configuration it
+/// scanned with (`config`; `profile`: the capacity profile it reports, if
+/// any). It has every key [`of_select`] writes: those only the sequence
+/// gives (the coverage metrics, the host's reading and timing) are `null`,
+/// and `not_measured` says why. A scan restored from flash after a reset
+/// is a resume (`restored_from_flash`), not a degradation.
+pub fn of_device(
+    st: &Status,
+    config: Option<&Config>,
+    export_records: usize,
+    profile: Option<&str>,
+) -> serde_json::Value {
+    use placedb::protocol::degradation::RESTORED;
     let size = st.database_size;
     let frames = st.capacity(CapacitySlot::Labels).used;
     let mut m = serde_json::json!({
@@ -122,7 +133,9 @@ pub fn of_device(st: &Status, export_records: usize, profile: Option<&str>) -> s
         "uncovered_by_capacity": st.uncovered_frames,
         "labels_dropped": st.labels_dropped,
         "out_of_range_points": st.out_of_range_points,
-        "degradation_flags": st.degradation,
+        "valid_pixels": st.valid_pixels,
+        "degradation_flags": st.degradation & !RESTORED,
+        "restored_from_flash": st.degradation & RESTORED != 0,
         "pool_peak_words": st.capacity(CapacitySlot::Pool).peak,
         "frame_voxels_peak": st.capacity(CapacitySlot::FrameVoxels).peak,
         "export_records": export_records,
@@ -130,6 +143,79 @@ pub fn of_device(st: &Status, export_records: usize, profile: Option<&str>) -> s
         "flash_bytes_used": st.capacity(CapacitySlot::Flash).used,
         "flash_bytes_limit": st.capacity(CapacitySlot::Flash).limit,
     });
+    let decimal = |x: f32| x.to_string().parse::<f64>().unwrap_or(f64::from(x));
+    let scan = [
+        "mu",
+        "voxel",
+        "stride",
+        "depth_min",
+        "depth_max",
+        "grid_origin",
+        "window",
+    ];
+    match config {
+        Some(c) => {
+            m["mu"] = decimal(c.mu).into();
+            m["voxel"] = decimal(c.voxel_size).into();
+            m["stride"] = c.stride.into();
+            m["depth_min"] = decimal(c.depth_range.min).into();
+            m["depth_max"] = if c.depth_range.max.is_finite() {
+                decimal(c.depth_range.max).into()
+            } else {
+                "inf".into()
+            };
+            // The device knows the grid's corner, not how the host chose
+            // it: the world origin is `world`, any other corner was the
+            // scene's minimum.
+            m["grid_origin"] = if c.grid_origin == [0.0; 3] {
+                "world"
+            } else {
+                "scene-min"
+            }
+            .into();
+            m["window"] = c.window.into();
+        }
+        None => {
+            for k in scan {
+                m[k] = serde_json::Value::Null;
+            }
+        }
+    }
+    // What only the sequence's voxel sets and the host's reading give.
+    for k in [
+        "sequence",
+        "format",
+        "frames_skipped",
+        "empty_frames",
+        "co_observing_pairs",
+        "labels_below_mu",
+        "label_iou_min",
+        "uncovered",
+        "spatial_coverage",
+        "frames_coverage_mean",
+        "frames_coverage_min",
+        "frames_coverage_below_0_3",
+        "voxelize_s",
+        "read_cpu_s",
+        "voxelize_cpu_s",
+        "graph_s",
+        "solve_s",
+        "core_s",
+        "total_s",
+        "peak_rss_mb",
+    ] {
+        m[k] = serde_json::Value::Null;
+    }
+    m["not_measured"] = format!(
+        "a device keeps no voxel sets of its frames: the coverage metrics need the sequence \
+         (placedb select SEQ --solver online with the same settings computes them){}",
+        if config.is_none() {
+            "; the scan's settings need the device's flash log, which it does not keep"
+        } else {
+            ""
+        }
+    )
+    .into();
     if st.cost.clock_hz > 0 && st.cost.frames > 0 {
         m["device_ticks_per_frame"] = (st.cost.total as f64 / f64::from(st.cost.frames)).into();
         m["device_clock_hz"] = st.cost.clock_hz.into();
