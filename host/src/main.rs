@@ -45,7 +45,7 @@ enum Command {
     Stream(StreamArgs),
     /// Pull database.csv, labels.csv, metrics.json from a device (resumable, CRC-checked).
     Export(ExportArgs),
-    /// Start the emulated board (QEMU mps2-an386) and print the port to use.
+    /// Start an emulated board (--qemu: QEMU mps2-an386; --rp2040: the Pico under rp2040js) and print the port to use.
     Device(DeviceArgs),
 }
 

@@ -388,6 +388,18 @@ fn tum_association_and_defaults() {
     let seq = open(d.path()).unwrap();
     assert_eq!(seq.camera.fx, 517.3);
     assert_eq!(seq.camera.cy, 255.3);
+
+    // Or the one line `fx fy cx cy`; five numbers are refused at their line.
+    d.write("intrinsics.txt", "# fx fy cx cy\n517.3 516.5 318.6 255.3\n");
+    let seq = open(d.path()).unwrap();
+    assert_eq!(
+        (seq.camera.fx, seq.camera.fy, seq.camera.cx, seq.camera.cy),
+        (517.3, 516.5, 318.6, 255.3)
+    );
+    d.write("intrinsics.txt", "517.3 516.5 318.6 255.3 1\n");
+    let e = err(open(d.path()));
+    assert!(matches!(e, ReadError::Parse { line: 1, .. }), "{e}");
+    names(&e, "intrinsics.txt:1");
 }
 
 #[test]

@@ -50,9 +50,11 @@ pub fn figure(x: f64, decimals: usize) -> String {
 
 #[derive(Args)]
 pub struct BenchArgs {
-    /// Directory holding the recorded samples (7scenes-1000, vprdb-test-db).
-    #[arg(long, default_value = "../shared/data")]
-    data: PathBuf,
+    /// Directory holding the recorded samples (7scenes-1000, vprdb-test-db);
+    /// default: ../shared/data from the current directory, else the
+    /// shared/data beside the repository placedb was built from.
+    #[arg(long)]
+    data: Option<PathBuf>,
     /// Solvers to time, comma separated.
     #[arg(
         long,
@@ -123,8 +125,9 @@ pub struct BenchArgs {
 
 /// Runs `placedb bench`: the timing table, or one of the instruction counts.
 pub fn run(a: BenchArgs) -> Result<(), Error> {
+    let data = data_dir(a.data.clone());
     let opts = BenchOptions {
-        data: a.data.clone(),
+        data: data.clone(),
         solvers: a.solvers.clone(),
         stride: a.stride,
         synthetic_frames: a.synthetic_frames,
@@ -140,7 +143,7 @@ pub fn run(a: BenchArgs) -> Result<(), Error> {
         return instructions::device_cost(&opts);
     }
     if a.pico {
-        return pico::run(&a.data, a.device_frames, a.warm_up, a.json);
+        return pico::run(&data, a.device_frames, a.warm_up, a.json);
     }
     if let Some(flash) = &a.db_probe {
         return Ok(db_scaling::run_probe(flash, a.building_frames)?);
@@ -152,4 +155,64 @@ pub fn run(a: BenchArgs) -> Result<(), Error> {
         return timing::decode_only(path);
     }
     timing::table(&opts)
+}
+
+/// The recorded samples' directory: `given` (`--data`) as it is, else the
+/// first of [`default_data_dirs`] that exists, so `placedb bench` finds them
+/// from any directory. When none does, the first, with a warning naming
+/// both paths tried (the benches that need the samples then say which is
+/// missing).
+fn data_dir(given: Option<PathBuf>) -> PathBuf {
+    if let Some(dir) = given {
+        return dir;
+    }
+    let [cwd, repo] = default_data_dirs();
+    if cwd.is_dir() {
+        cwd
+    } else if repo.is_dir() {
+        repo
+    } else {
+        crate::warning::warn(format!(
+            "the recorded samples are in neither {} (from the current directory) nor {}: pass --data DIR",
+            cwd.display(),
+            repo.display()
+        ));
+        cwd
+    }
+}
+
+/// Where `bench` looks for the recorded samples without `--data`:
+/// `../shared/data` from the current directory (the repository's root), and
+/// the `shared/data` beside the repository this binary was built from.
+fn default_data_dirs() -> [PathBuf; 2] {
+    let host = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let beside_repo = host
+        .parent()
+        .and_then(std::path::Path::parent)
+        .unwrap_or(host)
+        .join("shared")
+        .join("data");
+    [PathBuf::from("../shared/data"), beside_repo]
+}
+
+#[cfg(test)]
+mod data_tests {
+    use super::{data_dir, default_data_dirs};
+    use std::path::PathBuf;
+
+    #[test]
+    fn the_default_is_found_beside_the_repository_from_any_directory() {
+        // The second default does not depend on the current directory: it
+        // is the repository's sibling shared/data, which the tests read.
+        let [_, repo] = default_data_dirs();
+        assert!(repo.is_absolute(), "{}", repo.display());
+        assert!(repo.join("7scenes-1000").is_dir(), "{}", repo.display());
+        assert!(data_dir(None).join("7scenes-1000").is_dir());
+    }
+
+    #[test]
+    fn a_given_directory_is_taken_as_it_is() {
+        let given = PathBuf::from("somewhere/else");
+        assert_eq!(data_dir(Some(given.clone())), given);
+    }
 }

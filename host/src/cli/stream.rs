@@ -236,12 +236,12 @@ pub fn stream_cmd(
     );
     if let Some(t) = report.ticks_per_frame() {
         println!(
-            "  device: {:.3} M clock ticks per frame (max {:.3} M) at {} Hz: {:.2} ms of device time per frame \
-             (the QEMU board counts instructions under -icount shift=0)",
+            "  device: {:.3} M clock ticks per frame (max {:.3} M) at {} Hz: {:.2} ms of device time per frame{}",
             t / 1e6,
             f64::from(st.cost.max) / 1e6,
             st.cost.clock_hz,
-            1e3 * t / f64::from(st.cost.clock_hz)
+            1e3 * t / f64::from(st.cost.clock_hz),
+            clock_words(st.cost.clock_hz)
         );
     }
     for warning in client::flash_warnings(st) {
@@ -297,4 +297,28 @@ pub fn stream_cmd(
         None => println!("  pull the result with: placedb export --port {port} -o DIR"),
     }
     Ok(report)
+}
+
+/// What the ticks of a device reporting `clock_hz` are, in words for the
+/// summary: the QEMU board counts instructions (1 GHz under `-icount
+/// shift=0`), the Pico (board or emulator) its 1 MHz timer; any other clock
+/// is named by its rate alone.
+fn clock_words(clock_hz: u32) -> &'static str {
+    match clock_hz {
+        1_000_000_000 => " (the QEMU board's ticks: instructions under -icount shift=0)",
+        1_000_000 => " (the Pico's ticks: its 1 MHz timer)",
+        _ => "",
+    }
+}
+
+#[cfg(test)]
+mod clock_tests {
+    use super::clock_words;
+
+    #[test]
+    fn the_words_name_the_board_that_clock_is() {
+        assert!(clock_words(1_000_000_000).contains("QEMU"));
+        assert!(clock_words(1_000_000).contains("Pico"));
+        assert_eq!(clock_words(48_000_000), "");
+    }
 }

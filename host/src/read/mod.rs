@@ -145,14 +145,45 @@ pub fn decode_depth_png(path: &Path) -> Result<DepthImage, ReadError> {
 }
 
 /// Parses a 3x3 pinhole matrix `K = [fx 0 cx; 0 fy cy; 0 0 1]` written as three
-/// lines of three white-space separated numbers (blank and `#` lines are
-/// skipped). The structural zeros and the 1 must be there (a transposed matrix
-/// is refused), skew is not supported, and fx, fy must be finite and > 0.
+/// lines of three white-space separated numbers, or the one line
+/// `fx fy cx cy` (blank and `#` lines are skipped). The structural zeros and
+/// the 1 must be there (a transposed matrix is refused), skew is not
+/// supported, and fx, fy must be finite and > 0. Anything else is an error
+/// naming the file and line.
 pub fn parse_intrinsics_file(path: &Path) -> Result<CameraModel, ReadError> {
     let content = text::read_text(path)?;
     let mut rows: Vec<(usize, Vec<f64>)> = Vec::with_capacity(3);
     let mut last_line = 1;
+    // A one-line `fx fy cx cy`, and the line it was on.
+    let mut one_line: Option<(usize, Vec<f64>)> = None;
     for (line, l) in text::data_lines(&content) {
+        if let Some((first, _)) = &one_line {
+            return Err(text::parse_error(
+                path,
+                line,
+                format!("line {first} gave the intrinsics as one line `fx fy cx cy`: nothing may follow it"),
+            ));
+        }
+        if rows.is_empty() {
+            let first = text::numbers(
+                path,
+                line,
+                l,
+                &[3, 4],
+                "a row of the 3x3 matrix K, or the one line `fx fy cx cy`",
+            )?;
+            if first.len() == 4 {
+                if let Some(c) = first.iter().position(|v| !v.is_finite()) {
+                    return Err(text::parse_error(
+                        path,
+                        line,
+                        format!("column {}: {} is not finite", c + 1, first[c]),
+                    ));
+                }
+                one_line = Some((line, first));
+                continue;
+            }
+        }
         if rows.len() == 3 {
             return Err(text::parse_error(
                 path,
@@ -170,6 +201,16 @@ pub fn parse_intrinsics_file(path: &Path) -> Result<CameraModel, ReadError> {
         }
         rows.push((line, row));
         last_line = line;
+    }
+    if let Some((line, v)) = one_line {
+        let model = CameraModel {
+            fx: v[0],
+            fy: v[1],
+            cx: v[2],
+            cy: v[3],
+        };
+        check_camera(&model).map_err(|reason| text::parse_error(path, line, reason))?;
+        return Ok(model);
     }
     if rows.len() < 3 {
         return Err(text::parse_error(
@@ -348,8 +389,22 @@ mod tests {
         );
         std::fs::remove_file(&p).ok();
 
+        // The one line `fx fy cx cy`, after a comment.
+        let p = temp_file("k-one-line.txt", "# fx fy cx cy\n500 501 320 240\n");
+        assert_eq!(parse_intrinsics_file(&p).unwrap(), k);
+        std::fs::remove_file(&p).ok();
+
         for (name, content, line, needle) in [
             ("k-short.txt", "500 0 320\n0 501 240\n", 2, "found 2"),
+            ("k-five.txt", "500 501 320 240 1\n", 1, "3 or 4"),
+            (
+                "k-one-line-more.txt",
+                "500 501 320 240\n0 0 1\n",
+                2,
+                "one line `fx fy cx cy`",
+            ),
+            ("k-one-line-neg.txt", "500 -501 320 240\n", 1, "> 0"),
+            ("k-one-line-inf.txt", "500 501 inf 240\n", 1, "not finite"),
             (
                 "k-long.txt",
                 "500 0 320\n0 501 240\n0 0 1\n1 2 3\n",

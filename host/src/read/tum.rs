@@ -12,9 +12,10 @@
 //! name its `depth.txt` path. The colour image is the nearest `rgb.txt`
 //! entry within the same 0.02 s.
 //!
-//! Intrinsics come from `intrinsics.txt` (3x3) when present, else, for
-//! 640x480 images only, the Freiburg default ROS values fx = fy = 525,
-//! cx = 319.5, cy = 239.5, with a warning (the per-camera calibrations
+//! Intrinsics come from `intrinsics.txt` (3x3 K, or the one line
+//! `fx fy cx cy`; docs/FORMATS.md) when present, else, for 640x480 images
+//! only, the Freiburg default ROS values fx = fy = 525, cx = 319.5,
+//! cy = 239.5, with a warning (the per-camera calibrations
 //! fr1/fr2/fr3 differ by up to 10 %: give them with an intrinsics file or
 //! override when it matters). Other sizes need the file or the override.
 
@@ -258,7 +259,7 @@ fn default_camera(dir: &Path, size: (u16, u16)) -> Result<CameraModel, ReadError
         &dir.join("intrinsics.txt"),
         format!(
             "missing, and the depth images are {}x{}: {default} are for 640x480 images; \
-             write intrinsics.txt (3x3 K) or give --intrinsics fx,fy,cx,cy",
+             write intrinsics.txt (3x3 K or one line fx fy cx cy) or give --intrinsics fx,fy,cx,cy",
             size.0, size.1
         ),
     ))
