@@ -4,7 +4,10 @@
 //! decision batches; after the labels, a scan of several sessions has one
 //! record per session after the first (its first frame). A cursor
 //! remembers where the last request stopped, so exporting in consecutive
-//! requests reads the log once, not once per request.
+//! requests reads the log once, not once per request. A record the log
+//! cannot give back (a damaged database frame or decision batch) ends the
+//! reply with `ExportUnreadable` instead of an `ExportEnd`: an export is
+//! never shorter than the device's count with a count and CRC that agree.
 
 use crate::persist::{Cursor, Journal, Record};
 use crate::protocol::{DeviceMessage, ErrorKind, ExportCrc, ExportRecord, RecordKind};
@@ -58,6 +61,7 @@ impl<
             clock,
             export_cursor,
             sessions,
+            refused,
             ..
         } = self;
         let mut out = Out {
@@ -72,22 +76,28 @@ impl<
             out.reply(&DeviceMessage::ExportRecord(record));
         };
         let db = selector.database_len();
+        // A record the log cannot give back ends the reply with an error,
+        // never with an ExportEnd whose count and CRC agree on fewer.
+        let mut unreadable = false;
         for r in from.min(db)..end.min(db) {
-            if let Some(rec) = selector.database_record(r, &mut LogReader(journal)) {
-                emit(ExportRecord {
-                    record: to_u32(r),
-                    frame: rec.index,
-                    timestamp: rec.timestamp,
-                    kind: RecordKind::Database { pose: rec.pose },
-                });
-            }
+            let Some(rec) = selector.database_record(r, &mut LogReader(journal)) else {
+                unreadable = true;
+                break;
+            };
+            emit(ExportRecord {
+                record: to_u32(r),
+                frame: rec.index,
+                timestamp: rec.timestamp,
+                kind: RecordKind::Database { pose: rec.pose },
+            });
         }
         // Labels of frames `first_label .. last_label`, in log order.
         let (first_label, last_label) = (
             to_u32(from.saturating_sub(db)).min(labels),
             to_u32(end.saturating_sub(db)).min(labels),
         );
-        if first_label < last_label {
+        let mut next_label = first_label;
+        if first_label < last_label && !unreadable {
             let (mut cursor, start) = *export_cursor;
             if start > first_label {
                 cursor = Cursor::START;
@@ -106,6 +116,13 @@ impl<
                 for (i, (timestamp, kind)) in tail.decisions().enumerate() {
                     let frame = first.saturating_add(i as u32);
                     if (first_label..last_label).contains(&frame) {
+                        if frame != next_label {
+                            // A decision batch before this one was
+                            // unreadable (or skipped): labels are missing.
+                            unreadable = true;
+                            break;
+                        }
+                        next_label = frame.saturating_add(1);
                         emit(ExportRecord {
                             record: to_u32(db.saturating_add(frame as usize)),
                             frame,
@@ -116,12 +133,22 @@ impl<
                         });
                     }
                 }
-                if first.saturating_add(u32::from(count)) >= last_label {
+                if unreadable || first.saturating_add(u32::from(count)) >= last_label {
                     // The next request most likely starts in this batch.
                     *export_cursor = (before, first);
                     break;
                 }
             }
+        }
+        if next_label < last_label {
+            unreadable = true;
+        }
+        if unreadable {
+            *refused = refused.saturating_add(1);
+            return out.reply(&DeviceMessage::Error {
+                seq: Some(seq),
+                kind: ErrorKind::ExportUnreadable,
+            });
         }
         // The sessions after the first, after the labels.
         let before_sessions = db.saturating_add(labels as usize);

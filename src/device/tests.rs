@@ -1210,3 +1210,80 @@ fn a_flash_that_does_not_take_a_write_is_never_acknowledged_durable() {
         }
     });
 }
+
+/// An export never ends short with a count and CRC that agree: a database
+/// frame or a decision batch the flash log cannot give back ends the reply
+/// with `ExportUnreadable` after the records before it.
+#[test]
+fn a_record_the_log_cannot_give_back_is_an_error_not_a_shorter_export() {
+    on_big_stack(|| {
+        // Two resident frames: the earlier database frames are read back
+        // from the log when exported.
+        let mut b = bench::<Device<1024, 8192, 16, 8, 16, 2>>();
+        b.ok(HostMessage::Hello(config(4)));
+        for i in 0..30 {
+            frame(&mut b, i, 5);
+        }
+        b.ok(HostMessage::Finish);
+        let whole = b.export();
+        let st = b.status();
+        let first = whole[0].frame;
+        // Every record of the log: where it is and what it is.
+        let mut records = Vec::new();
+        for record in 0..st.stored_records {
+            let mut payload = Vec::new();
+            let at = loop {
+                let offset = payload.len() as u32;
+                match b.send(HostMessage::LogRead { record, offset }).last() {
+                    Some(DeviceMessage::LogBytes(c)) => {
+                        payload.extend_from_slice(c.bytes());
+                        if c.bytes().is_empty() || payload.len() >= c.total as usize {
+                            break c.at;
+                        }
+                    }
+                    other => panic!("no LogBytes: {other:?}"),
+                }
+            };
+            records.push((at as usize, Record::decode(&payload).map(|(r, _)| r)));
+        }
+        let before = b.flash().bytes().to_vec();
+        let unreadable = |b: &mut Harness<_>, at: usize| {
+            // The payload's first byte: the record's CRC no longer holds.
+            b.flash().bytes_mut()[at + crate::persist::log::HEADER_LEN] ^= 0x5A;
+            let replies = b.send(HostMessage::ExportRequest {
+                from_record: 0,
+                max_records: u32::MAX,
+            });
+            assert!(
+                matches!(
+                    replies.last(),
+                    Some(DeviceMessage::Error {
+                        kind: ErrorKind::ExportUnreadable,
+                        ..
+                    })
+                ),
+                "{replies:?}"
+            );
+            assert!(
+                !replies
+                    .iter()
+                    .any(|m| matches!(m, DeviceMessage::ExportEnd { .. })),
+                "an ExportEnd over fewer records"
+            );
+            b.flash().bytes_mut().copy_from_slice(&before);
+            assert_eq!(b.export(), whole, "the flash as it was: the same export");
+        };
+        // The first database frame's record (not resident).
+        let (at, _) = *records
+            .iter()
+            .find(|(_, r)| matches!(r, Ok(Record::Database { meta, .. }) if meta.index == first))
+            .expect("the first database frame's record");
+        unreadable(&mut b, at);
+        // The first decision batch: the labels from it on.
+        let (at, _) = *records
+            .iter()
+            .find(|(_, r)| matches!(r, Ok(Record::Decisions { .. })))
+            .expect("a decision batch");
+        unreadable(&mut b, at);
+    });
+}

@@ -815,6 +815,11 @@ pub enum ErrorKind {
     NothingToExtend = 25,
     /// Extend with another configuration than the scan it would continue.
     ExtendOtherConfig = 26,
+    /// An ExportRequest reached a record the device cannot read back from
+    /// its flash log (a damaged database frame or decision batch): the
+    /// records before it were sent, and no `ExportEnd` follows, so an
+    /// export never ends short with a count and CRC that agree.
+    ExportUnreadable = 27,
 }
 
 /// A number that is no [`ErrorKind`] (a retired one, or one from a newer
@@ -848,7 +853,7 @@ impl TryFrom<u32> for ErrorKind {
 
 impl ErrorKind {
     /// Every kind, in wire-number order.
-    pub const ALL: [ErrorKind; 26] = [
+    pub const ALL: [ErrorKind; 27] = [
         ErrorKind::BadCrc,
         ErrorKind::BadFraming,
         ErrorKind::Oversized,
@@ -875,6 +880,7 @@ impl ErrorKind {
         ErrorKind::StorageFailed,
         ErrorKind::NothingToExtend,
         ErrorKind::ExtendOtherConfig,
+        ErrorKind::ExportUnreadable,
     ];
 
     /// The kind's number on the wire.
@@ -927,6 +933,7 @@ impl ErrorKind {
             ErrorKind::StorageFailed => "flash write failed",
             ErrorKind::NothingToExtend => "no finished scan in the flash log to extend",
             ErrorKind::ExtendOtherConfig => "the scan to extend has another configuration",
+            ErrorKind::ExportUnreadable => "a record of the export cannot be read back from flash",
         }
     }
 }

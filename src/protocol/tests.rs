@@ -434,7 +434,7 @@ fn variant_counts_match_the_enums() {
 /// (a serde variant index each), with 19 (`Unsupported`, retired) no kind.
 #[test]
 fn error_kinds_keep_their_wire_numbers() {
-    let pinned: [(ErrorKind, u8); 26] = [
+    let pinned: [(ErrorKind, u8); 27] = [
         (ErrorKind::BadCrc, 0),
         (ErrorKind::BadFraming, 1),
         (ErrorKind::Oversized, 2),
@@ -461,6 +461,7 @@ fn error_kinds_keep_their_wire_numbers() {
         (ErrorKind::StorageFailed, 24),
         (ErrorKind::NothingToExtend, 25),
         (ErrorKind::ExtendOtherConfig, 26),
+        (ErrorKind::ExportUnreadable, 27),
     ];
     assert_eq!(ErrorKind::ALL, pinned.map(|(k, _)| k));
     for (kind, code) in pinned {

@@ -18,8 +18,8 @@ use crate::output::{self, metrics_json};
 use crate::sessions::extension::{self, Extension};
 use indicatif::ProgressBar;
 use placedb::protocol::{
-    encode, export_crc, Config, DeviceMessage, ExportRecord, Feed, FrameDecoder, HostMessage,
-    Phase, RecordKind, Status, MAX_FRAME_LEN,
+    encode, export_crc, Config, DeviceMessage, ErrorKind, ExportRecord, Feed, FrameDecoder,
+    HostMessage, Phase, RecordKind, Status, MAX_FRAME_LEN,
 };
 use placedb::DbRecord;
 use std::io;
@@ -78,11 +78,13 @@ pub struct Export {
     pub config: Option<Config>,
 }
 
-/// One batch: records `from..from+max`, checked by count and CRC.
+/// One batch: records `from..from+max`, checked by count and CRC, of a
+/// device holding `database` database frames.
 fn export_batch<L: Link>(
     client: &mut Client<L>,
     from: u32,
     max: u32,
+    database: u32,
     timeout: Duration,
 ) -> Result<Vec<ExportRecord>, DeviceError> {
     let seq = client.send(HostMessage::ExportRequest {
@@ -122,6 +124,21 @@ fn export_batch<L: Link>(
             Received::Message(DeviceMessage::Error { kind, .. }) if kind.is_damage() => {
                 return Err(DeviceError::Protocol(format!(
                     "export batch from {from}: the request was damaged ({kind})"
+                )));
+            }
+            Received::Message(DeviceMessage::Error {
+                seq: s,
+                kind: ErrorKind::ExportUnreadable,
+            }) if s == Some(seq) => {
+                let r = from.saturating_add(got.len() as u32);
+                let what = if r < database {
+                    format!("database frame {} of {database}", r + 1)
+                } else {
+                    format!("the label of frame {}", r - database)
+                };
+                return Err(DeviceError::Input(format!(
+                    "the device cannot read back record {r} of its export ({what}) from its flash \
+                     log: the flash is damaged there, and an export without it would be incomplete"
                 )));
             }
             Received::Message(DeviceMessage::Error { seq: s, kind }) if s == Some(seq) => {
@@ -166,7 +183,7 @@ pub fn export<L: Link>(
     let mut batch_len = opts.batch.max(1);
     while have.len() < total {
         let from = have.len() as u32;
-        match export_batch(client, from, batch_len, timeout) {
+        match export_batch(client, from, batch_len, first.database_size, timeout) {
             Ok(batch) if !batch.is_empty() => {
                 failed_in_a_row = 0;
                 batch_len = batch_len.saturating_add(1).min(opts.batch.max(1));
@@ -569,4 +586,98 @@ fn extension_of<L: Link>(
     }
     let profile = device_profile(st).map_or("", |p| p.name);
     Ok(Some(scan.extension(profile)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use placedb::protocol::HostFrame;
+    use placedb::Pose;
+
+    /// A device of three database frames whose second cannot be read back
+    /// from its log: an ExportRequest gets the records before it, then
+    /// `ExportUnreadable` (what the core's device sends).
+    struct Damaged {
+        decoder: FrameDecoder<MAX_FRAME_LEN>,
+        out: Vec<u8>,
+    }
+
+    impl Link for Damaged {
+        fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+            let mut rest = bytes;
+            let mut tx = vec![0u8; 512];
+            while let Feed::Frame { result, remaining } = self.decoder.feed::<HostFrame>(rest) {
+                let replies = match result {
+                    Ok(HostFrame {
+                        seq,
+                        msg: HostMessage::StatusRequest,
+                    }) => vec![DeviceMessage::Status(Status {
+                        database_size: 3,
+                        ..Status::new(seq, Phase::Finished)
+                    })],
+                    Ok(HostFrame {
+                        seq,
+                        msg: HostMessage::ExportRequest { from_record, .. },
+                    }) => {
+                        let mut r: Vec<DeviceMessage> = (from_record..1)
+                            .map(|record| {
+                                DeviceMessage::ExportRecord(ExportRecord {
+                                    record,
+                                    frame: record * 4,
+                                    timestamp: 0.0,
+                                    kind: RecordKind::Database {
+                                        pose: Pose {
+                                            translation: [0.0; 3],
+                                            rotation: [0.0, 0.0, 0.0, 1.0],
+                                        },
+                                    },
+                                })
+                            })
+                            .collect();
+                        r.push(DeviceMessage::Error {
+                            seq: Some(seq),
+                            kind: ErrorKind::ExportUnreadable,
+                        });
+                        r
+                    }
+                    _ => Vec::new(),
+                };
+                for m in replies {
+                    self.out.extend_from_slice(encode(&m, &mut tx).unwrap());
+                }
+                rest = remaining;
+            }
+            Ok(())
+        }
+
+        fn recv(&mut self, _: Duration) -> io::Result<Vec<u8>> {
+            if self.out.is_empty() {
+                return Err(io::ErrorKind::TimedOut.into());
+            }
+            Ok(std::mem::take(&mut self.out))
+        }
+    }
+
+    #[test]
+    fn a_record_the_device_cannot_read_back_is_an_error_naming_it() {
+        let mut client = Client::new(Damaged {
+            decoder: FrameDecoder::new(),
+            out: Vec::new(),
+        });
+        let opts = ExportOptions {
+            reply_timeout: Duration::from_millis(200),
+            ..ExportOptions::default()
+        };
+        let err = export(&mut client, Vec::new(), &opts, None, &mut |_| Ok(()))
+            .err()
+            .expect("an export short of a record is an error")
+            .to_string();
+        assert!(
+            err.contains(
+                "the device cannot read back record 1 of its export (database frame 2 of 3) \
+                 from its flash log"
+            ),
+            "{err}"
+        );
+    }
 }
