@@ -473,7 +473,7 @@ fn error_kinds_keep_their_wire_numbers() {
         assert_eq!(back, msg);
     }
     // The retired number and the next unused one are no kind.
-    for code in [19u8, 27] {
+    for code in [19u8, 28] {
         let raw = raw_frame(&[1, 1, 7, code], true);
         let mut decoder = FrameDecoder::<N>::new();
         let Feed::Frame { result, .. } = decoder.feed::<DeviceMessage>(&raw) else {

@@ -668,10 +668,10 @@ mod tests {
             reply_timeout: Duration::from_millis(200),
             ..ExportOptions::default()
         };
-        let err = export(&mut client, Vec::new(), &opts, None, &mut |_| Ok(()))
-            .err()
-            .expect("an export short of a record is an error")
-            .to_string();
+        let Err(err) = export(&mut client, Vec::new(), &opts, None, &mut |_| Ok(())) else {
+            panic!("an export short of a record is an error");
+        };
+        let err = err.to_string();
         assert!(
             err.contains(
                 "the device cannot read back record 1 of its export (database frame 2 of 3) \
