@@ -142,3 +142,64 @@ fn export_dataset_of_a_scan_that_labelled_no_frame_is_refused_and_writes_nothing
     let classes = std::fs::read_to_string(tmp.path().join("ds/classes.csv")).unwrap();
     assert_eq!(classes.lines().count(), 1 + 3, "{classes}");
 }
+
+/// `export --sequence` uses the scan's own settings, read from the
+/// device's log: a `--mu` that contradicts the scan's is refused naming
+/// both values before anything is written, and without `--mu` the pairs
+/// are those of the scan's mu (the same as with it given).
+#[test]
+fn export_uses_the_scans_own_mu_and_refuses_another() {
+    let tmp = TempDir::new("scan-mu");
+    let dir = tmp.path().join("seq");
+    seven_scenes_copy(&dir, 30, true);
+    let seq = tmp.arg("seq");
+    let board = Board::start();
+    let run = placedb(&[
+        "stream",
+        &seq,
+        "--port",
+        &board.port,
+        "--stride",
+        "8",
+        "--mu",
+        "0.4",
+        "-q",
+    ]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let export = |out: &str, pairs: &str, mu: Option<&str>| {
+        let mut args = vec![
+            "export",
+            "--port",
+            &board.port,
+            "-q",
+            "-o",
+            out,
+            "--sequence",
+            &seq,
+            "--pairs",
+            pairs,
+        ];
+        if let Some(mu) = mu {
+            args.extend(["--mu", mu]);
+        }
+        placedb(&args)
+    };
+    let (out, pairs) = (tmp.arg("out"), tmp.arg("pairs.txt"));
+    let run = export(&out, &pairs, Some("0.3"));
+    let err = stderr(&run);
+    assert_eq!(run.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("--mu 0.3 does not match the device's scan, made with mu 0.4"),
+        "{err}"
+    );
+    assert!(!tmp.path().join("out").exists() && !tmp.path().join("pairs.txt").exists());
+    let run = export(&out, &pairs, None);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let by_default = std::fs::read_to_string(&pairs).unwrap();
+    let metrics = std::fs::read_to_string(tmp.path().join("out/metrics.json")).unwrap();
+    assert!(metrics.contains("\"mu\": 0.4"), "{metrics}");
+    let (out2, pairs2) = (tmp.arg("out2"), tmp.arg("pairs2.txt"));
+    let run = export(&out2, &pairs2, Some("0.4"));
+    assert!(run.status.success(), "{}", stderr(&run));
+    assert_eq!(std::fs::read_to_string(&pairs2).unwrap(), by_default);
+}

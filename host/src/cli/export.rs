@@ -18,7 +18,7 @@ use crate::sessions::extension;
 use crate::voxelize::{VoxelConfig, VoxelizeError};
 use crate::Format;
 use clap::Args;
-use placedb::protocol::CapacitySlot;
+use placedb::protocol::{CapacitySlot, Config};
 use std::path::{Path, PathBuf};
 
 /// `placedb export`.
@@ -57,20 +57,59 @@ pub struct ExportArgs {
     streamed: StreamedWith,
 }
 
-/// What `export --sequence` needs to know of the stream for the exports
-/// (the device does not report it).
+/// What `export --sequence` needs to know of the stream for the exports:
+/// the device's scan's settings, read from its flash log; the flags only
+/// for a device that keeps no log ([`StreamedWith::resolve`]).
 #[derive(clap::Args, Debug, Clone)]
 pub struct StreamedWith {
-    /// With --pairs: the IoU threshold the sequence was streamed with.
-    #[arg(long, default_value_t = 0.3, value_parser = super::params::mu, allow_negative_numbers = true)]
-    pub mu: f32,
-    /// With --pairs: the voxel edge in metres the sequence was streamed with.
-    #[arg(long, default_value_t = 0.3, value_parser = super::params::voxel, allow_negative_numbers = true)]
-    pub voxel: f32,
+    /// With --pairs: the IoU threshold the sequence was streamed with
+    /// (default: the device's scan's, else 0.3); another than the device's
+    /// is refused.
+    #[arg(long, value_parser = super::params::mu, allow_negative_numbers = true)]
+    pub mu: Option<f32>,
+    /// With --pairs: the voxel edge in metres the sequence was streamed
+    /// with (default: the device's scan's, else 0.3); another than the
+    /// device's is refused.
+    #[arg(long, value_parser = super::params::voxel, allow_negative_numbers = true)]
+    pub voxel: Option<f32>,
     /// With --vpr-eval: a test sequence of the same place, whose frames are
     /// the queries (otherwise the non-database frames are).
     #[arg(long)]
     pub test: Option<PathBuf>,
+}
+
+/// `--mu` and `--voxel` of a device without a flash log, unless given.
+const DEFAULT_MU: f32 = 0.3;
+const DEFAULT_VOXEL: f32 = 0.3;
+
+impl StreamedWith {
+    /// The settings the exports use: those of the device's scan (`device`,
+    /// from its flash log), a flag that contradicts one refused naming both
+    /// values; without a log, the flags or their defaults.
+    pub fn resolve(&self, device: Option<&Config>) -> Result<StreamedWith, String> {
+        let pick = |flag: &str, given: Option<f32>, theirs: Option<f32>, default: f32| match (
+            given, theirs,
+        ) {
+            (Some(g), Some(t)) if g != t => Err(format!(
+                "{flag} {g} does not match the device's scan, made with {} {t}: the exports \
+                     use the scan's own settings (leave {flag} out)",
+                &flag[2..]
+            )),
+            (_, Some(t)) => Ok(t),
+            (Some(g), None) => Ok(g),
+            (None, None) => Ok(default),
+        };
+        Ok(StreamedWith {
+            mu: Some(pick("--mu", self.mu, device.map(|c| c.mu), DEFAULT_MU)?),
+            voxel: Some(pick(
+                "--voxel",
+                self.voxel,
+                device.map(|c| c.voxel_size),
+                DEFAULT_VOXEL,
+            )?),
+            test: self.test.clone(),
+        })
+    }
 }
 
 /// `placedb export`, and the dataset of the exported labels when asked.
@@ -138,6 +177,9 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
             }
         }
     }
+    // The scan's own settings, a contradicting flag refused before anything
+    // is written.
+    let streamed = a.streamed.resolve(export.config.as_ref())?;
     // The export, its dataset and exports appear together, or none does.
     let (dataset, exported) = replace::together(|outputs| {
         export::stage(outputs, &a.out, &export, &[])?;
@@ -148,7 +190,7 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
             Some(dir) => Some((dir, dataset::stage(outputs, dir, seq, &export.labels().1)?)),
             None => None,
         };
-        let exported = write_from_device(&targets, &a.streamed, seq, &export, a.quiet, outputs)?;
+        let exported = write_from_device(&targets, &streamed, seq, &export, a.quiet, outputs)?;
         Ok((dataset, exported))
     })?;
     export::finished(&a.out)?;
@@ -234,7 +276,7 @@ pub fn write_from_device(
     let prep = match &flags.pairs {
         Some(_) => {
             let config = VoxelConfig {
-                voxel: streamed.voxel,
+                voxel: streamed.voxel.unwrap_or(DEFAULT_VOXEL),
                 ..VoxelConfig::default()
             };
             let prep = crate::pipeline::prepare(seq, config, quiet).map_err(|e| match e {
@@ -254,7 +296,7 @@ pub fn write_from_device(
         rows: &rows,
         labels: &labels,
         overlaps: prep.as_ref().map(|p| &p.co),
-        mu: streamed.mu,
+        mu: streamed.mu.unwrap_or(DEFAULT_MU),
         test: test.as_ref(),
     };
     write_all(flags, &sel, outputs)
