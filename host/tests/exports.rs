@@ -385,8 +385,8 @@ fn a_devices_exports_are_selects() {
         pairs: Some(pairs2.clone()),
     };
     let streamed = StreamedWith {
-        mu: 0.3,
-        voxel: 0.3,
+        mu: Some(0.3),
+        voxel: Some(0.3),
         test: None,
     };
     replace::together(|outputs| write_from_device(&flags, &streamed, &seq, &export, true, outputs))

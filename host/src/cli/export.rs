@@ -177,9 +177,6 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
             }
         }
     }
-    // The scan's own settings, a contradicting flag refused before anything
-    // is written.
-    let streamed = a.streamed.resolve(export.config.as_ref())?;
     // The export, its dataset and exports appear together, or none does.
     let (dataset, exported) = replace::together(|outputs| {
         export::stage(outputs, &a.out, &export, &[])?;
@@ -190,7 +187,7 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
             Some(dir) => Some((dir, dataset::stage(outputs, dir, seq, &export.labels().1)?)),
             None => None,
         };
-        let exported = write_from_device(&targets, &streamed, seq, &export, a.quiet, outputs)?;
+        let exported = write_from_device(&targets, &a.streamed, seq, &export, a.quiet, outputs)?;
         Ok((dataset, exported))
     })?;
     export::finished(&a.out)?;
@@ -269,6 +266,11 @@ pub fn write_from_device(
     if !flags.any() {
         return Ok(Vec::new());
     }
+    // The scan's own settings; a contradicting flag fails the run, so
+    // nothing of it is written.
+    let streamed = streamed
+        .resolve(export.config.as_ref())
+        .map_err(OutputError::Mismatch)?;
     // database.csv's rows, as `select --solver online` writes them.
     let rows = crate::output::rows_from_records(&export.database());
     let (_, labels) = export.labels();
