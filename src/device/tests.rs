@@ -1,6 +1,6 @@
 extern crate std;
 
-use super::harness::{on_big_stack, AnyDevice, Harness};
+use super::harness::{decode_reply, on_big_stack, AnyDevice, Harness};
 use super::*;
 use crate::camera::{DepthRange, Intrinsics, Pose};
 use crate::frame::FrameMeta;
@@ -1285,5 +1285,98 @@ fn a_record_the_log_cannot_give_back_is_an_error_not_a_shorter_export() {
             .find(|(_, r)| matches!(r, Ok(Record::Decisions { .. })))
             .expect("a decision batch");
         unreadable(&mut b, at);
+    });
+}
+
+/// The copying and in-place receive paths read one stream alike, however
+/// it is split between them: a lone delimiter (the host's resynchronisation
+/// byte) at each of the four alignments taken by the copying path, then a
+/// frame in place, gets its Status; and every split point of a stream of
+/// delimiters, frames and garbage gives the replies of the copying path
+/// alone.
+#[test]
+fn a_stream_split_between_the_copying_and_in_place_paths_reads_alike() {
+    on_big_stack(|| {
+        let mut buf = vec![0u8; MAX_FRAME_LEN];
+        let status = |seq| {
+            encode(
+                &HostFrame {
+                    seq,
+                    msg: HostMessage::StatusRequest,
+                },
+                &mut vec![0u8; MAX_FRAME_LEN],
+            )
+            .unwrap()
+            .to_vec()
+        };
+        let in_place = |device: &mut Small, bytes: &[u8], replies: &mut Vec<Vec<u8>>| {
+            let room = device.receive_room(bytes.len());
+            assert!(room.len() >= bytes.len());
+            room[..bytes.len()].copy_from_slice(bytes);
+            device.commit_received(bytes.len());
+            while device.holds_input() {
+                device.receive_held(&mut NoJournal, &mut |f| replies.push(f.to_vec()));
+            }
+        };
+        let copying = |device: &mut Small, mut bytes: &[u8], replies: &mut Vec<Vec<u8>>| {
+            while !bytes.is_empty() {
+                bytes = device
+                    .receive_message(bytes, &mut NoJournal, &mut |f| replies.push(f.to_vec()))
+                    .0;
+            }
+        };
+        // The lone delimiter at each alignment of a word-aligned buffer.
+        let words = [0u32; 2];
+        let zeros: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
+        for offset in 0..4 {
+            let mut device = Small::new_boxed();
+            let mut replies = Vec::new();
+            copying(&mut device, &zeros[offset..offset + 1], &mut replies);
+            assert!(replies.is_empty());
+            in_place(&mut device, &status(7), &mut replies);
+            let got: Vec<_> = replies.iter().map(|r| decode_reply(r)).collect();
+            assert!(
+                matches!(got.as_slice(), [DeviceMessage::Status(s)] if s.seq == 7),
+                "a lone 0x00 at alignment {offset}: {got:?}"
+            );
+        }
+        // Every split of one stream between the two paths.
+        let mut stream = vec![0u8];
+        stream.extend(status(1));
+        stream.extend([0, 0, 0x55, 0x13, 0]);
+        stream.extend(status(2));
+        stream.push(0);
+        stream.extend(
+            encode(
+                &HostFrame {
+                    seq: 3,
+                    msg: HostMessage::Finish,
+                },
+                &mut buf,
+            )
+            .unwrap(),
+        );
+        stream.extend(status(4));
+        let mut alone = Vec::new();
+        copying(&mut Small::new_boxed(), &stream, &mut alone);
+        assert!(alone.len() >= 4, "{alone:?}");
+        for k in 0..=stream.len() {
+            for copying_first in [true, false] {
+                let mut device = Small::new_boxed();
+                let mut replies = Vec::new();
+                let (a, b) = stream.split_at(k);
+                if copying_first {
+                    copying(&mut device, a, &mut replies);
+                    in_place(&mut device, b, &mut replies);
+                } else {
+                    in_place(&mut device, a, &mut replies);
+                    copying(&mut device, b, &mut replies);
+                }
+                assert_eq!(
+                    replies, alone,
+                    "split at {k}, copying path first: {copying_first}"
+                );
+            }
+        }
     });
 }
