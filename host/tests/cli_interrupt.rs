@@ -6,38 +6,9 @@
 
 mod cli_common;
 
-use cli_common::{placedb, stderr, TempDir, SEVEN_SCENES};
-use std::path::Path;
+use cli_common::{names, placedb, stderr, tree, TempDir, SEVEN_SCENES};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
-
-/// Every file under `dir` with its bytes, sorted.
-fn tree(dir: &Path) -> Vec<(String, Vec<u8>)> {
-    let mut out = Vec::new();
-    let mut todo = vec![dir.to_path_buf()];
-    while let Some(d) = todo.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                todo.push(p);
-            } else {
-                let rel = p.strip_prefix(dir).unwrap().to_string_lossy().into_owned();
-                out.push((rel, std::fs::read(&p).unwrap()));
-            }
-        }
-    }
-    out.sort();
-    out
-}
-
-fn names(dir: &Path) -> Vec<String> {
-    let mut n: Vec<String> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    n.sort();
-    n
-}
 
 /// A dataset and a database of the demo walked in `frames` frames.
 fn demo_args(root: &TempDir, frames: &str) -> Vec<String> {

@@ -5,7 +5,9 @@
 //! output fails before the work, naming the path; no temporary sibling is
 //! ever left beside a target.
 
-use std::collections::BTreeMap;
+mod cli_common;
+
+use cli_common::{names, tree};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -64,34 +66,6 @@ fn copy_frames(dir: &Path, n: usize) {
             std::fs::copy(f.path(), dir.join(&name)).unwrap();
         }
     }
-}
-
-/// Every file under `dir`, by relative path, with its bytes.
-fn tree(dir: &Path) -> BTreeMap<String, Vec<u8>> {
-    fn walk(root: &Path, at: &Path, out: &mut BTreeMap<String, Vec<u8>>) {
-        for e in std::fs::read_dir(at).unwrap() {
-            let path = e.unwrap().path();
-            if path.is_dir() {
-                walk(root, &path, out);
-            } else {
-                let rel = path.strip_prefix(root).unwrap().to_string_lossy().into();
-                out.insert(rel, std::fs::read(&path).unwrap());
-            }
-        }
-    }
-    let mut out = BTreeMap::new();
-    walk(dir, dir, &mut out);
-    out
-}
-
-/// The names in `dir`, sorted.
-fn names(dir: &Path) -> Vec<String> {
-    let mut v: Vec<String> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    v.sort();
-    v
 }
 
 /// No hidden temporary sibling (`.NAME.partial-…`, `.NAME.old-…`) in `dir`.
