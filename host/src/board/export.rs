@@ -493,9 +493,17 @@ pub fn pull<L: Link>(
         pb.finish_and_clear();
     }
     let mut export = export;
-    export.extension = extension_of(client, &export, opts)?;
-    if export.status.stored_records > 0 {
-        export.config = log_records::scan_config(client, opts.wait())?;
+    // A finished scan's whole log is read for its extension file, which
+    // gives the configuration too; otherwise only the log's first record.
+    match extension_of(client, &export, opts)? {
+        Some((extension, config)) => {
+            export.extension = Some(extension);
+            export.config = Some(config);
+        }
+        None if export.status.stored_records > 0 => {
+            export.config = log_records::scan_config(client, opts.wait())?;
+        }
+        None => {}
     }
     Ok(export)
 }
@@ -549,14 +557,15 @@ fn remove_if_there(path: &Path) -> io::Result<()> {
     }
 }
 
-/// The extension file of the exported scan, from the device's flash log
-/// (every record read back and checked against the export); `None` when
-/// the device keeps no log or its scan is not finished (nothing to extend).
+/// The extension file of the exported scan and the configuration it was
+/// made with, from the device's flash log (every record read back and
+/// checked against the export); `None` when the device keeps no log or its
+/// scan is not finished (nothing to extend).
 fn extension_of<L: Link>(
     client: &mut Client<L>,
     export: &Export,
     opts: &ExportOptions,
-) -> Result<Option<Extension>, DeviceError> {
+) -> Result<Option<(Extension, Config)>, DeviceError> {
     let st = &export.status;
     if st.stored_records == 0 || st.phase != Phase::Finished {
         return Ok(None);
@@ -585,7 +594,7 @@ fn extension_of<L: Link>(
         ));
     }
     let profile = device_profile(st).map_or("", |p| p.name);
-    Ok(Some(scan.extension(profile)))
+    Ok(Some((scan.extension(profile), scan.config)))
 }
 
 #[cfg(test)]
