@@ -53,13 +53,20 @@ fn temp(name: &str) -> PathBuf {
     d
 }
 
-/// 7-Scenes frames `range` as a sequence directory of their own.
+/// 7-Scenes frames `range` as a sequence directory of their own, with the
+/// sample's camera.
 fn seven_scenes(dir: &Path, range: std::ops::Range<usize>) -> PathBuf {
+    seven_scenes_as(dir, range, 585.0)
+}
+
+/// [`seven_scenes`] as if taken by a camera of focal length `f` pixels
+/// (the sample's is 585): another camera for a later session.
+fn seven_scenes_as(dir: &Path, range: std::ops::Range<usize>, f: f64) -> PathBuf {
     std::fs::create_dir_all(dir).unwrap();
     let src = Path::new(SEVEN_SCENES);
-    std::fs::copy(
-        src.join("camera-intrinsics.txt"),
+    std::fs::write(
         dir.join("camera-intrinsics.txt"),
+        format!("{f} 0 320\n0 {f} 240\n0 0 1\n"),
     )
     .unwrap();
     for i in range {
@@ -128,19 +135,20 @@ fn device_view(mut ext: Extension) -> Extension {
 type Frames = std::ops::Range<usize>;
 
 /// Streams session A (frames `parts.0` of the sample), then session B
-/// (`parts.1`) with `--extend`, to the device behind `client`, exports, and
-/// compares with `select --extend`; then a third session (`parts.2`) on
-/// either export.
+/// (`parts.1`, as taken by a camera of focal length `focal_b`) with
+/// `--extend`, to the device behind `client`, exports, and compares with
+/// `select --extend`; then a third session (`parts.2`) on either export.
 fn extended_scan_equals_select_extend<L: Link>(
     client: &mut Client<L>,
     name: &str,
     parts: (Frames, Frames, Frames),
+    focal_b: f64,
     set: Setting,
 ) {
     let dir = temp(name);
     let (n_a, n_b) = (parts.0.len() as u32, parts.1.len() as u32);
     let a = seven_scenes(&dir.join("a"), parts.0);
-    let b = seven_scenes(&dir.join("b"), parts.1);
+    let b = seven_scenes_as(&dir.join("b"), parts.1, focal_b);
     let (out_a, out_ab, out_dev) = (dir.join("out-a"), dir.join("out-ab"), dir.join("dev"));
     select(&a, None, &out_a, set);
     select(&b, Some(&out_a), &out_ab, set);
@@ -164,12 +172,12 @@ fn extended_scan_equals_select_extend<L: Link>(
     let report_a = stream(client, &seq_a, &cfg, PROFILE, &first, None).unwrap();
     assert_eq!(report_a.status.sessions, 1);
     let (_, _, cfg_b) = stream_config(&seq_b, &vcfg, sel, PROFILE).unwrap();
-    assert_eq!(cfg_b, cfg, "the halves share one camera");
+    assert_eq!(cfg_b.intrinsics.fx, focal_b as f32);
     let extend = StreamOptions {
         extend: true,
         ..StreamOptions::default()
     };
-    let report = stream(client, &seq_b, &cfg, PROFILE, &extend, None).unwrap();
+    let report = stream(client, &seq_b, &cfg_b, PROFILE, &extend, None).unwrap();
     assert_eq!(report.first_index, n_a);
     assert_eq!(report.frames as u32, n_b);
     let st = report.status;
@@ -212,7 +220,28 @@ fn extended_scan_equals_select_extend<L: Link>(
 fn the_in_process_device_extends_as_select_extend() {
     let mut client = Client::new(LocalLink::start(PROFILE).unwrap());
     let set = Setting { voxel: 0.3, mu: MU };
-    extended_scan_equals_select_extend(&mut client, "local", (0..250, 250..500, 500..600), set);
+    extended_scan_equals_select_extend(
+        &mut client,
+        "local",
+        (0..250, 250..500, 500..600),
+        585.0,
+        set,
+    );
+}
+
+/// A later session from another camera (a longer lens here) is taken by
+/// the device as by `select --extend`, and decided alike.
+#[test]
+fn the_in_process_device_extends_with_another_camera_as_select_extend() {
+    let mut client = Client::new(LocalLink::start(PROFILE).unwrap());
+    let set = Setting { voxel: 0.3, mu: MU };
+    extended_scan_equals_select_extend(
+        &mut client,
+        "local-camera",
+        (0..250, 250..500, 500..600),
+        700.0,
+        set,
+    );
 }
 
 #[test]
@@ -237,7 +266,13 @@ fn the_emulated_board_extends_as_select_extend() {
         voxel: 0.1,
         mu: 0.7,
     };
-    extended_scan_equals_select_extend(&mut client, "qemu", (0..50, 500..550, 900..920), set);
+    extended_scan_equals_select_extend(
+        &mut client,
+        "qemu",
+        (0..50, 500..550, 900..920),
+        585.0,
+        set,
+    );
 }
 
 #[test]
@@ -325,8 +360,9 @@ fn an_extend_without_a_finished_scan_or_of_another_configuration_is_refused_in_w
     let said = format!("--extend: --mu 0.5 where the device's scan has mu {MU}: ");
     assert!(err.to_string().contains(&said), "{err}");
     assert!(!err.to_string().contains("  "), "{err}");
-    // Another camera: named with both cameras, and refused as the host
-    // refuses nothing else of it (the device's log holds one camera).
+    // Another camera: a later session may use one, as `select --extend`
+    // takes it. A session cut short is resumed with its own camera only:
+    // another is refused, naming both cameras, and changes nothing.
     let camera = placedb::Intrinsics {
         fx: cfg.intrinsics.fx + 1.0,
         ..cfg.intrinsics
@@ -335,18 +371,24 @@ fn an_extend_without_a_finished_scan_or_of_another_configuration_is_refused_in_w
         intrinsics: camera,
         ..cfg
     };
-    let err = stream(&mut client, &seq, &other, PROFILE, &extend, None).unwrap_err();
+    let open_extend = StreamOptions {
+        finish: false,
+        ..extend.clone()
+    };
+    let report = stream(&mut client, &seq, &other, PROFILE, &open_extend, None).unwrap();
+    assert_eq!((report.first_index, report.status.sessions), (6, 2));
+    let err = stream(&mut client, &seq, &cfg, PROFILE, &extend, None).unwrap_err();
+    let k = &cfg.intrinsics;
     assert!(
         err.to_string().contains(&format!(
-            "--extend: the camera {}x{} fx {} ",
-            camera.width, camera.height, camera.fx
-        )) && err
-            .to_string()
-            .contains("where the device's scan has the camera"),
+            "--extend: the camera {}x{} fx {} fy {} cx {} cy {} where the device's scan has the camera {}x{} fx {} ",
+            k.width, k.height, k.fx, k.fy, k.cx, k.cy, camera.width, camera.height, camera.fx
+        )),
         "{err}"
     );
-    // Nothing changed: the same scan extends with its own configuration.
-    let report = stream(&mut client, &seq, &cfg, PROFILE, &extend, None).unwrap();
+    // Nothing changed: the session goes on with its own camera.
+    let report = stream(&mut client, &seq, &other, PROFILE, &extend, None).unwrap();
     assert_eq!((report.first_index, report.status.sessions), (6, 2));
+    assert_eq!(report.status.frames_seen, 12);
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -1,7 +1,8 @@
 //! Extend: a finished scan in the flash log goes on with a new session. The
-//! session boundary is written first (a [`Record::Session`]), then the
-//! device rebuilds its whole state from the log exactly as at boot
-//! ([`Core::replay`]): the earlier sessions' database frames come back from
+//! session boundary is written first (a [`Record::SessionCamera`]: the new
+//! session may come from another camera, every other setting is the scan's,
+//! [`Config::same_scan`]), then the device rebuilds its whole state from the
+//! log exactly as at boot ([`Core::replay`]): the earlier sessions' database frames come back from
 //! flash, compared by their stored keys or sketches, so the new session
 //! meets the database any restore of the log gives, and a host replaying
 //! the same records (`select --extend --solver online`) decides its frames
@@ -38,28 +39,34 @@ impl<
         cfg.validate()?;
         // Without a log there is nothing to restore the database from; a
         // scan whose writes failed is not all in it.
-        if !journal.keeps() || self.hello.is_none() || self.storage_failed {
-            return Err(ErrorKind::NothingToExtend);
-        }
-        if self.hello != Some(cfg) {
-            return Err(ErrorKind::ExtendOtherConfig);
-        }
+        let hello = match self.hello {
+            Some(hello) if journal.keeps() && !self.storage_failed => hello,
+            _ => return Err(ErrorKind::NothingToExtend),
+        };
         if !self.finished {
             // A session begun by Extend and not finished (the host resumes
-            // it, e.g. after a power cut): nothing to do.
-            return if self.sessions.len() > 1 {
-                Ok(())
-            } else {
-                Err(ErrorKind::NothingToExtend)
+            // it, e.g. after a power cut): nothing to do if it is that
+            // session's configuration, camera included.
+            return match (self.sessions.len() > 1, hello == cfg) {
+                (true, true) => Ok(()),
+                (true, false) => Err(ErrorKind::ExtendOtherConfig),
+                (false, _) => Err(ErrorKind::NothingToExtend),
             };
+        }
+        if !hello.same_scan(&cfg) {
+            return Err(ErrorKind::ExtendOtherConfig);
         }
         if self.sessions.is_full() {
             return Err(ErrorKind::CapacityExhausted);
         }
         let first = self.decisions.labels;
-        let payload = Record::Session { first }
-            .encode(&mut self.record)
-            .map_err(|_| ErrorKind::Internal)?;
+        let payload = Record::SessionCamera {
+            first,
+            depth_scale: cfg.depth_scale,
+            intrinsics: cfg.intrinsics,
+        }
+        .encode(&mut self.record)
+        .map_err(|_| ErrorKind::Internal)?;
         // Room for the boundary and for a Finish after it (as FrameEnd
         // checks), so that the new session, however short, ends cleanly.
         let finish = (step_records(W) + 1, Self::STEP_RECORD_LEN);

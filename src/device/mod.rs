@@ -36,7 +36,7 @@
 //! | ExportRequest | always | up to `max_records` `ExportRecord`s from `from_record`, then `ExportEnd` | `ExportPastEnd` (`from_record` beyond the last record + 1), `ExportUnreadable` after the records before one the flash log cannot give back |
 //! | Reset | always | forgets configuration, frames, database, labels, counters | `StorageFailed` |
 //! | LogRead | always | `LogBytes`: up to `LOG_CHUNK` bytes of log record `record` from `offset` | `ExportPastEnd` (no such record, or an offset past its end) |
-//! | Extend | a finished scan in the log, the same configuration, no frame open | writes a session boundary, then restores the scan from the log as at boot; the next frame is `frames_seen`; during a session begun so, a no-op Ack | `NothingToExtend` (no finished scan, no flash, a failed write), `ExtendOtherConfig`, `MidFrameReconfig`, `WrongVersion`, `BadConfig`, `StorageFull`, `StorageFailed`, `CapacityExhausted` (`MAX_SESSIONS`) |
+//! | Extend | a finished scan in the log, the same settings (`Config::same_scan`: the camera may be another), no frame open | writes a session boundary with the new camera, then restores the scan from the log as at boot; the next frame is `frames_seen`; during a session begun so, its very configuration is a no-op Ack | `NothingToExtend` (no finished scan, no flash, a failed write), `ExtendOtherConfig`, `MidFrameReconfig`, `WrongVersion`, `BadConfig`, `StorageFull`, `StorageFailed`, `CapacityExhausted` (`MAX_SESSIONS`) |
 //!
 //! Durability ([`Device::receive_logged`] with a [`Log`]): the Hello, every
 //! database frame and every final decision are written before the replies

@@ -29,6 +29,7 @@
 //! this: the rule costs no flash, reads every log written so far, and needs
 //! no new format.
 
+use crate::camera::Intrinsics;
 use crate::persist::keys::MAX_KEY_CHUNKS;
 use crate::persist::record::DECISION_BATCH;
 use crate::persist::{Cursor, Journal, LogError, Record};
@@ -376,18 +377,54 @@ impl<
                 *grammar = Grammar::Finished;
             }
             (Grammar::Finished, Record::Session { first }) => {
-                // The next session begins with the frame after the last
-                // decided one: every frame seen was decided at Finish.
-                let decided = self.selector.status().frames_decided;
-                if first != self.decisions.labels || first != decided {
-                    return Err(malformed);
-                }
-                self.sessions.push(first).map_err(|_| malformed)?;
-                self.finished = false;
+                self.begin_session(first, None, n)?;
+                *grammar = Grammar::Scan;
+            }
+            (
+                Grammar::Finished,
+                Record::SessionCamera {
+                    first,
+                    depth_scale,
+                    intrinsics,
+                },
+            ) => {
+                self.begin_session(first, Some((depth_scale, intrinsics)), n)?;
                 *grammar = Grammar::Scan;
             }
             _ => return Err(malformed),
         }
+        Ok(())
+    }
+
+    /// Record `n`, a session boundary: the finished scan goes on with frame
+    /// `first`, from `camera` (depth scale, intrinsics) when the record
+    /// names one, else from the earlier session's.
+    fn begin_session(
+        &mut self,
+        first: u32,
+        camera: Option<(f32, Intrinsics)>,
+        n: u32,
+    ) -> Result<(), RestoreFailure> {
+        let malformed = RestoreFailure::Malformed { record: n };
+        // The next session begins with the frame after the last decided
+        // one: every frame seen was decided at Finish.
+        let decided = self.selector.status().frames_decided;
+        let hello = self.hello.ok_or(malformed)?;
+        if first != self.decisions.labels || first != decided || self.sessions.is_full() {
+            return Err(malformed);
+        }
+        if let Some((depth_scale, intrinsics)) = camera {
+            let cfg = Config {
+                depth_scale,
+                intrinsics,
+                ..hello
+            };
+            let bad = RestoreFailure::BadConfig { record: n };
+            cfg.validate().map_err(|_| bad)?;
+            self.configure(cfg).map_err(|_| bad)?;
+        }
+        let _ = self.sessions.push(first);
+        self.finished = false;
         Ok(())
     }
 

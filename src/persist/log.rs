@@ -100,13 +100,15 @@ pub const HEADER_LEN: usize = 20;
 /// The largest payload a record can carry.
 pub const MAX_PAYLOAD: usize = 1024;
 /// Layout version this code writes in every header. 3: a record may be a
-/// session boundary ([`super::Record::Session`]); the layout is that of 2.
-pub const FORMAT: u16 = 3;
+/// session boundary ([`super::Record::Session`]); 4: a session boundary may
+/// carry the new session's camera ([`super::Record::SessionCamera`]); the
+/// layout is that of 2.
+pub const FORMAT: u16 = 4;
 /// The oldest version still read: a log of 2 (written before sessions) is
 /// read as it is, and a scan restored from it may be extended with records
 /// of the current version. Records of any other version are not read (a
-/// firmware of version 2 does not read a log of 3, so it never drops the
-/// session records it does not know as unusable).
+/// firmware of version 2 does not read a log of 3 or 4, so it never drops
+/// the session records it does not know as unusable).
 pub const OLDEST_FORMAT: u16 = 2;
 /// The coarsest write or read granularity the log supports.
 const MAX_ALIGN: usize = 32;

@@ -9,6 +9,7 @@
 //! 1 MiB log.
 
 use super::keys::MAX_KEY_CHUNKS;
+use crate::camera::Intrinsics;
 use crate::frame::FrameMeta;
 use crate::key_pool::Aabb;
 use crate::protocol::{Config, DecisionKind};
@@ -65,6 +66,21 @@ pub enum Record {
     Session {
         /// The first frame index of the new session.
         first: u32,
+    },
+    /// A session boundary with the new session's camera (log format 4):
+    /// as [`Record::Session`], and the frames from `first` on are from a
+    /// camera with these intrinsics and depth scale (another robot or
+    /// sensor may scan the next wing; the voxel sets are compared in one
+    /// world frame whatever made them). Extend writes this one; a log of
+    /// format 3 holds [`Record::Session`], read as a session with the
+    /// earlier one's camera.
+    SessionCamera {
+        /// The first frame index of the new session.
+        first: u32,
+        /// Depth units per metre of the new session's camera.
+        depth_scale: f32,
+        /// Its intrinsics.
+        intrinsics: Intrinsics,
     },
 }
 

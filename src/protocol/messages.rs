@@ -99,8 +99,10 @@ pub enum HostMessage<'a> {
     /// configuration again is acknowledged without effect (a host resuming
     /// it after a power cut). Refused with [`ErrorKind::NothingToExtend`]
     /// (no finished scan in flash, or a device without flash),
-    /// [`ErrorKind::ExtendOtherConfig`] (the scan has another
-    /// configuration), `MidFrameReconfig`, `StorageFull`, `StorageFailed`,
+    /// [`ErrorKind::ExtendOtherConfig`] (a setting other than the scan's,
+    /// [`Config::same_scan`]: the camera may be another; or, during a
+    /// session begun so, another camera than that session's),
+    /// `MidFrameReconfig`, `StorageFull`, `StorageFailed`,
     /// `CapacityExhausted` (more than [`MAX_SESSIONS`] sessions).
     Extend(Config),
     /// Ask for the bytes of record `record` (0 = the first, the `Begin`) of
@@ -191,6 +193,20 @@ impl Config {
         let mut buf = [0u8; 96];
         let bytes = postcard::to_slice(self, &mut buf).map_or(&[][..], |b| &*b);
         super::CRC.checksum(bytes)
+    }
+
+    /// Whether a session with configuration `next` may extend a scan made
+    /// with this one: every setting but the camera (intrinsics and depth
+    /// scale) is the same. The camera only turns a frame's depth into
+    /// points; what sessions compare, voxel sets on one grid by one rule,
+    /// depends on the rest.
+    pub fn same_scan(&self, next: &Config) -> bool {
+        let camera_aside = Config {
+            intrinsics: next.intrinsics,
+            depth_scale: next.depth_scale,
+            ..*self
+        };
+        camera_aside == *next
     }
 
     /// The configuration that sets up a device exactly as `scan` and `sel` set
@@ -932,7 +948,7 @@ impl ErrorKind {
             ErrorKind::StorageFull => "flash log full",
             ErrorKind::StorageFailed => "flash write failed",
             ErrorKind::NothingToExtend => "no finished scan in the flash log to extend",
-            ErrorKind::ExtendOtherConfig => "the scan to extend has another configuration",
+            ErrorKind::ExtendOtherConfig => "the scan to extend has other settings",
             ErrorKind::ExportUnreadable => "a record of the export cannot be read back from flash",
         }
     }

@@ -501,7 +501,7 @@ pub fn pull<L: Link>(
             export.config = Some(config);
         }
         None if export.status.stored_records > 0 => {
-            export.config = log_records::scan_config(client, opts.wait())?;
+            export.config = log_records::scan_config(client, opts.wait(), 1)?;
         }
         None => {}
     }

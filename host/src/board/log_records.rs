@@ -48,7 +48,8 @@ pub struct LoggedFrame {
 /// A finished scan as the device's log holds it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LoggedScan {
-    /// The Hello of its first session.
+    /// The Hello of its first session (a later session may have used
+    /// another camera; every other setting is this one's).
     pub config: Config,
     /// The first frame of each session (`[0]` for one session).
     pub sessions: Vec<u32>,
@@ -119,18 +120,41 @@ struct KeyChunk {
     bytes: u32,
 }
 
-/// The configuration the device's scan was made with: the `Begin` record
-/// that opens its log (`None` when the log holds no scan, it was reset, or
-/// the device keeps no log).
+/// The configuration of the device's scan as its first `records` log
+/// records give it: the `Begin` record that opens the log, with the camera
+/// of the latest session among them that brought another (a later session
+/// may, [`placedb::protocol::Config::same_scan`]). One record gives the
+/// scan's settings; all of them (`Status::stored_records`) the
+/// configuration in force, camera included. `None` when the log holds no
+/// scan, it was reset, or the device keeps no log.
 pub fn scan_config<L: Link>(
     client: &mut Client<L>,
     wait: Wait,
+    records: u32,
 ) -> Result<Option<Config>, DeviceError> {
-    let records = read_log(client, 1, wait)?;
-    Ok(match records.first().map(|r| Record::decode(&r.payload)) {
-        Some(Ok((Record::Begin(cfg), _))) => Some(cfg),
-        _ => None,
-    })
+    let records = read_log(client, records.max(1), wait)?;
+    let mut config = match records.first().map(|r| Record::decode(&r.payload)) {
+        Some(Ok((Record::Begin(cfg), _))) => cfg,
+        _ => return Ok(None),
+    };
+    for r in &records[1..] {
+        if let Ok((
+            Record::SessionCamera {
+                depth_scale,
+                intrinsics,
+                ..
+            },
+            _,
+        )) = Record::decode(&r.payload)
+        {
+            config = Config {
+                depth_scale,
+                intrinsics,
+                ..config
+            };
+        }
+    }
+    Ok(Some(config))
 }
 
 /// The finished scan `records` make (the records of one log generation,
@@ -210,7 +234,9 @@ pub fn scan_of(records: &[LogRecord]) -> Result<LoggedScan, DeviceError> {
                 }
                 decisions.extend(tail.decisions());
             }
-            Record::Session { first } if finished && first as usize == decisions.len() => {
+            Record::Session { first } | Record::SessionCamera { first, .. }
+                if finished && first as usize == decisions.len() =>
+            {
                 sessions.push(first);
                 finished = false;
             }

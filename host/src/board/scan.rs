@@ -602,19 +602,27 @@ impl ScanState {
         cfg: &Config,
         option: &str,
     ) -> DeviceError {
-        let named = log_records::scan_config(client, self.opts.wait())
+        // A later session may have brought another camera: then only the
+        // whole log gives the configuration in force.
+        let records = match self.call_status(client) {
+            Ok(st) if st.sessions > 1 => st.stored_records,
+            _ => 1,
+        };
+        let named = log_records::scan_config(client, self.opts.wait(), records)
             .ok()
             .flatten()
             .and_then(|device| config_words::difference(cfg, &device));
         DeviceError::Input(match named {
             Some(words) => format!(
-                "{option}: {words}: every session of a scan has the first one's configuration \
-                 (give the scan's setting, or Reset the device for a new scan)"
+                "{option}: {words}: every session of a scan has the first one's settings, \
+                 and a session cut short is resumed with its own camera (give the scan's \
+                 setting, or Reset the device for a new scan)"
             ),
             None => format!(
                 "{option}: the device's scan was configured otherwise: every session of a scan \
-                 needs the first one's camera, depth scale and range, stride, voxel size, grid, \
-                 --mu and --window (Reset the device for a new scan)"
+                 needs the first one's depth range, stride, voxel size, grid, --mu and \
+                 --window, and a session cut short its own camera and depth scale (Reset the \
+                 device for a new scan)"
             ),
         })
     }

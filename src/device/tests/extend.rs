@@ -308,6 +308,78 @@ fn a_reboot_during_and_after_the_second_session_restores_both() {
     });
 }
 
+/// Another camera for session B: a wider lens whose depth counts
+/// half-millimetres (another robot scanning the next wing).
+fn other_camera(cfg: Config) -> Config {
+    Config {
+        depth_scale: 2000.0,
+        intrinsics: Intrinsics {
+            fx: 40.0,
+            fy: 40.0,
+            ..cfg.intrinsics
+        },
+        ..cfg
+    }
+}
+
+#[test]
+fn a_later_session_may_use_another_camera_which_a_reboot_keeps() {
+    on_big_stack(|| {
+        let cfg = config(8);
+        let cam = other_camera(cfg);
+        let scan = |b: &mut Harness<Small>, camera: Config| {
+            session_a(b, cfg);
+            b.ok(HostMessage::Extend(camera));
+        };
+        let mut whole = bench::<Small>();
+        scan(&mut whole, cam);
+        session_b(&mut whole, 0);
+        let want = whole.export();
+        // The camera is used: the same rows through the first camera
+        // decide otherwise.
+        let mut same = bench::<Small>();
+        scan(&mut same, cfg);
+        session_b(&mut same, 0);
+        assert_ne!(same.export(), want, "the new camera made no difference");
+        for cut in [0, 1, 7, B_FRAMES] {
+            let mut b = bench::<Small>();
+            scan(&mut b, cam);
+            for k in 0..cut {
+                frame_as(&mut b, A_FRAMES + k, B_FROM + k);
+            }
+            let (mut again, restored) = Harness::<Small>::boot(b.into_flash());
+            assert!(restored.is_ok(), "cut {cut}: {restored:?}");
+            // The open session is resumed with its own camera only; a
+            // refusal changes nothing.
+            let (status, records) = (again.status(), again.log.as_ref().unwrap().records());
+            for wrong in [cfg, Config { mu: 0.4, ..cam }] {
+                assert_eq!(
+                    again.refused(HostMessage::Extend(wrong)),
+                    ErrorKind::ExtendOtherConfig,
+                    "cut {cut}"
+                );
+            }
+            assert_eq!(again.status().frames_seen, status.frames_seen);
+            assert_eq!(again.log.as_ref().unwrap().records(), records);
+            again.ok(HostMessage::Extend(cam));
+            let from = again.status().frames_seen - A_FRAMES;
+            session_b(&mut again, from);
+            assert_eq!(again.export(), want, "cut {cut}");
+        }
+        // After a reboot of the finished scan, a third session with the
+        // first camera; another setting is still refused.
+        let (mut again, restored) = Harness::<Small>::boot(whole.into_flash());
+        assert!(restored.is_ok(), "{restored:?}");
+        assert_eq!(again.export(), want);
+        assert_eq!(
+            again.refused(HostMessage::Extend(Config { mu: 0.4, ..cfg })),
+            ErrorKind::ExtendOtherConfig
+        );
+        again.ok(HostMessage::Extend(cfg));
+        assert_eq!(again.status().sessions, 3);
+    });
+}
+
 /// A log written by the core of commit 3f75894 (log format 2, protocol 5):
 /// `Small`, `config(8)`, frames 0..24 of `frame(.., i, 5)`, Finish, on a
 /// flash of 8 sectors (trailing erased bytes trimmed), and its export
