@@ -358,8 +358,40 @@ pub fn solve(
         None if database.is_empty() => (0..n).collect(),
         None => solve::labels(&prep.co, &database),
     };
+    let measured = measure(prep, &database, &labels, mu);
+    Ok(Outcome {
+        solver,
+        database,
+        labels,
+        metrics: measured.metrics,
+        solve_time,
+        exact,
+        online,
+        labels_below_mu: measured.labels_below_mu,
+        label_iou_min: measured.label_iou_min,
+    })
+}
+
+/// The quality of a database on a prepared sequence, however it was
+/// selected (a solver here, or a device's scan of the same frames).
+#[derive(Debug, Clone)]
+pub struct Measured {
+    /// Metrics of DESIGN section 3 (on stride-1 sets).
+    pub metrics: Metrics,
+    /// As [`Outcome::labels_below_mu`].
+    pub labels_below_mu: usize,
+    /// As [`Outcome::label_iou_min`].
+    pub label_iou_min: f32,
+}
+
+/// Measures database `database` (ascending frame indices of `prep`'s
+/// sequence) with class `labels` (one per frame) at threshold `mu`.
+///
+/// # Panics
+/// When an index is not a frame of `prep`.
+pub fn measure(prep: &Prepared, database: &[usize], labels: &[usize], mu: f32) -> Measured {
     let (eval_sets, eval_co) = prep.eval();
-    let metrics = metrics::evaluate(&eval_sets.sets, eval_co, &database, mu);
+    let metrics = metrics::evaluate(&eval_sets.sets, eval_co, database, mu);
     // Labels judged on the solver's own (stride-s) sets, where coverage is promised.
     let label_ious: Vec<f32> = labels
         .iter()
@@ -367,19 +399,11 @@ pub fn solve(
         .filter(|&(f, &l)| f != l)
         .map(|(f, &l)| prep.co.iou(f, l))
         .collect();
-    let labels_below_mu = label_ious.iter().filter(|&&x| x <= mu).count();
-    let label_iou_min = label_ious.iter().copied().fold(1.0f32, f32::min);
-    Ok(Outcome {
-        solver,
-        database,
-        labels,
+    Measured {
         metrics,
-        solve_time,
-        exact,
-        online,
-        labels_below_mu,
-        label_iou_min,
-    })
+        labels_below_mu: label_ious.iter().filter(|&&x| x <= mu).count(),
+        label_iou_min: label_ious.iter().copied().fold(1.0f32, f32::min),
+    }
 }
 
 impl Outcome {

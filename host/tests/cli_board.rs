@@ -203,3 +203,95 @@ fn export_uses_the_scans_own_mu_and_refuses_another() {
     assert!(run.status.success(), "{}", stderr(&run));
     assert_eq!(std::fs::read_to_string(&pairs2).unwrap(), by_default);
 }
+
+/// `export --sequence SEQ` measures the device's scan on SEQ as the scan
+/// saw it (its stride, depth range, voxel size and mu, from the device's
+/// log): the coverage metrics of `metrics.json` are those `select --solver
+/// online` with the same settings writes, and so are its `--pairs`, at a
+/// stride other than 1. Without `--sequence` they are `null`, with the
+/// reason.
+#[test]
+fn export_with_the_sequence_measures_the_scan_as_select_does() {
+    let tmp = TempDir::new("measured");
+    let dir = tmp.path().join("seq");
+    seven_scenes_copy(&dir, 30, true);
+    let seq = tmp.arg("seq");
+    let board = Board::start();
+    let same = [
+        "--stride",
+        "8",
+        "--mu",
+        "0.4",
+        "--voxel",
+        "0.2",
+        "--depth-range",
+        "0.2,3.5",
+        "--window",
+        "8",
+        "-q",
+    ];
+    let mut stream = vec!["stream", &seq, "--port", &board.port];
+    stream.extend(same);
+    let run = placedb(&stream);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let (host, pairs_host) = (tmp.arg("host"), tmp.arg("host-pairs.txt"));
+    let mut select = vec!["select", &seq, "--solver", "online", "--profile", "ram512k"];
+    select.extend(same);
+    select.extend(["-o", &host, "--pairs", &pairs_host]);
+    let run = placedb(&select);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let (device, pairs_device) = (tmp.arg("device"), tmp.arg("device-pairs.txt"));
+    let run = placedb(&[
+        "export",
+        "--port",
+        &board.port,
+        "-q",
+        "-o",
+        &device,
+        "--sequence",
+        &seq,
+        "--pairs",
+        &pairs_device,
+    ]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let read = |p: &str| std::fs::read_to_string(p).unwrap();
+    let json = |d: &str| -> serde_json::Value {
+        serde_json::from_str(&read(&format!("{d}/metrics.json"))).unwrap()
+    };
+    assert_eq!(
+        read(&format!("{device}/database.csv")),
+        read(&format!("{host}/database.csv"))
+    );
+    let (h, d) = (json(&host), json(&device));
+    for k in [
+        "uncovered",
+        "spatial_coverage",
+        "frames_coverage_mean",
+        "frames_coverage_min",
+        "frames_coverage_below_0_3",
+        "labels_below_mu",
+        "label_iou_min",
+        "co_observing_pairs",
+        "sequence",
+        "format",
+        "frames_skipped",
+        "empty_frames",
+        "stride",
+        "depth_min",
+        "depth_max",
+    ] {
+        assert!(!d[k].is_null(), "{k} not measured: {d}");
+        assert_eq!(d[k], h[k], "{k}");
+    }
+    let pairs = read(&pairs_device);
+    assert!(!pairs.is_empty());
+    assert_eq!(pairs, read(&pairs_host), "the pairs at stride 8");
+    // Without the sequence: null, and why.
+    let bare = tmp.arg("bare");
+    let run = placedb(&["export", "--port", &board.port, "-q", "-o", &bare]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let b = json(&bare);
+    assert!(b["uncovered"].is_null(), "{b}");
+    let why = b["not_measured"].as_str().unwrap_or_default();
+    assert!(why.contains("export --sequence SEQ computes them"), "{why}");
+}

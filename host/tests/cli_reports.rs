@@ -536,6 +536,7 @@ fn the_in_process_device_keeps_its_result() {
     assert!(device["spatial_coverage"].is_null(), "{device}");
     let why = device["not_measured"].as_str().unwrap_or_default();
     assert!(why.contains("coverage metrics need the sequence"), "{why}");
+    assert!(device["solve_s"].is_null(), "{device}");
     assert_eq!(device["restored_from_flash"], false);
 }
 

@@ -9,7 +9,7 @@ use placedb_host::board::client::Client;
 use placedb_host::board::link::LocalLink;
 use placedb_host::board::scan::StreamOptions;
 use placedb_host::board::{export, scan};
-use placedb_host::cli::export::{write_from_device, StreamedWith};
+use placedb_host::cli::export::{measure, write_from_device, StreamedWith};
 use placedb_host::output::exports::{self, vpr_eval, ExportTargets};
 use placedb_host::output::replace;
 use placedb_host::pipeline::{self, SolverParams};
@@ -389,7 +389,11 @@ fn a_devices_exports_are_selects() {
         voxel: Some(0.3),
         test: None,
     };
-    replace::together(|outputs| write_from_device(&flags, &streamed, &seq, &export, true, outputs))
+    let mut seq = seq;
+    let measuring = measure(&mut seq, &export, &streamed, true)
+        .unwrap()
+        .unwrap();
+    replace::together(|outputs| write_from_device(&flags, &measuring, &seq, &export, outputs))
         .unwrap();
     assert_eq!(
         std::fs::read(root.join("select/out/database.csv")).unwrap(),

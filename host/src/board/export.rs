@@ -313,15 +313,16 @@ impl Export {
         output::run_csv(&self.database(), &timestamps, &labels)
     }
 
-    /// `metrics.json` of an export: what the device knows (the metrics that
-    /// need the sequence's voxel sets are computed by `placedb select`).
-    pub fn metrics(&self) -> serde_json::Value {
+    /// `metrics.json` of an export: what the device knows, and the metrics
+    /// that need the sequence's voxel sets when `on` has measured them.
+    pub fn metrics(&self, on: Option<&metrics_json::OnSequence<'_>>) -> serde_json::Value {
         let profile = device_profile(&self.status).map(|p| p.name);
         metrics_json::of_device(
             &self.status,
             self.config.as_ref(),
             self.records.len(),
             profile,
+            on,
         )
     }
 }
@@ -409,7 +410,7 @@ pub fn export_to_with<L: Link>(
 ) -> Result<Export, DeviceError> {
     output::check_database_dir(out)?;
     let export = pull(client, out, from, quiet, opts)?;
-    replace::together(|outputs| stage(outputs, out, &export, extra))?;
+    replace::together(|outputs| stage(outputs, out, &export, None, extra))?;
     finished(out)?;
     Ok(export)
 }
@@ -510,12 +511,14 @@ pub fn pull<L: Link>(
 
 /// Writes `export` as output `out` of the run writing `outputs`:
 /// `database.csv`, `labels.csv` (with the session columns for a scan of
-/// several sessions), `metrics.json`, the extension file of a finished scan,
-/// and the `extra` files.
+/// several sessions), `metrics.json` (with the metrics `on` measured on the
+/// streamed sequence, if given), the extension file of a finished scan, and
+/// the `extra` files.
 pub fn stage(
     outputs: &mut Outputs,
     out: &Path,
     export: &Export,
+    on: Option<&metrics_json::OnSequence<'_>>,
     extra: &[(&str, String)],
 ) -> Result<(), OutputError> {
     let dir = output::stage_database_dir(outputs, out)?;
@@ -531,7 +534,7 @@ pub fn stage(
         &rows,
         &timestamps,
         &labels,
-        &export.metrics(),
+        &export.metrics(on),
         sessions,
     )?;
     if let Some(ext) = &export.extension {

@@ -15,11 +15,13 @@ use crate::output::{self, dataset, replace};
 use crate::read::{self, ReadOptions};
 use crate::sequence::Sequence;
 use crate::sessions::extension;
-use crate::voxelize::{VoxelConfig, VoxelizeError};
 use crate::Format;
 use clap::Args;
 use placedb::protocol::{CapacitySlot, Config};
 use std::path::{Path, PathBuf};
+
+mod measure;
+pub use measure::{measure, Measuring};
 
 /// `placedb export`.
 #[derive(Args)]
@@ -39,8 +41,9 @@ pub struct ExportArgs {
     /// exported labels and the frames of --sequence (the sequence streamed).
     #[arg(long, requires = "sequence")]
     dataset: Option<PathBuf>,
-    /// With --dataset, --colmap, --vpr-eval or --pairs: the sequence that
-    /// was streamed (directory or ROS 2 bag).
+    /// The sequence that was streamed (directory or ROS 2 bag): the
+    /// coverage metrics of metrics.json are measured on it, and --dataset,
+    /// --colmap, --vpr-eval and --pairs need it.
     #[arg(long)]
     sequence: Option<PathBuf>,
     /// With --dataset: the sequence's layout (detected when omitted).
@@ -127,9 +130,6 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
         None => None,
     };
     let targets = a.exports.targets();
-    if seq.is_some() && a.dataset.is_none() && !targets.any() {
-        return Err("--sequence is for --dataset, --colmap, --vpr-eval or --pairs".into());
-    }
     if targets.any() && seq.is_none() {
         return Err(
             "--colmap, --vpr-eval and --pairs need --sequence SEQ (the streamed sequence)".into(),
@@ -145,41 +145,37 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
         a.quiet,
         &ExportOptions::default(),
     )?;
-    if let Some(seq) = &seq {
-        let (timestamps, _) = export.labels();
-        // The device's timestamps are the sequence's: a different sequence shows.
-        if let Some(i) = timestamps
-            .iter()
-            .zip(&seq.frames)
-            .position(|(t, f)| *t != f.timestamp)
-        {
-            return Err(format!(
-                "--sequence {}: frame {i} has timestamp {}, the device's has {}: not the streamed sequence?",
-                seq.name, seq.frames[i].timestamp, timestamps[i]
-            )
-            .into());
-        }
-        if let Some(dir) = &a.dataset {
-            if export.labels().1.is_empty() {
-                // Nothing is written (the export and its dataset appear
-                // together): an empty dataset would read as a made one.
-                return Err(format!(
-                    "--dataset {}: the device's export has no labelled frame (its scan decided \
-                     none yet): no dataset written, nor {}. Finish the scan first (placedb stream \
-                     {} --port {} --resume, with the options it was streamed with), or export \
-                     without --dataset",
-                    dir.display(),
-                    a.out.display(),
-                    a.sequence.as_deref().unwrap_or(Path::new("SEQ")).display(),
-                    a.port
-                )
-                .into());
+    let mut seq = seq;
+    let measuring = match &mut seq {
+        Some(seq) => {
+            if let Some(dir) = &a.dataset {
+                if export.labels().1.is_empty() {
+                    // Nothing is written (the export and its dataset appear
+                    // together): an empty dataset would read as a made one.
+                    return Err(format!(
+                        "--dataset {}: the device's export has no labelled frame (its scan \
+                         decided none yet): no dataset written, nor {}. Finish the scan first \
+                         (placedb stream {} --port {} --resume, with the options it was \
+                         streamed with), or export without --dataset",
+                        dir.display(),
+                        a.out.display(),
+                        a.sequence.as_deref().unwrap_or(Path::new("SEQ")).display(),
+                        a.port
+                    )
+                    .into());
+                }
             }
+            measure::measure(seq, &export, &a.streamed, a.quiet)?
         }
-    }
+        None => None,
+    };
     // The export, its dataset and exports appear together, or none does.
     let (dataset, exported) = replace::together(|outputs| {
-        export::stage(outputs, &a.out, &export, &[])?;
+        let on = match (&seq, &measuring) {
+            (Some(seq), Some(m)) => Some(m.on(seq)),
+            _ => None,
+        };
+        export::stage(outputs, &a.out, &export, on.as_ref(), &[])?;
         let Some(seq) = &seq else {
             return Ok((None, Vec::new()));
         };
@@ -187,7 +183,16 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
             Some(dir) => Some((dir, dataset::stage(outputs, dir, seq, &export.labels().1)?)),
             None => None,
         };
-        let exported = write_from_device(&targets, &a.streamed, seq, &export, a.quiet, outputs)?;
+        let exported =
+            match &measuring {
+                Some(m) => write_from_device(&targets, m, seq, &export, outputs)?,
+                None if targets.any() => return Err(OutputError::Mismatch(
+                    "--colmap, --vpr-eval and --pairs: the device's scan decided no frame yet: \
+                     nothing to export (finish it with placedb stream --resume first)"
+                        .into(),
+                )),
+                None => Vec::new(),
+            };
         Ok((dataset, exported))
     })?;
     export::finished(&a.out)?;
@@ -252,43 +257,24 @@ pub fn print_exported(out: &Path, export: &Export) {
 
 /// The exports of `placedb export --sequence SEQ`: writes those `flags`
 /// asks for from `export`, the device's records of streamed sequence `seq`,
-/// into `outputs`, through the same writers as `placedb select`'s, so that a
-/// board's scan and the host's replay of it export alike; returns a line
-/// about each.
+/// as `measuring` measured them ([`measure::measure`]: the scan's settings,
+/// the overlaps on its grid), into `outputs`, through the same writers as
+/// `placedb select`'s, so that a board's scan and the host's replay of it
+/// export alike; returns a line about each.
 pub fn write_from_device(
     flags: &ExportTargets,
-    streamed: &StreamedWith,
+    measuring: &Measuring,
     seq: &Sequence,
     export: &Export,
-    quiet: bool,
     outputs: &mut Outputs,
 ) -> Result<Vec<String>, OutputError> {
     if !flags.any() {
         return Ok(Vec::new());
     }
-    // The scan's own settings; a contradicting flag fails the run, so
-    // nothing of it is written.
-    let streamed = streamed
-        .resolve(export.config.as_ref())
-        .map_err(OutputError::Mismatch)?;
+    let streamed = &measuring.streamed;
     // database.csv's rows, as `select --solver online` writes them.
     let rows = crate::output::rows_from_records(&export.database());
     let (_, labels) = export.labels();
-    // The overlaps of the streamed frames, on the grid the device used.
-    let prep = match &flags.pairs {
-        Some(_) => {
-            let config = VoxelConfig {
-                voxel: streamed.voxel.unwrap_or(DEFAULT_VOXEL),
-                ..VoxelConfig::default()
-            };
-            let prep = crate::pipeline::prepare(seq, config, quiet).map_err(|e| match e {
-                VoxelizeError::Read(r) => OutputError::Read(r),
-                other => OutputError::Mismatch(other.to_string()),
-            })?;
-            Some(prep)
-        }
-        None => None,
-    };
     let test = match &streamed.test {
         Some(path) => Some(read::open(path, &ReadOptions::default())?),
         None => None,
@@ -297,7 +283,7 @@ pub fn write_from_device(
         seq,
         rows: &rows,
         labels: &labels,
-        overlaps: prep.as_ref().map(|p| &p.co),
+        overlaps: Some(&measuring.prep.co),
         mu: streamed.mu.unwrap_or(DEFAULT_MU),
         test: test.as_ref(),
     };

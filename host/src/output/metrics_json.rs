@@ -2,7 +2,7 @@
 //! outcome ([`of_select`]) and of a device's export ([`of_device`]), and its
 //! text ([`text`]). Scripts read these: the key names are stable.
 
-use crate::pipeline::{Outcome, Prepared, SolverParams};
+use crate::pipeline::{Measured, Outcome, Prepared, SolverParams};
 use crate::sequence::Sequence;
 use placedb::protocol::{CapacitySlot, Config, Status};
 use std::io;
@@ -104,18 +104,33 @@ pub fn of_select(
     serde_json::Value::Object(m)
 }
 
+/// What the host measured of a device's scan on the sequence that was
+/// streamed (`export --sequence`): the sequence, its voxel sets on the
+/// scan's grid, and the device's database measured on them.
+pub struct OnSequence<'a> {
+    /// The streamed sequence (its first `frames` frames, the device's).
+    pub seq: &'a Sequence,
+    /// Its voxel sets and overlaps.
+    pub prep: &'a Prepared,
+    /// The device's database and labels measured on them.
+    pub measured: &'a Measured,
+}
+
 /// The `metrics.json` object of a device's export: what the device knows
 /// from its status and, when it keeps a flash log, the configuration it
 /// scanned with (`config`; `profile`: the capacity profile it reports, if
-/// any). It has every key [`of_select`] writes: those only the sequence
-/// gives (the coverage metrics, the host's reading and timing) are `null`,
-/// and `not_measured` says why. A scan restored from flash after a reset
-/// is a resume (`restored_from_flash`), not a degradation.
+/// any). It has every key [`of_select`] writes: the coverage metrics and
+/// the host's reading come from the streamed sequence (`on`, `export
+/// --sequence`); without it they are `null`, and `not_measured` says why,
+/// as it does for the host's solving times (the device solved). A scan
+/// restored from flash after a reset is a resume (`restored_from_flash`),
+/// not a degradation.
 pub fn of_device(
     st: &Status,
     config: Option<&Config>,
     export_records: usize,
     profile: Option<&str>,
+    on: Option<&OnSequence<'_>>,
 ) -> serde_json::Value {
     use placedb::protocol::degradation::RESTORED;
     let size = st.database_size;
@@ -182,7 +197,7 @@ pub fn of_device(
         }
     }
     // What only the sequence's voxel sets and the host's reading give.
-    for k in [
+    let from_sequence = [
         "sequence",
         "format",
         "frames_skipped",
@@ -199,23 +214,51 @@ pub fn of_device(
         "read_cpu_s",
         "voxelize_cpu_s",
         "graph_s",
-        "solve_s",
-        "core_s",
-        "total_s",
-        "peak_rss_mb",
-    ] {
+    ];
+    // The device selected: the host's solving times are not its.
+    let solved_on_device = ["solve_s", "core_s", "total_s", "peak_rss_mb"];
+    for k in solved_on_device {
         m[k] = serde_json::Value::Null;
     }
-    m["not_measured"] = format!(
-        "a device keeps no voxel sets of its frames: the coverage metrics need the sequence \
-         (placedb select SEQ --solver online with the same settings computes them){}",
-        if config.is_none() {
-            "; the scan's settings need the device's flash log, which it does not keep"
-        } else {
-            ""
+    let mut why = Vec::new();
+    match on {
+        Some(on) => {
+            let (seq, prep, me) = (on.seq, on.prep, &on.measured.metrics);
+            m["sequence"] = seq.name.clone().into();
+            m["format"] = serde_json::to_value(seq.format).unwrap_or_default();
+            m["frames_skipped"] = prep.losses.frames_skipped.into();
+            m["empty_frames"] = prep.losses.empty_frames.into();
+            m["co_observing_pairs"] = prep.co.pair_count().into();
+            m["labels_below_mu"] = on.measured.labels_below_mu.into();
+            m["label_iou_min"] = f64::from(on.measured.label_iou_min).into();
+            m["uncovered"] = me.uncovered.into();
+            m["spatial_coverage"] = me.spatial_coverage.into();
+            m["frames_coverage_mean"] = me.frames_coverage_mean.into();
+            m["frames_coverage_min"] = me.frames_coverage_min.into();
+            m["frames_coverage_below_0_3"] = me.frames_coverage_below_0_3.into();
+            m["voxelize_s"] = prep.voxelize_wall.as_secs_f64().into();
+            m["read_cpu_s"] = prep.sets.read_time.as_secs_f64().into();
+            m["voxelize_cpu_s"] = prep.sets.voxelize_time.as_secs_f64().into();
+            m["graph_s"] = prep.graph_wall.as_secs_f64().into();
         }
-    )
-    .into();
+        None => {
+            for k in from_sequence {
+                m[k] = serde_json::Value::Null;
+            }
+            why.push(
+                "a device keeps no voxel sets of its frames: the coverage metrics need the \
+                 sequence (placedb export --sequence SEQ computes them)",
+            );
+        }
+    }
+    why.push(
+        "the device made the selection: the host's solving times (solve_s, core_s, total_s, \
+         peak_rss_mb) are not its",
+    );
+    if config.is_none() {
+        why.push("the scan's settings need the device's flash log, which it does not keep");
+    }
+    m["not_measured"] = why.join("; ").into();
     if st.cost.clock_hz > 0 && st.cost.frames > 0 {
         m["device_ticks_per_frame"] = (st.cost.total as f64 / f64::from(st.cost.frames)).into();
         m["device_clock_hz"] = st.cost.clock_hz.into();
