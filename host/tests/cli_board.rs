@@ -23,10 +23,20 @@ struct Board {
 
 impl Board {
     fn start() -> Board {
+        Board::start_with(&[])
+    }
+
+    /// A board whose flash is the file `flash` (kept across restarts).
+    fn start_on(flash: &std::path::Path) -> Board {
+        Board::start_with(&["--flash", flash.to_str().unwrap()])
+    }
+
+    fn start_with(args: &[&str]) -> Board {
         let firmware = placedb_host::testing::qemu_firmware();
         let mut child = Command::new(env!("CARGO_BIN_EXE_placedb"))
             .args(["device", "--qemu", "--port", "0", "--firmware"])
             .arg(firmware)
+            .args(args)
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .spawn()
@@ -294,4 +304,43 @@ fn export_with_the_sequence_measures_the_scan_as_select_does() {
     assert!(b["uncovered"].is_null(), "{b}");
     let why = b["not_measured"].as_str().unwrap_or_default();
     assert!(why.contains("export --sequence SEQ computes them"), "{why}");
+}
+
+/// A scan resumed after the board restarted is reported as a resume, how
+/// often and where (`resumes`, `resumed_at` of `metrics.json`, read from
+/// the finished scan's log), not as a degradation.
+#[test]
+fn a_resumed_scan_reports_its_resume_not_a_degradation() {
+    let tmp = TempDir::new("resumed");
+    let dir = tmp.path().join("seq");
+    seven_scenes_copy(&dir, 40, true);
+    let seq = tmp.arg("seq");
+    let flash = tmp.path().join("flash.bin");
+    let stream = |port: &str, more: &[&str]| {
+        // A short window: decisions (durable in batches of 16) before the cut.
+        let mut args = vec![
+            "stream", &seq, "--port", port, "--stride", "8", "--window", "4", "-q",
+        ];
+        args.extend(more);
+        placedb(&args)
+    };
+    let seen = {
+        let board = Board::start_on(&flash);
+        let run = stream(&board.port, &["--max-frames", "30", "--no-finish"]);
+        assert!(run.status.success(), "{}", stderr(&run));
+        30
+    };
+    // The board restarts (its flash kept); the scan is resumed to its end.
+    let board = Board::start_on(&flash);
+    let out = tmp.arg("out");
+    let run = stream(&board.port, &["--resume", "-o", &out]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let text = std::fs::read_to_string(tmp.path().join("out/metrics.json")).unwrap();
+    let m: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(m["restored_from_flash"], true, "{m}");
+    assert_eq!(m["degradation_flags"], 0, "{m}");
+    assert_eq!(m["resumes"], 1, "{m}");
+    let at = m["resumed_at"][0].as_u64().unwrap();
+    // Where the device's durable decisions ended: at most the frames sent.
+    assert!(at > 0 && at <= seen, "{m}");
 }

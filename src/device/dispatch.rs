@@ -106,6 +106,7 @@ impl<
         cfg.validate()?;
         if self.finished || self.selector.status().frames_seen > 0 {
             return if self.hello == Some(cfg) {
+                self.log_resume(journal);
                 Ok(())
             } else {
                 Err(ErrorKind::NeedsReset)
@@ -287,6 +288,27 @@ impl<
         self.finished = true;
         self.persist(journal, &Record::Finished);
         Ok(())
+    }
+
+    /// The first resume of a scan restored from flash unfinished goes to
+    /// the log when a host resumes it (its Hello, or the Extend of its
+    /// session), so that its export says how often and where it was resumed;
+    /// only when the log has room for it and a Finish after it (the room a
+    /// scan keeps to end cleanly is not spent on it).
+    pub(super) fn log_resume(&mut self, journal: &mut dyn Journal) {
+        if !core::mem::take(&mut self.resume_unlogged) {
+            return;
+        }
+        let resumed = Record::Resumed {
+            at: self.selector.status().frames_seen,
+        };
+        let Ok(len) = resumed.encode(&mut self.record).map(|p| p.len()) else {
+            return;
+        };
+        let finish = (step_records(W) + 1, Self::STEP_RECORD_LEN);
+        if journal.has_room_then((1, len), finish) {
+            self.persist(journal, &resumed);
+        }
     }
 
     /// Appends a record unless a write already failed in this scan (a later

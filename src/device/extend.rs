@@ -48,7 +48,10 @@ impl<
             // it, e.g. after a power cut): nothing to do if it is that
             // session's configuration, camera included.
             return match (self.sessions.len() > 1, hello == cfg) {
-                (true, true) => Ok(()),
+                (true, true) => {
+                    self.log_resume(journal);
+                    Ok(())
+                }
                 (true, false) => Err(ErrorKind::ExtendOtherConfig),
                 (false, _) => Err(ErrorKind::NothingToExtend),
             };

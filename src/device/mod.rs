@@ -178,6 +178,10 @@ struct Core<
     storage_failed: bool,
     /// The scan came back from the log at boot.
     restored: bool,
+    /// The scan came back from the log at boot unfinished and no host has
+    /// resumed it since: the first that does is logged
+    /// ([`crate::persist::Record::Resumed`]).
+    resume_unlogged: bool,
     /// Records after the restored scan were dropped at boot.
     tail_dropped: bool,
     /// The first frame of each session of the scan, in order (empty until
@@ -256,6 +260,7 @@ impl<
                 flash: (0, 0),
                 storage_failed: false,
                 restored: false,
+                resume_unlogged: false,
                 tail_dropped: false,
                 sessions: heapless::Vec::new(),
                 log_cursor: Cursor::START,
@@ -458,6 +463,7 @@ impl<
         let replayed = self.core.replay(&mut |visit| log.replay(visit), usage);
         if replayed.is_ok() {
             self.core.restored = self.core.hello.is_some();
+            self.core.resume_unlogged = self.core.restored && !self.core.finished;
         }
         replayed
     }
@@ -549,6 +555,7 @@ impl<
         self.stored = 0;
         self.storage_failed = false;
         self.restored = false;
+        self.resume_unlogged = false;
         self.tail_dropped = false;
         self.sessions.clear();
         self.log_cursor = Cursor::START;

@@ -372,6 +372,8 @@ impl<
                 }
                 self.decisions.restored(labels);
             }
+            // A resume changes no state: the export reads it from the log.
+            (Grammar::Scan, Record::Resumed { .. }) => {}
             (Grammar::Scan, Record::Finished) => {
                 self.finished = true;
                 *grammar = Grammar::Finished;

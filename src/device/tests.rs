@@ -1098,6 +1098,7 @@ fn blank_log() -> Log<SimFlash> {
 }
 
 mod extend;
+mod resume;
 
 /// `receive_message` handles exactly one frame a call (the board acts
 /// between messages on what it returns) and, called until its input is

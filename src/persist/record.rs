@@ -82,6 +82,14 @@ pub enum Record {
         /// Its intrinsics.
         intrinsics: Intrinsics,
     },
+    /// The host went on with the scan restored from flash after a restart
+    /// (a power cut, a reset), at frame `at`, the next frame it expected
+    /// (log format 4): written once per restart, when a host resumes, so
+    /// that an export says how often and where a scan was resumed.
+    Resumed {
+        /// The frames seen when it was resumed.
+        at: u32,
+    },
 }
 
 /// Positions in the log of a database frame's key chunks, in key order.

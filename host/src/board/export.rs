@@ -76,6 +76,10 @@ pub struct Export {
     /// The configuration the device scanned with, read from its flash
     /// log's first record by [`pull`] (`None`: the device keeps no log).
     pub config: Option<Config>,
+    /// Where a host resumed the scan after a restart of the device (the
+    /// frames it had seen), read from a finished scan's log by [`pull`]
+    /// (`None`: not read, the scan is not finished or there is no log).
+    pub resumes: Option<Vec<u32>>,
 }
 
 /// One batch: records `from..from+max`, checked by count and CRC, of a
@@ -228,6 +232,7 @@ pub fn export<L: Link>(
         retried,
         extension: None,
         config: None,
+        resumes: None,
     })
 }
 
@@ -320,6 +325,7 @@ impl Export {
         metrics_json::of_device(
             &self.status,
             self.config.as_ref(),
+            self.resumes.as_deref(),
             self.records.len(),
             profile,
             on,
@@ -497,9 +503,10 @@ pub fn pull<L: Link>(
     // A finished scan's whole log is read for its extension file, which
     // gives the configuration too; otherwise only the log's first record.
     match extension_of(client, &export, opts)? {
-        Some((extension, config)) => {
+        Some((extension, scan)) => {
             export.extension = Some(extension);
-            export.config = Some(config);
+            export.config = Some(scan.config);
+            export.resumes = Some(scan.resumes);
         }
         None if export.status.stored_records > 0 => {
             export.config = log_records::scan_config(client, opts.wait(), 1)?;
@@ -568,7 +575,7 @@ fn extension_of<L: Link>(
     client: &mut Client<L>,
     export: &Export,
     opts: &ExportOptions,
-) -> Result<Option<(Extension, Config)>, DeviceError> {
+) -> Result<Option<(Extension, log_records::LoggedScan)>, DeviceError> {
     let st = &export.status;
     if st.stored_records == 0 || st.phase != Phase::Finished {
         return Ok(None);
@@ -597,7 +604,7 @@ fn extension_of<L: Link>(
         ));
     }
     let profile = device_profile(st).map_or("", |p| p.name);
-    Ok(Some((scan.extension(profile), scan.config)))
+    Ok(Some((scan.extension(profile), scan)))
 }
 
 #[cfg(test)]

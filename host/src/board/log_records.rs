@@ -57,6 +57,9 @@ pub struct LoggedScan {
     pub decisions: Vec<(f64, DecisionKind)>,
     /// The database frames, in frame order.
     pub database: Vec<LoggedFrame>,
+    /// Where a host resumed the scan after a restart of the device (the
+    /// frames it had seen), in order (the log's `Resumed` records).
+    pub resumes: Vec<u32>,
 }
 
 /// Reads the `records` records of the device's log, each in chunks.
@@ -173,6 +176,7 @@ pub fn scan_of(records: &[LogRecord]) -> Result<LoggedScan, DeviceError> {
     let mut chunks: BTreeMap<u32, KeyChunk> = BTreeMap::new();
     let mut latest: BTreeMap<u32, LoggedFrame> = BTreeMap::new();
     let mut finished = false;
+    let mut resumes = Vec::new();
     for (n, r) in records.iter().enumerate() {
         let Ok((record, tail)) = Record::decode(&r.payload) else {
             return bad(n, "not a record of this format");
@@ -240,6 +244,7 @@ pub fn scan_of(records: &[LogRecord]) -> Result<LoggedScan, DeviceError> {
                 sessions.push(first);
                 finished = false;
             }
+            Record::Resumed { at } if !finished => resumes.push(at),
             Record::Finished if !finished => finished = true,
             _ => return bad(n, "a record out of place"),
         }
@@ -270,6 +275,7 @@ pub fn scan_of(records: &[LogRecord]) -> Result<LoggedScan, DeviceError> {
         sessions,
         decisions,
         database,
+        resumes,
     })
 }
 

@@ -123,11 +123,14 @@ pub struct OnSequence<'a> {
 /// the host's reading come from the streamed sequence (`on`, `export
 /// --sequence`); without it they are `null`, and `not_measured` says why,
 /// as it does for the host's solving times (the device solved). A scan
-/// restored from flash after a reset is a resume (`restored_from_flash`),
-/// not a degradation.
+/// restored from flash after a reset is a resume, not a degradation:
+/// `restored_from_flash` (this boot), and from a finished scan's log
+/// (`resumes`) how often and at which frames (`resumed_at`) a host resumed
+/// it.
 pub fn of_device(
     st: &Status,
     config: Option<&Config>,
+    resumes: Option<&[u32]>,
     export_records: usize,
     profile: Option<&str>,
     on: Option<&OnSequence<'_>>,
@@ -221,6 +224,19 @@ pub fn of_device(
         m[k] = serde_json::Value::Null;
     }
     let mut why = Vec::new();
+    // How often and where a host resumed the scan after a restart, from a
+    // finished scan's log.
+    match resumes {
+        Some(at) => {
+            m["resumes"] = at.len().into();
+            m["resumed_at"] = at.into();
+        }
+        None => {
+            m["resumes"] = serde_json::Value::Null;
+            m["resumed_at"] = serde_json::Value::Null;
+            why.push("the resumes are read from the flash log of a finished scan");
+        }
+    }
     match on {
         Some(on) => {
             let (seq, prep, me) = (on.seq, on.prep, &on.measured.metrics);
