@@ -124,7 +124,15 @@ fn stream_and_compare(
 ) -> (StreamReport, Vec<ExportRecord>) {
     let scan = scan::scan_config(seq, vcfg).unwrap();
     let cfg = scan::device_config(&scan, &sel).unwrap();
-    let report = scan::stream(client, seq, &cfg, PROFILE, &StreamOptions::default(), None).unwrap();
+    let report = scan::stream(
+        client,
+        seq,
+        &cfg,
+        PROFILE,
+        &StreamOptions::replacing(),
+        None,
+    )
+    .unwrap();
     assert_eq!(report.status.phase, Phase::Finished);
     assert_eq!(report.status.frames_seen as usize, seq.frames.len());
     assert!(report.decisions.iter().all(Option::is_some));

@@ -93,7 +93,7 @@ fn stream_and_compare(
     vcfg: &VoxelConfig,
     sel: SelectorConfig,
 ) -> StreamReport {
-    let report = stream(client, seq, vcfg, sel, &StreamOptions::default());
+    let report = stream(client, seq, vcfg, sel, &StreamOptions::replacing());
     assert_eq!(report.status.phase, Phase::Finished);
     assert_eq!(report.status.frames_seen as usize, seq.frames.len());
     assert!(report.decisions.iter().all(Option::is_some));

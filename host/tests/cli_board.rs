@@ -344,3 +344,45 @@ fn a_resumed_scan_reports_its_resume_not_a_degradation() {
     // Where the device's durable decisions ended: at most the frames sent.
     assert!(at > 0 && at <= seen, "{m}");
 }
+
+/// A plain `stream` to a board holding a scan is refused naming it and
+/// changes nothing; `--new-scan` replaces it; `--resume` after the export
+/// has nothing to go on with but finishes as it was.
+#[test]
+fn a_board_holding_a_scan_refuses_a_new_one_until_new_scan() {
+    let tmp = TempDir::new("held");
+    let dir = tmp.path().join("seq");
+    seven_scenes_copy(&dir, 20, true);
+    let seq = tmp.arg("seq");
+    let board = Board::start();
+    let stream = |more: &[&str]| {
+        let mut args = vec!["stream", &seq, "--port", &board.port, "--stride", "8", "-q"];
+        args.extend(more);
+        placedb(&args)
+    };
+    let run = stream(&[]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let export = |out: &str| {
+        let run = placedb(&["export", "--port", &board.port, "-q", "-o", out]);
+        assert!(run.status.success(), "{}", stderr(&run));
+        std::fs::read_to_string(format!("{out}/labels.csv")).unwrap()
+    };
+    let before = export(&tmp.arg("before"));
+    let run = stream(&[]);
+    let err = stderr(&run);
+    assert_eq!(run.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("the board holds a finished scan of 20 frames (20 decided)")
+            && err.contains("or replace it with --new-scan"),
+        "{err}"
+    );
+    assert_eq!(
+        export(&tmp.arg("after")),
+        before,
+        "the refusal changed the board"
+    );
+    let run = stream(&["--new-scan", "--max-frames", "5"]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let replaced = export(&tmp.arg("replaced"));
+    assert_eq!(replaced.lines().count(), 1 + 5, "{replaced}");
+}

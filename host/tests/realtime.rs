@@ -82,6 +82,7 @@ fn a_realtime_replay_that_sent_only_frames_without_depth_is_an_error_naming_the_
         selector(6),
         PROFILE,
         None,
+        false,
         None,
     )
     .expect_err("a replay that measured nothing succeeded")

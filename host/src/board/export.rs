@@ -82,6 +82,19 @@ pub struct Export {
     pub resumes: Option<Vec<u32>>,
 }
 
+/// Records `from..from + max` of the device's export (one batch, checked
+/// by count and CRC) of a device holding `database` database frames: a
+/// few records read without an export (a resume's check of its sequence).
+pub(crate) fn records<L: Link>(
+    client: &mut Client<L>,
+    from: u32,
+    max: u32,
+    database: u32,
+) -> Result<Vec<ExportRecord>, DeviceError> {
+    let timeout = ExportOptions::default().reply_timeout;
+    export_batch(client, from, max, database, timeout)
+}
+
 /// One batch: records `from..from+max`, checked by count and CRC, of a
 /// device holding `database` database frames.
 fn export_batch<L: Link>(

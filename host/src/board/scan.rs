@@ -20,10 +20,11 @@
 use crate::board::client::{ask_status, check_profile, send_and_wait, Client, Received, Wait};
 use crate::board::config_words;
 use crate::board::error::DeviceError;
-use crate::board::export::ExportOptions;
+use crate::board::export::{self, ExportOptions};
 use crate::board::link::fault::FaultConfig;
 use crate::board::link::Link;
 use crate::board::log_records;
+use crate::degradation::plural;
 use crate::frame_rows::{row_chunks, sampled_rows_of};
 use crate::sequence::Sequence;
 use crate::voxelize::{self, GridOrigin, VoxelConfig};
@@ -63,6 +64,10 @@ pub struct StreamOptions {
     pub extend: bool,
     /// End with Finish (decides the frames still pending).
     pub finish: bool,
+    /// With `reset`: replace the scan the device holds (frames seen, or
+    /// finished; `placedb stream --new-scan`). Without it such a device is
+    /// refused in words naming what it holds, and nothing changes.
+    pub new_scan: bool,
     /// Retransmissions allowed per message. 0: messages are pipelined
     /// (`in_flight`) and the first error or timeout ends the stream. Above 0:
     /// stop-and-wait, and a message whose terminal reply does not come within
@@ -76,6 +81,15 @@ pub struct StreamOptions {
 }
 
 impl StreamOptions {
+    /// The defaults, replacing any scan the device holds ([`Self::new_scan`]):
+    /// for measurements, which stream to one board again and again.
+    pub fn replacing() -> StreamOptions {
+        StreamOptions {
+            new_scan: true,
+            ..StreamOptions::default()
+        }
+    }
+
     /// How a message of the scan's set-up waits for its reply: once, or
     /// stop-and-wait with retransmission when `retries > 0`.
     pub fn wait(&self) -> Wait {
@@ -99,10 +113,35 @@ impl Default for StreamOptions {
             resume: false,
             extend: false,
             finish: true,
+            new_scan: false,
             retries: 0,
             resend_after: Duration::from_secs(2),
         }
     }
+}
+
+/// What a board that `st` describes holds, in words ("a finished scan of
+/// 40 frames, 3 database frames"), when it holds a scan that a new one
+/// would replace: frames seen, or finished; `None` for an empty board.
+fn held_scan(st: &Status) -> Option<String> {
+    if st.frames_seen == 0 && st.phase != Phase::Finished {
+        return None;
+    }
+    Some(format!(
+        "{} scan of {} ({} decided), {}{}",
+        if st.phase == Phase::Finished {
+            "a finished"
+        } else {
+            "an unfinished"
+        },
+        plural(st.frames_seen.into(), "frame", "frames"),
+        st.frames_decided,
+        plural(st.database_size.into(), "database frame", "database frames"),
+        match st.sessions {
+            0 | 1 => String::new(),
+            n => format!(" in {n} sessions"),
+        }
+    ))
 }
 
 /// What a stream did.
@@ -252,7 +291,8 @@ pub fn stream<L: Link>(
 ) -> Result<StreamReport, DeviceError> {
     let n = seq.frames.len();
     let mut scan = ScanState::new(opts.clone());
-    scan.begin(client, cfg, Some(profile), Some(n))?;
+    let timestamps: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
+    scan.begin(client, cfg, Some(profile), Some(&timestamps))?;
     // The device numbers the sequence's frames from `base` (the earlier
     // sessions' frames, when extending).
     let base = scan.first_index as usize;
@@ -339,6 +379,8 @@ pub struct Recovery {
     pub extend: bool,
     /// End the stream with Finish ([`StreamOptions::finish`]).
     pub finish: bool,
+    /// Replace the scan the device holds ([`StreamOptions::new_scan`]).
+    pub new_scan: bool,
 }
 
 impl Default for Recovery {
@@ -350,6 +392,7 @@ impl Default for Recovery {
             resume: false,
             extend: false,
             finish: true,
+            new_scan: false,
         }
     }
 }
@@ -369,6 +412,7 @@ impl Recovery {
             resume: self.resume,
             extend: self.extend,
             finish: self.finish,
+            new_scan: self.new_scan,
             ..StreamOptions::default()
         }
     }
@@ -483,14 +527,15 @@ impl ScanState {
         }
     }
 
-    /// Status check, (Reset,) Hello: see [`Session::start`]. `frames`: how
-    /// many frames the host has (a resumed scan must not be past them).
+    /// Status check, (Reset,) Hello: see [`Session::start`]. `frames`: the
+    /// timestamps of the frames the host has (a resumed scan must not be
+    /// past them, and the frames the device decided must be theirs).
     pub(crate) fn begin<L: Link>(
         &mut self,
         client: &mut Client<L>,
         cfg: &Config,
         profile: Option<&str>,
-        frames: Option<usize>,
+        frames: Option<&[f64]>,
     ) -> Result<Status, DeviceError> {
         let opts = self.opts.clone();
         client.resync()?;
@@ -502,27 +547,58 @@ impl ScanState {
         self.first_index = 0;
         if opts.extend {
             self.started = Some(Instant::now());
-            let st = self.extend(client, cfg, frames)?;
+            let st = self.extend(client, cfg, frames.map(<[f64]>::len))?;
             self.set_config(cfg);
             return Ok(st);
         }
+        let mut st = st;
         if opts.resume {
             if st.phase == Phase::InFrame {
+                // A host stopped mid-frame (killed, or its link lost) left
+                // it open: its rows are gone with it, so it is dropped and
+                // sent again.
+                self.abandon_open_frame(client)?;
+                st = self.call_status(client)?;
+            }
+            if st.frames_seen == 0 && st.phase != Phase::Finished && st.stored_records == 0 {
                 return Err(DeviceError::Input(
-                    "the device has a frame open: restart it (it resumes from flash) or stream without --resume"
+                    "--resume: the board holds no scan to resume (it is empty, or it was \
+                     reset): stream without --resume to scan from the first frame"
                         .into(),
                 ));
             }
             // In a later session (`--extend`), the sequence is that session.
             self.first_index = st.session_first;
             let seen = st.frames_seen.saturating_sub(st.session_first) as usize;
-            if let Some(n) = frames.filter(|&n| seen > n) {
+            if let Some(n) = frames.map(<[f64]>::len).filter(|&n| seen > n) {
                 return Err(DeviceError::Input(format!(
-                    "the device has seen {seen} frames, the sequence has {n}: not this sequence?"
+                    "--resume: the board has seen {seen} frames, the sequence has {n}: not this \
+                     sequence?"
                 )));
+            }
+            if let Some(timestamps) = frames {
+                if let Some((frame, ours, theirs)) =
+                    self.first_other_frame(client, &st, timestamps)?
+                {
+                    return Err(DeviceError::Input(format!(
+                        "--resume: frame {} of the sequence has timestamp {ours}, the board's \
+                         scan has {theirs}: not the sequence it scanned (give that one, or start \
+                         a new scan with --new-scan)",
+                        frame - st.session_first
+                    )));
+                }
             }
             self.next_frame = st.frames_seen;
         } else if opts.reset {
+            if !opts.new_scan {
+                if let Some(held) = held_scan(&st) {
+                    return Err(DeviceError::Input(format!(
+                        "the board holds {held}: export it first (placedb export --port PORT -o \
+                         DIR), go on with it (--resume; --extend for a new session of a finished \
+                         scan), or replace it with --new-scan"
+                    )));
+                }
+            }
             self.call(client, HostMessage::Reset, "Reset")?;
         }
         self.started = Some(Instant::now());
@@ -535,6 +611,62 @@ impl ScanState {
         };
         self.set_config(cfg);
         Ok(st)
+    }
+
+    /// The first frame of the sequence `timestamps` (the host's, of the
+    /// frames from the session's first on) whose timestamp is not the one
+    /// the device decided it with, among the frames the device holds
+    /// decisions of; `None` when they agree. Found by bisection over the
+    /// device's label records (the decided frames are a prefix), a few
+    /// records read however long the scan.
+    pub(crate) fn first_other_frame<L: Link>(
+        &mut self,
+        client: &mut Client<L>,
+        st: &Status,
+        timestamps: &[f64],
+    ) -> Result<Option<(u32, f64, f64)>, DeviceError> {
+        let first = st.session_first;
+        // The labels the device can export: its decisions in the log.
+        let labels = st.capacity(CapacitySlot::Labels).used;
+        let decided = st
+            .frames_decided
+            .min(labels)
+            .min(first.saturating_add(timestamps.len() as u32));
+        let mut theirs = |frame: u32| -> Result<f64, DeviceError> {
+            let record = st.database_size.saturating_add(frame);
+            let got = export::records(client, record, 1, st.database_size)?;
+            match got.first() {
+                Some(r) if r.frame == frame => Ok(r.timestamp),
+                _ => Err(DeviceError::Protocol(format!(
+                    "the device gave no label of frame {frame}"
+                ))),
+            }
+        };
+        let ours = |frame: u32| timestamps[(frame - first) as usize];
+        let differs = |t: f64, frame: u32| t.to_bits() != ours(frame).to_bits();
+        if decided <= first {
+            return Ok(None);
+        }
+        // The last decided frame agrees: so do the ones before it, but for
+        // a sequence edited in the middle, which bisection finds as well.
+        let (mut lo, mut hi) = (first, decided - 1);
+        let t = theirs(hi)?;
+        if !differs(t, hi) {
+            let t0 = theirs(first)?;
+            return Ok(differs(t0, first).then(|| (first, ours(first), t0)));
+        }
+        let mut found = (hi, t);
+        while lo < hi {
+            let mid = lo + (hi - lo) / 2;
+            let t = theirs(mid)?;
+            if differs(t, mid) {
+                found = (mid, t);
+                hi = mid;
+            } else {
+                lo = mid + 1;
+            }
+        }
+        Ok(Some((found.0, ours(found.0), found.1)))
     }
 
     /// The configuration in force, and the rows per message it allows.

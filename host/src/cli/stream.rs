@@ -74,6 +74,10 @@ pub struct StreamArgs {
     /// Leave the scan open (no Finish): more frames can follow with --resume.
     #[arg(long)]
     no_finish: bool,
+    /// Replace the scan the board holds (finished or not) with a new one.
+    /// Without it a board holding a scan is refused, naming what it holds.
+    #[arg(long, conflicts_with_all = ["resume", "extend"])]
+    new_scan: bool,
     /// Replay at the sequence's recorded rate, as a live camera delivers it:
     /// a frame due while the device is still busy with earlier ones is
     /// skipped (named in the output and in skipped.csv with -o; it has no
@@ -118,7 +122,7 @@ pub fn run(a: StreamArgs) -> Result<(), Error> {
     // is touched.
     degradation::check_depth(&seq, v.range, v.stride)?;
     if a.realtime {
-        realtime::realtime_cmd(&a.port, &seq, &v, sel, &a.profile, a.rate, out)?;
+        realtime::realtime_cmd(&a.port, &seq, &v, sel, &a.profile, a.rate, a.new_scan, out)?;
         return Ok(());
     }
     let recovery = Recovery {
@@ -128,6 +132,7 @@ pub fn run(a: StreamArgs) -> Result<(), Error> {
         resume: a.resume,
         extend: a.extend,
         finish: !a.no_finish,
+        new_scan: a.new_scan,
     };
     stream_cmd(&a.port, &seq, &v, sel, &a.profile, out, a.quiet, &recovery)?;
     Ok(())

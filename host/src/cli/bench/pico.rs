@@ -250,7 +250,14 @@ fn stream_strides<L: Link>(
         };
         let scan = scan::scan_config(seq, &vcfg)?;
         let cfg = scan::device_config(&scan, &SELECTOR)?;
-        let report = scan::stream(client, seq, &cfg, PROFILE, &StreamOptions::default(), None)?;
+        let report = scan::stream(
+            client,
+            seq,
+            &cfg,
+            PROFILE,
+            &StreamOptions::replacing(),
+            None,
+        )?;
         frames += report.log_full_at.unwrap_or(report.frames);
     }
     Ok(frames)

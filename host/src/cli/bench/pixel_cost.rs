@@ -113,7 +113,14 @@ pub fn measure<L: Link>(
     let mut runs = Vec::with_capacity(strides.len());
     for stride in strides {
         let cfg = config_at(seq, vcfg, sel, stride)?;
-        let report = scan::stream(client, seq, &cfg, profile, &StreamOptions::default(), None)?;
+        let report = scan::stream(
+            client,
+            seq,
+            &cfg,
+            profile,
+            &StreamOptions::replacing(),
+            None,
+        )?;
         let (st, c) = (&report.status, &report.status.cost);
         if c.clock_hz == 0 || c.frames == 0 {
             return Err(DeviceError::Input(
@@ -177,8 +184,9 @@ pub fn stream_warmed<L: Link>(
             "a warm-up of {warm_up} frames leaves none of {n} to measure"
         )));
     }
-    let mut state = ScanState::new(StreamOptions::default());
-    state.begin(client, cfg, Some(profile), Some(n))?;
+    // A measurement: the board's earlier scan (a bench's, usually) goes.
+    let mut state = ScanState::new(StreamOptions::replacing());
+    state.begin(client, cfg, Some(profile), None)?;
     let mut warm = None;
     for i in 0..n {
         if i == warm_up {

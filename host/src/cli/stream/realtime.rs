@@ -16,7 +16,8 @@ use std::time::Duration;
 
 /// `placedb stream --realtime`: replays `seq` to the device on `port` at
 /// the camera's rate, or at `rate` frames per second (`--rate`)
-/// ([`realtime_on`], [`Pace::of`]). A refused `seq`, selector, profile,
+/// ([`realtime_on`], [`Pace::of`]); `new_scan`: replace the scan the device
+/// holds ([`StreamOptions::new_scan`]). A refused `seq`, selector, profile,
 /// rate or `out` fails before the port is opened.
 #[allow(clippy::too_many_arguments)]
 pub fn realtime_cmd(
@@ -26,6 +27,7 @@ pub fn realtime_cmd(
     sel: SelectorConfig,
     profile: &str,
     rate: Option<f64>,
+    new_scan: bool,
     out: Option<&Path>,
 ) -> Result<RealtimeReport, DeviceError> {
     stream_config(seq, vcfg, sel, profile)?;
@@ -34,7 +36,7 @@ pub fn realtime_cmd(
         crate::output::check_database_dir(dir)?;
     }
     let link = link::open(port, Duration::from_secs(10))?;
-    realtime_on(link, port, seq, vcfg, sel, profile, rate, out)
+    realtime_on(link, port, seq, vcfg, sel, profile, rate, new_scan, out)
 }
 
 /// `count` things, `first` to `first + count - 1` in words: "frame 0",
@@ -61,11 +63,16 @@ pub fn realtime_on<L: Link>(
     sel: SelectorConfig,
     profile: &str,
     rate: Option<f64>,
+    new_scan: bool,
     out: Option<&Path>,
 ) -> Result<RealtimeReport, DeviceError> {
     let (scan, sel, cfg) = stream_config(seq, vcfg, sel, profile)?;
     let pace = Pace::of(seq, rate)?;
-    let mut session = Session::new(Client::new(link), StreamOptions::default());
+    let opts = StreamOptions {
+        new_scan,
+        ..StreamOptions::default()
+    };
+    let mut session = Session::new(Client::new(link), opts);
     let report = stream_realtime(&mut session, seq, &cfg, profile, &pace)?;
     report.check_measured(seq)?;
     let n = seq.frames.len();
