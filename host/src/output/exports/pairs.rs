@@ -28,8 +28,9 @@ pub enum Names {
     /// Every frame's colour file, relative to the sequence's root with `/`
     /// separators, by frame index.
     Colour(Vec<String>),
-    /// [`image_name`]s (`NNNNNN.jpg`): the sequence has no colour file for
-    /// this frame (the first without), or no frame at all.
+    /// [`image_name`]s (`NNNNNN.jpg`): the first frame without a colour
+    /// file when others have one, `None` when none has (a ROS 2 bag, a
+    /// depth-only layout, the built-in renderer).
     Index(Option<usize>),
 }
 
@@ -44,7 +45,8 @@ pub fn names(seq: &Sequence, file: &Path) -> Result<Names, OutputError> {
     let mut names = Vec::with_capacity(seq.frames.len());
     for (i, frame) in seq.frames.iter().enumerate() {
         let Some(colour) = &frame.color_path else {
-            return Ok(Names::Index(Some(i)));
+            let some = seq.frames.iter().any(|f| f.color_path.is_some());
+            return Ok(Names::Index(some.then_some(i)));
         };
         names.push(colour_name(root, colour).map_err(|why| {
             OutputError::Mismatch(format!(
