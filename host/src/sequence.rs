@@ -133,6 +133,11 @@ pub trait DepthSource: Send + Sync {
 pub struct Sequence {
     /// Human-readable name (directory name or "synthetic").
     pub name: String,
+    /// The directory (or bag) it was read from, as the user gave it: a file
+    /// layout's [`FrameInfo::color_path`]s are this joined with their paths
+    /// in the layout, so that `--pairs` names them relative to it. `None`
+    /// for the built-in renderer.
+    pub root: Option<PathBuf>,
     /// Layout it was read from.
     pub format: Format,
     /// Camera intrinsics.

@@ -386,3 +386,65 @@ fn a_board_holding_a_scan_refuses_a_new_one_until_new_scan() {
     let replaced = export(&tmp.arg("replaced"));
     assert_eq!(replaced.lines().count(), 1 + 5, "{replaced}");
 }
+
+/// `export --sequence SEQ --pairs` names the frames by their colour files
+/// relative to SEQ, as `select` does: each pairs name is a file under SEQ,
+/// the query a frame the device did not keep, the database one it kept.
+#[test]
+fn export_pairs_name_the_sequences_colour_files() {
+    let tmp = TempDir::new("export-pairs-colour");
+    let dir = tmp.path().join("seq");
+    let frames = 20;
+    seven_scenes_copy(&dir, frames, true);
+    for i in 0..frames {
+        let name = format!("frame-{i:06}.color.jpg");
+        std::fs::copy(
+            std::path::Path::new(cli_common::SEVEN_SCENES).join(&name),
+            dir.join(&name),
+        )
+        .unwrap();
+    }
+    let seq = tmp.arg("seq");
+    let board = Board::start();
+    // Stride 8 keeps the emulated board's scan short.
+    let run = placedb(&["stream", &seq, "--port", &board.port, "--stride", "8", "-q"]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let (out, pairs) = (tmp.arg("out"), tmp.arg("pairs.txt"));
+    let run = placedb(&[
+        "export",
+        "--port",
+        &board.port,
+        "-q",
+        "-o",
+        &out,
+        "--sequence",
+        &seq,
+        "--pairs",
+        &pairs,
+    ]);
+    let err = stderr(&run);
+    assert!(run.status.success(), "{err}");
+    assert!(!err.contains("--pairs"), "a note about the names: {err}");
+    let labels: Vec<usize> = std::fs::read_to_string(tmp.path().join("out/labels.csv"))
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(2).unwrap().parse().unwrap())
+        .collect();
+    let text = std::fs::read_to_string(&pairs).unwrap();
+    assert!(text.lines().count() > 0, "no pairs");
+    for line in text.lines() {
+        let names: Vec<&str> = line.split_whitespace().collect();
+        assert_eq!(names.len(), 2, "{line:?}");
+        let index = |name: &str| -> usize {
+            assert!(dir.join(name).is_file(), "{name}: no file under {seq}");
+            let n = name
+                .strip_prefix("frame-")
+                .and_then(|r| r.strip_suffix(".color.jpg"));
+            n.unwrap_or_else(|| panic!("{name}")).parse().unwrap()
+        };
+        let (q, d) = (index(names[0]), index(names[1]));
+        assert!(labels[q] != q, "{line}: query {q} is a database frame");
+        assert!(labels[d] == d, "{line}: {d} is no database frame");
+    }
+}

@@ -1,8 +1,11 @@
 //! `select --colmap/--vpr-eval/--pairs` and `export --sequence`: the COLMAP
 //! model read back against database.csv, the VPR-evaluation names parsed
-//! back to the poses, the pairs above mu and best first, the outputs
+//! back to the poses, the pairs above mu and best first and named by the
+//! sequence's colour files (frame indices without them), the outputs
 //! without the new options unchanged, a failed export leaving the previous
 //! one, and a device's exports equal to select's.
+
+mod cli_common;
 
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use placedb_host::board::client::Client;
@@ -82,6 +85,17 @@ fn colmap_centres(dir: &Path) -> BTreeMap<String, [f64; 3]> {
             (f[9].to_string(), [c.x, c.y, c.z])
         })
         .collect()
+}
+
+/// The frame of a 7-Scenes colour file's name in the pairs,
+/// `frame-NNNNNN.color.jpg` (the sample numbers its frames from 0).
+fn colour_index(name: &str) -> usize {
+    let n = name
+        .strip_prefix("frame-")
+        .and_then(|r| r.strip_suffix(".color.jpg"))
+        .unwrap_or_else(|| panic!("{name:?} is no 7-Scenes colour file"));
+    assert_eq!(n.len(), 6, "{name:?}");
+    n.parse().unwrap()
 }
 
 fn files(dir: &Path) -> Vec<String> {
@@ -185,10 +199,12 @@ fn colmap_vpr_eval_and_pairs_of_a_recorded_sequence() {
     let prep = pipeline::prepare(&seq, VoxelConfig::default(), true).unwrap();
     let text = std::fs::read_to_string(&pairs).unwrap();
     let mut listed: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
-    let index = |name: &str| name.trim_end_matches(".jpg").parse::<usize>().unwrap();
     for line in text.lines() {
         let (q, d) = line.split_once(' ').unwrap();
-        listed.entry(index(q)).or_default().push(index(d));
+        listed
+            .entry(colour_index(q))
+            .or_default()
+            .push(colour_index(d));
     }
     for q in (0..FRAMES).filter(|q| !db.contains_key(q)) {
         let got = listed.remove(&q).unwrap_or_default();
@@ -406,5 +422,153 @@ fn a_devices_exports_are_selects() {
     let p = std::fs::read_to_string(&pairs).unwrap();
     assert!(!p.is_empty());
     assert_eq!(p, std::fs::read_to_string(&pairs2).unwrap());
+    std::fs::remove_dir_all(&root).ok();
+}
+
+/// labels.csv: each frame's class, by frame index.
+fn labels_csv(dir: &Path) -> Vec<usize> {
+    let text = std::fs::read_to_string(dir.join("labels.csv")).unwrap();
+    text.lines()
+        .skip(1)
+        .enumerate()
+        .map(|(i, l)| {
+            let f: Vec<&str> = l.split(',').collect();
+            assert_eq!(f[0], i.to_string(), "{l}");
+            f[2].parse().unwrap()
+        })
+        .collect()
+}
+
+/// `--pairs` names the images the user has, so that hloc finds them with
+/// the sequence directory as its image_dir: every line is exactly two
+/// whitespace-free names (hloc's parse_retrieval splits at whitespace),
+/// each an existing colour file under the sequence directory, the first a
+/// non-database frame, the second a database frame.
+#[test]
+fn pairs_name_the_sequences_colour_files() {
+    let root = temp("pairs-colour");
+    let (out, pairs) = (root.join("out"), root.join("pairs.txt"));
+    let run = placedb(&[
+        "select",
+        SEVEN_SCENES,
+        "--max-frames",
+        "40",
+        "-q",
+        "-o",
+        out.to_str().unwrap(),
+        "--pairs",
+        pairs.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{err}");
+    assert!(!err.contains("--pairs"), "a note about the names: {err}");
+    let labels = labels_csv(&out);
+    assert_eq!(labels.len(), 40);
+    let db = database_csv(&out);
+    let text = std::fs::read_to_string(&pairs).unwrap();
+    assert!(text.lines().count() > 0, "no pairs");
+    for line in text.lines() {
+        let names: Vec<&str> = line.split_whitespace().collect();
+        assert_eq!(names.len(), 2, "{line:?}");
+        assert_eq!(line, names.join(" "), "one space between two names");
+        for name in &names {
+            assert!(!name.starts_with('/'), "{name}: not relative");
+            let file = Path::new(SEVEN_SCENES).join(name);
+            assert!(file.is_file(), "{name}: no file {}", file.display());
+        }
+        let (q, d) = (colour_index(names[0]), colour_index(names[1]));
+        assert!(labels[q] != q && !db.contains_key(&q), "{line}: query {q}");
+        assert!(
+            labels[d] == d && db.contains_key(&d),
+            "{line}: database {d}"
+        );
+    }
+    std::fs::remove_dir_all(&root).ok();
+}
+
+/// A sequence without colour files keeps the frame-index names and says
+/// so in one line on stderr; a colour file whose name holds whitespace is
+/// refused before anything is written, naming it.
+#[test]
+fn pairs_without_colour_or_with_unwritable_names() {
+    let root = temp("pairs-names");
+    let depth_only = root.join("depth-only");
+    cli_common::seven_scenes_copy(&depth_only, 20, true);
+    let pairs = root.join("pairs.txt");
+    let run = placedb(&[
+        "select",
+        depth_only.to_str().unwrap(),
+        "-q",
+        "-o",
+        root.join("out").to_str().unwrap(),
+        "--pairs",
+        pairs.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{err}");
+    let said: Vec<&str> = err.lines().filter(|l| l.contains("--pairs")).collect();
+    assert_eq!(said.len(), 1, "{err}");
+    assert!(
+        said[0].contains("has no colour image file")
+            && said[0].contains("the pairs name frames by index, NNNNNN.jpg"),
+        "{err}"
+    );
+    let text = std::fs::read_to_string(&pairs).unwrap();
+    assert!(text.lines().count() > 0);
+    for name in text.split_whitespace() {
+        let i: usize = name.strip_suffix(".jpg").unwrap().parse().unwrap();
+        assert_eq!(name, exports::image_name(i));
+    }
+
+    // The reference layout lists its colour files from color/: one with a
+    // space in its name cannot be written as hloc's pairs.
+    let spaced = root.join("spaced");
+    let src = Path::new(SEVEN_SCENES);
+    std::fs::create_dir_all(spaced.join("depth")).unwrap();
+    std::fs::create_dir_all(spaced.join("color")).unwrap();
+    let mut poses = String::new();
+    for i in 0..3 {
+        std::fs::copy(
+            src.join(format!("frame-{i:06}.depth.png")),
+            spaced.join(format!("depth/{i}.png")),
+        )
+        .unwrap();
+        let colour = if i == 1 {
+            "c 1.jpg".to_string()
+        } else {
+            format!("c{i}.jpg")
+        };
+        std::fs::copy(
+            src.join(format!("frame-{i:06}.color.jpg")),
+            spaced.join("color").join(colour),
+        )
+        .unwrap();
+        poses.push_str("0 0 0 0 0 0 1\n");
+    }
+    std::fs::write(spaced.join("poses.txt"), poses).unwrap();
+    std::fs::write(
+        spaced.join("intrinsics.txt"),
+        "585 0 320\n0 585 240\n0 0 1\n",
+    )
+    .unwrap();
+    let (out, pairs) = (root.join("out2"), root.join("pairs2.txt"));
+    let run = placedb(&[
+        "select",
+        spaced.to_str().unwrap(),
+        "-q",
+        "-o",
+        out.to_str().unwrap(),
+        "--pairs",
+        pairs.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains(&format!("--pairs {}", pairs.display()))
+            && err.contains("color/c 1.jpg")
+            && err.contains("has whitespace or a line break in its name"),
+        "{err}"
+    );
+    assert!(!out.exists() && !pairs.exists(), "something was written");
     std::fs::remove_dir_all(&root).ok();
 }

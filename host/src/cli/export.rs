@@ -137,6 +137,10 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
     }
     // A refused or unwritable output fails before the device is asked.
     output::check_outputs(&a.out, a.dataset.as_deref(), &targets)?;
+    if let (Some(file), Some(seq)) = (&targets.pairs, &seq) {
+        // So does a colour file the pairs cannot name.
+        crate::output::exports::pairs::names(seq, file)?;
+    }
     let mut client = connect(&a.port)?;
     let export = export::pull(
         &mut client,

@@ -40,7 +40,8 @@ pub struct ExportFlags {
     #[arg(long)]
     pub vpr_eval: Option<PathBuf>,
     /// Also write hloc's retrieval pairs to this file: each non-database
-    /// frame with the database frames it overlaps above mu, best first.
+    /// frame with the database frames it overlaps above mu, best first,
+    /// named by their colour files relative to SEQ (docs/exports.md).
     #[arg(long)]
     pub pairs: Option<PathBuf>,
 }

@@ -55,6 +55,10 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
     let targets = a.exports.targets();
     output::check_outputs(&a.out, a.dataset.as_deref(), &targets)?;
     let seq = open_sequence(&a.seq)?;
+    if let Some(file) = &targets.pairs {
+        // A colour file the pairs cannot name fails the run before the work.
+        exports::pairs::names(&seq, file)?;
+    }
     super::warn_voxel_memory(&seq, &a.seq);
     let prep = pipeline::prepare(&seq, voxel_config(&a.seq), a.params.quiet)?;
     // The top view's map and trajectory do not depend on the solver: they

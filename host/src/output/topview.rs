@@ -626,6 +626,7 @@ mod tests {
         let q = [0.5, -0.5, 0.5, -0.5];
         Sequence {
             name: "test".into(),
+            root: None,
             format: Format::Synthetic,
             camera: CameraModel {
                 fx: 100.0,

@@ -349,6 +349,7 @@ fn assemble(
     let size = first_size(dir, &paths)?;
     Ok(Sequence {
         name: text::dir_name(dir),
+        root: Some(dir.to_path_buf()),
         format,
         camera,
         depth_scale,

@@ -159,6 +159,7 @@ pub fn sequence(cfg: &SynthConfig) -> Sequence {
     let poses = frames.iter().map(|f| (f.translation, f.rotation)).collect();
     Sequence {
         name: "synthetic".to_string(),
+        root: None,
         format: Format::Synthetic,
         camera,
         depth_scale: DEPTH_SCALE,

@@ -43,6 +43,7 @@ pub fn new_place_every_frame(frames: usize) -> Sequence {
     let f = 0.8 * f64::from(WIDTH);
     Sequence {
         name: "new-place-every-frame".to_string(),
+        root: None,
         format: Format::Synthetic,
         camera: CameraModel {
             fx: f,

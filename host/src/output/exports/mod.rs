@@ -132,7 +132,8 @@ impl Selection<'_> {
     }
 }
 
-/// The name of frame `i`'s image in the COLMAP export and in the pairs.
+/// The name of frame `i`'s image in the COLMAP export, and in the pairs
+/// of a sequence without colour files ([`pairs::names`]).
 pub fn image_name(i: usize) -> String {
     format!("{i:06}.jpg")
 }
@@ -155,6 +156,11 @@ pub fn write_all(
         return Ok(said);
     }
     sel.check()?;
+    // Names the pairs cannot hold refuse the run before any export is made.
+    let names = match &flags.pairs {
+        Some(file) => Some(pairs::names(sel.seq, file)?),
+        None => None,
+    };
     if let Some(dir) = &flags.colmap {
         let d = outputs.dir(dir, COLMAP, colmap::is_export)?;
         let n = colmap::write(&d, sel)?;
@@ -171,8 +177,8 @@ pub fn write_all(
             dir.display()
         ));
     }
-    if let Some(file) = &flags.pairs {
-        let text = pairs::text(sel)?;
+    if let (Some(file), Some(names)) = (&flags.pairs, &names) {
+        let text = pairs::text(sel, names)?;
         replace::write_text(&outputs.file(file, PAIRS, pairs::is_pairs)?, &text)?;
         said.push(format!(
             "  pairs: {} query-database pairs above mu {} in {}",
@@ -180,6 +186,19 @@ pub fn write_all(
             sel.mu,
             file.display()
         ));
+        if let pairs::Names::Index(first) = names {
+            // These names are no file of the user's: say so where a script
+            // reading stdout does not trip over it.
+            let why = match first {
+                Some(i) => format!("frame {i} of the sequence has no colour image file"),
+                None => "the sequence has no colour image files".into(),
+            };
+            crate::warning::warn(format!(
+                "--pairs {}: {why}, so the pairs name frames by index, NNNNNN.jpg; \
+                 give hloc an image directory holding the frames under those names",
+                file.display()
+            ));
+        }
     }
     Ok(said)
 }

@@ -583,6 +583,7 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadErro
     };
     Ok(Sequence {
         name,
+        root: Some(path.to_path_buf()),
         format: Format::Ros2,
         camera,
         depth_scale: opts.depth_scale.unwrap_or(DEPTH_SCALE),
