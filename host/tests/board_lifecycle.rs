@@ -221,3 +221,69 @@ fn resume_clears_a_frame_a_killed_host_left_open_and_goes_on() {
         exported(&mut whole, "uninterrupted")
     );
 }
+
+/// A link that fails (the board unplugged) once `left` replies went through.
+struct Cut {
+    inner: LocalLink,
+    left: usize,
+}
+
+impl Link for Cut {
+    fn send(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+        self.inner.send(bytes)
+    }
+
+    fn recv(&mut self, timeout: std::time::Duration) -> std::io::Result<Vec<u8>> {
+        if self.left == 0 {
+            return Err(std::io::ErrorKind::ConnectionReset.into());
+        }
+        self.left -= 1;
+        self.inner.recv(timeout)
+    }
+}
+
+/// An interrupted export names the `--from N` to go on with, N the checked
+/// records it saved, and that export goes on to the whole one.
+#[test]
+fn an_interrupted_export_names_its_from() {
+    use placedb_host::board::export::{export_to_with, read_partial, ExportOptions};
+    let seq = demo(60);
+    let cfg = config(&seq);
+    let link = Cut {
+        inner: LocalLink::start(PROFILE).unwrap(),
+        left: usize::MAX,
+    };
+    let mut client = Client::new(link);
+    stream(
+        &mut client,
+        &seq,
+        &cfg,
+        PROFILE,
+        &StreamOptions::default(),
+        None,
+    )
+    .unwrap();
+    let dir = temp("interrupted");
+    let small = ExportOptions {
+        batch: 8,
+        ..ExportOptions::default()
+    };
+    client.link().left = 40;
+    let err = export_to_with(&mut client, &dir, None, true, &small, &[])
+        .unwrap_err()
+        .to_string();
+    let (_, saved) = read_partial(&dir).unwrap();
+    assert!(saved.len() >= 8, "{} saved: {err}", saved.len());
+    let from = format!(
+        "resume with --from {n} (the {n} checked records",
+        n = saved.len()
+    );
+    assert!(err.contains(&from), "{err}");
+    client.link().left = usize::MAX;
+    let from = Some(saved.len() as u32);
+    let resumed = export_to_with(&mut client, &dir, from, true, &small, &[]).unwrap();
+    let whole = export_to_with(&mut client, &temp("whole"), None, true, &small, &[]).unwrap();
+    assert_eq!(resumed.records, whole.records);
+    std::fs::remove_dir_all(&dir).unwrap();
+    std::fs::remove_dir_all(temp("whole")).ok();
+}

@@ -641,3 +641,61 @@ fn select_quiet_prints_no_summary_only_its_warnings() {
     assert_eq!(json["empty_frames"], 1, "{json}");
     assert!(stderr(&r).contains(warned), "{}", stderr(&r));
 }
+
+/// Exporting an open scan (`stream --no-finish -o`) says so, even with
+/// `-q`, and `metrics.json` counts its decided and undecided frames.
+#[test]
+fn an_open_scans_export_says_it_is_open() {
+    let t = TempDir::new("open-scan");
+    let out = t.arg("out");
+    let run = placedb(&[
+        "stream",
+        "--demo",
+        "--demo-frames",
+        "30",
+        "--stride",
+        "8",
+        "--window",
+        "8",
+        "--no-finish",
+        "--port",
+        "local:ram512k",
+        "-q",
+        "-o",
+        &out,
+    ]);
+    let text = succeeds(&run);
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        err.contains("placedb: warning: the board's scan is open (not finished): 30 frames seen"),
+        "{text}{err}"
+    );
+    let m = metrics(&t.join("out"));
+    assert_eq!(m["scan_finished"], false, "{m}");
+    let (decided, undecided) = (m["frames_decided"].as_u64(), m["frames_undecided"].as_u64());
+    assert_eq!(decided.unwrap() + undecided.unwrap(), 30, "{m}");
+    assert!(undecided.unwrap() > 0, "{m}");
+}
+
+/// The status line shows the window the scan was given, not the profile's.
+#[test]
+fn the_status_line_shows_the_chosen_window() {
+    let t = TempDir::new("window");
+    let out = t.arg("out");
+    let run = placedb(&[
+        "stream",
+        "--demo",
+        "--demo-frames",
+        "12",
+        "--stride",
+        "8",
+        "--window",
+        "3",
+        "--port",
+        "local:ram512k",
+        "-o",
+        &out,
+    ]);
+    let text = succeeds(&run);
+    assert!(text.contains(" win 0/3 "), "{text}");
+}

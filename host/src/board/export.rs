@@ -492,30 +492,37 @@ pub fn pull<L: Link>(
     }
     append_frames(&partial, &head).map_err(saving)?;
     let pb = (!quiet).then(|| ProgressBar::new(0));
+    // Records saved in the resume file: where an interrupted export goes on.
+    let saved = std::cell::Cell::new(have.len());
+    let resume_hint = |e: DeviceError| match e {
+        DeviceError::Io(io) => DeviceError::Io(io::Error::new(
+            io.kind(),
+            format!(
+                "{io}; resume with --from {n} (the {n} checked records are saved in {})",
+                partial.display(),
+                n = saved.get()
+            ),
+        )),
+        other => other,
+    };
     let export = export(client, have, opts, pb.as_ref(), &mut |batch| {
         let msgs: Vec<_> = batch
             .iter()
             .map(|r| DeviceMessage::ExportRecord(*r))
             .collect();
-        append_frames(&partial, &msgs).map_err(saving)
+        append_frames(&partial, &msgs).map_err(saving)?;
+        saved.set(saved.get() + batch.len());
+        Ok(())
     })
-    .map_err(|e| match e {
-        DeviceError::Io(io) => DeviceError::Io(io::Error::new(
-            io.kind(),
-            format!(
-                "{io}; resume with --from N (checked records are saved in {})",
-                partial.display()
-            ),
-        )),
-        other => other,
-    })?;
+    .map_err(resume_hint)?;
     if let Some(pb) = &pb {
         pb.finish_and_clear();
     }
     let mut export = export;
     // A finished scan's whole log is read for its extension file, which
     // gives the configuration too; otherwise only the log's first record.
-    match extension_of(client, &export, opts)? {
+    let read_log = extension_of(client, &export, opts);
+    match read_log.map_err(resume_hint)? {
         Some((extension, scan)) => {
             export.extension = Some(extension);
             export.config = Some(scan.config);

@@ -243,17 +243,22 @@ pub fn stream_config(
     Ok((scan, sel, cfg))
 }
 
-/// One line about the device's state, for a live status display.
-pub fn status_line(st: &Status) -> String {
+/// One line about the device's state, for a live status display; `window`:
+/// the window the scan was configured with (the device reports its
+/// profile's capacity, which the scan may use less of).
+pub fn status_line(st: &Status, window: Option<u16>) -> String {
     let c = |slot| {
         let c = st.capacity(slot);
         format!("{}/{}", c.used, c.limit)
     };
+    let win = st.capacity(CapacitySlot::Window);
+    let win_limit = window.map_or(win.limit, |w| win.limit.min(u32::from(w)));
     let mut s = format!(
-        "db {} pool {} win {} labels {} flash {}/{} KiB",
+        "db {} pool {} win {}/{} labels {} flash {}/{} KiB",
         c(CapacitySlot::Database),
         c(CapacitySlot::Pool),
-        c(CapacitySlot::Window),
+        win.used,
+        win_limit,
         c(CapacitySlot::Labels),
         st.capacity(CapacitySlot::Flash).used / 1024,
         st.capacity(CapacitySlot::Flash).limit / 1024,
@@ -356,7 +361,8 @@ fn send_frames<L: Link>(
             p.set_position(i as u64 + 1);
             if let Some(st) = &scan.status {
                 let fps = (i + 1 - first) as f64 / started.elapsed().as_secs_f64().max(1e-9);
-                p.set_message(format!("{fps:.2} fps | {}", status_line(st)));
+                let line = status_line(st, Some(cfg.window));
+                p.set_message(format!("{fps:.2} fps | {line}"));
             }
         }
     }

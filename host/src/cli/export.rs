@@ -200,9 +200,7 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
         Ok((dataset, exported))
     })?;
     export::finished(&a.out)?;
-    if !a.quiet {
-        print_exported(&a.out, &export);
-    }
+    print_exported(&a.out, &export, a.quiet);
     if let Some((dir, d)) = &dataset {
         print_dataset(dir, d);
     }
@@ -226,15 +224,28 @@ pub fn export_cmd(
     output::check_database_dir(out)?;
     let mut client = connect(port)?;
     let export = export_to(&mut client, out, from, quiet)?;
-    if !quiet {
-        print_exported(out, &export);
-    }
+    print_exported(out, &export, quiet);
     Ok(export)
 }
 
 /// The line saying what an export pulled and wrote to `out` (`export -o`
-/// and `stream -o`).
-pub fn print_exported(out: &Path, export: &Export) {
+/// and `stream -o`; not when `quiet`), and a warning when the scan is open
+/// (its undecided frames have no label yet).
+pub fn print_exported(out: &Path, export: &Export, quiet: bool) {
+    let st = &export.status;
+    if st.phase != placedb::protocol::Phase::Finished {
+        crate::warning::warn(format!(
+            "the board's scan is open (not finished): {} seen, {} decided, {} undecided and \
+             not in {}; finish it with placedb stream SEQ --port PORT --resume, then export again",
+            plural(st.frames_seen.into(), "frame", "frames"),
+            st.frames_decided,
+            st.frames_seen.saturating_sub(st.frames_decided),
+            out.display()
+        ));
+    }
+    if quiet {
+        return;
+    }
     let firsts = export.sessions();
     println!(
         "exported {} ({}, {}{}), checked by count and CRC{}; wrote {}/{{database.csv,labels.csv,metrics.json{}}}",

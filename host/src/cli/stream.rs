@@ -277,7 +277,7 @@ pub fn stream_cmd(
             report.retransmissions
         );
     }
-    println!("  {}", status_line(st));
+    println!("  {}", status_line(st, Some(sel.window)));
     println!(
         "  input: {} skipped by the reader, {} outside the voxel key range (device count)",
         plural(seq.frames_skipped as u64, "frame", "frames"),
@@ -295,9 +295,7 @@ pub fn stream_cmd(
         Some(dir) => {
             let opts = recovery.export_options();
             let export = export::export_to_with(&mut client, dir, None, quiet, &opts, &[])?;
-            if !quiet {
-                super::export::print_exported(dir, &export);
-            }
+            super::export::print_exported(dir, &export, quiet);
         }
         None => println!("  pull the result with: placedb export --port {port} -o DIR"),
     }

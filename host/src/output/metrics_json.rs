@@ -146,6 +146,10 @@ pub fn of_device(
         "reduction": if size > 0 { f64::from(frames) / f64::from(size) } else { 0.0 },
         "profile": profile,
         "frames_seen": st.frames_seen,
+        // An open scan (not finished) exports only its decided frames.
+        "scan_finished": st.phase == placedb::protocol::Phase::Finished,
+        "frames_decided": st.frames_decided,
+        "frames_undecided": st.frames_seen.saturating_sub(st.frames_decided),
         "sketched_frames": st.sketched_frames,
         "truncated_frames": st.truncated_frames,
         "uncovered_by_capacity": st.uncovered_frames,
