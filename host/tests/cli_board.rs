@@ -448,3 +448,47 @@ fn export_pairs_name_the_sequences_colour_files() {
         assert!(labels[d] == d, "{line}: {d} is no database frame");
     }
 }
+
+/// Ctrl-C during `stream` stops it between frames with status 130 and a
+/// word on how to go on; the board has no frame open, and `--resume` goes
+/// on to the whole scan.
+#[test]
+fn ctrl_c_stops_a_stream_cleanly_and_resume_goes_on() {
+    let tmp = TempDir::new("ctrl-c");
+    let dir = tmp.path().join("seq");
+    seven_scenes_copy(&dir, 40, true);
+    let seq = tmp.arg("seq");
+    let board = Board::start();
+    let args = ["stream", &seq, "--port", &board.port, "--stride", "8", "-q"];
+    let child = Command::new(env!("CARGO_BIN_EXE_placedb"))
+        .args(args)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The emulated board takes a few frames a second: some are sent by now.
+    std::thread::sleep(Duration::from_secs(4));
+    let killed = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let run = child.wait_with_output().unwrap();
+    let err = stderr(&run);
+    assert_eq!(run.status.code(), Some(130), "{err}");
+    assert!(
+        err.contains("stopped by Ctrl-C before frame")
+            && err.contains("none is left open")
+            && err.contains("--resume"),
+        "{err}"
+    );
+    let mut resume = args.to_vec();
+    resume.push("--resume");
+    let run = placedb(&resume);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let out = tmp.arg("out");
+    let run = placedb(&["export", "--port", &board.port, "-q", "-o", &out]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let labels = std::fs::read_to_string(format!("{out}/labels.csv")).unwrap();
+    assert_eq!(labels.lines().count(), 1 + 40, "{labels}");
+}

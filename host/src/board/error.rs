@@ -32,4 +32,13 @@ pub enum DeviceError {
     /// An output (directory or file) refused or not written; names it.
     #[error(transparent)]
     Output(#[from] crate::error::OutputError),
+    /// The run was asked to stop (SIGINT, SIGTERM) and stopped between
+    /// frames: every frame sent was answered, none is left open.
+    #[error("stopped by signal {signal} before frame {next}")]
+    Stopped {
+        /// The signal.
+        signal: i32,
+        /// The next frame (global index) it would have sent.
+        next: u32,
+    },
 }

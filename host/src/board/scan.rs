@@ -350,6 +350,15 @@ fn send_frames<L: Link>(
 ) -> Result<(), DeviceError> {
     let first = range.start;
     for i in range {
+        if let Some(signal) = crate::output::replace::stop_requested() {
+            // Asked to stop: every frame sent answered, none left open, so
+            // `--resume` goes on from the board's `frames_seen`.
+            scan.drain(client)?;
+            return Err(DeviceError::Stopped {
+                signal,
+                next: scan.next_frame,
+            });
+        }
         scan.push_sequence_frame(client, seq, i, cfg.intrinsics)?;
         // The live line's status; stop-and-wait without a display skips it.
         if scan.opts.retries == 0 || progress.is_some() {

@@ -192,17 +192,44 @@ pub fn stream_cmd(
         }
         pb
     });
-    let report = stream(
+    // Ctrl-C or SIGTERM ends the stream between frames, the board left
+    // ready for `--resume` (a second one stops at once).
+    crate::output::replace::defer_stop();
+    let streamed = stream(
         &mut client,
         seq,
         &cfg,
         profile,
         &recovery.stream_options(),
         pb.as_ref(),
-    )
-    .map_err(|e| lost_board(e, port))?;
+    );
     if let Some(pb) = &pb {
         pb.finish_and_clear();
+    }
+    if let Err(DeviceError::Stopped { signal, next }) = streamed {
+        eprintln!(
+            "placedb: stopped by {} before frame {next}: every frame sent is answered and none \
+             is left open on the board at {port}; go on with the same command and --resume",
+            if signal == libc::SIGINT {
+                "Ctrl-C"
+            } else {
+                "SIGTERM"
+            }
+        );
+        crate::output::replace::stop_now(signal);
+    }
+    let report = streamed.map_err(|e| lost_board(e, port))?;
+    // What follows (the summary, the export of -o) stops at once, as any
+    // run that writes outputs.
+    crate::output::replace::end_defer();
+    if let Some(signal) = crate::output::replace::stop_requested() {
+        // Stopped after the last frame: the scan is streamed (finished
+        // unless --no-finish); the export is not made.
+        eprintln!(
+            "placedb: stopped after the last frame: the board at {port} holds the scan; \
+             export it with placedb export --port {port} -o DIR"
+        );
+        crate::output::replace::stop_now(signal);
     }
     let st = &report.status;
     if report.frames > 0 && st.valid_pixels == 0 {

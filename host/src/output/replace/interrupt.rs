@@ -10,10 +10,50 @@
 //! renames the outputs into place, so a run stopped during its commit ends
 //! committed, never half), removes every registered sibling and exits.
 //! The handlers are installed when the first output is staged, so commands
-//! that write nothing keep the default signal behaviour.
+//! that write nothing keep the default signal behaviour. A run that can stop
+//! cleanly (`placedb stream`) defers the first signal instead
+//! ([`defer_stop`]): it polls [`stop_requested`], ends what it was doing and
+//! calls [`stop_now`].
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
 use std::sync::{Mutex, MutexGuard};
+
+/// Whether the first SIGINT or SIGTERM only asks the run to stop
+/// ([`defer_stop`]).
+static DEFER: AtomicBool = AtomicBool::new(false);
+/// The signal a deferred run was asked to stop by (0: none yet).
+static STOP: AtomicI32 = AtomicI32::new(0);
+
+/// From now on the first SIGINT or SIGTERM only asks the run to stop
+/// ([`stop_requested`]), so that it can end cleanly (a stream leaves no
+/// frame open on the board); a second one ends the process at once, as
+/// without it.
+pub fn defer_stop() {
+    DEFER.store(true, Ordering::SeqCst);
+    watch();
+}
+
+/// Ends [`defer_stop`]: a signal from now on ends the process at once (a
+/// stop asked before stays in [`stop_requested`]).
+pub fn end_defer() {
+    DEFER.store(false, Ordering::SeqCst);
+}
+
+/// The signal the run was asked to stop by, if it was ([`defer_stop`]).
+pub fn stop_requested() -> Option<i32> {
+    match STOP.load(Ordering::SeqCst) {
+        0 => None,
+        signal => Some(signal),
+    }
+}
+
+/// Ends the process stopped by `signal`: the partial siblings removed, the
+/// status a shell reports for it (130, 143).
+pub fn stop_now(signal: i32) -> ! {
+    remove_all(&live());
+    std::process::exit(128 + signal)
+}
 
 /// The partial siblings of the outputs being written.
 static LIVE: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
@@ -51,7 +91,6 @@ fn remove_all(live: &[PathBuf]) {
 
 #[cfg(unix)]
 fn watch() {
-    use std::sync::atomic::{AtomicI32, Ordering};
     use std::sync::Once;
 
     /// The pipe's write end (-1 until installed).
@@ -81,6 +120,13 @@ fn watch() {
                 let n = unsafe { libc::read(read_end, std::ptr::addr_of_mut!(byte).cast(), 1) };
                 if n == 1 {
                     let signal = libc::c_int::from(byte);
+                    if DEFER.load(Ordering::SeqCst)
+                        && STOP
+                            .compare_exchange(0, signal, Ordering::SeqCst, Ordering::SeqCst)
+                            .is_ok()
+                    {
+                        continue;
+                    }
                     let live = live();
                     remove_all(&live);
                     std::process::exit(128 + signal);
