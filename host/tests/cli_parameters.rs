@@ -371,3 +371,20 @@ fn a_tiny_voxel_warns_about_its_memory_before_the_work() {
     let usual = run_with("0.3");
     assert!(!usual.contains("MB a frame"), "{usual}");
 }
+
+/// `placedb device` names both boards when none is given, and refuses a
+/// flag of the other board, with status 2 before anything starts.
+#[test]
+fn device_names_both_boards_and_refuses_the_other_boards_flags() {
+    let run = placedb(&["device"]);
+    let err = stderr(&run);
+    assert_eq!(run.status.code(), Some(2), "{err}");
+    assert!(err.contains("<--qemu|--rp2040>"), "{err}");
+    let run = placedb(&["device", "--rp2040", "--no-icount"]);
+    let err = stderr(&run);
+    assert_eq!(run.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("'--rp2040' cannot be used with '--no-icount'"),
+        "{err}"
+    );
+}

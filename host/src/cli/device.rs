@@ -11,11 +11,12 @@ use clap::Args;
 use std::path::PathBuf;
 use std::time::Duration;
 
-/// `placedb device`.
+/// `placedb device`: one of the two boards, named by its flag.
 #[derive(Args)]
+#[command(group(clap::ArgGroup::new("board").required(true).args(["qemu", "rp2040"])))]
 pub struct DeviceArgs {
     /// Run the QEMU board (mps2-an386, Cortex-M4F, UART) under qemu-system-arm.
-    #[arg(long, required_unless_present = "rp2040", conflicts_with = "rp2040")]
+    #[arg(long)]
     qemu: bool,
     /// Run the Raspberry Pi Pico firmware (boards/rp-pico) under the RP2040
     /// emulator (rp2040js, Node): boot ROM, boot2, QSPI flash, and its USB
@@ -30,7 +31,7 @@ pub struct DeviceArgs {
     #[arg(long, default_value_t = 0, value_parser = params::whole::<u16>(0, 65535), allow_negative_numbers = true)]
     port: u16,
     /// Run without -icount shift=0 (faster, but no exact instruction counts; QEMU only).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "rp2040")]
     no_icount: bool,
     /// File holding the board's flash (its database log); created erased if
     /// missing and kept across runs, so a restarted board restores its scan.
