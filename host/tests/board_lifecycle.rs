@@ -45,6 +45,23 @@ fn status_of<L: Link>(client: &mut Client<L>) -> placedb::protocol::Status {
     ask_status(client, wait).unwrap().0
 }
 
+/// The export of `seq` streamed whole to a fresh board: what a resumed
+/// scan must come to (exported through temp dir `name`, one per test:
+/// the tests run at once in one process).
+fn uninterrupted(seq: &Sequence, cfg: &placedb::protocol::Config, name: &str) -> (String, String) {
+    let mut whole = board();
+    stream(
+        &mut whole,
+        seq,
+        cfg,
+        PROFILE,
+        &StreamOptions::default(),
+        None,
+    )
+    .unwrap();
+    exported(&mut whole, name)
+}
+
 /// The database and labels of the device's export.
 fn exported<L: Link>(client: &mut Client<L>, name: &str) -> (String, String) {
     let dir = temp(name);
@@ -136,8 +153,7 @@ fn resume_refuses_an_empty_board_and_another_sequence_naming_the_frame() {
         "{err}"
     );
     // 30 frames of the scan, left open.
-    let mut part = demo(30);
-    part.frames.truncate(30);
+    let part = demo(30);
     stream(
         &mut client,
         &part,
@@ -161,19 +177,9 @@ fn resume_refuses_an_empty_board_and_another_sequence_naming_the_frame() {
     );
     // Nothing changed: the right sequence resumes to the uninterrupted scan.
     stream(&mut client, &seq, &cfg, PROFILE, &resume, None).unwrap();
-    let mut whole = board();
-    stream(
-        &mut whole,
-        &seq,
-        &cfg,
-        PROFILE,
-        &StreamOptions::default(),
-        None,
-    )
-    .unwrap();
     assert_eq!(
         exported(&mut client, "resumed"),
-        exported(&mut whole, "whole")
+        uninterrupted(&seq, &cfg, "resumed-whole")
     );
 }
 
@@ -182,8 +188,7 @@ fn resume_clears_a_frame_a_killed_host_left_open_and_goes_on() {
     let seq = demo(30);
     let cfg = config(&seq);
     let mut client = board();
-    let mut part = demo(20);
-    part.frames.truncate(20);
+    let part = demo(20);
     stream(
         &mut client,
         &part,
@@ -206,19 +211,9 @@ fn resume_clears_a_frame_a_killed_host_left_open_and_goes_on() {
     assert_eq!(status_of(&mut client).phase, Phase::InFrame);
     let resume = opts(|o| o.resume = true);
     stream(&mut client, &seq, &cfg, PROFILE, &resume, None).unwrap();
-    let mut whole = board();
-    stream(
-        &mut whole,
-        &seq,
-        &cfg,
-        PROFILE,
-        &StreamOptions::default(),
-        None,
-    )
-    .unwrap();
     assert_eq!(
         exported(&mut client, "cleared"),
-        exported(&mut whole, "uninterrupted")
+        uninterrupted(&seq, &cfg, "uninterrupted")
     );
 }
 

@@ -631,9 +631,12 @@ impl ScanState {
     /// The first frame of the sequence `timestamps` (the host's, of the
     /// frames from the session's first on) whose timestamp is not the one
     /// the device decided it with, among the frames the device holds
-    /// decisions of; `None` when they agree. Found by bisection over the
-    /// device's label records (the decided frames are a prefix), a few
-    /// records read however long the scan.
+    /// decisions of; `None` when they agree. A few label records are read
+    /// however long the scan: the first and last decided frames, and when
+    /// the last differs, a bisection for the first that does (exact when the
+    /// sequences differ from some frame on, as another recording or a
+    /// retimed tail does; a frame changed only in the middle is not looked
+    /// for).
     pub(crate) fn first_other_frame<L: Link>(
         &mut self,
         client: &mut Client<L>,
@@ -662,8 +665,7 @@ impl ScanState {
         if decided <= first {
             return Ok(None);
         }
-        // The last decided frame agrees: so do the ones before it, but for
-        // a sequence edited in the middle, which bisection finds as well.
+        // The last decided frame agrees: only the first is checked besides.
         let (mut lo, mut hi) = (first, decided - 1);
         let t = theirs(hi)?;
         if !differs(t, hi) {
