@@ -705,8 +705,12 @@ fn metadata_yaml_as_the_standard_writers_leave_it() {
             ["`MESSAGE`", "unnamed", "ros2 bag decompress"],
         ),
         (
-            ROSBAGS_METADATA.replace("storage_identifier: mcap", "storage_identifier: sqlite3"),
-            ["`sqlite3`", "only mcap", "ros2 bag convert"],
+            ROSBAGS_METADATA.replace("storage_identifier: mcap", "storage_identifier: my_store"),
+            ["`my_store`", "only mcap and sqlite3", "ros2 bag convert"],
+        ),
+        (
+            ROSBAGS_METADATA.replace("- bag_0.mcap", "- bag_1.mcap"),
+            ["lists bag_1.mcap", "not in the bag folder", "metadata.yaml"],
         ),
         (
             ROSBAGS_METADATA.replace("compression_mode: ''", "compression_mode: 'FILE"),

@@ -1,17 +1,12 @@
-//! The MCAP files of a rosbag2 recording, read with the `mcap` crate's record
-//! parser and chunk reader (which decompresses zstd and lz4 chunks).
-//!
-//! A bag can hold gigabytes of depth, so nothing is kept whole: [`scan`] walks
-//! the top-level records once (reading one chunk at a time) and hands every
-//! message to a visitor with its [`Location`] — the file, the top-level
-//! record's offset and length and, for a message inside a chunk, its ordinal
-//! there — and [`fetch`] reads one message back on demand. This works on
-//! indexed and unindexed files alike (a recording cut short has no summary).
+//! The files of a rosbag2 recording, whatever their storage: what a message
+//! is and where it lies, one walk over a file ([`scan`]) and one read of a
+//! message back ([`fetch`]). MCAP files are read by [`super::mcap_storage`],
+//! sqlite3 files (`.db3`, ROS 2 Humble's default) by
+//! [`super::sqlite_storage`]; the file's own first bytes say which.
 
-use mcap::records::{op, Record};
-use std::collections::HashMap;
-use std::fs::File;
-use std::io::{BufReader, Read, Seek, SeekFrom};
+use super::{mcap_storage, sqlite_storage};
+use std::fmt;
+use std::io::Read;
 use std::path::{Path, PathBuf};
 
 /// Where a message is, to read it again.
@@ -19,12 +14,31 @@ use std::path::{Path, PathBuf};
 pub struct Location {
     /// Index of the file in the bag.
     pub file: usize,
-    /// Offset of the top-level record's body.
-    pub offset: u64,
-    /// Length of that body.
-    pub len: u64,
-    /// For a message inside a chunk: its ordinal among the chunk's messages.
-    pub in_chunk: Option<u32>,
+    /// Where in that file.
+    pub place: Place,
+}
+
+/// A message's place in its file, by storage.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Place {
+    /// An MCAP message record, or the `in_chunk`-th message of a chunk
+    /// record: the top-level record's body is `len` bytes at `offset`.
+    Mcap {
+        offset: u64,
+        len: u64,
+        in_chunk: Option<u32>,
+    },
+    /// A row of an sqlite3 file's `messages` table, by its `id`.
+    Row(i64),
+}
+
+impl fmt::Display for Place {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Place::Mcap { offset, .. } => write!(f, "byte {offset}"),
+            Place::Row(id) => write!(f, "message row {id}"),
+        }
+    }
 }
 
 /// A channel: its topic, the schema's name and the message encoding.
@@ -53,62 +67,26 @@ pub struct Message<'a> {
 /// What went wrong, for [`super`] to turn into a `ReadError` naming the file.
 pub type BagError = (PathBuf, String);
 
-fn err(path: &Path, reason: impl Into<String>) -> BagError {
+pub(super) fn err(path: &Path, reason: impl Into<String>) -> BagError {
     (path.to_path_buf(), reason.into())
 }
 
-/// Channels and schemas seen so far (by id, per file).
-#[derive(Default)]
-struct Channels {
-    schemas: HashMap<u16, String>,
-    channels: HashMap<u16, Channel>,
-}
+/// The first bytes of an sqlite3 database file.
+const SQLITE_MAGIC: &[u8; 16] = b"SQLite format 3\0";
 
-impl Channels {
-    fn note(&mut self, path: &Path, record: &Record<'_>) -> Result<(), BagError> {
-        match record {
-            Record::Schema { header, .. } => {
-                self.schemas.insert(header.id, header.name.clone());
-            }
-            Record::Channel(c) => {
-                let schema = match c.schema_id {
-                    0 => String::new(),
-                    id => self.schemas.get(&id).cloned().ok_or_else(|| {
-                        err(
-                            path,
-                            format!("channel {} names unknown schema {id}", c.topic),
-                        )
-                    })?,
-                };
-                self.channels.insert(
-                    c.id,
-                    Channel {
-                        topic: c.topic.clone(),
-                        schema,
-                        encoding: c.message_encoding.clone(),
-                    },
-                );
-            }
-            _ => {}
-        }
-        Ok(())
-    }
-}
-
-/// Reads the 9-byte record head (opcode, body length) at the reader's position;
-/// `None` at the end of the file.
-fn record_head(r: &mut impl Read) -> std::io::Result<Option<(u8, u64)>> {
-    let mut head = [0u8; 9];
+/// Whether the file at `path` is an sqlite3 database (else it is read as MCAP).
+fn is_sqlite(path: &Path) -> Result<bool, BagError> {
+    let mut head = [0u8; 16];
+    let mut file = std::fs::File::open(path).map_err(|e| err(path, e.to_string()))?;
     let mut got = 0;
     while got < head.len() {
-        match r.read(&mut head[got..])? {
-            0 if got == 0 => return Ok(None),
-            0 => return Err(std::io::ErrorKind::UnexpectedEof.into()),
-            n => got += n,
+        match file.read(&mut head[got..]) {
+            Ok(0) => break,
+            Ok(n) => got += n,
+            Err(e) => return Err(err(path, e.to_string())),
         }
     }
-    let len = u64::from_le_bytes(head[1..].try_into().unwrap_or([0; 8]));
-    Ok(Some((head[0], len)))
+    Ok(&head == SQLITE_MAGIC)
 }
 
 /// Walks every message of file `index` (`path`), in file order. Returns
@@ -119,233 +97,21 @@ pub fn scan(
     path: &Path,
     visit: &mut dyn FnMut(Message<'_>) -> Result<(), BagError>,
 ) -> Result<u64, BagError> {
-    let io = |e: std::io::Error| err(path, e.to_string());
-    let file = File::open(path).map_err(io)?;
-    let size = file.metadata().map_err(io)?.len();
-    let mut r = BufReader::with_capacity(1 << 16, file);
-    let mut magic = [0u8; 8];
-    r.read_exact(&mut magic)
-        .map_err(|_| err(path, "too short for an MCAP file"))?;
-    if magic != mcap::MAGIC {
-        return Err(err(path, "not an MCAP file (bad magic)"));
+    if is_sqlite(path)? {
+        sqlite_storage::scan(index, path, visit).map(|()| 0)
+    } else {
+        mcap_storage::scan(index, path, visit)
     }
-    let mut channels = Channels::default();
-    let mut pos = 8u64;
-    let mut body = Vec::new();
-    loop {
-        let Some((opcode, len)) = record_head(&mut r).map_err(io)? else {
-            return Ok(0);
-        };
-        let offset = pos + 9;
-        if len > size.saturating_sub(offset) {
-            // The recording stopped mid-record: keep what came before.
-            return Ok(size - pos);
-        }
-        pos = offset + len;
-        match opcode {
-            op::DATA_END | op::FOOTER => return Ok(0),
-            op::SCHEMA | op::CHANNEL | op::MESSAGE | op::CHUNK => {}
-            _ => {
-                r.seek_relative(len as i64).map_err(io)?;
-                continue;
-            }
-        }
-        body.resize(len as usize, 0);
-        r.read_exact(&mut body).map_err(io)?;
-        let record = mcap::parse_record(opcode, &body)
-            .map_err(|e| err(path, format!("record at byte {offset}: {e}")))?;
-        let at = Location {
-            file: index,
-            offset,
-            len,
-            in_chunk: None,
-        };
-        match record {
-            Record::Chunk { header, data } => {
-                let mut ordinal = 0u32;
-                let bound = check_chunk(path, offset, &header, &data)?;
-                chunk_records(path, offset, &body, bound, &mut |inner| {
-                    if let Record::Message { header, data } = &inner {
-                        let at = Location {
-                            in_chunk: Some(ordinal),
-                            ..at
-                        };
-                        ordinal += 1;
-                        deliver(path, &channels, header, data, at, visit)
-                    } else {
-                        channels.note(path, &inner)
-                    }
-                })?;
-            }
-            Record::Message { header, data } => {
-                deliver(path, &channels, &header, &data, at, visit)?
-            }
-            other => channels.note(path, &other)?,
-        }
-    }
-}
-
-/// Refuses a chunk whose claimed uncompressed size its data cannot hold:
-/// the chunk reader makes a buffer of that size before decompressing, and
-/// a damaged header (a few bytes) could ask for terabytes. No lz4 block
-/// expands more than 255 times, no zstd block more than 128 KiB from 4
-/// bytes; uncompressed data is its own size, and its records must tile it
-/// exactly (the chunk reader counts them off the chunk's size without a
-/// check, and overflows on a record that runs past the end). Returns the
-/// largest a record of the chunk can be.
-fn check_chunk(
-    path: &Path,
-    offset: u64,
-    header: &mcap::records::ChunkHeader,
-    data: &[u8],
-) -> Result<usize, BagError> {
-    let compressed = data.len();
-    let n = compressed as u64;
-    if header.compression.is_empty() {
-        let mut rest = data;
-        while !rest.is_empty() {
-            let len = rest
-                .get(1..9)
-                .and_then(|l| <[u8; 8]>::try_from(l).ok())
-                .map(u64::from_le_bytes);
-            match len.filter(|&l| l <= (rest.len() - 9) as u64) {
-                Some(l) => rest = &rest[9 + l as usize..],
-                None => {
-                    return Err(err(
-                        path,
-                        format!(
-                            "chunk at byte {offset}: a record at byte {} of its data runs past \
-                             its end",
-                            compressed - rest.len()
-                        ),
-                    ))
-                }
-            }
-        }
-    }
-    let most = match header.compression.as_str() {
-        "" => n,
-        "lz4" => n.saturating_mul(255).saturating_add(64),
-        _ => n.saturating_mul(32 * 1024).saturating_add(128 * 1024),
-    };
-    if header.uncompressed_size > most {
-        return Err(err(
-            path,
-            format!(
-                "chunk at byte {offset}: {} bytes cannot hold the {} bytes it claims \
-                 uncompressed (a damaged chunk header)",
-                compressed, header.uncompressed_size
-            ),
-        ));
-    }
-    Ok(usize::try_from(most.max(n)).unwrap_or(usize::MAX))
-}
-
-/// Hands the records of a chunk (`body`, the chunk record's body at
-/// `offset`) to `visit`, decompressed, CRC-checked, every record at most
-/// `bound` bytes: the reader reserves a record's claimed length before
-/// decompressing it, so a damaged length inside the chunk must be capped
-/// too (`mcap::read::ChunkReader` has no such cap).
-fn chunk_records(
-    path: &Path,
-    offset: u64,
-    body: &[u8],
-    bound: usize,
-    visit: &mut dyn FnMut(Record<'_>) -> Result<(), BagError>,
-) -> Result<(), BagError> {
-    use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
-    let bad = |e: mcap::McapError| err(path, format!("chunk at byte {offset}: {e}"));
-    let mut reader = LinearReader::new_with_options(
-        LinearReaderOptions::default()
-            .with_skip_start_magic(true)
-            .with_skip_end_magic(true)
-            .with_validate_chunk_crcs(true)
-            .with_record_length_limit(bound),
-    );
-    // The chunk as a record of its own, as the file holds it.
-    let mut framed = Vec::with_capacity(9 + body.len());
-    framed.push(op::CHUNK);
-    framed.extend_from_slice(&(body.len() as u64).to_le_bytes());
-    framed.extend_from_slice(body);
-    let mut rest = framed.as_slice();
-    while let Some(event) = reader.next_event() {
-        match event.map_err(bad)? {
-            LinearReadEvent::ReadRequest(need) => {
-                let n = need.min(rest.len());
-                reader.insert(n).copy_from_slice(&rest[..n]);
-                reader.notify_read(n);
-                rest = &rest[n..];
-            }
-            LinearReadEvent::Record { data, opcode } => {
-                visit(mcap::parse_record(opcode, data).map_err(bad)?)?
-            }
-        }
-    }
-    Ok(())
-}
-
-fn deliver(
-    path: &Path,
-    channels: &Channels,
-    header: &mcap::records::MessageHeader,
-    data: &[u8],
-    at: Location,
-    visit: &mut dyn FnMut(Message<'_>) -> Result<(), BagError>,
-) -> Result<(), BagError> {
-    let channel = channels.channels.get(&header.channel_id).ok_or_else(|| {
-        err(
-            path,
-            format!(
-                "message at byte {} is on unknown channel {}",
-                at.offset, header.channel_id
-            ),
-        )
-    })?;
-    visit(Message {
-        channel,
-        log_time: header.log_time,
-        data,
-        at,
-    })
 }
 
 /// Reads back the message at `at` in file `path`.
 pub fn fetch(path: &Path, at: Location) -> Result<Vec<u8>, BagError> {
-    let io = |e: std::io::Error| err(path, e.to_string());
-    let mut file = File::open(path).map_err(io)?;
-    file.seek(SeekFrom::Start(at.offset)).map_err(io)?;
-    let mut body = vec![0u8; at.len as usize];
-    file.read_exact(&mut body).map_err(io)?;
-    let op = if at.in_chunk.is_some() {
-        op::CHUNK
-    } else {
-        op::MESSAGE
-    };
-    let bad = |e: mcap::McapError| err(path, format!("record at byte {}: {e}", at.offset));
-    match (mcap::parse_record(op, &body).map_err(bad)?, at.in_chunk) {
-        (Record::Message { data, .. }, None) => Ok(data.into_owned()),
-        (Record::Chunk { header, data }, Some(k)) => {
-            let bound = check_chunk(path, at.offset, &header, &data)?;
-            let (mut n, mut found) = (0, None);
-            chunk_records(path, at.offset, &body, bound, &mut |inner| {
-                if let Record::Message { data, .. } = inner {
-                    if n == k && found.is_none() {
-                        found = Some(data.into_owned());
-                    }
-                    n += 1;
-                }
-                Ok(())
-            })?;
-            found.ok_or_else(|| {
-                err(
-                    path,
-                    format!("chunk at byte {} has no message {k}", at.offset),
-                )
-            })
-        }
-        _ => Err(err(
-            path,
-            format!("no message record at byte {}", at.offset),
-        )),
+    match at.place {
+        Place::Mcap {
+            offset,
+            len,
+            in_chunk,
+        } => mcap_storage::fetch(path, offset, len, in_chunk),
+        Place::Row(id) => sqlite_storage::fetch(path, id),
     }
 }

@@ -1,5 +1,6 @@
-//! ROS 2 recordings (rosbag2 with MCAP storage): a bag folder (its
-//! `metadata.yaml` and `*.mcap` files) or a single `.mcap` file.
+//! ROS 2 recordings (rosbag2 with MCAP or sqlite3 storage): a bag folder
+//! (its `metadata.yaml` and `*.mcap` or `*.db3` files, one or split) or a
+//! single `.mcap` or `.db3` file.
 //!
 //! - depth: `sensor_msgs/msg/Image`, `16UC1` (millimetres, depth scale 1000,
 //!   or `--depth-scale`) or `32FC1` (metres, converted to `u16` at the depth
@@ -25,7 +26,9 @@
 
 pub mod bag;
 pub mod cdr;
+mod mcap_storage;
 pub mod msgs;
+mod sqlite_storage;
 
 use super::{text, ReadOptions};
 use crate::error::ReadError;
@@ -61,18 +64,27 @@ pub struct Ros2Options {
     pub pose_tolerance: Option<f64>,
 }
 
-/// Whether `path` is a ROS 2 recording: a `.mcap` file, or a directory with
-/// `metadata.yaml` or a `*.mcap` file.
+/// The file name endings of the storages read: MCAP and sqlite3.
+const BAG_FILE_ENDINGS: [&str; 2] = [".mcap", ".db3"];
+
+fn is_bag_file(name: &str) -> bool {
+    BAG_FILE_ENDINGS.iter().any(|e| name.ends_with(e))
+}
+
+/// Whether `path` is a ROS 2 recording: a `.mcap` or `.db3` file, or a
+/// directory with `metadata.yaml` or such a file.
 pub fn looks_like_bag(path: &Path) -> bool {
     if path.is_file() {
-        return path.extension().is_some_and(|e| e == "mcap");
+        return path
+            .file_name()
+            .is_some_and(|n| is_bag_file(&n.to_string_lossy()));
     }
     path.join("metadata.yaml").is_file()
-        || text::list_dir(path).is_ok_and(|names| names.iter().any(|n| n.ends_with(".mcap")))
+        || text::list_dir(path).is_ok_and(|names| names.iter().any(|n| is_bag_file(n)))
 }
 
 /// What the reader needs of a bag folder's `metadata.yaml` (rosbag2 writes
-/// more: topics, counts, times, which are in the MCAP files too).
+/// more: topics, counts, times, which are in the bag files too).
 #[derive(Debug, Default, serde::Deserialize)]
 struct Metadata {
     #[serde(default)]
@@ -88,6 +100,7 @@ struct BagInfo {
     storage_identifier: Option<String>,
     compression_mode: Option<String>,
     compression_format: Option<String>,
+    relative_file_paths: Option<Vec<String>>,
 }
 
 /// A set value: `None` for an absent, empty (null) or `''` one.
@@ -95,18 +108,21 @@ fn set(value: &Option<String>) -> Option<&str> {
     value.as_deref().map(str::trim).filter(|v| !v.is_empty())
 }
 
-/// Parses a bag folder's `metadata.yaml` (`path`, holding `yaml`) and
-/// refuses what the reader cannot read: another storage than MCAP, bag
-/// compression (whole files or each message).
-pub fn check_metadata(path: &Path, yaml: &str) -> Result<(), ReadError> {
+/// Parses a bag folder's `metadata.yaml` (`path`, holding `yaml`), refuses
+/// what the reader cannot read (another storage than MCAP or sqlite3, bag
+/// compression of whole files or each message) and returns the bag's files
+/// as it lists them (none when it lists none).
+pub fn check_metadata(path: &Path, yaml: &str) -> Result<Vec<String>, ReadError> {
     let meta: Metadata = serde_saphyr::from_str(yaml)
         .map_err(|e| text::layout(path, format!("not a readable rosbag2 metadata.yaml: {e}")))?;
     let info = &meta.rosbag2_bagfile_information;
-    if let Some(storage) = set(&info.storage_identifier).filter(|s| *s != "mcap") {
+    if let Some(storage) =
+        set(&info.storage_identifier).filter(|s| !["mcap", "sqlite3"].contains(s))
+    {
         return Err(text::layout(
             path,
             format!(
-                "storage `{storage}` is not supported, only mcap \
+                "storage `{storage}` is not supported, only mcap and sqlite3 \
                  (convert with `ros2 bag convert`)"
             ),
         ));
@@ -121,25 +137,54 @@ pub fn check_metadata(path: &Path, yaml: &str) -> Result<(), ReadError> {
             ),
         ));
     }
-    Ok(())
+    Ok(info.relative_file_paths.clone().unwrap_or_default())
 }
 
-/// The MCAP files of the recording at `path`, in name order.
+/// The bag files (MCAP or sqlite3) of the recording at `path`: the ones its
+/// `metadata.yaml` lists, in its order, else every one in the folder in
+/// name order.
 fn bag_files(path: &Path) -> Result<Vec<PathBuf>, ReadError> {
     if path.is_file() {
         return Ok(vec![path.to_path_buf()]);
     }
     let meta = path.join("metadata.yaml");
-    if meta.is_file() {
-        check_metadata(&meta, &text::read_text(&meta)?)?;
+    let listed = if meta.is_file() {
+        check_metadata(&meta, &text::read_text(&meta)?)?
+    } else {
+        Vec::new()
+    };
+    if !listed.is_empty() {
+        // A listed name is relative to the folder (early rosbag2 releases
+        // put the folder's name in front: its last part is tried too); one
+        // that is not there is named.
+        return listed
+            .iter()
+            .map(|name| {
+                let file = path.join(name);
+                let base = Path::new(name).file_name().map(|b| path.join(b));
+                if file.is_file() {
+                    Ok(file)
+                } else if let Some(base) = base.filter(|b| b.is_file()) {
+                    Ok(base)
+                } else {
+                    Err(text::layout(
+                        &meta,
+                        format!("lists {name}, which is not in the bag folder"),
+                    ))
+                }
+            })
+            .collect();
     }
     let mut names: Vec<String> = text::list_dir(path)?
         .into_iter()
-        .filter(|n| n.ends_with(".mcap"))
+        .filter(|n| is_bag_file(n))
         .collect();
     names.sort();
     if names.is_empty() {
-        return Err(text::layout(path, "no *.mcap file in the bag folder"));
+        return Err(text::layout(
+            path,
+            "no bag file (*.mcap or *.db3) in the bag folder",
+        ));
     }
     Ok(names.into_iter().map(|n| path.join(n)).collect())
 }
