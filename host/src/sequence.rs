@@ -64,6 +64,19 @@ impl FrameInfo {
     }
 }
 
+/// How a frame takes its pose from a pose source sampled at its own times
+/// (TUM's groundtruth, ROS pose topics and TF): `--pose-interpolation`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PoseInterpolation {
+    /// Linear in position, spherical-linear in rotation, between the two
+    /// samples around the frame's stamp.
+    #[default]
+    Linear,
+    /// The sample nearest in time.
+    Nearest,
+}
+
 /// Sequence layouts the readers understand.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -153,6 +166,10 @@ pub struct Sequence {
     /// Frames of the source that the reader skipped with a warning (a depth
     /// image without a pose): `frames_skipped` of metrics.json.
     pub frames_skipped: usize,
+    /// How the frames took their poses from timed samples; `None` where each
+    /// frame comes with its own pose (7-Scenes, the reference layout, the
+    /// built-in renderer).
+    pub pose_interpolation: Option<PoseInterpolation>,
     /// Depth images on demand.
     pub source: Box<dyn DepthSource>,
 }

@@ -2,6 +2,7 @@
 //! overrides, and a catalogue of broken inputs built in a temporary directory.
 
 use placedb_host::read::{self, ReadOptions};
+use placedb_host::sequence::PoseInterpolation;
 use placedb_host::{CameraModel, Format, ReadError};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -365,10 +366,34 @@ fn tum_association_and_defaults() {
     let ts: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
     assert_eq!(ts, [1.0, 1.1, 1.2]);
     assert_eq!(seq.frames_skipped, 1);
-    assert_eq!(seq.frames[0].translation, [4.0, 5.0, 6.0]);
-    assert_eq!(seq.frames[1].translation, [7.0, 8.0, 9.0]);
-    assert_eq!(seq.frames[2].translation, [1.0, 1.0, 1.0]);
-    assert!((seq.frames[2].rotation[3] - 1.0).abs() < 1e-15);
+    // Interpolated between the groundtruth lines around each frame: 1.000
+    // is 2/3 of the way from 0.990 to 1.005.
+    let close = |a: [f64; 3], b: [f64; 3]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-9);
+    assert!(
+        close(seq.frames[0].translation, [3.0, 4.0, 5.0]),
+        "{:?}",
+        seq.frames[0]
+    );
+    let u = 0.095 / 0.105;
+    assert!(close(
+        seq.frames[1].translation,
+        [4.0 + 3.0 * u, 5.0 + 3.0 * u, 6.0 + 3.0 * u]
+    ));
+    assert_eq!(seq.pose_interpolation, Some(PoseInterpolation::Linear));
+    // The nearest line's pose, whole, with --pose-interpolation nearest.
+    let nearest = read::open(
+        d.path(),
+        &ReadOptions {
+            pose_interpolation: PoseInterpolation::Nearest,
+            ..ReadOptions::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(nearest.frames_skipped, 1);
+    assert_eq!(nearest.frames[0].translation, [4.0, 5.0, 6.0]);
+    assert_eq!(nearest.frames[1].translation, [7.0, 8.0, 9.0]);
+    assert_eq!(nearest.frames[2].translation, [1.0, 1.0, 1.0]);
+    assert!((nearest.frames[2].rotation[3] - 1.0).abs() < 1e-15);
     let idx: Vec<usize> = seq.frames.iter().map(|f| f.index).collect();
     assert_eq!(idx, [0, 1, 2]);
     assert_eq!(seq.frames[1].depth_name, "depth/1.100.png");

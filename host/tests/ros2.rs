@@ -10,6 +10,7 @@ use placedb_host::pipeline::{self, Solver, SolverParams};
 use placedb_host::read::ros2::msgs::{self, CameraInfo, Header, Image, PoseMsg, Transform};
 use placedb_host::read::ros2::Ros2Options;
 use placedb_host::read::{self, ReadOptions};
+use placedb_host::sequence::PoseInterpolation;
 use placedb_host::{output, output::dataset, Format, ReadError, Sequence, VoxelConfig};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -250,11 +251,15 @@ fn write_bag(dir: &Path, seq: &Sequence, bag: &Bag) -> PathBuf {
     dir.to_path_buf()
 }
 
+/// Reads with the nearest pose: these bags stamp each pose 3 ms after its
+/// frame, and the nearest rule gives the 7-Scenes poses bit for bit
+/// (interpolation has its own test).
 fn open(path: &Path, ros2: Ros2Options) -> Result<Sequence, ReadError> {
     read::open(
         path,
         &ReadOptions {
             ros2,
+            pose_interpolation: PoseInterpolation::Nearest,
             ..ReadOptions::default()
         },
     )
@@ -312,7 +317,7 @@ fn every_pose_source_and_depth_encoding_reads_the_same() {
         Ros2Options::default(),
     )
     .unwrap();
-    let cases: [(&str, Bag, Ros2Options); 4] = [
+    let cases: [(&str, Bag, Ros2Options); 5] = [
         (
             "odom",
             Bag {
@@ -328,9 +333,18 @@ fn every_pose_source_and_depth_encoding_reads_the_same() {
                 ..Bag::default()
             },
             Ros2Options {
-                pose_frame: Some("camera_depth_optical_frame".into()),
+                pose_frame: Some("map".into()),
                 ..Ros2Options::default()
             },
+        ),
+        (
+            // No pose topic: the TF tree, from its root to the images' frame.
+            "tf-auto",
+            Bag {
+                poses: "tf",
+                ..Bag::default()
+            },
+            Ros2Options::default(),
         ),
         (
             "be16",
@@ -419,7 +433,12 @@ fn bad_bags_get_errors_naming_topic_and_time() {
             ..Ros2Options::default()
         },
     );
-    assert!(e.contains("compressed"), "{e}");
+    assert!(
+        e.contains("/camera/depth/compressed")
+            && e.contains("t=0.5")
+            && e.contains("8 bytes has no image after its 12-byte header"),
+        "{e}"
+    );
     let e = err(
         "two-depths",
         Bag {
@@ -478,10 +497,15 @@ fn bad_bags_get_errors_naming_topic_and_time() {
             poses: "tf",
             ..Bag::default()
         },
-        Ros2Options::default(),
+        Ros2Options {
+            camera_frame: Some("camera_link".into()),
+            ..Ros2Options::default()
+        },
     );
     assert!(
-        e.contains("--pose-frame") && e.contains("camera_depth_optical_frame"),
+        e.contains("`camera_link` is never connected")
+            && e.contains("camera_depth_optical_frame")
+            && e.contains("t=0.000000"),
         "{e}"
     );
     let e = err(

@@ -123,6 +123,7 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
             let opts = ReadOptions {
                 format: a.format,
                 ros2: a.ros2.options(),
+                pose_interpolation: a.ros2.pose_interpolation,
                 ..ReadOptions::default()
             };
             Some(read::open(path, &opts)?)

@@ -22,6 +22,7 @@ use crate::output::dataset::DatasetSummary;
 use crate::output::exports::ExportTargets;
 use crate::pipeline::SolverParams;
 use crate::read::{self, ReadOptions};
+use crate::sequence::PoseInterpolation;
 use crate::synth::SynthConfig;
 use crate::{CameraModel, Format, GridOrigin, Sequence, VoxelConfig};
 use clap::Args;
@@ -101,10 +102,10 @@ pub struct SeqArgs {
 /// Which topics of a ROS 2 bag to read (each defaults to the only candidate).
 #[derive(Args, Clone, Default)]
 pub struct Ros2Args {
-    /// ROS 2 bag: the depth topic (sensor_msgs/msg/Image, 16UC1 or 32FC1).
+    /// ROS 2 bag: the depth topic (sensor_msgs/msg/Image 16UC1 or 32FC1, or its compressedDepth or 16-bit PNG CompressedImage).
     #[arg(long)]
     depth_topic: Option<String>,
-    /// ROS 2 bag: the pose topic (PoseStamped, Odometry, or /tf with --pose-frame).
+    /// ROS 2 bag: the pose topic (PoseStamped, Odometry, or a TF topic).
     #[arg(long)]
     pose_topic: Option<String>,
     /// ROS 2 bag: the CameraInfo topic.
@@ -113,12 +114,18 @@ pub struct Ros2Args {
     /// ROS 2 bag: the colour topic (rgb8, bgr8, rgba8, bgra8, mono8), for --dataset.
     #[arg(long)]
     color_topic: Option<String>,
-    /// ROS 2 bag: take poses from /tf, as the transform to this child frame (the camera's optical frame).
+    /// ROS 2 bag: take poses from the TF tree (/tf, /tf_static), in this fixed frame (default: the tree's root, e.g. map).
     #[arg(long)]
     pose_frame: Option<String>,
-    /// ROS 2 bag: largest time difference between a depth frame and its pose, seconds.
+    /// ROS 2 bag with TF: the camera's frame, replacing the depth images' frame_id.
+    #[arg(long)]
+    camera_frame: Option<String>,
+    /// ROS 2 bag: largest time from a depth frame to the nearest pose sample, seconds.
     #[arg(long, default_value_t = read::ros2::POSE_TOLERANCE, value_parser = params::non_negative_seconds, allow_negative_numbers = true)]
     pose_tolerance: f64,
+    /// TUM and ROS 2 bags: a frame's pose between the pose samples around its time.
+    #[arg(long, value_enum, default_value_t = PoseInterpolation::Linear)]
+    pub(crate) pose_interpolation: PoseInterpolation,
 }
 
 impl Ros2Args {
@@ -129,6 +136,7 @@ impl Ros2Args {
             camera_info_topic: self.camera_info_topic.clone(),
             color_topic: self.color_topic.clone(),
             pose_frame: self.pose_frame.clone(),
+            camera_frame: self.camera_frame.clone(),
             pose_tolerance: Some(self.pose_tolerance),
         }
     }
@@ -198,6 +206,7 @@ pub(crate) fn open_full_sequence(a: &SeqArgs) -> Result<Sequence, Error> {
         depth_scale: a.depth_scale,
         intrinsics: a.intrinsics,
         ros2: a.ros2.options(),
+        pose_interpolation: a.ros2.pose_interpolation,
     };
     Ok(read::open(path, &opts)?)
 }
@@ -258,6 +267,7 @@ pub(crate) fn open_test(path: &Path, a: &SeqArgs) -> Result<Sequence, Error> {
         depth_scale: a.depth_scale,
         intrinsics: a.intrinsics,
         ros2: a.ros2.options(),
+        pose_interpolation: a.ros2.pose_interpolation,
     };
     Ok(read::open(path, &opts)?)
 }

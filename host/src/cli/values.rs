@@ -5,7 +5,7 @@
 //! help line is what `--help` lists.
 
 use crate::pipeline::Solver;
-use crate::sequence::Format;
+use crate::sequence::{Format, PoseInterpolation};
 use crate::voxelize::GridOrigin;
 use clap::builder::PossibleValue;
 use clap::ValueEnum;
@@ -64,6 +64,23 @@ impl ValueEnum for Format {
     }
 }
 
+impl ValueEnum for PoseInterpolation {
+    fn value_variants<'a>() -> &'a [Self] {
+        &[PoseInterpolation::Linear, PoseInterpolation::Nearest]
+    }
+
+    fn to_possible_value(&self) -> Option<PossibleValue> {
+        let (name, help) = match self {
+            PoseInterpolation::Linear => (
+                "linear",
+                "Linear in position, spherical-linear in rotation; never extrapolated",
+            ),
+            PoseInterpolation::Nearest => ("nearest", "The pose sample nearest in time"),
+        };
+        Some(PossibleValue::new(name).help(help))
+    }
+}
+
 impl ValueEnum for GridOrigin {
     fn value_variants<'a>() -> &'a [Self] {
         &[GridOrigin::World, GridOrigin::SceneMin]
@@ -103,6 +120,9 @@ mod tests {
         }
         for f in Format::value_variants() {
             assert_eq!(f.to_possible_value().unwrap().get_name(), serialized(*f));
+        }
+        for p in PoseInterpolation::value_variants() {
+            assert_eq!(p.to_possible_value().unwrap().get_name(), serialized(*p));
         }
         for o in GridOrigin::value_variants() {
             assert_eq!(o.to_possible_value().unwrap().get_name(), serialized(*o));

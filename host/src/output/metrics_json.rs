@@ -69,6 +69,10 @@ pub fn of_select(
         serde_json::to_value(seq.format).unwrap_or_default(),
     );
     put("frames", seq.frames.len().into());
+    put(
+        "pose_interpolation",
+        serde_json::to_value(seq.pose_interpolation).unwrap_or_default(),
+    );
     let losses = o.losses(prep);
     put("frames_skipped", losses.frames_skipped.into());
     put("empty_frames", losses.empty_frames.into());
@@ -207,6 +211,7 @@ pub fn of_device(
     let from_sequence = [
         "sequence",
         "format",
+        "pose_interpolation",
         "frames_skipped",
         "empty_frames",
         "co_observing_pairs",
@@ -246,6 +251,8 @@ pub fn of_device(
             let (seq, prep, me) = (on.seq, on.prep, &on.measured.metrics);
             m["sequence"] = seq.name.clone().into();
             m["format"] = serde_json::to_value(seq.format).unwrap_or_default();
+            m["pose_interpolation"] =
+                serde_json::to_value(seq.pose_interpolation).unwrap_or_default();
             m["frames_skipped"] = prep.losses.frames_skipped.into();
             m["empty_frames"] = prep.losses.empty_frames.into();
             m["co_observing_pairs"] = prep.co.pair_count().into();

@@ -648,6 +648,7 @@ mod tests {
                 .collect(),
             clock: crate::sequence::Clock::Seconds,
             frames_skipped: 0,
+            pose_interpolation: None,
             source: Box::new(NoDepth),
         }
     }

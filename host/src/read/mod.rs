@@ -23,6 +23,7 @@ mod png;
 pub mod ros2;
 pub mod sevenscenes;
 mod text;
+pub mod timed_poses;
 pub mod tum;
 mod unfilter;
 pub mod vprdb;
@@ -43,6 +44,9 @@ pub struct ReadOptions {
     pub intrinsics: Option<CameraModel>,
     /// ROS 2 bags: which topics to read.
     pub ros2: ros2::Ros2Options,
+    /// TUM and ROS 2 bags: how a frame takes its pose from the pose
+    /// source's samples.
+    pub pose_interpolation: timed_poses::PoseInterpolation,
 }
 
 /// Reads the sequence in directory (or bag file) `path`, detecting its format when
@@ -318,6 +322,8 @@ struct Found {
     clock: Clock,
     paths: Vec<PathBuf>,
     skipped: usize,
+    /// How the frames took their poses, for layouts with timed poses.
+    pose_interpolation: Option<timed_poses::PoseInterpolation>,
 }
 
 /// Width and height of the first depth image of `paths` (read from its
@@ -344,6 +350,7 @@ fn assemble(
         clock,
         paths,
         skipped,
+        pose_interpolation,
     } = found;
     debug_assert_eq!(frames.len(), paths.len());
     let size = first_size(dir, &paths)?;
@@ -357,6 +364,7 @@ fn assemble(
         frames,
         clock,
         frames_skipped: skipped,
+        pose_interpolation,
         source: Box::new(png::PngDepthSource {
             paths,
             invalid_65535,

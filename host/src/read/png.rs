@@ -122,6 +122,13 @@ pub(crate) fn depth_png_size(path: &Path) -> Result<(u16, u16), ReadError> {
     Ok((h.width, h.height))
 }
 
+/// Width and height of a depth PNG held in memory, reading only its header
+/// (and checking that it is 16-bit greyscale).
+pub(crate) fn depth_png_bytes_size(bytes: &[u8]) -> Result<(u16, u16), ReadError> {
+    let h = parse_header(Path::new(""), bytes)?;
+    Ok((h.width, h.height))
+}
+
 /// Per-thread buffers, reused from frame to frame: a 640x480 image inflates
 /// to 615 KB, and a fresh allocation that size is a fresh mapping whose
 /// pages all fault in again.

@@ -177,6 +177,7 @@ pub(crate) fn read(dir: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError
             },
             paths,
             skipped: without_depth.len(),
+            pose_interpolation: None,
         },
         true,
     )

@@ -2,11 +2,12 @@
 //! (`timestamp tx ty tz qx qy qz qw`), optional `rgb.txt` (`timestamp path`);
 //! `#` lines are comments. Depth PNGs are 16-bit, 5000 units per metre.
 //!
-//! Each depth frame takes the pose of the groundtruth line nearest in time
-//! (not interpolated); a depth frame with no groundtruth within
-//! [`MAX_DIFFERENCE`] (0.02 s, the default of TUM's `associate.py`) is
-//! skipped with a warning naming its lines, and counted
-//! ([`Sequence::frames_skipped`]). Two lines of one file with the same
+//! Each depth frame takes its pose from the groundtruth lines around it in
+//! time, interpolated ([`super::timed_poses`]; `--pose-interpolation
+//! nearest`: the nearest line's); a depth frame with no groundtruth within
+//! [`MAX_DIFFERENCE`] (0.02 s, the default of TUM's `associate.py`), or,
+//! interpolating, before the first line or after the last, is skipped with a
+//! warning naming its lines, and counted ([`Sequence::frames_skipped`]). Two lines of one file with the same
 //! timestamp (a duplicated line, say) are an error naming both. Frames are
 //! in timestamp order; the timestamp is the depth image's, and the depth
 //! name its `depth.txt` path. The colour image is the nearest `rgb.txt`
@@ -19,6 +20,7 @@
 //! fr1/fr2/fr3 differ by up to 10 %: give them with an intrinsics file or
 //! override when it matters). Other sizes need the file or the override.
 
+use super::timed_poses::{pose_at, PoseInterpolation, TimedPose};
 use super::{text, ReadOptions};
 use crate::error::ReadError;
 use crate::sequence::{CameraModel, Clock, Format, FrameInfo, Sequence};
@@ -166,13 +168,25 @@ pub(crate) fn read(dir: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError
     };
     let given = super::given_camera(dir, "intrinsics.txt", opts)?;
 
-    let gt_times: Vec<f64> = gt.iter().map(|g| g.timestamp).collect();
+    let track: Vec<TimedPose> = gt
+        .iter()
+        .map(|g| TimedPose {
+            stamp: g.timestamp,
+            translation: g.translation,
+            rotation: g.rotation,
+        })
+        .collect();
     let rgb_times: Vec<f64> = rgb.iter().map(|e| e.timestamp).collect();
     let mut frames = Vec::with_capacity(depth.len());
     let mut paths: Vec<PathBuf> = Vec::with_capacity(depth.len());
     let mut skipped: Vec<&Entry> = Vec::new();
     for entry in &depth {
-        let Some(g) = nearest(&gt_times, entry.timestamp).map(|j| &gt[j]) else {
+        let Some(g) = pose_at(
+            &track,
+            entry.timestamp,
+            MAX_DIFFERENCE,
+            opts.pose_interpolation,
+        ) else {
             skipped.push(entry);
             continue;
         };
@@ -204,11 +218,17 @@ pub(crate) fn read(dir: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError
             ""
         };
         let msg = format!(
-            "{}: {} of {} depth frames have no groundtruth within {MAX_DIFFERENCE} s \
+            "{}: {} of {} depth frames have no groundtruth within {MAX_DIFFERENCE} s{} \
              (line{} {}{more})",
             depth_list.display(),
             skipped.len(),
             depth.len(),
+            match opts.pose_interpolation {
+                PoseInterpolation::Linear => {
+                    " or lie outside its time span (interpolation does not extrapolate)"
+                }
+                PoseInterpolation::Nearest => "",
+            },
             if lines.len() == 1 { "" } else { "s" },
             shown.join(", ")
         );
@@ -232,6 +252,7 @@ pub(crate) fn read(dir: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError
             clock: Clock::Seconds,
             paths,
             skipped: skipped.len(),
+            pose_interpolation: Some(opts.pose_interpolation),
         },
         false,
     )

@@ -200,6 +200,7 @@ pub(crate) fn read(dir: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError
                 }
             },
             paths,
+            pose_interpolation: None,
             skipped: 0,
         },
         false,

@@ -167,6 +167,7 @@ pub fn sequence(cfg: &SynthConfig) -> Sequence {
         frames,
         clock: crate::sequence::Clock::Seconds,
         frames_skipped: 0,
+        pose_interpolation: None,
         source: Box::new(SynthSource {
             scene,
             camera,

@@ -65,6 +65,7 @@ pub fn new_place_every_frame(frames: usize) -> Sequence {
             .collect(),
         clock: placedb_host::Clock::Seconds,
         frames_skipped: 0,
+        pose_interpolation: None,
         source: Box::new(RoughSurface { frames }),
     }
 }

@@ -5,31 +5,39 @@
 //! - depth: `sensor_msgs/msg/Image`, `16UC1` (millimetres, depth scale 1000,
 //!   or `--depth-scale`) or `32FC1` (metres, converted to `u16` at the depth
 //!   scale; NaN, infinities, values <= 0 or beyond the `u16` range mean "no
-//!   measurement"); `is_bigendian` and `step` are honoured. A compressed image
-//!   or another encoding is refused, naming topic and time.
+//!   measurement"); `is_bigendian` and `step` are honoured. Or
+//!   `sensor_msgs/msg/CompressedImage` as `image_transport` records it
+//!   (compressedDepth PNG or RVL, 16UC1 or 32FC1, or a 16-bit PNG:
+//!   [`depth_codec`]). Another encoding is refused, naming topic and time.
 //! - intrinsics: the first `sensor_msgs/msg/CameraInfo` (`k`, row-major 3x3;
 //!   skew is refused, distortion is ignored with a warning), unless given.
-//! - poses: `geometry_msgs/msg/PoseStamped`, `nav_msgs/msg/Odometry`, or the
-//!   transforms of `/tf` (and `/tf_static`) whose child is `--pose-frame`
-//!   (taken as the pose of that frame in its parent; TF chains are not
-//!   composed). The pose must be that of the depth camera's optical frame.
+//! - poses: `geometry_msgs/msg/PoseStamped` or `nav_msgs/msg/Odometry` (the
+//!   pose of the depth camera's optical frame), or the TF tree of `/tf` and
+//!   `/tf_static` composed from `--pose-frame` (default: the tree's root)
+//!   down to each depth image's `frame_id` ([`tf_tree`]).
 //! - colour (for `--dataset`): an Image topic in `rgb8`, `bgr8`, `rgba8`,
 //!   `bgra8` or `mono8`.
 //!
 //! Each kind's topic is the one given, else the only candidate in the bag
-//! (several candidates: an error listing them). Times are the header stamps
-//! (the log time when a stamp is zero). Frames are in stamp order; each
-//! takes the pose (and colour image) nearest in time within
-//! [`Ros2Options::pose_tolerance`]; a frame with no pose that close is
-//! skipped with a counted warning, and a bag where no frame has one is an
-//! error naming the topics and times.
+//! (several candidates: an error listing them; a raw depth topic is
+//! preferred to a compressed one). Times are the header stamps (the log
+//! time when a stamp is zero). Frames are in stamp order; each takes its
+//! pose interpolated at its stamp (or the nearest, `--pose-interpolation`:
+//! [`crate::read::timed_poses`]) when a pose sample lies within
+//! [`Ros2Options::pose_tolerance`], and the colour image nearest in time
+//! within it; a frame with no pose is skipped with a counted warning, and a
+//! bag where no frame has one is an error naming the topics and times.
 
 pub mod bag;
 pub mod cdr;
+pub mod depth_codec;
 mod mcap_storage;
 pub mod msgs;
+mod pose_source;
 mod sqlite_storage;
+pub mod tf_tree;
 
+use super::timed_poses::{self, TimedPose};
 use super::{text, ReadOptions};
 use crate::error::ReadError;
 use crate::picture::Image;
@@ -50,7 +58,7 @@ pub const POSE_TOLERANCE: f64 = 0.05;
 /// Which topics to read; `Default`: the only candidate of each kind.
 #[derive(Debug, Clone, Default)]
 pub struct Ros2Options {
-    /// The depth Image topic.
+    /// The depth topic (an Image, or a CompressedImage of depth).
     pub depth_topic: Option<String>,
     /// The pose topic (PoseStamped, Odometry or a TFMessage topic).
     pub pose_topic: Option<String>,
@@ -58,8 +66,12 @@ pub struct Ros2Options {
     pub camera_info_topic: Option<String>,
     /// The colour Image topic.
     pub color_topic: Option<String>,
-    /// Poses from `/tf`: the child frame whose pose is the camera's.
+    /// Poses from TF: the fixed frame the camera's pose is in (the root of
+    /// the camera's tree when `None`).
     pub pose_frame: Option<String>,
+    /// Poses from TF: the camera's frame, replacing the depth images'
+    /// `header.frame_id`.
+    pub camera_frame: Option<String>,
     /// Seconds; [`POSE_TOLERANCE`] when `None`.
     pub pose_tolerance: Option<f64>,
 }
@@ -195,15 +207,14 @@ struct ImageRef {
     stamp: f64,
     width: u32,
     height: u32,
+    /// An Image's encoding, or a CompressedImage's format.
     encoding: String,
+    /// A CompressedImage: its codec, or why it is not depth; the size is
+    /// read from the payload's header when it is depth.
+    compressed: Option<Result<depth_codec::DepthCodec, String>>,
+    /// `header.frame_id`: the camera frame, for TF.
+    frame_id: String,
     at: Location,
-}
-
-/// A pose message.
-#[derive(Debug, Clone, Copy)]
-struct Stamped {
-    stamp: f64,
-    pose: msgs::PoseMsg,
 }
 
 /// Everything the scan of the bag found, per topic.
@@ -213,9 +224,9 @@ struct Topics {
     kinds: BTreeMap<String, String>,
     images: BTreeMap<String, Vec<ImageRef>>,
     infos: BTreeMap<String, Vec<msgs::CameraInfo>>,
-    poses: BTreeMap<String, Vec<Stamped>>,
-    /// TF topic -> child frame -> poses.
-    tf: BTreeMap<String, BTreeMap<String, Vec<Stamped>>>,
+    poses: BTreeMap<String, Vec<TimedPose>>,
+    /// TF topic -> its transforms, in bag order.
+    tf: BTreeMap<String, Vec<tf_tree::Link>>,
 }
 
 fn secs(ns: u64) -> f64 {
@@ -243,6 +254,7 @@ impl Topics {
             .or_insert_with(|| schema.clone());
         let wanted = [
             msgs::IMAGE,
+            msgs::COMPRESSED_IMAGE,
             msgs::CAMERA_INFO,
             msgs::POSE_STAMPED,
             msgs::ODOMETRY,
@@ -274,6 +286,33 @@ impl Topics {
                         width: img.width,
                         height: img.height,
                         encoding: img.encoding,
+                        compressed: None,
+                        frame_id: img.header.frame_id,
+                        at: m.at,
+                    });
+            }
+            msgs::COMPRESSED_IMAGE => {
+                let img = msgs::compressed_image(m.data).map_err(cdr)?;
+                let codec = depth_codec::codec(&img.format);
+                // A depth payload's size is in its first bytes; a damaged
+                // one is refused if its topic is the depth topic.
+                let (size, codec) = match codec {
+                    Ok(c) => match depth_codec::size(c, img.data) {
+                        Ok(size) => (size, Ok(c)),
+                        Err(e) => ((0, 0), Err(e)),
+                    },
+                    Err(e) => ((0, 0), Err(e)),
+                };
+                self.images
+                    .entry(topic.clone())
+                    .or_default()
+                    .push(ImageRef {
+                        stamp: stamp_or(img.header.stamp, m.log_time),
+                        width: u32::from(size.0),
+                        height: u32::from(size.1),
+                        encoding: img.format,
+                        compressed: Some(codec),
+                        frame_id: img.header.frame_id,
                         at: m.at,
                     });
             }
@@ -292,17 +331,28 @@ impl Topics {
                     msgs::pose_stamped(m.data)
                 }
                 .map_err(cdr)?;
-                self.poses.entry(topic.clone()).or_default().push(Stamped {
-                    stamp: stamp_or(h.stamp, m.log_time),
-                    pose,
-                });
+                self.poses
+                    .entry(topic.clone())
+                    .or_default()
+                    .push(TimedPose {
+                        stamp: stamp_or(h.stamp, m.log_time),
+                        translation: pose.translation,
+                        rotation: pose.rotation,
+                    });
             }
             _ => {
-                let frames = self.tf.entry(topic.clone()).or_default();
+                let links = self.tf.entry(topic.clone()).or_default();
                 for t in msgs::tf_message(m.data).map_err(cdr)? {
-                    frames.entry(t.child_frame_id).or_default().push(Stamped {
-                        stamp: stamp_or(t.header.stamp, m.log_time),
-                        pose: t.pose,
+                    links.push(tf_tree::Link {
+                        topic: topic.clone(),
+                        is_static: topic.ends_with("tf_static"),
+                        parent: t.header.frame_id,
+                        child: t.child_frame_id,
+                        pose: TimedPose {
+                            stamp: stamp_or(t.header.stamp, m.log_time),
+                            translation: t.pose.translation,
+                            rotation: t.pose.rotation,
+                        },
                     });
                 }
             }
@@ -318,13 +368,27 @@ impl Topics {
             .collect()
     }
 
-    /// Image topics whose first message has one of `encodings`.
+    /// Image topics (raw) whose first message has one of `encodings`.
     fn images_in(&self, encodings: &[&str]) -> Vec<&str> {
         self.images
             .iter()
             .filter(|(_, v)| {
-                v.first()
-                    .is_some_and(|i| encodings.contains(&i.encoding.as_str()))
+                v.first().is_some_and(|i| {
+                    i.compressed.is_none() && encodings.contains(&i.encoding.as_str())
+                })
+            })
+            .map(|(t, _)| t.as_str())
+            .collect()
+    }
+
+    /// CompressedImage topics whose first message's format names depth.
+    fn compressed_depth(&self) -> Vec<&str> {
+        self.images
+            .iter()
+            .filter(|(_, v)| {
+                v.first().is_some_and(|i| {
+                    i.compressed.is_some() && depth_codec::is_depth_format(&i.encoding)
+                })
             })
             .map(|(t, _)| t.as_str())
             .collect()
@@ -397,18 +461,6 @@ fn choose(
     }
 }
 
-/// Index of the entry of `sorted` (ascending) nearest to `t` within `tol`.
-fn nearest(sorted: &[Stamped], t: f64, tol: f64) -> Option<usize> {
-    let i = sorted.partition_point(|s| s.stamp < t);
-    [i.checked_sub(1), (i < sorted.len()).then_some(i)]
-        .into_iter()
-        .flatten()
-        .map(|j| (j, (sorted[j].stamp - t).abs()))
-        .filter(|&(_, d)| d <= tol)
-        .min_by(|a, b| a.1.total_cmp(&b.1))
-        .map(|(j, _)| j)
-}
-
 /// Reads a ROS 2 recording.
 pub(crate) fn read(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError> {
     let ros = &opts.ros2;
@@ -430,94 +482,21 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadErro
             ));
         }
     }
-    // Depth.
-    let compressed = topics.of_kind(&[msgs::COMPRESSED_IMAGE]);
-    if let Some(t) = ros
-        .depth_topic
-        .as_deref()
-        .filter(|t| compressed.contains(t))
-    {
-        return Err(text::layout(
-            path,
-            format!(
-                "--depth-topic {t} is a sensor_msgs/msg/CompressedImage: compressed depth is \
-                 not supported (record the raw Image topic, or republish it raw with \
-                 image_transport)"
-            ),
-        ));
-    }
-    let depth_candidates = topics.images_in(&DEPTH_ENCODINGS);
-    if ros.depth_topic.is_none() && depth_candidates.is_empty() && !compressed.is_empty() {
-        return Err(text::layout(
-            path,
-            format!(
-                "no raw depth Image topic (16UC1 or 32FC1); compressed images ({}) are not \
-                 supported",
-                compressed.join(", ")
-            ),
-        ));
-    }
-    let all_images = topics.of_kind(&[msgs::IMAGE]);
-    let depth_topic = match ros.depth_topic.as_deref() {
-        // A given Image topic in another encoding gets the encoding error below.
-        Some(t) if all_images.contains(&t) => t.to_string(),
-        given => choose(
-            path,
-            "depth topic (sensor_msgs/msg/Image, 16UC1 or 32FC1)",
-            "--depth-topic",
-            given,
-            &depth_candidates,
-            &topics,
-        )?,
+    let (depth_topic, depth, size) = depth_frames(path, ros, &mut topics)?;
+    // Intrinsics: the CameraInfo beside the image topic (a compressed
+    // topic is its image topic and the transport's name).
+    let image_topic = match depth.first().and_then(|d| d.compressed.as_ref()) {
+        Some(_) => depth_topic
+            .rsplit_once('/')
+            .map_or(depth_topic.as_str(), |(base, _)| base),
+        None => depth_topic.as_str(),
     };
-    let mut depth = topics.images.remove(&depth_topic).unwrap_or_default();
-    depth.sort_by(|a, b| a.stamp.total_cmp(&b.stamp));
-    let first = depth
-        .first()
-        .cloned()
-        .ok_or_else(|| text::layout(path, format!("{depth_topic} has no message")))?;
-    for img in &depth {
-        if !DEPTH_ENCODINGS.contains(&img.encoding.as_str()) {
-            return Err(text::layout(
-                path,
-                format!(
-                    "{depth_topic} at t={:.6}: encoding `{}` is not a depth encoding \
-                     (16UC1 millimetres or 32FC1 metres)",
-                    img.stamp, img.encoding
-                ),
-            ));
-        }
-        if (img.width, img.height) != (first.width, first.height) {
-            return Err(text::layout(
-                path,
-                format!(
-                    "{depth_topic} at t={:.6}: {}x{} image, the first one is {}x{}",
-                    img.stamp, img.width, img.height, first.width, first.height
-                ),
-            ));
-        }
-    }
-    let side = |v: u32| u16::try_from(v).ok().filter(|&s| s > 0);
-    let size = match (side(first.width), side(first.height)) {
-        (Some(w), Some(h)) => (w, h),
-        _ => {
-            return Err(text::layout(
-                path,
-                format!(
-                    "{depth_topic}: images are {}x{}, sides must be 1..=65535",
-                    first.width, first.height
-                ),
-            ))
-        }
-    };
-    // Intrinsics.
     let camera = match opts.intrinsics {
         Some(k) => k,
-        None => camera(path, ros, &depth_topic, &topics, size)?,
+        None => camera(path, ros, image_topic, &topics, size)?,
     };
     // Poses.
-    let (pose_topic, mut poses) = poses(path, ros, &mut topics)?;
-    poses.sort_by(|a, b| a.stamp.total_cmp(&b.stamp));
+    let mut poses = pose_source::choose_poses(path, ros, &mut topics)?;
     // Colour (optional).
     let color_candidates = topics.images_in(&COLOR_ENCODINGS);
     let color_topic = match (&ros.color_topic, color_candidates.as_slice()) {
@@ -547,14 +526,12 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadErro
         .and_then(|t| topics.images.remove(t))
         .unwrap_or_default();
     color.sort_by(|a, b| a.stamp.total_cmp(&b.stamp));
-    let color_times: Vec<Stamped> = color
+    let color_times: Vec<TimedPose> = color
         .iter()
-        .map(|c| Stamped {
+        .map(|c| TimedPose {
             stamp: c.stamp,
-            pose: msgs::PoseMsg {
-                translation: [0.0; 3],
-                rotation: [0.0, 0.0, 0.0, 1.0],
-            },
+            translation: [0.0; 3],
+            rotation: [0.0, 0.0, 0.0, 1.0],
         })
         .collect();
 
@@ -563,11 +540,18 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadErro
     let mut colors = Vec::with_capacity(depth.len());
     let mut skipped: Vec<f64> = Vec::new();
     for img in &depth {
-        let Some(j) = nearest(&poses, img.stamp, tol) else {
+        let found = poses
+            .at(&img.frame_id, img.stamp, tol, opts.pose_interpolation)
+            .map_err(|reason| {
+                text::layout(
+                    path,
+                    format!("{depth_topic} at t={:.6}: {reason}", img.stamp),
+                )
+            })?;
+        let Some(p) = found else {
             skipped.push(img.stamp);
             continue;
         };
-        let p = poses[j].pose;
         let rotation = placedb::Pose::from_quaternion(
             p.translation.map(|c| c as f32),
             p.rotation.map(|c| c as f32),
@@ -586,8 +570,12 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadErro
             text::layout(
                 path,
                 format!(
-                    "{pose_topic} at t={:.6}: bad pose {:?} {:?}: {}",
-                    poses[j].stamp, p.translation, p.rotation, reason
+                    "{} at t={:.6}: bad pose {:?} {:?}: {}",
+                    poses.name(),
+                    img.stamp,
+                    p.translation,
+                    p.rotation,
+                    reason
                 ),
             )
         })?;
@@ -601,18 +589,25 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadErro
             color_path: None,
         });
         refs.push(img.clone());
-        colors.push(nearest(&color_times, img.stamp, tol).map(|c| color[c].clone()));
+        colors.push(timed_poses::nearest(&color_times, img.stamp, tol).map(|c| color[c].clone()));
     }
     if let (Some(first), Some(last)) = (skipped.first(), skipped.last()) {
-        let pose_span = match (poses.first(), poses.last()) {
-            (Some(a), Some(b)) => format!("poses span t={:.6}..{:.6}", a.stamp, b.stamp),
-            _ => "no pose at all".into(),
+        let pose_span = match poses.span() {
+            Some((a, b)) => format!("poses span t={a:.6}..{b:.6}"),
+            None => "no pose at all".into(),
+        };
+        let outside = match opts.pose_interpolation {
+            timed_poses::PoseInterpolation::Linear => {
+                ", or outside the poses' span (interpolation does not extrapolate)"
+            }
+            timed_poses::PoseInterpolation::Nearest => "",
         };
         let msg = format!(
-            "{} of {} depth frames on {depth_topic} have no pose on {pose_topic} within \
-             {tol} s (t={first:.6}..{last:.6}; {pose_span})",
+            "{} of {} depth frames on {depth_topic} have no pose from {} within \
+             {tol} s{outside} (t={first:.6}..{last:.6}; {pose_span})",
             skipped.len(),
-            depth.len()
+            depth.len(),
+            poses.name()
         );
         if frames.is_empty() {
             return Err(text::layout(path, msg));
@@ -636,6 +631,7 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadErro
         frames,
         clock: crate::sequence::Clock::Seconds,
         frames_skipped: skipped.len(),
+        pose_interpolation: Some(opts.pose_interpolation),
         source: Box::new(BagSource {
             files,
             depth: refs,
@@ -644,6 +640,82 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadErro
             topic: depth_topic,
         }),
     })
+}
+
+/// The depth topic, its images in stamp order and their size.
+type DepthFrames = (String, Vec<ImageRef>, (u16, u16));
+
+/// Chooses the depth topic (the given one, else the only raw depth Image
+/// topic, else the only compressed depth topic) and returns it, its images
+/// in stamp order, checked to be depth of one size, and that size.
+fn depth_frames(
+    path: &Path,
+    ros: &Ros2Options,
+    topics: &mut Topics,
+) -> Result<DepthFrames, ReadError> {
+    let raw = topics.images_in(&DEPTH_ENCODINGS);
+    let candidates = if raw.is_empty() {
+        topics.compressed_depth()
+    } else {
+        raw
+    };
+    let any_image = topics.of_kind(&[msgs::IMAGE, msgs::COMPRESSED_IMAGE]);
+    let depth_topic = match ros.depth_topic.as_deref() {
+        // A given image topic of another encoding gets the encoding error below.
+        Some(t) if any_image.contains(&t) => t.to_string(),
+        given => choose(
+            path,
+            "depth topic (sensor_msgs/msg/Image 16UC1 or 32FC1, or a compressed depth \
+             CompressedImage)",
+            "--depth-topic",
+            given,
+            &candidates,
+            topics,
+        )?,
+    };
+    let mut depth = topics.images.remove(&depth_topic).unwrap_or_default();
+    depth.sort_by(|a, b| a.stamp.total_cmp(&b.stamp));
+    let first = depth
+        .first()
+        .cloned()
+        .ok_or_else(|| text::layout(path, format!("{depth_topic} has no message")))?;
+    for img in &depth {
+        let at = |reason: String| {
+            text::layout(
+                path,
+                format!("{depth_topic} at t={:.6}: {reason}", img.stamp),
+            )
+        };
+        match &img.compressed {
+            None if !DEPTH_ENCODINGS.contains(&img.encoding.as_str()) => {
+                return Err(at(format!(
+                    "encoding `{}` is not a depth encoding (16UC1 millimetres or 32FC1 metres)",
+                    img.encoding
+                )))
+            }
+            Some(Err(reason)) => {
+                return Err(at(format!("CompressedImage `{}`: {reason}", img.encoding)))
+            }
+            _ => {}
+        }
+        if (img.width, img.height) != (first.width, first.height) {
+            return Err(at(format!(
+                "{}x{} image, the first one is {}x{}",
+                img.width, img.height, first.width, first.height
+            )));
+        }
+    }
+    let side = |v: u32| u16::try_from(v).ok().filter(|&s| s > 0);
+    match (side(first.width), side(first.height)) {
+        (Some(w), Some(h)) => Ok((depth_topic, depth, (w, h))),
+        _ => Err(text::layout(
+            path,
+            format!(
+                "{depth_topic}: images are {}x{}, sides must be 1..=65535",
+                first.width, first.height
+            ),
+        )),
+    }
 }
 
 fn layout((path, reason): bag::BagError) -> ReadError {
@@ -722,88 +794,6 @@ fn camera(
     Ok(model)
 }
 
-/// The pose topic and its poses.
-fn poses(
-    path: &Path,
-    ros: &Ros2Options,
-    topics: &mut Topics,
-) -> Result<(String, Vec<Stamped>), ReadError> {
-    let tf_topics = topics.of_kind(&[msgs::TF_MESSAGE]);
-    let given_tf = ros.pose_topic.as_deref().filter(|t| tf_topics.contains(t));
-    if ros.pose_frame.is_some() || given_tf.is_some() {
-        let Some(frame) = ros.pose_frame.as_deref() else {
-            return Err(text::layout(
-                path,
-                format!(
-                    "--pose-topic {} is a TF topic: name the camera's frame with --pose-frame \
-                     (child frames: {})",
-                    given_tf.unwrap_or_default(),
-                    child_frames(topics)
-                ),
-            ));
-        };
-        let from: Vec<String> = match given_tf {
-            Some(t) => vec![t.to_string()],
-            None => tf_topics.iter().map(|t| t.to_string()).collect(),
-        };
-        let mut poses = Vec::new();
-        for t in &from {
-            if let Some(p) = topics.tf.get_mut(t).and_then(|f| f.remove(frame)) {
-                poses.extend(p);
-            }
-        }
-        if poses.is_empty() {
-            return Err(text::layout(
-                path,
-                format!(
-                    "no transform to child frame `{frame}` in {} (child frames: {})",
-                    if from.is_empty() {
-                        "the bag (it has no /tf)".to_string()
-                    } else {
-                        from.join(", ")
-                    },
-                    child_frames(topics)
-                ),
-            ));
-        }
-        return Ok((format!("/tf[{frame}]"), poses));
-    }
-    let candidates = topics.of_kind(&[msgs::POSE_STAMPED, msgs::ODOMETRY]);
-    if ros.pose_topic.is_none() && candidates.is_empty() && !tf_topics.is_empty() {
-        return Err(text::layout(
-            path,
-            format!(
-                "no PoseStamped or Odometry topic; for poses from /tf give --pose-frame \
-                 (child frames: {})",
-                child_frames(topics)
-            ),
-        ));
-    }
-    let topic = choose(
-        path,
-        "pose topic (geometry_msgs/msg/PoseStamped or nav_msgs/msg/Odometry)",
-        "--pose-topic",
-        ros.pose_topic.as_deref(),
-        &candidates,
-        topics,
-    )?;
-    let poses = topics.poses.remove(&topic).unwrap_or_default();
-    Ok((topic, poses))
-}
-
-fn child_frames(topics: &Topics) -> String {
-    let names: Vec<&str> = topics
-        .tf
-        .values()
-        .flat_map(|f| f.keys().map(String::as_str))
-        .collect();
-    if names.is_empty() {
-        "none".into()
-    } else {
-        names.join(", ")
-    }
-}
-
 /// Depth (and colour) of a bag's frames, read back from the bag on demand.
 struct BagSource {
     files: Vec<PathBuf>,
@@ -835,6 +825,17 @@ impl DepthSource for BagSource {
                 format!("{} at t={:.6}: {reason}", self.topic, r.stamp),
             )
         };
+        if r.compressed.is_some() {
+            let img = msgs::compressed_image(&bytes).map_err(|e| at(e.to_string()))?;
+            let codec = depth_codec::codec(&img.format).map_err(&at)?;
+            let (width, height, data) =
+                depth_codec::decode(codec, img.data, self.depth_scale).map_err(at)?;
+            return Ok(DepthImage {
+                width,
+                height,
+                data,
+            });
+        }
         let img = msgs::image(&bytes).map_err(|e| at(e.to_string()))?;
         decode_depth(&img, self.depth_scale).map_err(at)
     }
@@ -911,12 +912,7 @@ pub fn decode_depth(img: &msgs::Image<'_>, depth_scale: f64) -> Result<DepthImag
                     } else {
                         f32::from_le_bytes(b)
                     };
-                    let v = (f64::from(m) * depth_scale).round();
-                    if v.is_finite() && v > 0.0 && v <= f64::from(u16::MAX) {
-                        v as u16
-                    } else {
-                        0
-                    }
+                    metres_to_units(m, depth_scale)
                 }));
             }
         }
@@ -931,6 +927,17 @@ pub fn decode_depth(img: &msgs::Image<'_>, depth_scale: f64) -> Result<DepthImag
         height,
         data,
     })
+}
+
+/// Metres as `u16` depth units at `depth_scale` per metre, rounded; NaN,
+/// infinities, values <= 0 or beyond the `u16` range are 0 (no measurement).
+pub(crate) fn metres_to_units(m: f32, depth_scale: f64) -> u16 {
+    let v = (f64::from(m) * depth_scale).round();
+    if v.is_finite() && v > 0.0 && v <= f64::from(u16::MAX) {
+        v as u16
+    } else {
+        0
+    }
 }
 
 /// A colour Image as RGB bytes.
@@ -1018,22 +1025,5 @@ mod tests {
         let c = decode_color(&image("mono8", 2, 1, 2, false, &[7, 8])).unwrap();
         assert_eq!(c.rgb, [7, 7, 7, 8, 8, 8]);
         assert!(decode_color(&image("yuv422", 2, 1, 4, false, &[0; 4])).is_err());
-    }
-
-    #[test]
-    fn nearest_pose_within_tolerance() {
-        let p = msgs::PoseMsg {
-            translation: [0.0; 3],
-            rotation: [0.0, 0.0, 0.0, 1.0],
-        };
-        let s: Vec<Stamped> = [1.0, 1.1, 2.0]
-            .iter()
-            .map(|&stamp| Stamped { stamp, pose: p })
-            .collect();
-        assert_eq!(nearest(&s, 1.04, 0.05), Some(0));
-        assert_eq!(nearest(&s, 1.06, 0.05), Some(1));
-        assert_eq!(nearest(&s, 1.5, 0.05), None);
-        assert_eq!(nearest(&s, 2.05, 0.05), Some(2));
-        assert_eq!(nearest(&[], 1.0, 1.0), None);
     }
 }

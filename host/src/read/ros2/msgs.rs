@@ -5,6 +5,7 @@
 //! | type | fields read |
 //! |---|---|
 //! | `sensor_msgs/msg/Image` | header, height, width, encoding, is_bigendian, step, data |
+//! | `sensor_msgs/msg/CompressedImage` | header, format, data |
 //! | `sensor_msgs/msg/CameraInfo` | header, height, width, d, k |
 //! | `geometry_msgs/msg/PoseStamped` | header, pose |
 //! | `nav_msgs/msg/Odometry` | header, child_frame_id, pose.pose |
@@ -14,7 +15,7 @@ use super::cdr::{CdrError, Reader, Writer};
 
 /// `sensor_msgs/msg/Image`.
 pub const IMAGE: &str = "sensor_msgs/msg/Image";
-/// `sensor_msgs/msg/CompressedImage` (refused as depth).
+/// `sensor_msgs/msg/CompressedImage` (depth through image_transport).
 pub const COMPRESSED_IMAGE: &str = "sensor_msgs/msg/CompressedImage";
 /// `sensor_msgs/msg/CameraInfo`.
 pub const CAMERA_INFO: &str = "sensor_msgs/msg/CameraInfo";
@@ -59,6 +60,17 @@ pub struct Image<'a> {
     /// Bytes per row.
     pub step: u32,
     /// `step * height` bytes.
+    pub data: &'a [u8],
+}
+
+/// `sensor_msgs/msg/CompressedImage`; `data` borrowed from the message.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CompressedImage<'a> {
+    /// The header.
+    pub header: Header,
+    /// How `data` is coded: `"16UC1; compressedDepth png"`, `"png"`, ...
+    pub format: String,
+    /// The coded image.
     pub data: &'a [u8],
 }
 
@@ -114,6 +126,16 @@ pub fn image(bytes: &[u8]) -> Result<Image<'_>, CdrError> {
         encoding: r.string()?,
         is_bigendian: r.u8()? != 0,
         step: r.u32()?,
+        data: r.bytes()?,
+    })
+}
+
+/// Decodes a CompressedImage.
+pub fn compressed_image(bytes: &[u8]) -> Result<CompressedImage<'_>, CdrError> {
+    let mut r = Reader::new(bytes)?;
+    Ok(CompressedImage {
+        header: header(&mut r)?,
+        format: r.string()?,
         data: r.bytes()?,
     })
 }
