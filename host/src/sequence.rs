@@ -88,8 +88,12 @@ pub enum Format {
     SevenScenes,
     /// The reference code's layout: depth/, color/, poses file, intrinsics.txt.
     Vprdb,
-    /// A ROS 2 recording (rosbag2, MCAP storage): a bag folder or a `.mcap` file.
+    /// A ROS 2 recording (rosbag2, MCAP or sqlite3 storage): a bag folder,
+    /// a `.mcap` or a `.db3` file.
     Ros2,
+    /// ScanNet's exported layout: depth/, pose/, color/, intrinsic/.
+    #[serde(rename = "scannet")]
+    ScanNet,
     /// The built-in synthetic renderer (`--demo`; not a layout to read, so
     /// `--format` does not offer it).
     Synthetic,

@@ -40,6 +40,7 @@ impl ValueEnum for Format {
             Format::SevenScenes,
             Format::Vprdb,
             Format::Ros2,
+            Format::ScanNet,
         ]
     }
 
@@ -56,7 +57,11 @@ impl ValueEnum for Format {
             ),
             Format::Ros2 => (
                 "ros2",
-                "A ROS 2 recording (rosbag2, MCAP storage): a bag folder or a `.mcap` file",
+                "A ROS 2 recording (rosbag2, MCAP or sqlite3): a bag folder, a .mcap or .db3 file",
+            ),
+            Format::ScanNet => (
+                "scannet",
+                "ScanNet's export: depth/N.png, pose/N.txt, color/N.jpg, intrinsic/",
             ),
             Format::Synthetic => return None,
         };

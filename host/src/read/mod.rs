@@ -1,5 +1,5 @@
-//! Sequence readers (TUM RGB-D, 7-Scenes, the reference code's layout, ROS 2
-//! bags) and format detection.
+//! Sequence readers (TUM RGB-D, 7-Scenes, the reference code's layout,
+//! ScanNet's export, ROS 2 bags) and format detection.
 //!
 //! [`open`] reads a sequence directory's metadata (poses, timestamps,
 //! intrinsics, the size of the first depth image) up front; depth images are
@@ -13,6 +13,7 @@
 //! | [`Format::SevenScenes`] ([`sevenscenes`]) | 1000 | fx = fy = 585, cx = 320, cy = 240 | frame number |
 //! | [`Format::Vprdb`] ([`vprdb`]) | 1000 | required (`intrinsics.txt`) | pose file's, else index |
 //! | [`Format::Ros2`] ([`ros2`]) | 1000 | required (CameraInfo topic) | header stamp |
+//! | [`Format::ScanNet`] ([`scannet`]) | 1000 | required (`intrinsic/intrinsic_depth.txt`) | frame number |
 //!
 //! [`ReadOptions`] overrides the depth scale and the intrinsics of any format
 //! (the intrinsics file is then not read).
@@ -21,6 +22,7 @@
 pub mod fuzzing;
 mod png;
 pub mod ros2;
+pub mod scannet;
 pub mod sevenscenes;
 mod text;
 pub mod timed_poses;
@@ -80,6 +82,7 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError> {
         Format::SevenScenes => sevenscenes::read(path, opts),
         Format::Vprdb => vprdb::read(path, opts),
         Format::Ros2 => ros2::read(path, opts),
+        Format::ScanNet => scannet::read(path, opts),
         Format::Synthetic => Err(text::layout(
             path,
             "the synthetic format is rendered, not read from a directory",
@@ -87,12 +90,13 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError> {
     }
 }
 
-/// Recognises the layout of `path`: a ROS 2 bag if it is a `.mcap` file or
-/// a directory with `metadata.yaml` or `*.mcap`; 7-Scenes if it holds
-/// `frame-*.depth.png` files, TUM if it holds `depth.txt` and
-/// `groundtruth.txt`, the reference layout if it has a `depth/` directory
-/// and `poses.txt` (or a `depth/` directory and no `depth.txt`: TUM keeps
-/// its images in `depth/` too). A directory that looks like two layouts is
+/// Recognises the layout of `path`: a ROS 2 bag if it is a `.mcap` or `.db3`
+/// file or a directory with `metadata.yaml`, `*.mcap` or `*.db3`; 7-Scenes
+/// if it holds `frame-*.depth.png` files, TUM if it holds `depth.txt` and
+/// `groundtruth.txt`, ScanNet's export if it has `depth/` and `pose/`
+/// directories, the reference layout if it has a `depth/` directory and
+/// `poses.txt` (or a `depth/` directory and neither `depth.txt` nor
+/// `pose/`: TUM and ScanNet keep their images in `depth/` too). A directory that looks like two layouts is
 /// an error naming both, since guessing would read the wrong frames.
 pub fn detect(path: &Path) -> Result<Format, ReadError> {
     let meta = std::fs::metadata(path).map_err(|source| ReadError::Io {
@@ -103,13 +107,16 @@ pub fn detect(path: &Path) -> Result<Format, ReadError> {
         if ros2::looks_like_bag(path) {
             return Ok(Format::Ros2);
         }
-        return Err(text::layout(path, "not a directory (nor a .mcap file)"));
+        return Err(text::layout(
+            path,
+            "not a directory (nor a .mcap or .db3 bag file)",
+        ));
     }
     let names = text::list_dir(path)?;
     let has = |name: &str| names.iter().any(|n| n == name);
     let mut found: Vec<(Format, &str)> = Vec::new();
     if ros2::looks_like_bag(path) {
-        found.push((Format::Ros2, "ros2 (metadata.yaml or *.mcap)"));
+        found.push((Format::Ros2, "ros2 (metadata.yaml, *.mcap or *.db3)"));
     }
     if names.iter().any(|n| sevenscenes::frame_number(n).is_some()) {
         found.push((Format::SevenScenes, "7scenes (frame-*.depth.png)"));
@@ -117,7 +124,11 @@ pub fn detect(path: &Path) -> Result<Format, ReadError> {
     if has("depth.txt") && has("groundtruth.txt") {
         found.push((Format::Tum, "tum (depth.txt and groundtruth.txt)"));
     }
-    if path.join("depth").is_dir() && (has("poses.txt") || !has("depth.txt")) {
+    let scannet = scannet::looks_like_scannet(path);
+    if scannet {
+        found.push((Format::ScanNet, "scannet (depth/ and pose/ directories)"));
+    }
+    if path.join("depth").is_dir() && (has("poses.txt") || !(has("depth.txt") || scannet)) {
         found.push((Format::Vprdb, "vprdb (a depth/ directory and poses.txt)"));
     }
     match found.as_slice() {
@@ -125,8 +136,8 @@ pub fn detect(path: &Path) -> Result<Format, ReadError> {
         [] => Err(text::layout(
             path,
             "unknown sequence layout: looked for frame-*.depth.png (7scenes), \
-             depth.txt and groundtruth.txt (tum), a depth/ directory (vprdb), \
-             metadata.yaml or *.mcap (ros2)",
+             depth.txt and groundtruth.txt (tum), depth/ and pose/ directories \
+             (scannet), a depth/ directory (vprdb), metadata.yaml, *.mcap or *.db3 (ros2)",
         )),
         several => Err(text::layout(
             path,

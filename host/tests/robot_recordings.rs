@@ -1,0 +1,440 @@
+//! Recordings made the way robots make them, by the ecosystem's own writers
+//! (`host/tests/recordings/write_recordings.py`: the Python `rosbags` library
+//! for bags, OpenCV for PNGs), from the first frames of the 7-Scenes sample:
+//! each must read as the 7-Scenes layout of the same frames, and each broken
+//! one must be refused in words with nothing written.
+
+mod cli_common;
+
+use cli_common::{placedb, stderr, TempDir, SEVEN_SCENES};
+use placedb_host::pipeline::{self, Solver, SolverParams};
+use placedb_host::read::ros2::Ros2Options;
+use placedb_host::read::timed_poses::{interpolate, TimedPose};
+use placedb_host::read::{self, ReadOptions};
+use placedb_host::sequence::PoseInterpolation;
+use placedb_host::{output, Format, Sequence, VoxelConfig};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// Frames of the sample each recording holds.
+const FRAMES: usize = 16;
+
+const FIXTURE: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/tests/recordings/write_recordings.py"
+);
+
+fn sevenscenes() -> Sequence {
+    let mut seq = read::open(Path::new(SEVEN_SCENES), &ReadOptions::default())
+        .expect("tests read ../shared/data");
+    seq.frames.truncate(FRAMES);
+    seq
+}
+
+/// Writes the recordings `only` of the first [`FRAMES`] frames into `dir`
+/// and returns the folder holding them. The poses are this reader's own
+/// 7-Scenes poses, written so that they parse back to the same bits.
+fn write_recordings(dir: &Path, s7: &Sequence, only: &[&str]) -> PathBuf {
+    let poses: String = s7
+        .frames
+        .iter()
+        .map(|f| {
+            let [x, y, z] = f.translation;
+            let [qx, qy, qz, qw] = f.rotation;
+            format!("{} {x} {y} {z} {qx} {qy} {qz} {qw}\n", f.timestamp)
+        })
+        .collect();
+    let poses_file = dir.join("poses.txt");
+    std::fs::write(&poses_file, poses).unwrap();
+    let out = dir.join("recordings");
+    let run = Command::new("python3")
+        .arg(FIXTURE)
+        .arg("--sevenscenes")
+        .arg(SEVEN_SCENES)
+        .arg("--poses")
+        .arg(&poses_file)
+        .arg("--frames")
+        .arg(FRAMES.to_string())
+        .arg("--out")
+        .arg(&out)
+        .arg("--only")
+        .args(only)
+        .output()
+        .expect(
+            "python3 runs the fixture writer (set up: pip install -r \
+             host/tests/recordings/requirements.txt)",
+        );
+    assert!(
+        run.status.success(),
+        "the fixture writer failed (set up: pip install -r \
+         host/tests/recordings/requirements.txt):\n{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    out
+}
+
+fn open(path: &Path, ros2: Ros2Options, rule: PoseInterpolation) -> Sequence {
+    read::open(
+        path,
+        &ReadOptions {
+            ros2,
+            pose_interpolation: rule,
+            ..ReadOptions::default()
+        },
+    )
+    .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// database.csv and labels.csv of `solver` at mu 0.3.
+fn database(seq: &Sequence, solver: Solver) -> (String, String) {
+    let prep = pipeline::prepare(seq, VoxelConfig::default(), true).unwrap();
+    let o = pipeline::solve(seq, &prep, solver, 0.3, &SolverParams::default(), true).unwrap();
+    let rows = match &o.online {
+        Some(run) => output::rows_from_records(&run.database),
+        None => output::rows_from_sequence(seq, &o.database),
+    };
+    let ts: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
+    (
+        output::database_csv(&rows),
+        output::labels_csv(&ts, &o.labels),
+    )
+}
+
+/// `depth` with 65535 ("no measurement" in 7-Scenes, dropped by the
+/// compressedDepth encoder's 10 m limit) as 0.
+fn blank_65535(depth: &[u16]) -> Vec<u16> {
+    depth
+        .iter()
+        .map(|&v| if v == u16::MAX { 0 } else { v })
+        .collect()
+}
+
+fn assert_same_frames(name: &str, got: &Sequence, want: &Sequence) {
+    assert_eq!(got.frames.len(), want.frames.len(), "{name}");
+    assert_eq!((got.camera, got.size), (want.camera, want.size), "{name}");
+    for (a, b) in got.frames.iter().zip(&want.frames) {
+        assert_eq!(
+            (a.timestamp, a.translation, a.rotation),
+            (b.timestamp, b.translation, b.rotation),
+            "{name}"
+        );
+    }
+}
+
+#[test]
+fn ros2_bags_in_sqlite3_split_sqlite3_and_mcap_read_as_the_7scenes_frames() {
+    let s7 = sevenscenes();
+    let dir = TempDir::new("rec-sqlite3");
+    let out = write_recordings(
+        dir.path(),
+        &s7,
+        &["ros2-sqlite3", "ros2-sqlite3-split", "ros2-mcap"],
+    );
+    let want = [Solver::InOrder, Solver::Online].map(|s| database(&s7, s));
+    for name in ["ros2-sqlite3", "ros2-sqlite3-split", "ros2-mcap"] {
+        let bag = out.join(name);
+        assert_eq!(read::detect(&bag).unwrap(), Format::Ros2, "{name}");
+        let seq = open(&bag, Ros2Options::default(), PoseInterpolation::Linear);
+        assert_same_frames(name, &seq, &s7);
+        for i in [0, FRAMES / 2, FRAMES - 1] {
+            assert_eq!(seq.depth(i).unwrap(), s7.depth(i).unwrap(), "{name} {i}");
+        }
+        let got = [Solver::InOrder, Solver::Online].map(|s| database(&seq, s));
+        assert_eq!(got, want, "{name}");
+    }
+    // Colour rides along in the sqlite3 bag, frame by frame.
+    let seq = open(
+        &out.join("ros2-sqlite3"),
+        Ros2Options::default(),
+        PoseInterpolation::Linear,
+    );
+    assert!(seq.source.color(FRAMES - 1).unwrap().is_some());
+    // The command on the sqlite3 bag writes what it writes on the 7-Scenes
+    // frames, and says how the poses were taken.
+    let bag = out.join("ros2-sqlite3").to_string_lossy().into_owned();
+    let frames = FRAMES.to_string();
+    let a = placedb(&["select", &bag, "-q", "-o", &dir.arg("bag")]);
+    let b = placedb(&[
+        "select",
+        SEVEN_SCENES,
+        "--max-frames",
+        &frames,
+        "-q",
+        "-o",
+        &dir.arg("7scenes"),
+    ]);
+    assert!(a.status.success() && b.status.success(), "{}", stderr(&a));
+    for file in ["database.csv", "labels.csv"] {
+        assert_eq!(
+            std::fs::read(dir.path().join("bag").join(file)).unwrap(),
+            std::fs::read(dir.path().join("7scenes").join(file)).unwrap(),
+            "{file}"
+        );
+    }
+    let metrics = std::fs::read_to_string(dir.path().join("bag/metrics.json")).unwrap();
+    assert!(
+        metrics.contains("\"pose_interpolation\": \"linear\""),
+        "{metrics}"
+    );
+}
+
+#[test]
+fn compressed_depth_as_image_transport_writes_it() {
+    let s7 = sevenscenes();
+    let dir = TempDir::new("rec-compressed");
+    let variants = [
+        "ros2-compressed-png",
+        "ros2-compressed-png-rolling",
+        "ros2-compressed-rvl",
+        "ros2-png",
+        "ros2-compressed-32f",
+    ];
+    let out = write_recordings(dir.path(), &s7, &variants);
+    let want = [Solver::InOrder, Solver::Online].map(|s| database(&s7, s));
+    for name in variants {
+        let seq = open(
+            &out.join(name),
+            Ros2Options::default(),
+            PoseInterpolation::Linear,
+        );
+        assert_same_frames(name, &seq, &s7);
+        for i in [0, FRAMES / 2, FRAMES - 1] {
+            let (got, source) = (seq.depth(i).unwrap(), s7.depth(i).unwrap());
+            if name == "ros2-compressed-32f" {
+                // Inverse depth in 16 bits: a step is d^2 / 10100 m, 1.3 mm
+                // at 3.6 m; "no depth" stays no depth.
+                for (g, s) in got.data.iter().zip(&source.data) {
+                    assert_eq!(*g == 0, *s == 0, "{name} {i}");
+                    assert!(g.abs_diff(*s) <= 2, "{name} {i}: {g} for {s}");
+                }
+            } else {
+                assert_eq!(blank_65535(&got.data), source.data, "{name} {i}");
+            }
+        }
+        let got = [Solver::InOrder, Solver::Online].map(|s| database(&seq, s));
+        assert_eq!(got, want, "{name}");
+    }
+}
+
+#[test]
+fn poses_from_the_tf_tree_and_between_half_rate_samples() {
+    let s7 = sevenscenes();
+    let dir = TempDir::new("rec-tf");
+    let out = write_recordings(
+        dir.path(),
+        &s7,
+        &["ros2-tf", "ros2-tf-half-rate", "ros2-pose-half-rate"],
+    );
+    let close = |a: &[f64], b: &[f64]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-9);
+    // map -> odom -> base_link (on /tf) -> camera_link -> the optical frame
+    // (on /tf_static), composed from the root down to the images' frame.
+    let tf = open(
+        &out.join("ros2-tf"),
+        Ros2Options::default(),
+        PoseInterpolation::Linear,
+    );
+    assert_eq!(tf.frames.len(), FRAMES);
+    for (a, b) in tf.frames.iter().zip(&s7.frames) {
+        assert!(close(&a.translation, &b.translation), "{a:?} {b:?}");
+        let dot: f64 = a.rotation.iter().zip(&b.rotation).map(|(x, y)| x * y).sum();
+        assert!((dot.abs() - 1.0).abs() < 1e-9, "{a:?} {b:?}");
+    }
+    // The same database and labels; database.csv's poses are the composed
+    // ones, equal to the last few bits of a double.
+    for solver in [Solver::InOrder, Solver::Online] {
+        let ((db, labels), (want_db, want_labels)) = (database(&tf, solver), database(&s7, solver));
+        let indices = |csv: &str| -> Vec<String> {
+            csv.lines()
+                .map(|l| l.split(',').next().unwrap_or("").to_string())
+                .collect()
+        };
+        assert_eq!(indices(&db), indices(&want_db), "{solver:?}");
+        assert_eq!(labels, want_labels, "{solver:?}");
+    }
+    // From odom instead of the root: the map -> odom offset is left out.
+    let from_odom = open(
+        &out.join("ros2-tf"),
+        Ros2Options {
+            pose_frame: Some("odom".into()),
+            ..Ros2Options::default()
+        },
+        PoseInterpolation::Linear,
+    );
+    assert!(!close(
+        &from_odom.frames[0].translation,
+        &tf.frames[0].translation
+    ));
+    // Poses at even frames only, a second apart: the odd frames lie between
+    // two samples, interpolated with a tolerance that reaches them; the last
+    // (odd) frame is after the last sample and is not extrapolated.
+    let sample = |i: usize| TimedPose {
+        stamp: s7.frames[i].timestamp,
+        translation: s7.frames[i].translation,
+        rotation: s7.frames[i].rotation,
+    };
+    let reach = || Ros2Options {
+        pose_tolerance: Some(1.0),
+        ..Ros2Options::default()
+    };
+    for name in ["ros2-pose-half-rate", "ros2-tf-half-rate"] {
+        let seq = open(&out.join(name), reach(), PoseInterpolation::Linear);
+        assert_eq!(seq.frames.len(), FRAMES - 1, "{name}");
+        assert_eq!(seq.frames_skipped, 1, "{name}");
+        for (i, f) in seq.frames.iter().enumerate() {
+            let want = match i % 2 {
+                0 => sample(i),
+                _ => interpolate(&sample(i - 1), &sample(i + 1), f.timestamp),
+            };
+            // TF interpolates each dynamic link, as tf2 does: base_link's
+            // position moves on a line, and the camera, offset from it by
+            // the static links, turns with it; the rotation is the same.
+            let far = f
+                .translation
+                .iter()
+                .zip(&want.translation)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            match name {
+                "ros2-tf-half-rate" => assert!(far < 0.01, "{name} {i}: {far} m"),
+                _ => assert!(close(&f.translation, &want.translation), "{name} {i}"),
+            }
+            let dot: f64 = f
+                .rotation
+                .iter()
+                .zip(&want.rotation)
+                .map(|(x, y)| x * y)
+                .sum();
+            assert!((dot.abs() - 1.0).abs() < 1e-9, "{name} {i}");
+        }
+        // The nearest rule: an odd frame takes the earlier sample whole.
+        let nearest = open(&out.join(name), reach(), PoseInterpolation::Nearest);
+        assert_eq!(nearest.frames.len(), FRAMES, "{name}");
+        assert!(close(
+            &nearest.frames[3].translation,
+            &s7.frames[2].translation
+        ));
+        // Within the default 0.05 s, only the frames at a sample have one.
+        let default = open(
+            &out.join(name),
+            Ros2Options::default(),
+            PoseInterpolation::Linear,
+        );
+        assert_eq!(default.frames.len(), FRAMES / 2, "{name}");
+    }
+}
+
+#[test]
+fn a_scannet_export_reads_as_7scenes_without_its_lost_frame() {
+    let s7 = sevenscenes();
+    let dir = TempDir::new("rec-scannet");
+    let out = write_recordings(dir.path(), &s7, &["scannet"]);
+    let scan = out.join("scannet");
+    assert_eq!(read::detect(&scan).unwrap(), Format::ScanNet);
+    let seq = open(&scan, Ros2Options::default(), PoseInterpolation::Linear);
+    // Frame 3's pose is ScanNet's -inf: skipped, counted; the others keep
+    // their numbers and 7-Scenes' poses bit for bit.
+    assert_eq!(seq.frames_skipped, 1);
+    let kept: Vec<_> = s7.frames.iter().filter(|f| f.timestamp != 3.0).collect();
+    assert_eq!(seq.frames.len(), kept.len());
+    for (a, b) in seq.frames.iter().zip(&kept) {
+        assert_eq!(
+            (a.timestamp, a.translation, a.rotation),
+            (b.timestamp, b.translation, b.rotation)
+        );
+    }
+    assert_eq!(seq.camera, s7.camera);
+    assert_eq!(
+        blank_65535(&seq.depth(3).unwrap().data),
+        s7.depth(4).unwrap().data
+    );
+    // The command names the lost frame and writes the database of the
+    // 7-Scenes frames without it.
+    let copy = dir.path().join("7scenes");
+    cli_common::seven_scenes_copy(&copy, FRAMES, true);
+    for ext in ["depth.png", "pose.txt", "color.jpg"] {
+        let _ = std::fs::remove_file(copy.join(format!("frame-000003.{ext}")));
+    }
+    assert!(!copy.join("frame-000003.depth.png").exists());
+    let a = placedb(&["select", &scan.to_string_lossy(), "-o", &dir.arg("a")]);
+    let b = placedb(&["select", &copy.to_string_lossy(), "-q", "-o", &dir.arg("b")]);
+    assert!(a.status.success() && b.status.success(), "{}", stderr(&a));
+    assert!(
+        stderr(&a).contains("1 of 16 frames have an invalid pose")
+            && stderr(&a).contains("pose/3.txt"),
+        "{}",
+        stderr(&a)
+    );
+    for file in ["database.csv", "labels.csv"] {
+        assert_eq!(
+            std::fs::read(dir.path().join("a").join(file)).unwrap(),
+            std::fs::read(dir.path().join("b").join(file)).unwrap(),
+            "{file}"
+        );
+    }
+}
+
+#[test]
+fn broken_recordings_are_refused_in_words_and_nothing_is_written() {
+    let s7 = sevenscenes();
+    let dir = TempDir::new("rec-bad");
+    let cases: [(&str, &[&str]); 5] = [
+        (
+            "bad-truncated-db3",
+            &[
+                "bad-truncated-db3.db3",
+                "not a readable rosbag2 sqlite3 file",
+            ],
+        ),
+        (
+            "bad-short-compressed",
+            &[
+                "/camera/depth/image_rect_raw/compressedDepth",
+                "t=2.000000",
+                "7 bytes has no image after its 12-byte header",
+            ],
+        ),
+        (
+            "bad-8bit-png",
+            &[
+                "/camera/depth/image_rect_raw/compressedDepth",
+                "t=2.000000",
+                "8-bit",
+                "16-bit",
+            ],
+        ),
+        (
+            "bad-tf-cycle",
+            &["cycle", "base_link", "odom", "map", "t=0.000000"],
+        ),
+        (
+            "bad-tf-two-parents",
+            &[
+                "`base_link` has two parents",
+                "`odom`",
+                "`map`",
+                "/tf at t=",
+            ],
+        ),
+    ];
+    let out = write_recordings(dir.path(), &s7, &cases.map(|(name, _)| name));
+    for (name, needles) in cases {
+        let target = dir.path().join(format!("out-{name}"));
+        let run = placedb(&[
+            "select",
+            &out.join(name).to_string_lossy(),
+            "-o",
+            &target.to_string_lossy(),
+        ]);
+        let e = stderr(&run);
+        assert_eq!(run.status.code(), Some(1), "{name}: {e}");
+        assert!(e.contains(name), "{name}: {e}");
+        for n in needles {
+            assert!(e.contains(n), "{name}: {n:?} not in {e}");
+        }
+        assert!(
+            !e.contains("Error {") && !e.contains("Some("),
+            "{name}: {e}"
+        );
+        assert!(!target.exists(), "{name}: wrote {}", target.display());
+    }
+}
