@@ -36,6 +36,9 @@ pub struct BenchOptions {
     pub building_frames: usize,
     /// Rounds of the timing table.
     pub repeat: u32,
+    /// `--bag`: recordings of the 7scenes-1000 frames whose reading the
+    /// timing table compares with reading the PNG files.
+    pub bags: Vec<PathBuf>,
 }
 
 /// `x` with `decimals` decimals, or "-" where it does not apply (NaN, or
@@ -117,6 +120,12 @@ pub struct BenchArgs {
     /// 10 % and more, and the machine's speed drifts).
     #[arg(long, default_value_t = 3, value_parser = super::params::whole::<u32>(1, 1000), allow_negative_numbers = true)]
     repeat: u32,
+    /// A recording of the 7scenes-1000 frames (a ROS 2 or ROS 1 bag, say),
+    /// repeatable: the timing table reads it beside the PNG files, each
+    /// run beside a run of the PNG files' decode-only (the fixture writer
+    /// host/tests/recordings/write_recordings.py makes such bags).
+    #[arg(long = "bag", value_name = "PATH")]
+    bags: Vec<PathBuf>,
     /// Internal (a child of the timing table): only decode every depth
     /// image of this sequence, as select would, and exit.
     #[arg(long, hide = true)]
@@ -135,6 +144,7 @@ pub fn run(a: BenchArgs) -> Result<(), Error> {
         device_frames: a.device_frames,
         building_frames: a.building_frames,
         repeat: a.repeat,
+        bags: a.bags.clone(),
     };
     if a.core {
         return instructions::core_cost(&opts);

@@ -72,14 +72,29 @@ pub fn table(a: &BenchOptions) -> Result<(), Error> {
     for (name, args) in &inputs {
         // Row 0 is the floor (decoding every depth image and nothing else),
         // where the input is a recorded sequence; then one row a solver.
-        let mut rows: Vec<(&str, Vec<String>)> = Vec::new();
+        let mut rows: Vec<(String, Vec<String>)> = Vec::new();
         if let Some(path) = args.first().filter(|p| !p.starts_with("--")) {
             rows.push((
-                "decode-only",
+                "decode-only".into(),
                 vec!["bench".into(), "--decode-only".into(), path.clone()],
             ));
         }
         let has_floor = !rows.is_empty();
+        // The same frames read from a recording, as a row beside the PNG
+        // files' floor (its ratio to the floor is the recording's cost).
+        if name == "7scenes-1000" {
+            for bag in &a.bags {
+                let file = bag.file_name().unwrap_or(bag.as_os_str());
+                rows.push((
+                    format!("read {}", file.to_string_lossy()),
+                    vec![
+                        "bench".into(),
+                        "--decode-only".into(),
+                        bag.display().to_string(),
+                    ],
+                ));
+            }
+        }
         for solver in &a.solvers {
             let mut select: Vec<String> = vec!["select".into()];
             select.extend(args.iter().cloned());
@@ -88,7 +103,7 @@ pub fn table(a: &BenchOptions) -> Result<(), Error> {
             );
             select.extend(["--json", "-q", "-o"].map(String::from));
             select.push(out.display().to_string());
-            rows.push((solver.name(), select));
+            rows.push((solver.name().into(), select));
         }
         // Rounds of every row in turn; each round starts one row later, so
         // that no row always runs first. With a floor, every run of a
@@ -189,6 +204,8 @@ pub fn table(a: &BenchOptions) -> Result<(), Error> {
          runs beside every run of a solver, its row the median);\n\
          cpu_s: that child's CPU time, user and system, all threads (steadier than wall time\n\
          when the machine's speed drifts); total_s: select's own clock, up to its outputs;\n\
+         read BAG (--bag): the 7scenes-1000 frames decoded from that recording, beside the\n\
+         PNG files' decode-only;\n\
          * read and voxel are CPU time summed over threads; the others are wall time",
         a.repeat
     );

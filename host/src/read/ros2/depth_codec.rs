@@ -176,38 +176,38 @@ fn rvl_size(payload: &[u8]) -> Result<(u16, u16, &[u8]), String> {
     }
 }
 
-/// Reads the nibbles of an RVL stream: 32-bit little-endian words, each
-/// read from its top nibble down.
-struct Nibbles<'a> {
+/// Reads the variable-length values of an RVL stream: 32-bit little-endian
+/// words, each read from its top nibble down; a value is 3 bits a nibble,
+/// lowest first, the 4th bit set while more follow.
+struct Values<'a> {
     words: std::slice::ChunksExact<'a, u8>,
+    /// Unread nibbles of the current word, in its top bits.
     word: u32,
-    left: u8,
+    left: u32,
 }
 
-impl Nibbles<'_> {
+impl Values<'_> {
+    /// The next value; `None` at the stream's end, or for one longer than
+    /// 32 bits (damage; the caller says the stream ended too early).
+    #[inline]
     fn next(&mut self) -> Option<u32> {
-        if self.left == 0 {
-            let b = self.words.next()?;
-            self.word = u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
-            self.left = 8;
-        }
-        self.left -= 1;
-        Some((self.word >> (4 * u32::from(self.left))) & 0xF)
-    }
-
-    /// One variable-length value: 3 bits a nibble, lowest first, the 4th
-    /// bit set while more follow. More than 32 bits is damage.
-    fn value(&mut self) -> Option<Result<u32, String>> {
         let (mut value, mut shift) = (0u32, 0u32);
         loop {
-            let nibble = self.next()?;
-            if shift > 30 {
-                return Some(Err("RVL value longer than 32 bits".into()));
+            if self.left == 0 {
+                let b = self.words.next()?;
+                self.word = u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+                self.left = 8;
             }
+            let nibble = self.word >> 28;
+            self.word <<= 4;
+            self.left -= 1;
             value |= (nibble & 7) << shift;
-            shift += 3;
             if nibble & 8 == 0 {
-                return Some(Ok(value));
+                return Some(value);
+            }
+            shift += 3;
+            if shift > 30 {
+                return None;
             }
         }
     }
@@ -217,40 +217,39 @@ impl Nibbles<'_> {
 /// non-zero values, each non-zero value a zigzag delta from the previous
 /// non-zero one.
 fn rvl_decode(stream: &[u8], pixels: usize) -> Result<Vec<u16>, String> {
-    let mut nibbles = Nibbles {
+    let mut values = Values {
         words: stream.chunks_exact(4),
         word: 0,
         left: 0,
     };
     let short = |done: usize| format!("RVL stream ends after {done} of {pixels} pixels");
-    let mut out = Vec::with_capacity(pixels);
-    let mut previous: u16 = 0;
-    while out.len() < pixels {
-        let zeros = nibbles.value().ok_or_else(|| short(out.len()))?? as usize;
-        if zeros > pixels - out.len() {
+    let mut out = vec![0u16; pixels];
+    let (mut at, mut previous) = (0usize, 0u16);
+    while at < pixels {
+        let zeros = values.next().ok_or_else(|| short(at))? as usize;
+        if zeros > pixels - at {
             return Err(format!(
-                "RVL run of {zeros} zeros after {} pixels overflows the {pixels}-pixel image",
-                out.len()
+                "RVL run of {zeros} zeros after {at} pixels overflows the {pixels}-pixel image"
             ));
         }
-        out.resize(out.len() + zeros, 0);
-        if out.len() == pixels {
+        at += zeros;
+        if at == pixels {
             break;
         }
-        let values = nibbles.value().ok_or_else(|| short(out.len()))?? as usize;
-        if values > pixels - out.len() {
+        let run = values.next().ok_or_else(|| short(at))? as usize;
+        if run > pixels - at {
             return Err(format!(
-                "RVL run of {values} values after {} pixels overflows the {pixels}-pixel image",
-                out.len()
+                "RVL run of {run} values after {at} pixels overflows the {pixels}-pixel image"
             ));
         }
-        for _ in 0..values {
-            let zigzag = nibbles.value().ok_or_else(|| short(out.len()))??;
+        for slot in &mut out[at..at + run] {
+            let zigzag = values.next().ok_or_else(|| short(at))?;
             let delta = (zigzag >> 1) as i32 ^ -((zigzag & 1) as i32);
             // The codec's arithmetic: an int stored as unsigned short.
             previous = (i32::from(previous).wrapping_add(delta)) as u16;
-            out.push(previous);
+            *slot = previous;
         }
+        at += run;
     }
     Ok(out)
 }

@@ -10,8 +10,10 @@
 
 use super::bag::{err, BagError, Channel, Location, Message, Place};
 use rusqlite::{Connection, OpenFlags};
+use std::cell::RefCell;
+use std::collections::hash_map::Entry;
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Opens `path` read-only: reading a bag never changes it.
 fn open(path: &Path) -> Result<Connection, BagError> {
@@ -121,13 +123,25 @@ pub fn scan(
     }
 }
 
+thread_local! {
+    /// Each thread's open bag files: opening one reads its schema, a cost
+    /// as large as a small message's, and depth is fetched frame by frame
+    /// from the threads that voxelize.
+    static OPEN: RefCell<HashMap<PathBuf, Connection>> = RefCell::new(HashMap::new());
+}
+
 /// Reads back the message of row `id` in file `path`.
 pub fn fetch(path: &Path, id: i64) -> Result<Vec<u8>, BagError> {
-    let db = open(path)?;
-    db.query_row("SELECT data FROM messages WHERE id = ?1", [id], |row| {
-        row.get::<_, Vec<u8>>(0)
+    OPEN.with(|open| {
+        let mut open = open.borrow_mut();
+        let db = match open.entry(path.to_path_buf()) {
+            Entry::Occupied(e) => e.into_mut(),
+            Entry::Vacant(e) => e.insert(self::open(path)?),
+        };
+        db.prepare_cached("SELECT data FROM messages WHERE id = ?1")
+            .and_then(|mut q| q.query_row([id], |row| row.get::<_, Vec<u8>>(0)))
+            .map_err(|e| damaged(path, e, &format!("reading message row {id}")))
     })
-    .map_err(|e| damaged(path, e, &format!("reading message row {id}")))
 }
 
 #[cfg(test)]
