@@ -15,6 +15,47 @@ use placedb_host::vector_unit::VectorUnit;
 use std::cell::Cell;
 use std::path::{Path, PathBuf};
 
+/// `compressed_depth` target: `data` as the payload of a depth
+/// CompressedImage in every coding the reader takes (compressedDepth PNG
+/// and RVL of depth and of inverse depth, a bare 16-bit PNG), and as a CDR
+/// CompressedImage message. A payload that decodes holds exactly its
+/// claimed pixels, and the size read from its header alone is the size it
+/// decodes to.
+pub fn compressed_depth(data: &[u8]) {
+    use ros2::depth_codec::{self, DepthCodec};
+    let codings = [
+        DepthCodec::CompressedDepth {
+            inverse: false,
+            rvl: false,
+        },
+        DepthCodec::CompressedDepth {
+            inverse: false,
+            rvl: true,
+        },
+        DepthCodec::CompressedDepth {
+            inverse: true,
+            rvl: false,
+        },
+        DepthCodec::CompressedDepth {
+            inverse: true,
+            rvl: true,
+        },
+        DepthCodec::Png,
+    ];
+    for codec in codings {
+        let size = depth_codec::size(codec, data);
+        if let Ok((w, h, values)) = depth_codec::decode(codec, data, 1000.0) {
+            assert_eq!(values.len(), usize::from(w) * usize::from(h));
+            assert_eq!(size, Ok((w, h)), "{codec:?}");
+        }
+    }
+    if let Ok(img) = msgs::compressed_image(data) {
+        if let Ok(codec) = depth_codec::codec(&img.format) {
+            let _ = depth_codec::decode(codec, img.data, 1000.0);
+        }
+    }
+}
+
 /// `ros2` target: `data` as one CDR message of every kind the reader
 /// decodes, and as a `.mcap` file read by the full bag reader (with and
 /// without a TF frame to take poses from).
