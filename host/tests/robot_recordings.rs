@@ -142,6 +142,11 @@ fn ros2_bags_in_sqlite3_split_sqlite3_and_mcap_read_as_the_7scenes_frames() {
         let got = [Solver::InOrder, Solver::Online].map(|s| database(&seq, s));
         assert_eq!(got, want, "{name}");
     }
+    // One .db3 file given alone reads the same, as a .mcap does.
+    let single = out.join("ros2-sqlite3").join("ros2-sqlite3.db3");
+    assert_eq!(read::detect(&single).unwrap(), Format::Ros2);
+    let seq = open(&single, Ros2Options::default(), PoseInterpolation::Linear);
+    assert_same_frames("one .db3", &seq, &s7);
     // Colour rides along in the sqlite3 bag, frame by frame.
     let seq = open(
         &out.join("ros2-sqlite3"),
