@@ -200,3 +200,30 @@ fn the_emulated_board_recovers_from_5_percent_faults() {
         started.elapsed().as_secs_f64()
     );
 }
+
+#[test]
+fn a_lost_frame_costs_a_measured_round_trip_not_the_whole_resend_wait() {
+    // The user's 2 s is the ceiling; the in-process link answers in well
+    // under a millisecond, so after a few messages a lost reply is noticed
+    // at the floor's 20 ms, not after 2 s (a 50-frame scan at 5 % faults
+    // took minutes with a fixed wait).
+    let seq = demo(50);
+    let want = host_replay(&seq);
+    let link = LocalLink::start(PROFILE).unwrap();
+    let mut client = Client::new(FaultInjector::new(link, FaultConfig::new(0.05, 0.05, 11)));
+    let ceiling = Duration::from_secs(2);
+    assert_eq!(client.first_wait("DepthRows", ceiling), ceiling);
+    let run = stream_and_export(&mut client, &seq, ceiling);
+    check(&run, &want, "local, 2 s ceiling");
+    println!(
+        "local, 5 % drops + 5 % corruption, 50 frames, 2 s ceiling: {}",
+        describe(&run)
+    );
+    for kind in ["FrameBegin", "DepthRows", "FrameEnd", "ExportRecord"] {
+        let wait = client.first_wait(kind, ceiling);
+        assert!(
+            wait < Duration::from_millis(500),
+            "{kind}: first wait {wait:?} of a {ceiling:?} ceiling"
+        );
+    }
+}

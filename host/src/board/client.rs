@@ -5,11 +5,13 @@
 
 use crate::board::error::DeviceError;
 use crate::board::link::{self, Link};
+use crate::board::resend::ResendTimer;
 use placedb::profile::{Capacities, PROFILES};
 use placedb::protocol::{
     encode, CapacitySlot, DeviceMessage, FrameDecoder, HostFrame, HostMessage, ProtocolError, Push,
     Status, MAX_FRAME_LEN,
 };
+use std::collections::HashMap;
 use std::io;
 use std::time::{Duration, Instant};
 
@@ -58,6 +60,10 @@ pub struct Client<L: Link> {
     /// Bytes of every message's first transmission (retransmissions not
     /// counted): what a scan costs the link.
     first_sent_bytes: u64,
+    /// The round trip of each kind of message (a frame's end, which decides
+    /// and may write flash, takes longer than its rows), for how long
+    /// [`exchange`] waits.
+    resend: HashMap<&'static str, ResendTimer>,
 }
 
 impl<L: Link> Client<L> {
@@ -70,6 +76,7 @@ impl<L: Link> Client<L> {
             next_seq: 1,
             tx: vec![0u8; MAX_FRAME_LEN],
             first_sent_bytes: 0,
+            resend: HashMap::new(),
         }
     }
 
@@ -77,6 +84,23 @@ impl<L: Link> Client<L> {
     /// (retransmissions by [`Client::send_as`] not counted).
     pub fn first_sent_bytes(&self) -> u64 {
         self.first_sent_bytes
+    }
+
+    /// How long [`exchange`] would first wait for a reply to a message of
+    /// kind `kind` (`"DepthRows"`, `"FrameEnd"`, ...) under `ceiling`: the
+    /// measured round trip of that kind, `ceiling` before any.
+    pub fn first_wait(&self, kind: &str, ceiling: Duration) -> Duration {
+        self.resend
+            .get(kind)
+            .copied()
+            .unwrap_or_default()
+            .first_wait(ceiling)
+    }
+
+    /// Takes a round trip of kind `kind` measured outside [`exchange`] (an
+    /// export batch's records, answered without a resend).
+    pub(crate) fn note_round_trip(&mut self, kind: &'static str, rtt: Duration) {
+        self.resend.entry(kind).or_default().sample(rtt);
     }
 
     /// The underlying link.
@@ -260,11 +284,15 @@ fn request<L: Link>(
 }
 
 /// Sends `msg` and waits for its terminal reply, stop-and-wait: when none
-/// comes within `resend_after`, or an error says a frame was damaged on the
-/// way ([`ErrorKind::is_damage`]), the link is resynchronised and the same
-/// message is sent again with the same sequence number, at most `retries`
-/// times. Returns what arrived for it (decisions, logs, the terminal reply
-/// last; replies to other sequence numbers are dropped) and the number of
+/// comes in time, or an error says a frame was damaged on the way
+/// ([`ErrorKind::is_damage`]), the link is resynchronised and the same
+/// message is sent again with the same sequence number. The first wait is
+/// the link's measured round trip ([`ResendTimer`]), each later one twice
+/// the one before, up to `resend_after`; `retries` counts the resends
+/// after a wait of the whole `resend_after` (or a damaged frame), so a
+/// reply slower than the estimate costs a resend, never the exchange.
+/// Returns what arrived for it (decisions, logs, the terminal reply last;
+/// replies to other sequence numbers are dropped) and the number of
 /// retransmissions. A refusal (any other error) is returned as
 /// [`DeviceError::Refused`].
 pub fn exchange<L: Link>(
@@ -276,12 +304,22 @@ pub fn exchange<L: Link>(
 ) -> Result<(Vec<Received>, u64), DeviceError> {
     let seq = client.take_seq();
     let mut got = Vec::new();
-    for attempt in 0..=retries {
-        if attempt > 0 {
+    let kind = kind(&msg);
+    let mut wait = client
+        .resend
+        .get(kind)
+        .copied()
+        .unwrap_or_default()
+        .first_wait(resend_after);
+    let (mut sent, mut counted) = (0u64, 0usize);
+    while counted <= retries {
+        if sent > 0 {
             client.resync()?;
         }
         client.send_as(seq, msg)?;
-        let deadline = Instant::now() + resend_after;
+        let sent_at = Instant::now();
+        let deadline = sent_at + wait;
+        let mut damaged = false;
         loop {
             let left = deadline.saturating_duration_since(Instant::now());
             let item = match client.recv(left) {
@@ -292,7 +330,10 @@ pub fn exchange<L: Link>(
             match &item {
                 // Under stop-and-wait a damaged frame is ours (or a harmless
                 // repeat): send again at once.
-                Received::Message(DeviceMessage::Error { kind, .. }) if kind.is_damage() => break,
+                Received::Message(DeviceMessage::Error { kind, .. }) if kind.is_damage() => {
+                    damaged = true;
+                    break;
+                }
                 Received::Message(DeviceMessage::Error { seq: Some(s), kind }) if *s == seq => {
                     return Err(DeviceError::Refused {
                         what: what.to_string(),
@@ -305,18 +346,50 @@ pub fn exchange<L: Link>(
             match item.terminal_seq() {
                 Some(s) if s == seq => {
                     got.push(item);
-                    return Ok((got, attempt as u64));
+                    if sent == 0 {
+                        client
+                            .resend
+                            .entry(kind)
+                            .or_default()
+                            .sample(sent_at.elapsed());
+                    }
+                    return Ok((got, sent));
                 }
                 // A late reply to an earlier message.
                 Some(_) => {}
                 None => got.push(item),
             }
         }
+        // A wait shorter than the user's only tried the estimate.
+        if damaged || wait >= resend_after {
+            counted += 1;
+        }
+        if !damaged {
+            wait = ResendTimer::next_wait(wait, resend_after);
+        }
+        sent += 1;
     }
     Err(DeviceError::Protocol(format!(
         "no reply to {what} (seq {seq}) after {retries} retransmissions, {} apart",
         crate::error::seconds(resend_after)
     )))
+}
+
+/// A message's kind, by which its round trip is estimated.
+fn kind(msg: &HostMessage<'_>) -> &'static str {
+    match msg {
+        HostMessage::Hello(_) => "Hello",
+        HostMessage::Extend(_) => "Extend",
+        HostMessage::FrameBegin { .. } => "FrameBegin",
+        HostMessage::DepthRows(_) => "DepthRows",
+        HostMessage::FrameEnd { .. } => "FrameEnd",
+        HostMessage::FrameAbort { .. } => "FrameAbort",
+        HostMessage::Finish => "Finish",
+        HostMessage::StatusRequest => "StatusRequest",
+        HostMessage::ExportRequest { .. } => "ExportRequest",
+        HostMessage::LogRead { .. } => "LogRead",
+        HostMessage::Reset => "Reset",
+    }
 }
 
 /// The status a request's replies end with: the one parser of a status

@@ -42,3 +42,10 @@ pub enum DeviceError {
         next: u32,
     },
 }
+
+impl DeviceError {
+    /// Whether the link waited in vain (no reply in time).
+    pub fn is_timeout(&self) -> bool {
+        matches!(self, DeviceError::Io(e) if e.kind() == io::ErrorKind::TimedOut)
+    }
+}

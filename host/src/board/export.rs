@@ -12,6 +12,7 @@ use crate::board::client::{ask_status, device_profile, Client, Received, Wait};
 use crate::board::error::DeviceError;
 use crate::board::link::Link;
 use crate::board::log_records;
+use crate::board::resend::ResendTimer;
 use crate::error::OutputError;
 use crate::output::replace::{self, Outputs};
 use crate::output::{self, metrics_json};
@@ -24,7 +25,10 @@ use placedb::protocol::{
 use placedb::DbRecord;
 use std::io;
 use std::path::{Path, PathBuf};
-use std::time::Duration;
+use std::time::{Duration, Instant};
+
+/// The kind the export's replies are timed as ([`Client::first_wait`]).
+const EXPORT_REPLY: &str = "ExportRecord";
 
 /// How to export.
 #[derive(Debug, Clone)]
@@ -102,7 +106,7 @@ fn export_batch<L: Link>(
     from: u32,
     max: u32,
     database: u32,
-    timeout: Duration,
+    wait: Duration,
 ) -> Result<Vec<ExportRecord>, DeviceError> {
     let seq = client.send(HostMessage::ExportRequest {
         from_record: from,
@@ -110,8 +114,14 @@ fn export_batch<L: Link>(
     })?;
     let mut got: Vec<ExportRecord> = Vec::new();
     let mut damaged = false;
+    // The longest gap before a reply (the first record, each next one, the
+    // end): what a clean batch tells of how long to wait for one.
+    let (mut last, mut longest) = (Instant::now(), Duration::ZERO);
     loop {
-        match client.recv(timeout)? {
+        let item = client.recv(wait)?;
+        longest = longest.max(last.elapsed());
+        last = Instant::now();
+        match item {
             Received::Message(DeviceMessage::ExportRecord(r)) => got.push(r),
             Received::Damaged(_) => damaged = true,
             Received::Message(DeviceMessage::ExportEnd {
@@ -135,6 +145,7 @@ fn export_batch<L: Link>(
                         "export batch from {from}: CRC mismatch"
                     )));
                 }
+                client.note_round_trip(EXPORT_REPLY, longest);
                 return Ok(got);
             }
             // The request (or a record) was damaged on the way: ask again.
@@ -198,11 +209,17 @@ pub fn export<L: Link>(
     let mut retried = 0;
     let mut failed_in_a_row = 0;
     let mut batch_len = opts.batch.max(1);
+    // How long to wait for a reply: the measured gap between replies, and
+    // after a wait that ran out twice that, up to `reply_timeout`
+    // (crate::board::resend); only a wait of the whole `reply_timeout`, or
+    // another failure, counts against `retries`.
+    let mut wait = client.first_wait(EXPORT_REPLY, timeout);
     while have.len() < total {
         let from = have.len() as u32;
-        match export_batch(client, from, batch_len, first.database_size, timeout) {
+        match export_batch(client, from, batch_len, first.database_size, wait) {
             Ok(batch) if !batch.is_empty() => {
                 failed_in_a_row = 0;
+                wait = client.first_wait(EXPORT_REPLY, timeout);
                 batch_len = batch_len.saturating_add(1).min(opts.batch.max(1));
                 saved(&batch)?;
                 have.extend(batch);
@@ -218,13 +235,20 @@ pub fn export<L: Link>(
             Err(e @ DeviceError::Refused { .. }) => return Err(e),
             Err(e) if failed_in_a_row < opts.retries => {
                 retried += 1;
-                failed_in_a_row += 1;
+                let early = wait < timeout && e.is_timeout();
+                if !early {
+                    failed_in_a_row += 1;
+                }
+                wait = match e.is_timeout() {
+                    true => ResendTimer::next_wait(wait, timeout),
+                    false => wait,
+                };
                 batch_len = (batch_len / 2).max(1);
                 if let Some(p) = progress {
                     p.println(format!("retrying from record {from}: {e}"));
                 }
                 // Let a broken reply finish, then resynchronise.
-                while client.recv(Duration::from_millis(200).min(timeout)).is_ok() {}
+                while client.recv(Duration::from_millis(200).min(wait)).is_ok() {}
                 client.resync()?;
             }
             Err(e) => return Err(e),
