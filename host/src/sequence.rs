@@ -90,6 +90,8 @@ pub enum Format {
     Vprdb,
     /// A ROS 2 recording (rosbag2, MCAP storage): a bag folder or a `.mcap` file.
     Ros2,
+    /// A ROS 1 bag (format 2.0): a `.bag` file.
+    Ros1,
     /// The built-in synthetic renderer (`--demo`; not a layout to read, so
     /// `--format` does not offer it).
     Synthetic,

@@ -40,6 +40,7 @@ impl ValueEnum for Format {
             Format::SevenScenes,
             Format::Vprdb,
             Format::Ros2,
+            Format::Ros1,
         ]
     }
 
@@ -57,6 +58,10 @@ impl ValueEnum for Format {
             Format::Ros2 => (
                 "ros2",
                 "A ROS 2 recording (rosbag2, MCAP storage): a bag folder or a `.mcap` file",
+            ),
+            Format::Ros1 => (
+                "ros1",
+                "A ROS 1 bag (format 2.0; chunks uncompressed, bz2 or lz4): a `.bag` file",
             ),
             Format::Synthetic => return None,
         };
