@@ -1,5 +1,5 @@
 //! Replays the committed fuzz corpus of the host readers' targets (ROS 2
-//! bags, depth PNGs) through the checks the fuzz targets run
+//! bags, ROS 1 bags, depth PNGs) through the checks the fuzz targets run
 //! (`fuzz/src/readers.rs`, included below), on stable: every file of
 //! `fuzz/corpus/<target>/` and `fuzz/regressions/<target>/`. Fails when a
 //! corpus directory is missing or empty. The core's targets replay in
@@ -20,6 +20,11 @@ fn replay(target: &str, check: fn(&[u8])) {
 #[test]
 fn ros2_corpus() {
     replay("ros2", readers::ros2);
+}
+
+#[test]
+fn ros1_corpus() {
+    replay("ros1", readers::ros1);
 }
 
 #[test]
