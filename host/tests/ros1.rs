@@ -200,7 +200,7 @@ fn a_tf_tree_bag_gives_the_7scenes_poses_and_database() {
 }
 
 #[test]
-fn a_bag_cut_inside_a_chunk_is_an_error_naming_the_file() {
+fn a_bag_cut_inside_a_chunk_or_of_format_1_2_is_an_error_naming_the_file() {
     let s7 = sevenscenes();
     let dir = temp("truncated");
     write_recordings(&dir, &s7, &["bad-truncated-bag"]);
@@ -211,6 +211,18 @@ fn a_bag_cut_inside_a_chunk_is_an_error_naming_the_file() {
     let text = e.to_string();
     assert!(
         text.contains("bad-truncated-bag.bag") && text.contains("cut short"),
+        "{text}"
+    );
+    // A bag of the older format 1.2 is refused by name, not read as MCAP.
+    let old = dir.join("old.bag");
+    std::fs::write(&old, b"#ROSBAG V1.2\nE\0\0\0").unwrap();
+    assert_eq!(read::detect(&old).unwrap(), Format::Ros1);
+    let Err(e) = open(&old) else {
+        panic!("a format 1.2 bag must be refused");
+    };
+    let text = e.to_string();
+    assert!(
+        text.contains("old.bag") && text.contains("not a ROS 1 bag of format 2.0"),
         "{text}"
     );
     std::fs::remove_dir_all(&dir).unwrap();

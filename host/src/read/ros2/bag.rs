@@ -123,6 +123,11 @@ fn storage(path: &Path) -> Result<Storage, BagError> {
     })
 }
 
+/// Whether the file at `path` is a ROS 1 bag of format 2.0, by its first bytes.
+pub fn is_ros1(path: &Path) -> Result<bool, BagError> {
+    Ok(matches!(storage(path)?, Storage::Ros1))
+}
+
 /// Walks every message of file `index` (`path`), in file order. Returns
 /// how many bytes at its end were cut short (a recording that stopped
 /// mid-write), 0 for a whole file.

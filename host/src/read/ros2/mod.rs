@@ -490,6 +490,14 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions, format: Format) -> Result<Se
             "a ROS 1 bag is one .bag file, not a folder (give the file)",
         ));
     }
+    if format == Format::Ros1 && !bag::is_ros1(path).map_err(layout)? {
+        // An older bag (`#ROSBAG V1.2`) or another file named `.bag`.
+        return Err(text::layout(
+            path,
+            "not a ROS 1 bag of format 2.0 (it does not start with `#ROSBAG V2.0`; \
+             format 1.2 and older are not read)",
+        ));
+    }
     let tol = ros.pose_tolerance.unwrap_or(POSE_TOLERANCE);
     if !(tol.is_finite() && tol >= 0.0) {
         return Err(text::layout(
