@@ -192,7 +192,11 @@ fn decompress(compression: &[u8], size: u32, data: &[u8]) -> Result<Vec<u8>, Str
         }
         b"lz4" => {
             if size > (data.len() as u64).saturating_mul(LZ4_MOST_PER_BYTE) + 64 {
-                return Err(claims(0));
+                return Err(format!(
+                    "{} bytes of lz4 cannot hold the {size} bytes it claims uncompressed \
+                     (a damaged chunk header)",
+                    data.len()
+                ));
             }
             let decoder = lz4::Decoder::new(data)
                 .map_err(|e| format!("its lz4 data does not decompress: {e}"))?;
