@@ -1,15 +1,20 @@
 //! Writes seed inputs for the host readers' targets (valid files a mutator
 //! would take long to forge: CRC-checked PNG chunks, MCAP records, CDR):
 //! `cargo run --release --example reader_seeds -- corpus`, which fills
-//! `corpus/depth_png/` and `corpus/ros2/`.
+//! `corpus/depth_png/`, `corpus/ros2/` and `corpus/ros1/`.
 //!
 //! depth_png: 16-bit greyscale PNGs of several sizes, each filter and the
 //! adaptive choice, fast (fdeflate's path) and default (libdeflate's)
 //! compression. ros2: small bags (16UC1 or 32FC1 depth, CameraInfo,
 //! PoseStamped / Odometry / `/tf`, rgb8 colour) unchunked and in chunks
-//! (uncompressed, zstd, lz4), and each CDR message alone.
+//! (uncompressed, zstd, lz4), and each CDR message alone. ros1: small ROS 1
+//! bags (16UC1 depth, CameraInfo, PoseStamped / Odometry / `tf/tfMessage`,
+//! rgb8 colour) in chunks (none, bz2, lz4) and unchunked, and each ROS 1
+//! message alone.
 
 use placedb_host::read::ros2::msgs::{self, CameraInfo, Header, Image, PoseMsg, Transform};
+use placedb_host::read::ros2::ros1_msgs::encode as ros1;
+use placedb_host::read::ros2::ros1_storage::write as ros1_bag;
 // Linked for the coverage hooks a fuzz build compiles every crate with.
 use libfuzzer_sys as _;
 use std::collections::BTreeMap;
@@ -301,4 +306,152 @@ fn main() {
     let out = Path::new(&out);
     depth_png_seeds(&out.join("depth_png"));
     ros2_seeds(&out.join("ros2"));
+    ros1_seeds(&out.join("ros1"));
+}
+
+/// A ROS 1 bag of 3 frames of 4x3 depth: `poses` "pose", "odom" or "tf";
+/// chunks compressed as `compression` (`none`, `bz2`, `lz4`), or every
+/// record at the top level when `None`.
+fn ros1_bag_seed(poses: &str, color: bool, compression: Option<&str>) -> Vec<u8> {
+    let pose_topic = match poses {
+        "odom" => ("/odom", "nav_msgs/Odometry"),
+        "tf" => ("/tf", "tf/tfMessage"),
+        _ => ("/pose", "geometry_msgs/PoseStamped"),
+    };
+    let mut records = [
+        ros1_bag::connection(0, "/camera/depth/camera_info", "sensor_msgs/CameraInfo"),
+        ros1_bag::connection(1, "/camera/depth/image_rect_raw", "sensor_msgs/Image"),
+        ros1_bag::connection(2, pose_topic.0, pose_topic.1),
+        ros1_bag::connection(3, "/camera/color/image_raw", "sensor_msgs/Image"),
+    ]
+    .concat();
+    let (width, height) = (4u32, 3u32);
+    let info = ros1::camera_info(&CameraInfo {
+        header: header(1.0, "camera"),
+        height,
+        width,
+        d: vec![0.0; 5],
+        k: [3.0, 0.0, 1.5, 0.0, 3.0, 1.0, 0.0, 0.0, 1.0],
+    });
+    records.extend(ros1_bag::message(0, 1, &info));
+    for i in 0..3u32 {
+        let t = 1.0 + f64::from(i);
+        let depth: Vec<u8> = (0..width * height)
+            .flat_map(|p| ((500 + 37 * p + 100 * i) as u16).to_le_bytes())
+            .collect();
+        let image = ros1::image(&Image {
+            header: header(t, "camera"),
+            height,
+            width,
+            encoding: "16UC1".into(),
+            is_bigendian: false,
+            step: width * 2,
+            data: &depth,
+        });
+        records.extend(ros1_bag::message(1, 1 + i, &image));
+        let pose = PoseMsg {
+            translation: [f64::from(i) * 0.2, 0.0, 1.0],
+            rotation: [0.0, 0.0, 0.0, 1.0],
+        };
+        let h = header(t, "map");
+        let data = match poses {
+            "odom" => ros1::odometry(&h, "camera", &pose),
+            "tf" => ros1::tf_message(&[Transform {
+                header: h,
+                child_frame_id: "camera".into(),
+                pose,
+            }]),
+            _ => ros1::pose_stamped(&h, &pose),
+        };
+        records.extend(ros1_bag::message(2, 1 + i, &data));
+        if color {
+            let rgb: Vec<u8> = (0..3 * width * height)
+                .map(|b| (b * 11 + i) as u8)
+                .collect();
+            let image = ros1::image(&Image {
+                header: header(t, "camera"),
+                height,
+                width,
+                encoding: "rgb8".into(),
+                is_bigendian: false,
+                step: 3 * width,
+                data: &rgb,
+            });
+            records.extend(ros1_bag::message(3, 1 + i, &image));
+        }
+    }
+    match compression {
+        Some(c) => ros1_bag::bag(&ros1_bag::chunk(c, &records)),
+        None => ros1_bag::bag(&records),
+    }
+}
+
+fn ros1_seeds(dir: &Path) {
+    std::fs::create_dir_all(dir).unwrap();
+    let bags = [
+        ("pose-none", "pose", true, Some("none")),
+        ("odom-bz2", "odom", false, Some("bz2")),
+        ("tf-lz4", "tf", false, Some("lz4")),
+        ("pose-unchunked", "pose", false, None),
+    ];
+    for (name, poses, color, compression) in bags {
+        let bytes = ros1_bag_seed(poses, color, compression);
+        std::fs::write(dir.join(format!("seed-bag-{name}")), bytes).unwrap();
+    }
+    let pose = PoseMsg {
+        translation: [1.0, -2.0, 0.5],
+        rotation: [0.0, 0.0, 0.7071068, 0.7071068],
+    };
+    let data = [1u8, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12];
+    let messages: [(&str, Vec<u8>); 6] = [
+        (
+            "image",
+            ros1::image(&Image {
+                header: header(2.5, "camera"),
+                height: 2,
+                width: 3,
+                encoding: "16UC1".into(),
+                is_bigendian: false,
+                step: 6,
+                data: &data,
+            }),
+        ),
+        (
+            "compressed-image",
+            ros1::compressed_image(&msgs::CompressedImage {
+                header: header(2.5, "camera"),
+                format: "16UC1; compressedDepth png".into(),
+                data: &data,
+            }),
+        ),
+        (
+            "camera-info",
+            ros1::camera_info(&CameraInfo {
+                header: header(2.5, "camera"),
+                height: 2,
+                width: 3,
+                d: vec![0.1, 0.0, 0.0, 0.0, 0.0],
+                k: [3.0, 0.0, 1.5, 0.0, 3.0, 1.0, 0.0, 0.0, 1.0],
+            }),
+        ),
+        (
+            "pose-stamped",
+            ros1::pose_stamped(&header(2.5, "map"), &pose),
+        ),
+        (
+            "odometry",
+            ros1::odometry(&header(2.5, "map"), "camera", &pose),
+        ),
+        (
+            "tf",
+            ros1::tf_message(&[Transform {
+                header: header(2.5, "map"),
+                child_frame_id: "camera".into(),
+                pose,
+            }]),
+        ),
+    ];
+    for (name, bytes) in messages {
+        std::fs::write(dir.join(format!("seed-ros1-{name}")), bytes).unwrap();
+    }
 }

@@ -1,7 +1,8 @@
-//! Fuzz checks of the host's sequence readers, the two paths that take bytes
-//! a user's file holds: ROS 2 recordings (MCAP records, CDR messages) and
-//! depth PNGs (chunks, inflate, the row unfilter). Shared by the fuzz
-//! targets `ros2` and `depth_png` and by `host/tests/fuzz_corpus_readers.rs`, which
+//! Fuzz checks of the host's sequence readers, the paths that take bytes a
+//! user's file holds: ROS 2 recordings (MCAP records, CDR messages), ROS 1
+//! bags (the container's records and chunks, ROS 1 messages) and depth PNGs
+//! (chunks, inflate, the row unfilter). Shared by the fuzz targets `ros2`,
+//! `ros1` and `depth_png` and by `host/tests/fuzz_corpus_readers.rs`, which
 //! replays the committed corpus through the same checks on stable.
 //!
 //! Every input must end in `Ok` or an error, never a panic, a hang or an
@@ -9,7 +10,7 @@
 //! consistent (sizes, frame order, round trips), and the decoders with a
 //! fast path must agree with a plain one.
 
-use placedb_host::read::ros2::{self, msgs, Ros2Options};
+use placedb_host::read::ros2::{self, bag, msgs, ros1_msgs, Ros2Options};
 use placedb_host::read::{self, fuzzing, ReadOptions};
 use placedb_host::vector_unit::VectorUnit;
 use std::cell::Cell;
@@ -61,7 +62,97 @@ pub fn compressed_depth(data: &[u8]) {
 /// without a TF frame to take poses from).
 pub fn ros2(data: &[u8]) {
     cdr_messages(data);
-    bag(data);
+    if data.starts_with(b"\x89MCAP") {
+        whole_reader(&InputFile::new(data, "mcap"));
+    }
+}
+
+/// `ros1` target: `data` as one ROS 1 message of every kind the reader
+/// decodes, and as a `.bag` file: walked by the container alone (every
+/// message it hands on reads back the same by its place) and read by the
+/// full bag reader.
+pub fn ros1(data: &[u8]) {
+    ros1_messages(data);
+    if data.starts_with(b"#ROSBAG V2.0\n") {
+        let file = InputFile::new(data, "bag");
+        container_walk(file.path());
+        whole_reader(&file);
+    }
+}
+
+/// Decoded ROS 1 messages re-encode to messages that decode to the same
+/// fields (stamps aside, as for CDR).
+fn ros1_messages(data: &[u8]) {
+    if let Ok(img) = ros1_msgs::image(data) {
+        let again = ros1_msgs::encode::image(&img);
+        let back = ros1_msgs::image(&again).expect("a re-encoded ROS 1 Image decodes");
+        assert_eq!(
+            (back.width, back.height, back.step, back.is_bigendian),
+            (img.width, img.height, img.step, img.is_bigendian)
+        );
+        assert_eq!(
+            (&back.encoding, &back.header.frame_id, back.data),
+            (&img.encoding, &img.header.frame_id, img.data)
+        );
+        for scale in [1000.0, 5000.0] {
+            if let Ok(d) = ros2::decode_depth(&img, scale) {
+                assert_eq!(d.data.len(), img.width as usize * img.height as usize);
+            }
+        }
+    }
+    if let Ok(c) = ros1_msgs::compressed_image(data) {
+        let again = ros1_msgs::encode::compressed_image(&c);
+        let back = ros1_msgs::compressed_image(&again)
+            .expect("a re-encoded ROS 1 CompressedImage decodes");
+        assert_eq!((&back.format, back.data), (&c.format, c.data));
+    }
+    if let Ok(info) = ros1_msgs::camera_info(data) {
+        let back = ros1_msgs::camera_info(&ros1_msgs::encode::camera_info(&info))
+            .expect("a re-encoded ROS 1 CameraInfo decodes");
+        assert_eq!((back.width, back.height), (info.width, info.height));
+        assert_eq!(bits(&back.k), bits(&info.k));
+        assert_eq!(bits(&back.d), bits(&info.d));
+    }
+    if let Ok((h, p)) = ros1_msgs::pose_stamped(data) {
+        let (back_h, back) = ros1_msgs::pose_stamped(&ros1_msgs::encode::pose_stamped(&h, &p))
+            .expect("a re-encoded ROS 1 PoseStamped decodes");
+        assert_eq!(back_h.frame_id, h.frame_id);
+        assert_eq!(pose_bits(&back), pose_bits(&p));
+    }
+    if let Ok((h, p)) = ros1_msgs::odometry(data) {
+        let (_, back) = ros1_msgs::odometry(&ros1_msgs::encode::odometry(&h, "child", &p))
+            .expect("a re-encoded ROS 1 Odometry decodes");
+        assert_eq!(pose_bits(&back), pose_bits(&p));
+    }
+    if let Ok(tf) = ros1_msgs::tf_message(data) {
+        let back = ros1_msgs::tf_message(&ros1_msgs::encode::tf_message(&tf))
+            .expect("a re-encoded ROS 1 TFMessage decodes");
+        assert_eq!(back.len(), tf.len());
+        for (b, t) in back.iter().zip(&tf) {
+            assert_eq!(b.child_frame_id, t.child_frame_id);
+            assert_eq!(pose_bits(&b.pose), pose_bits(&t.pose));
+        }
+    }
+}
+
+/// The container's walk of the file at `path`: it ends in `Ok` or an error
+/// in words, and every message it hands on (the first 64) is fetched back
+/// byte for byte from its place.
+fn container_walk(path: &Path) {
+    let mut seen = Vec::new();
+    match bag::scan(0, path, &mut |m| {
+        if seen.len() < 64 {
+            seen.push((m.at, m.data.to_vec()));
+        }
+        Ok(())
+    }) {
+        Ok(cut) => assert!(cut <= std::fs::metadata(path).map_or(0, |m| m.len())),
+        Err((_, reason)) => assert!(!reason.is_empty()),
+    }
+    for (at, data) in seen {
+        let back = bag::fetch(path, at).expect("a scanned message fetches back");
+        assert!(back == data, "message at {} reads back different", at.place);
+    }
 }
 
 /// Decoded messages re-encode to messages that decode to the same fields
@@ -168,15 +259,11 @@ impl Drop for InputFile {
     }
 }
 
-/// The whole bag reader on `data` as a `.mcap` file: a read that succeeds
-/// has frames in time order, indexed by position, with unit rotations and
-/// the sequence's size, and every frame's depth (and colour) decodes or
-/// fails with an error, the depth at the sequence's size.
-fn bag(data: &[u8]) {
-    if !data.starts_with(b"\x89MCAP") {
-        return; // refused at the magic: nothing to learn
-    }
-    let file = InputFile::new(data, "mcap");
+/// The whole bag reader on `file` (a `.mcap` or `.bag` file): a read that
+/// succeeds has frames in time order, indexed by position, with unit
+/// rotations and the sequence's size, and every frame's depth (and colour)
+/// decodes or fails with an error, the depth at the sequence's size.
+fn whole_reader(file: &InputFile) {
     for pose_frame in [None, Some("camera".to_string())] {
         let opts = ReadOptions {
             ros2: Ros2Options {

@@ -91,6 +91,8 @@ pub enum Format {
     /// A ROS 2 recording (rosbag2, MCAP or sqlite3 storage): a bag folder,
     /// a `.mcap` or a `.db3` file.
     Ros2,
+    /// A ROS 1 bag (format 2.0): a `.bag` file.
+    Ros1,
     /// ScanNet's exported layout: depth/, pose/, color/, intrinsic/.
     #[serde(rename = "scannet")]
     ScanNet,

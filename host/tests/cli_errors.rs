@@ -155,7 +155,7 @@ fn a_directory_of_two_layouts_is_refused_naming_both() {
 fn format_offers_only_the_layouts_it_reads() {
     let run = placedb(&["select", "--help"]);
     let help = String::from_utf8_lossy(&run.stdout).into_owned();
-    for format in ["tum", "7scenes", "vprdb", "ros2"] {
+    for format in ["tum", "7scenes", "vprdb", "ros2", "ros1"] {
         assert!(help.contains(&format!("- {format}:")), "{format}: {help}");
     }
     assert!(!help.contains("- synthetic:"), "{help}");

@@ -1,5 +1,5 @@
 //! Replays the committed fuzz corpus of the host readers' targets (ROS 2
-//! bags, compressed depth, depth PNGs) through the checks the fuzz targets run
+//! bags, ROS 1 bags, compressed depth, depth PNGs) through the checks the fuzz targets run
 //! (`fuzz/src/readers.rs`, included below), on stable: every file of
 //! `fuzz/corpus/<target>/` and `fuzz/regressions/<target>/`. Fails when a
 //! corpus directory is missing or empty. The core's targets replay in
@@ -25,6 +25,11 @@ fn ros2_corpus() {
 #[test]
 fn compressed_depth_corpus() {
     replay("compressed_depth", readers::compressed_depth);
+}
+
+#[test]
+fn ros1_corpus() {
+    replay("ros1", readers::ros1);
 }
 
 #[test]

@@ -41,7 +41,7 @@ pub struct ExportArgs {
     /// exported labels and the frames of --sequence (the sequence streamed).
     #[arg(long, requires = "sequence")]
     dataset: Option<PathBuf>,
-    /// The sequence that was streamed (directory or ROS 2 bag): the
+    /// The sequence that was streamed (directory, ROS 2 or ROS 1 bag): the
     /// coverage metrics of metrics.json are measured on it, and --dataset,
     /// --colmap, --vpr-eval and --pairs need it.
     #[arg(long)]

@@ -61,7 +61,7 @@ impl ExportFlags {
 /// Where the frames come from and how they become voxel sets.
 #[derive(Args, Clone)]
 pub struct SeqArgs {
-    /// Sequence directory (TUM RGB-D, 7-Scenes, the reference code's layout) or ROS 2 bag (folder or .mcap).
+    /// Sequence directory (TUM RGB-D, 7-Scenes, the reference code's layout) or ROS 2 bag (folder, .mcap or .db3) or ROS 1 bag (.bag).
     #[arg(required_unless_present = "demo")]
     seq: Option<PathBuf>,
     /// Use the built-in synthetic office scan (600 frames, 320x240) instead of a directory.
@@ -99,31 +99,31 @@ pub struct SeqArgs {
     ros2: Ros2Args,
 }
 
-/// Which topics of a ROS 2 bag to read (each defaults to the only candidate).
+/// Which topics of a ROS 2 or ROS 1 bag to read (each defaults to the only candidate).
 #[derive(Args, Clone, Default)]
 pub struct Ros2Args {
-    /// ROS 2 bag: the depth topic (sensor_msgs/msg/Image 16UC1 or 32FC1, or its compressedDepth or 16-bit PNG CompressedImage).
+    /// ROS 2 or ROS 1 bag: the depth topic (sensor_msgs/msg/Image 16UC1 or 32FC1, or its compressedDepth or 16-bit PNG CompressedImage).
     #[arg(long)]
     depth_topic: Option<String>,
-    /// ROS 2 bag: the pose topic (PoseStamped, Odometry, or a TF topic).
+    /// ROS 2 or ROS 1 bag: the pose topic (PoseStamped, Odometry, or a TF topic).
     #[arg(long)]
     pose_topic: Option<String>,
-    /// ROS 2 bag: the CameraInfo topic.
+    /// ROS 2 or ROS 1 bag: the CameraInfo topic.
     #[arg(long)]
     camera_info_topic: Option<String>,
-    /// ROS 2 bag: the colour topic (rgb8, bgr8, rgba8, bgra8, mono8), for --dataset.
+    /// ROS 2 or ROS 1 bag: the colour topic (rgb8, bgr8, rgba8, bgra8, mono8), for --dataset.
     #[arg(long)]
     color_topic: Option<String>,
-    /// ROS 2 bag: take poses from the TF tree (/tf, /tf_static), in this fixed frame (default: the tree's root, e.g. map).
+    /// ROS 2 or ROS 1 bag: take poses from the TF tree (/tf, /tf_static), in this fixed frame (default: the tree's root, e.g. map).
     #[arg(long)]
     pose_frame: Option<String>,
-    /// ROS 2 bag with TF: the camera's frame, replacing the depth images' frame_id.
+    /// ROS 2 or ROS 1 bag with TF: the camera's frame, replacing the depth images' frame_id.
     #[arg(long)]
     camera_frame: Option<String>,
-    /// ROS 2 bag: largest time from a depth frame to the nearest pose sample, seconds.
+    /// ROS 2 or ROS 1 bag: largest time from a depth frame to the nearest pose sample, seconds.
     #[arg(long, default_value_t = read::ros2::POSE_TOLERANCE, value_parser = params::non_negative_seconds, allow_negative_numbers = true)]
     pose_tolerance: f64,
-    /// TUM and ROS 2 bags: a frame's pose between the pose samples around its time.
+    /// TUM, ROS 2 and ROS 1 bags: a frame's pose between the pose samples around its time.
     #[arg(long, value_enum, default_value_t = PoseInterpolation::Linear)]
     pub(crate) pose_interpolation: PoseInterpolation,
 }

@@ -40,6 +40,7 @@ impl ValueEnum for Format {
             Format::SevenScenes,
             Format::Vprdb,
             Format::Ros2,
+            Format::Ros1,
             Format::ScanNet,
         ]
     }
@@ -62,6 +63,10 @@ impl ValueEnum for Format {
             Format::ScanNet => (
                 "scannet",
                 "ScanNet's export: depth/N.png, pose/N.txt, color/N.jpg, intrinsic/",
+            ),
+            Format::Ros1 => (
+                "ros1",
+                "A ROS 1 bag (format 2.0; chunks uncompressed, bz2 or lz4): a `.bag` file",
             ),
             Format::Synthetic => return None,
         };

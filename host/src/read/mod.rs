@@ -1,5 +1,5 @@
 //! Sequence readers (TUM RGB-D, 7-Scenes, the reference code's layout,
-//! ScanNet's export, ROS 2 bags) and format detection.
+//! ScanNet's export, ROS 2 and ROS 1 bags) and format detection.
 //!
 //! [`open`] reads a sequence directory's metadata (poses, timestamps,
 //! intrinsics, the size of the first depth image) up front; depth images are
@@ -13,6 +13,7 @@
 //! | [`Format::SevenScenes`] ([`sevenscenes`]) | 1000 | fx = fy = 585, cx = 320, cy = 240 | frame number |
 //! | [`Format::Vprdb`] ([`vprdb`]) | 1000 | required (`intrinsics.txt`) | pose file's, else index |
 //! | [`Format::Ros2`] ([`ros2`]) | 1000 | required (CameraInfo topic) | header stamp |
+//! | [`Format::Ros1`] ([`ros2`], a `.bag` file) | 1000 | required (CameraInfo topic) | header stamp |
 //! | [`Format::ScanNet`] ([`scannet`]) | 1000 | required (`intrinsic/intrinsic_depth.txt`) | frame number |
 //!
 //! [`ReadOptions`] overrides the depth scale and the intrinsics of any format
@@ -44,9 +45,9 @@ pub struct ReadOptions {
     pub depth_scale: Option<f64>,
     /// Intrinsics, replacing the sequence's file and the format's default.
     pub intrinsics: Option<CameraModel>,
-    /// ROS 2 bags: which topics to read.
+    /// ROS 2 and ROS 1 bags: which topics to read.
     pub ros2: ros2::Ros2Options,
-    /// TUM and ROS 2 bags: how a frame takes its pose from the pose
+    /// TUM and ROS 2 and ROS 1 bags: how a frame takes its pose from the pose
     /// source's samples.
     pub pose_interpolation: timed_poses::PoseInterpolation,
 }
@@ -81,7 +82,8 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError> {
         Format::Tum => tum::read(path, opts),
         Format::SevenScenes => sevenscenes::read(path, opts),
         Format::Vprdb => vprdb::read(path, opts),
-        Format::Ros2 => ros2::read(path, opts),
+        Format::Ros2 => ros2::read(path, opts, Format::Ros2),
+        Format::Ros1 => ros2::read(path, opts, Format::Ros1),
         Format::ScanNet => scannet::read(path, opts),
         Format::Synthetic => Err(text::layout(
             path,
@@ -91,12 +93,13 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError> {
 }
 
 /// Recognises the layout of `path`: a ROS 2 bag if it is a `.mcap` or `.db3`
-/// file or a directory with `metadata.yaml`, `*.mcap` or `*.db3`; 7-Scenes
-/// if it holds `frame-*.depth.png` files, TUM if it holds `depth.txt` and
-/// `groundtruth.txt`, ScanNet's export if it has `depth/` and `pose/`
-/// directories, the reference layout if it has a `depth/` directory and
-/// `poses.txt` (or a `depth/` directory and neither `depth.txt` nor
-/// `pose/`: TUM and ScanNet keep their images in `depth/` too). A directory that looks like two layouts is
+/// file or a directory with `metadata.yaml`, `*.mcap` or `*.db3`; a ROS 1
+/// bag if it is a `.bag` file; 7-Scenes if it holds `frame-*.depth.png`
+/// files, TUM if it holds `depth.txt` and `groundtruth.txt`, ScanNet's
+/// export if it has `depth/` and `pose/` directories, the reference layout
+/// if it has a `depth/` directory and `poses.txt` (or a `depth/` directory
+/// and neither `depth.txt` nor `pose/`: TUM and ScanNet keep their images in
+/// `depth/` too). A directory that looks like two layouts is
 /// an error naming both, since guessing would read the wrong frames.
 pub fn detect(path: &Path) -> Result<Format, ReadError> {
     let meta = std::fs::metadata(path).map_err(|source| ReadError::Io {
@@ -107,9 +110,12 @@ pub fn detect(path: &Path) -> Result<Format, ReadError> {
         if ros2::looks_like_bag(path) {
             return Ok(Format::Ros2);
         }
+        if ros2::looks_like_ros1_bag(path) {
+            return Ok(Format::Ros1);
+        }
         return Err(text::layout(
             path,
-            "not a directory (nor a .mcap or .db3 bag file)",
+            "not a directory (nor a .mcap, .db3 or .bag file)",
         ));
     }
     let names = text::list_dir(path)?;

@@ -1,10 +1,11 @@
-//! The files of a rosbag2 recording, whatever their storage: what a message
-//! is and where it lies, one walk over a file ([`scan`]) and one read of a
-//! message back ([`fetch`]). MCAP files are read by [`super::mcap_storage`],
-//! sqlite3 files (`.db3`, ROS 2 Humble's default) by
-//! [`super::sqlite_storage`]; the file's own first bytes say which.
+//! The files of a bag, whatever their storage: what a message is and where
+//! it lies, one walk over a file ([`scan`]) and one read of a message back
+//! ([`fetch`]). MCAP files are read by [`super::mcap_storage`], sqlite3
+//! files (`.db3`, ROS 2 Humble's default) by [`super::sqlite_storage`], ROS 1
+//! bags (`.bag`, format 2.0) by [`super::ros1_storage`]; the file's own
+//! first bytes say which.
 
-use super::{mcap_storage, sqlite_storage};
+use super::{mcap_storage, ros1_storage, sqlite_storage};
 use std::fmt;
 use std::io::Read;
 use std::path::{Path, PathBuf};
@@ -30,6 +31,14 @@ pub enum Place {
     },
     /// A row of an sqlite3 file's `messages` table, by its `id`.
     Row(i64),
+    /// A ROS 1 message record, or the message record at byte `in_chunk`
+    /// of a chunk's decompressed data: the top-level record (header and
+    /// data) is `len` bytes at `offset`.
+    Ros1 {
+        offset: u64,
+        len: u64,
+        in_chunk: Option<u32>,
+    },
 }
 
 impl fmt::Display for Place {
@@ -37,6 +46,16 @@ impl fmt::Display for Place {
         match self {
             Place::Mcap { offset, .. } => write!(f, "byte {offset}"),
             Place::Row(id) => write!(f, "message row {id}"),
+            Place::Ros1 {
+                offset,
+                in_chunk: None,
+                ..
+            } => write!(f, "byte {offset}"),
+            Place::Ros1 {
+                offset,
+                in_chunk: Some(k),
+                ..
+            } => write!(f, "byte {k} of the chunk at byte {offset}"),
         }
     }
 }
@@ -46,9 +65,9 @@ impl fmt::Display for Place {
 pub struct Channel {
     /// `/camera/depth/image_rect_raw`.
     pub topic: String,
-    /// `sensor_msgs/msg/Image`.
+    /// `sensor_msgs/msg/Image` (a ROS 1 type by its ROS 2 name).
     pub schema: String,
-    /// `cdr` for ROS 2.
+    /// `cdr` for ROS 2, `ros1` for ROS 1.
     pub encoding: String,
 }
 
@@ -74,8 +93,17 @@ pub(super) fn err(path: &Path, reason: impl Into<String>) -> BagError {
 /// The first bytes of an sqlite3 database file.
 const SQLITE_MAGIC: &[u8; 16] = b"SQLite format 3\0";
 
-/// Whether the file at `path` is an sqlite3 database (else it is read as MCAP).
-fn is_sqlite(path: &Path) -> Result<bool, BagError> {
+/// How a bag file stores its messages.
+enum Storage {
+    Mcap,
+    Sqlite,
+    Ros1,
+}
+
+/// The storage of the file at `path`, by its first bytes (MCAP when they
+/// are neither sqlite3's nor a ROS 1 bag's: the MCAP reader names the
+/// file if they are not MCAP's either).
+fn storage(path: &Path) -> Result<Storage, BagError> {
     let mut head = [0u8; 16];
     let mut file = std::fs::File::open(path).map_err(|e| err(path, e.to_string()))?;
     let mut got = 0;
@@ -86,7 +114,18 @@ fn is_sqlite(path: &Path) -> Result<bool, BagError> {
             Err(e) => return Err(err(path, e.to_string())),
         }
     }
-    Ok(&head == SQLITE_MAGIC)
+    Ok(if &head == SQLITE_MAGIC {
+        Storage::Sqlite
+    } else if head.starts_with(ros1_storage::MAGIC) {
+        Storage::Ros1
+    } else {
+        Storage::Mcap
+    })
+}
+
+/// Whether the file at `path` is a ROS 1 bag of format 2.0, by its first bytes.
+pub fn is_ros1(path: &Path) -> Result<bool, BagError> {
+    Ok(matches!(storage(path)?, Storage::Ros1))
 }
 
 /// Walks every message of file `index` (`path`), in file order. Returns
@@ -97,10 +136,10 @@ pub fn scan(
     path: &Path,
     visit: &mut dyn FnMut(Message<'_>) -> Result<(), BagError>,
 ) -> Result<u64, BagError> {
-    if is_sqlite(path)? {
-        sqlite_storage::scan(index, path, visit).map(|()| 0)
-    } else {
-        mcap_storage::scan(index, path, visit)
+    match storage(path)? {
+        Storage::Sqlite => sqlite_storage::scan(index, path, visit).map(|()| 0),
+        Storage::Ros1 => ros1_storage::scan(index, path, visit),
+        Storage::Mcap => mcap_storage::scan(index, path, visit),
     }
 }
 
@@ -113,5 +152,10 @@ pub fn fetch(path: &Path, at: Location) -> Result<Vec<u8>, BagError> {
             in_chunk,
         } => mcap_storage::fetch(path, offset, len, in_chunk),
         Place::Row(id) => sqlite_storage::fetch(path, id),
+        Place::Ros1 {
+            offset,
+            len,
+            in_chunk,
+        } => ros1_storage::fetch(path, offset, len, in_chunk),
     }
 }

@@ -1,6 +1,10 @@
 //! ROS 2 recordings (rosbag2 with MCAP or sqlite3 storage): a bag folder
 //! (its `metadata.yaml` and `*.mcap` or `*.db3` files, one or split) or a
-//! single `.mcap` or `.db3` file.
+//! single `.mcap` or `.db3` file; and ROS 1 bags (a `.bag` file, format 2.0,
+//! chunks uncompressed, bz2 or lz4: [`ros1_storage`]), whose messages are
+//! the same types by their ROS 1 names (`sensor_msgs/Image`, ...,
+//! `tf/tfMessage`) in ROS 1's serialisation ([`ros1_msgs`]) and are read
+//! down the same path ([`wire`] picks the decoder).
 //!
 //! - depth: `sensor_msgs/msg/Image`, `16UC1` (millimetres, depth scale 1000,
 //!   or `--depth-scale`) or `32FC1` (metres, converted to `u16` at the depth
@@ -34,8 +38,12 @@ pub mod depth_codec;
 mod mcap_storage;
 pub mod msgs;
 mod pose_source;
+pub mod ros1_msgs;
+#[doc(hidden)]
+pub mod ros1_storage;
 mod sqlite_storage;
 pub mod tf_tree;
+mod wire;
 
 use super::timed_poses::{self, TimedPose};
 use super::{text, ReadOptions};
@@ -46,6 +54,7 @@ use crate::warning::warn;
 use bag::{Channel, Location, Message};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use wire::Wire;
 
 /// Depth units per metre of `16UC1` (millimetres), and of the `u16` that
 /// `32FC1` metres are converted to.
@@ -93,6 +102,12 @@ pub fn looks_like_bag(path: &Path) -> bool {
     }
     path.join("metadata.yaml").is_file()
         || text::list_dir(path).is_ok_and(|names| names.iter().any(|n| is_bag_file(n)))
+}
+
+/// Whether `path` is a ROS 1 bag: a `.bag` file (its first bytes are
+/// checked when it is read).
+pub fn looks_like_ros1_bag(path: &Path) -> bool {
+    path.is_file() && path.extension().is_some_and(|e| e == "bag")
 }
 
 /// What the reader needs of a bag folder's `metadata.yaml` (rosbag2 writes
@@ -209,6 +224,8 @@ struct ImageRef {
     height: u32,
     /// An Image's encoding, or a CompressedImage's format.
     encoding: String,
+    /// How the message is serialised, to decode it again.
+    wire: Wire,
     /// A CompressedImage: its codec, or why it is not depth; the size is
     /// read from the payload's header when it is depth.
     compressed: Option<Result<depth_codec::DepthCodec, String>>,
@@ -269,15 +286,15 @@ impl Topics {
                 format!("{topic} at t={:.6}: {reason}", secs(m.log_time)),
             )
         };
-        if encoding != "cdr" {
+        let Some(wire) = Wire::of(encoding) else {
             return Err(bad(format!(
-                "message encoding `{encoding}`, expected cdr (ROS 2)"
+                "message encoding `{encoding}`, expected cdr (ROS 2) or ros1 (ROS 1)"
             )));
-        }
-        let cdr = |e: cdr::CdrError| bad(format!("{schema} does not decode: {e}"));
+        };
+        let undecodable = |e: String| bad(format!("{schema} does not decode: {e}"));
         match schema.as_str() {
             msgs::IMAGE => {
-                let img = msgs::image(m.data).map_err(cdr)?;
+                let img = wire.image(m.data).map_err(undecodable)?;
                 self.images
                     .entry(topic.clone())
                     .or_default()
@@ -286,13 +303,14 @@ impl Topics {
                         width: img.width,
                         height: img.height,
                         encoding: img.encoding,
+                        wire,
                         compressed: None,
                         frame_id: img.header.frame_id,
                         at: m.at,
                     });
             }
             msgs::COMPRESSED_IMAGE => {
-                let img = msgs::compressed_image(m.data).map_err(cdr)?;
+                let img = wire.compressed_image(m.data).map_err(undecodable)?;
                 let codec = depth_codec::codec(&img.format);
                 // A depth payload's size is in its first bytes; a damaged
                 // one is refused if its topic is the depth topic.
@@ -311,13 +329,14 @@ impl Topics {
                         width: u32::from(size.0),
                         height: u32::from(size.1),
                         encoding: img.format,
+                        wire,
                         compressed: Some(codec),
                         frame_id: img.header.frame_id,
                         at: m.at,
                     });
             }
             msgs::CAMERA_INFO => {
-                let info = msgs::camera_info(m.data).map_err(cdr)?;
+                let info = wire.camera_info(m.data).map_err(undecodable)?;
                 let list = self.infos.entry(topic.clone()).or_default();
                 // The first one and any that differs are enough.
                 if list.last().is_none_or(|l| l.k != info.k) {
@@ -326,11 +345,11 @@ impl Topics {
             }
             msgs::POSE_STAMPED | msgs::ODOMETRY => {
                 let (h, pose) = if schema == msgs::ODOMETRY {
-                    msgs::odometry(m.data)
+                    wire.odometry(m.data)
                 } else {
-                    msgs::pose_stamped(m.data)
+                    wire.pose_stamped(m.data)
                 }
-                .map_err(cdr)?;
+                .map_err(undecodable)?;
                 self.poses
                     .entry(topic.clone())
                     .or_default()
@@ -342,7 +361,7 @@ impl Topics {
             }
             _ => {
                 let links = self.tf.entry(topic.clone()).or_default();
-                for t in msgs::tf_message(m.data).map_err(cdr)? {
+                for t in wire.tf_message(m.data).map_err(undecodable)? {
                     links.push(tf_tree::Link {
                         topic: topic.clone(),
                         is_static: topic.ends_with("tf_static"),
@@ -461,9 +480,24 @@ fn choose(
     }
 }
 
-/// Reads a ROS 2 recording.
-pub(crate) fn read(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError> {
+/// Reads a ROS 2 recording or a ROS 1 bag (`format` says which, for the
+/// sequence's record of it).
+pub(crate) fn read(path: &Path, opts: &ReadOptions, format: Format) -> Result<Sequence, ReadError> {
     let ros = &opts.ros2;
+    if format == Format::Ros1 && !path.is_file() {
+        return Err(text::layout(
+            path,
+            "a ROS 1 bag is one .bag file, not a folder (give the file)",
+        ));
+    }
+    if format == Format::Ros1 && !bag::is_ros1(path).map_err(layout)? {
+        // An older bag (`#ROSBAG V1.2`) or another file named `.bag`.
+        return Err(text::layout(
+            path,
+            "not a ROS 1 bag of format 2.0 (it does not start with `#ROSBAG V2.0`; \
+             format 1.2 and older are not read)",
+        ));
+    }
     let tol = ros.pose_tolerance.unwrap_or(POSE_TOLERANCE);
     if !(tol.is_finite() && tol >= 0.0) {
         return Err(text::layout(
@@ -624,7 +658,7 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadErro
     Ok(Sequence {
         name,
         root: Some(path.to_path_buf()),
-        format: Format::Ros2,
+        format,
         camera,
         depth_scale: opts.depth_scale.unwrap_or(DEPTH_SCALE),
         size,
@@ -826,7 +860,7 @@ impl DepthSource for BagSource {
             )
         };
         if r.compressed.is_some() {
-            let img = msgs::compressed_image(&bytes).map_err(|e| at(e.to_string()))?;
+            let img = r.wire.compressed_image(&bytes).map_err(&at)?;
             let codec = depth_codec::codec(&img.format).map_err(&at)?;
             let (width, height, data) =
                 depth_codec::decode(codec, img.data, self.depth_scale).map_err(at)?;
@@ -836,7 +870,7 @@ impl DepthSource for BagSource {
                 data,
             });
         }
-        let img = msgs::image(&bytes).map_err(|e| at(e.to_string()))?;
+        let img = r.wire.image(&bytes).map_err(&at)?;
         decode_depth(&img, self.depth_scale).map_err(at)
     }
 
@@ -851,7 +885,7 @@ impl DepthSource for BagSource {
                 format!("colour image at t={:.6}: {reason}", r.stamp),
             )
         };
-        let img = msgs::image(&bytes).map_err(|e| at(e.to_string()))?;
+        let img = r.wire.image(&bytes).map_err(&at)?;
         decode_color(&img).map(Some).map_err(at)
     }
 }
