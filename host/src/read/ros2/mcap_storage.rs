@@ -219,6 +219,14 @@ fn chunk_records(
 ) -> Result<(), BagError> {
     use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
     let bad = |e: mcap::McapError| err(path, format!("chunk at byte {offset}: {e}"));
+    // An uncompressed chunk (what rosbag2 writes by default) is walked in
+    // place: its records are slices of `body`, where the chunk reader would
+    // copy the chunk twice (depth messages are hundreds of kilobytes).
+    if let Record::Chunk { header, data } = mcap::parse_record(op::CHUNK, body).map_err(bad)? {
+        if header.compression.is_empty() {
+            return plain_chunk_records(path, offset, header.uncompressed_crc, &data, bound, visit);
+        }
+    }
     let mut reader = LinearReader::new_with_options(
         LinearReaderOptions::default()
             .with_skip_start_magic(true)
@@ -244,6 +252,48 @@ fn chunk_records(
                 visit(mcap::parse_record(opcode, data).map_err(bad)?)?
             }
         }
+    }
+    Ok(())
+}
+
+/// [`chunk_records`] of an uncompressed chunk's `data`: CRC-checked (when
+/// the chunk has a CRC), each record a slice of `data`, at most `bound`
+/// bytes.
+fn plain_chunk_records(
+    path: &Path,
+    offset: u64,
+    crc: u32,
+    data: &[u8],
+    bound: usize,
+    visit: &mut dyn FnMut(Record<'_>) -> Result<(), BagError>,
+) -> Result<(), BagError> {
+    if crc != 0 && crc32fast::hash(data) != crc {
+        return Err(err(
+            path,
+            format!("chunk at byte {offset}: its data does not match its CRC (damaged)"),
+        ));
+    }
+    let mut rest = data;
+    while !rest.is_empty() {
+        let at = data.len() - rest.len();
+        let len = rest
+            .get(1..9)
+            .and_then(|l| <[u8; 8]>::try_from(l).ok())
+            .map(u64::from_le_bytes)
+            .and_then(|l| usize::try_from(l).ok())
+            .filter(|&l| l <= rest.len() - 9 && l <= bound)
+            .ok_or_else(|| {
+                err(
+                    path,
+                    format!(
+                        "chunk at byte {offset}: a record at byte {at} of its data runs past its end"
+                    ),
+                )
+            })?;
+        let record = mcap::parse_record(rest[0], &rest[9..9 + len])
+            .map_err(|e| err(path, format!("chunk at byte {offset}: {e}")))?;
+        visit(record)?;
+        rest = &rest[9 + len..];
     }
     Ok(())
 }

@@ -24,6 +24,7 @@
 //! inside a chunk: a chunk cut short is an error naming the byte.
 
 use super::bag::{err, BagError, Channel, Location, Message, Place};
+use std::borrow::Cow;
 use std::collections::HashMap;
 use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
@@ -169,14 +170,16 @@ fn inner_records<'a>(
 const LZ4_MOST_PER_BYTE: u64 = 255;
 
 /// A chunk's data, decompressed: exactly `size` bytes, else an error.
-fn decompress(compression: &[u8], size: u32, data: &[u8]) -> Result<Vec<u8>, String> {
+fn decompress<'a>(compression: &[u8], size: u32, data: &'a [u8]) -> Result<Cow<'a, [u8]>, String> {
     let size = u64::from(size);
     let claims = |got: usize| {
         format!("it claims {size} bytes uncompressed, its data gives {got} (a damaged chunk)")
     };
     let read_capped = |mut r: Box<dyn Read + '_>| -> Result<Vec<u8>, String> {
-        // Grows with what really comes out, never past size + 1 bytes.
-        let mut out = Vec::new();
+        // Grows with what really comes out, never past size + 1 bytes; a
+        // size up to a few depth images is reserved at once, sparing the
+        // copies of growing into it.
+        let mut out = Vec::with_capacity(size.min(RESERVE_AT_ONCE) as usize);
         r.by_ref()
             .take(size + 1)
             .read_to_end(&mut out)
@@ -188,7 +191,7 @@ fn decompress(compression: &[u8], size: u32, data: &[u8]) -> Result<Vec<u8>, Str
             if data.len() as u64 != size {
                 return Err(claims(data.len()));
             }
-            return Ok(data.to_vec());
+            return Ok(Cow::Borrowed(data));
         }
         b"lz4" => {
             if size > (data.len() as u64).saturating_mul(LZ4_MOST_PER_BYTE) + 64 {
@@ -213,11 +216,15 @@ fn decompress(compression: &[u8], size: u32, data: &[u8]) -> Result<Vec<u8>, Str
     if out.len() as u64 != size {
         return Err(claims(out.len()));
     }
-    Ok(out)
+    Ok(Cow::Owned(out))
 }
 
+/// Most bytes a decompression reserves before it sees its output: 16 MiB,
+/// many depth images (a damaged header claiming gigabytes reserves no more).
+const RESERVE_AT_ONCE: u64 = 16 << 20;
+
 /// Decompresses the chunk record whose header is `fields` and data `data`.
-fn chunk_data(fields: &Fields<'_>, data: &[u8]) -> Result<Vec<u8>, String> {
+fn chunk_data<'a>(fields: &Fields<'_>, data: &'a [u8]) -> Result<Cow<'a, [u8]>, String> {
     decompress(fields.need("compression")?, fields.u32("size")?, data)
 }
 
@@ -442,6 +449,7 @@ pub fn fetch(
     len: u64,
     in_chunk: Option<u32>,
 ) -> Result<Vec<u8>, BagError> {
+    let at_record = |e: String| err(path, format!("record at byte {offset}: {e}"));
     let io = |e: std::io::Error| err(path, e.to_string());
     let mut file = File::open(path).map_err(io)?;
     let size = file.metadata().map_err(io)?.len();
@@ -454,23 +462,25 @@ pub fn fetch(
     file.seek(SeekFrom::Start(offset)).map_err(io)?;
     let mut record = vec![0u8; len as usize];
     file.read_exact(&mut record).map_err(io)?;
-    let at_record = |e: String| err(path, format!("record at byte {offset}: {e}"));
     let (top, _) = inner_record(&record, 0).map_err(at_record)?;
     let op = top.fields.op().map_err(at_record)?;
     match (op, in_chunk) {
         (op::MESSAGE, None) => Ok(top.data.to_vec()),
         (op::CHUNK, Some(k)) => {
             let chunk = chunk_data(&top.fields, top.data).map_err(at_record)?;
-            let rest = chunk.get(k as usize..).unwrap_or(&[]);
-            let (msg, _) = inner_record(rest, k as usize).map_err(at_record)?;
-            match msg.fields.op().map_err(at_record)? {
-                op::MESSAGE => Ok(msg.data.to_vec()),
-                _ => Err(at_record(format!(
-                    "no message record at byte {k} of the chunk"
-                ))),
-            }
+            message_in_chunk(&chunk, k).map_err(at_record)
         }
         _ => Err(at_record("not the message record expected".into())),
+    }
+}
+
+/// The message record at byte `k` of a decompressed `chunk`.
+fn message_in_chunk(chunk: &[u8], k: u32) -> Result<Vec<u8>, String> {
+    let rest = chunk.get(k as usize..).unwrap_or(&[]);
+    let (msg, _) = inner_record(rest, k as usize)?;
+    match msg.fields.op()? {
+        op::MESSAGE => Ok(msg.data.to_vec()),
+        _ => Err(format!("no message record at byte {k} of the chunk")),
     }
 }
 
