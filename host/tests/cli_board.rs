@@ -340,6 +340,21 @@ fn a_resumed_scan_reports_its_resume_not_a_degradation() {
     assert_eq!(m["restored_from_flash"], true, "{m}");
     assert_eq!(m["degradation_flags"], 0, "{m}");
     assert_eq!(m["resumes"], 1, "{m}");
+    // What the board counted in RAM before its restart is lost: unknown,
+    // not 0, and said so.
+    for k in placedb_host::output::metrics_json::RAM_COUNTERS {
+        assert!(m[k].is_null(), "{k}: {m}");
+    }
+    let why = m["not_measured"].as_str().unwrap_or_default();
+    assert!(
+        why.contains("kept in RAM and count only the frames since"),
+        "{why}"
+    );
+    assert!(
+        stderr(&run).contains("reports those counters as null"),
+        "{}",
+        stderr(&run)
+    );
     let at = m["resumed_at"][0].as_u64().unwrap();
     // Where the device's durable decisions ended: at most the frames sent.
     assert!(at > 0 && at <= seen, "{m}");

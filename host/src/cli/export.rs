@@ -231,7 +231,8 @@ pub fn export_cmd(
 
 /// The line saying what an export pulled and wrote to `out` (`export -o`
 /// and `stream -o`; not when `quiet`), and a warning when the scan is open
-/// (its undecided frames have no label yet).
+/// (its undecided frames have no label yet) or was restored from flash
+/// (its RAM counters are unknown).
 pub fn print_exported(out: &Path, export: &Export, quiet: bool) {
     let st = &export.status;
     if st.phase != placedb::protocol::Phase::Finished {
@@ -243,6 +244,13 @@ pub fn print_exported(out: &Path, export: &Export, quiet: bool) {
             st.frames_seen.saturating_sub(st.frames_decided),
             out.display()
         ));
+    }
+    if st.degradation & placedb::protocol::degradation::RESTORED != 0 {
+        crate::warning::warn(
+            "the board restarted and restored this scan from flash: what it counts in RAM \
+             (frames compared by sketch, truncated or uncovered, dropped labels) covers only the \
+             frames since, so metrics.json reports those counters as null (unknown)",
+        );
     }
     if quiet {
         return;

@@ -58,7 +58,7 @@ pub struct StreamArgs {
     /// first error stops the stream) without fault injection, 20 with; 0 to 1000.
     #[arg(long, value_parser = super::params::whole::<usize>(0, 1000), allow_negative_numbers = true)]
     retries: Option<usize>,
-    /// With retransmission: wait this many milliseconds (1 to 3600000) for a reply before sending again.
+    /// With retransmission: the longest wait, in milliseconds (1 to 3600000), for a reply before sending again; shorter waits follow the link's measured round trip, and only a wait this long counts against --retries.
     #[arg(long, default_value_t = 2000, value_parser = super::params::whole::<usize>(1, 3_600_000), allow_negative_numbers = true)]
     resend_ms: usize,
     /// Go on with the scan the device holds (e.g. restored from flash after a

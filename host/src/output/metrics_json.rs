@@ -120,6 +120,20 @@ pub struct OnSequence<'a> {
     pub measured: &'a Measured,
 }
 
+/// The keys of a device's `metrics.json` that it counts in RAM only, lost
+/// when it restarts.
+pub const RAM_COUNTERS: [&str; 9] = [
+    "sketched_frames",
+    "truncated_frames",
+    "uncovered_by_capacity",
+    "labels_dropped",
+    "out_of_range_points",
+    "valid_pixels",
+    "pool_peak_words",
+    "frame_voxels_peak",
+    "resident_peak",
+];
+
 /// The `metrics.json` object of a device's export: what the device knows
 /// from its status and, when it keeps a flash log, the configuration it
 /// scanned with (`config`; `profile`: the capacity profile it reports, if
@@ -233,6 +247,19 @@ pub fn of_device(
         m[k] = serde_json::Value::Null;
     }
     let mut why = Vec::new();
+    // The device counts in RAM: after a restart it counts only the frames
+    // since (a scan that had 306 frames compared by sketch would report 0),
+    // so a restored scan's counters are unknown, not 0.
+    if st.degradation & RESTORED != 0 {
+        for k in RAM_COUNTERS {
+            m[k] = serde_json::Value::Null;
+        }
+        why.push(
+            "the board restarted and restored the scan from flash: its counters (sketched, \
+             truncated and uncovered frames, dropped labels, points out of range, valid pixels, \
+             peaks) are kept in RAM and count only the frames since",
+        );
+    }
     // How often and where a host resumed the scan after a restart, from a
     // finished scan's log.
     match resumes {
