@@ -515,7 +515,7 @@ pub fn pull<L: Link>(
         std::fs::create_dir_all(parent).map_err(saving)?;
     }
     append_frames(&partial, &head).map_err(saving)?;
-    let pb = (!quiet).then(|| ProgressBar::new(0));
+    let pb = (!quiet).then(|| phase_bar("records"));
     // Records saved in the resume file: where an interrupted export goes on.
     let saved = std::cell::Cell::new(have.len());
     let resume_hint = |e: DeviceError| match e {
@@ -545,7 +545,12 @@ pub fn pull<L: Link>(
     let mut export = export;
     // A finished scan's whole log is read for its extension file, which
     // gives the configuration too; otherwise only the log's first record.
-    let read_log = extension_of(client, &export, opts);
+    // Reading the log is most of a long scan's export: its own bar.
+    let log_pb = (!quiet).then(|| phase_bar("flash log"));
+    let read_log = extension_of(client, &export, opts, log_pb.as_ref());
+    if let Some(pb) = &log_pb {
+        pb.finish_and_clear();
+    }
     match read_log.map_err(resume_hint)? {
         Some((extension, scan)) => {
             export.extension = Some(extension);
@@ -558,6 +563,18 @@ pub fn pull<L: Link>(
         None => {}
     }
     Ok(export)
+}
+
+/// A progress bar for one phase of an export, named `phase` (`records`,
+/// `flash log`), counting its records.
+fn phase_bar(phase: &'static str) -> ProgressBar {
+    let pb = ProgressBar::new(0).with_message(phase);
+    if let Ok(style) =
+        indicatif::ProgressStyle::with_template("{msg:>12} [{bar:30}] {pos}/{len} {elapsed}")
+    {
+        pb.set_style(style);
+    }
+    pb
 }
 
 /// Writes `export` as output `out` of the run writing `outputs`:
@@ -619,12 +636,13 @@ fn extension_of<L: Link>(
     client: &mut Client<L>,
     export: &Export,
     opts: &ExportOptions,
+    progress: Option<&ProgressBar>,
 ) -> Result<Option<(Extension, log_records::LoggedScan)>, DeviceError> {
     let st = &export.status;
     if st.stored_records == 0 || st.phase != Phase::Finished {
         return Ok(None);
     }
-    let records = log_records::read_log(client, st.stored_records, opts.wait())?;
+    let records = log_records::read_log(client, st.stored_records, opts.wait(), progress)?;
     let scan = log_records::scan_of(&records)?;
     let (timestamps, labels) = export.labels();
     let same = scan.sessions == export.sessions()

@@ -62,14 +62,23 @@ pub struct LoggedScan {
     pub resumes: Vec<u32>,
 }
 
-/// Reads the `records` records of the device's log, each in chunks.
+/// Reads the `records` records of the device's log, each in chunks;
+/// `progress` (when given) counts them.
 pub fn read_log<L: Link>(
     client: &mut Client<L>,
     records: u32,
     wait: Wait,
+    progress: Option<&indicatif::ProgressBar>,
 ) -> Result<Vec<LogRecord>, DeviceError> {
     let mut out = Vec::with_capacity(records as usize);
+    if let Some(p) = progress {
+        p.set_length(u64::from(records));
+        p.set_position(0);
+    }
     for record in 0..records {
+        if let Some(p) = progress {
+            p.set_position(u64::from(record));
+        }
         let mut payload = Vec::new();
         let mut at = None;
         loop {
@@ -112,6 +121,9 @@ pub fn read_log<L: Link>(
             payload,
         });
     }
+    if let Some(p) = progress {
+        p.set_position(u64::from(records));
+    }
     Ok(out)
 }
 
@@ -135,7 +147,7 @@ pub fn scan_config<L: Link>(
     wait: Wait,
     records: u32,
 ) -> Result<Option<Config>, DeviceError> {
-    let records = read_log(client, records.max(1), wait)?;
+    let records = read_log(client, records.max(1), wait, None)?;
     let mut config = match records.first().map(|r| Record::decode(&r.payload)) {
         Some(Ok((Record::Begin(cfg), _))) => cfg,
         _ => return Ok(None),
@@ -383,7 +395,11 @@ mod tests {
         let opts = StreamOptions::default();
         let report = stream(&mut client, &seq, &cfg, "ram256k", &opts, None).unwrap();
         let wait = Wait::Once(Duration::from_secs(10));
-        let log = read_log(&mut client, report.status.stored_records, wait).unwrap();
+        let bar = indicatif::ProgressBar::hidden();
+        let log = read_log(&mut client, report.status.stored_records, wait, Some(&bar)).unwrap();
+        // The read is counted record by record (export's "flash log" phase).
+        let n = u64::from(report.status.stored_records);
+        assert_eq!((bar.length(), bar.position()), (Some(n), n));
         let got = scan_of(&log).unwrap();
         assert_eq!(got.config, cfg);
         assert_eq!(got.sessions, vec![0]);
