@@ -166,6 +166,23 @@ fn colmap_vpr_eval_and_pairs_of_a_recorded_sequence() {
     );
     let points = std::fs::read_to_string(colmap.join("sparse/0/points3D.txt")).unwrap();
     assert!(points.lines().all(|l| l.starts_with('#')));
+    // sources.csv: each exported image's frame and the sequence file it is.
+    for (dir, images) in [(&colmap, db.len()), (&vpr, FRAMES)] {
+        let sources = std::fs::read_to_string(dir.join(exports::SOURCES)).unwrap();
+        let mut rows = sources.lines();
+        assert_eq!(rows.next(), Some("image,frame,timestamp,source"));
+        let rows: Vec<Vec<&str>> = rows.map(|l| l.split(',').collect()).collect();
+        assert_eq!(rows.len(), images, "{sources}");
+        for r in &rows {
+            assert!(dir.join(r[0]).is_file(), "{r:?}");
+            let i: usize = r[1].parse().unwrap();
+            assert_eq!(r[3], format!("frame-{i:06}.color.jpg"), "{r:?}");
+            assert_eq!(
+                std::fs::read(dir.join(r[0])).unwrap(),
+                std::fs::read(Path::new(SEVEN_SCENES).join(r[3])).unwrap()
+            );
+        }
+    }
 
     // VPR-evaluation: names parse back to the database poses on the top
     // view's axes; the queries are the other frames.

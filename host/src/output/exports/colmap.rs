@@ -6,6 +6,7 @@
 //! DIR/sparse/0/images.txt     per database frame: IMAGE_ID QW QX QY QZ TX TY TZ 1 NAME, then an empty line
 //! DIR/sparse/0/points3D.txt   no points (comments only)
 //! DIR/images/NAME             the frame's JPEG (NNNNNN.jpg, the frame index)
+//! DIR/sources.csv             per image: its frame, timestamp and sequence file
 //! ```
 //!
 //! COLMAP's pose is world to camera: `X_cam = R X_world + T`, `R` the
@@ -97,6 +98,12 @@ pub fn write(dir: &Path, sel: &Selection) -> Result<usize, OutputError> {
             let path = images.join(image_name(i));
             std::fs::write(&path, bytes).map_err(OutputError::writing(&path))
         })?;
+    let sources = super::sources_csv(
+        rows.iter()
+            .map(|&(i, _, _)| (format!("images/{}", image_name(i)), sel.seq, i)),
+    );
+    let path = dir.join(super::SOURCES);
+    std::fs::write(&path, sources).map_err(OutputError::writing(&path))?;
     Ok(rows.len())
 }
 

@@ -138,6 +138,46 @@ pub fn image_name(i: usize) -> String {
     format!("{i:06}.jpg")
 }
 
+/// The name of [`SOURCES`]: which sequence file each exported image is.
+pub const SOURCES: &str = "sources.csv";
+
+/// `sources.csv` of an export whose images have names of its own
+/// (`images/000042.jpg`, `database/@e@n@42@.jpg`): a row per image
+/// (`image`, its path in the export), with its sequence's frame index and
+/// timestamp and its `source`: the colour image file it came from, relative
+/// to the sequence's directory as its layout names it; else (a bag's colour
+/// topic, or a rendering of the depth) the frame's depth image name, as
+/// `depth:` and the layout's name (a bag's `topic@stamp`). Fields holding a
+/// comma or a quote are quoted.
+pub fn sources_csv<'a>(images: impl IntoIterator<Item = (String, &'a Sequence, usize)>) -> String {
+    let quoted = |s: &str| {
+        if s.contains([',', '"', '\n', '\r']) {
+            format!("\"{}\"", s.replace('"', "\"\""))
+        } else {
+            s.to_string()
+        }
+    };
+    let mut csv = String::from("image,frame,timestamp,source\n");
+    for (image, seq, i) in images {
+        let Some(f) = seq.frames.get(i) else { continue };
+        let source = match (&f.color_path, &seq.root) {
+            (Some(colour), Some(root)) => colour
+                .strip_prefix(root)
+                .map(|rel| rel.to_string_lossy().replace('\\', "/"))
+                .unwrap_or_else(|_| colour.display().to_string()),
+            (Some(colour), None) => colour.display().to_string(),
+            (None, _) => format!("depth:{}", f.depth_name),
+        };
+        csv.push_str(&format!(
+            "{},{i},{:.6},{}\n",
+            quoted(&image),
+            f.timestamp,
+            quoted(&source)
+        ));
+    }
+    csv
+}
+
 /// `[east, north]` of world point `p`: the top view's right and up.
 pub fn east_north_of(proj: &Projection, p: [f64; 3]) -> [f64; 2] {
     let ((e, es), (n, ns)) = crate::output::annotate::east_north(proj);

@@ -76,6 +76,16 @@ pub fn write(dir: &Path, sel: &Selection) -> Result<(usize, usize), OutputError>
             let path = d.join(name(i, en));
             std::fs::write(&path, bytes).map_err(OutputError::writing(&path))
         })?;
+    let sources = super::sources_csv(jobs.iter().map(|&(seq, i, en, d)| {
+        let folder = if d == database.as_path() {
+            "database"
+        } else {
+            "queries"
+        };
+        (format!("{folder}/{}", name(i, en)), seq, i)
+    }));
+    let path = dir.join(super::SOURCES);
+    std::fs::write(&path, sources).map_err(OutputError::writing(&path))?;
     Ok((db.len(), query.len()))
 }
 
