@@ -354,6 +354,8 @@ fn an_extend_without_a_finished_scan_or_of_another_configuration_is_refused_in_w
         STRIDE * 2
     );
     assert!(err.to_string().contains(&said), "{err}");
+    // The way out is a command, not a replug.
+    assert!(err.to_string().contains("--new-scan"), "{err}");
     stream(&mut client, &seq, &cfg, PROFILE, &resume, None).unwrap();
     let other = placedb::protocol::Config { mu: 0.5, ..cfg };
     let err = stream(&mut client, &seq, &other, PROFILE, &extend, None).unwrap_err();

@@ -764,14 +764,15 @@ impl ScanState {
         DeviceError::Input(match named {
             Some(words) => format!(
                 "{option}: {words}: every session of a scan has the first one's settings, \
-                 and a session cut short is resumed with its own camera (give the scan's \
-                 setting, or Reset the device for a new scan)"
+                 and a session cut short is resumed with its own camera: give the scan's \
+                 setting, or replace the board's scan with a new one (placedb stream SEQ \
+                 --port PORT --new-scan)"
             ),
             None => format!(
                 "{option}: the device's scan was configured otherwise: every session of a scan \
                  needs the first one's depth range, stride, voxel size, grid, --mu and \
-                 --window, and a session cut short its own camera and depth scale (Reset the \
-                 device for a new scan)"
+                 --window, and a session cut short its own camera and depth scale; or replace \
+                 the board's scan with a new one (placedb stream SEQ --port PORT --new-scan)"
             ),
         })
     }
