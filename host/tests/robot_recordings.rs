@@ -8,7 +8,7 @@ mod cli_common;
 
 use cli_common::{placedb, stderr, TempDir, SEVEN_SCENES};
 use placedb_host::pipeline::{self, Solver, SolverParams};
-use placedb_host::read::ros2::Ros2Options;
+use placedb_host::read::ros2::{color_codec, Ros2Options};
 use placedb_host::read::timed_poses::{interpolate, TimedPose};
 use placedb_host::read::{self, ReadOptions};
 use placedb_host::sequence::PoseInterpolation;
@@ -218,6 +218,23 @@ fn compressed_depth_as_image_transport_writes_it() {
         }
         let got = [Solver::InOrder, Solver::Online].map(|s| database(&seq, s));
         assert_eq!(got, want, "{name}");
+    }
+    // Colour recorded compressed, as robots do (a JPEG CompressedImage):
+    // found without --color-topic, each frame's the sample's JPEG decoded.
+    let seq = open(
+        &out.join("ros2-compressed-png-rolling"),
+        Ros2Options::default(),
+        PoseInterpolation::Linear,
+    );
+    for i in [0, FRAMES - 1] {
+        let jpeg =
+            std::fs::read(Path::new(SEVEN_SCENES).join(format!("frame-{i:06}.color.jpg"))).unwrap();
+        let want = color_codec::decode(color_codec::ColorCodec::Jpeg, &jpeg).unwrap();
+        assert_eq!(
+            seq.source.color(i).unwrap(),
+            Some(want),
+            "colour of frame {i}"
+        );
     }
 }
 

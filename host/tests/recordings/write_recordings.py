@@ -546,7 +546,15 @@ def write_frames(bag, ts, fr, poses, *, depth='raw', color=False, pose_every=1, 
             if i == bad_frame:
                 fmt, payload = bad_payload(d, fmt, payload)
             bag.write(CDEPTH, compressed_msg(ts, t, fmt, payload), t)
-        if color:
+        if color == 'jpeg':
+            # compressed_image_transport's JPEG of an rgb8 image (humble
+            # compressed_publisher.cpp: "rgb8; jpeg compressed bgr8"); the
+            # sample's own JPEG bytes stand for the encoder's.
+            jpeg = Path(fr.path(i, 'color.jpg')).read_bytes()
+            bag.write(COLOR + '/compressed',
+                      compressed_msg(ts, t, 'rgb8; jpeg compressed bgr8', jpeg,
+                                     'camera_color_optical_frame'), t)
+        elif color:
             bag.write(COLOR, image_msg(ts, t, fr.color_rgb(i), 'rgb8', 'camera_color_optical_frame'), t)
 
 
@@ -725,10 +733,12 @@ def build(name, out, fr, poses):
                        'Pixels > 10000 mm zeroed by the codec (65535 -> 0). '
                        'No raw depth topic.')
     elif name == 'ros2-compressed-png-rolling':
-        ros2_variant(name, out, fr, poses, depth='png16-rolling')
+        ros2_variant(name, out, fr, poses, depth='png16-rolling', color='jpeg')
         e.update(path=name, kind='ros2', depth_topic=CDEPTH,
                  notes='As ros2-compressed-png but as the rolling branch (3.x, with RVL support) '
-                       'writes it: format "16UC1; compressedDepth png", PNG level 3.')
+                       'writes it: format "16UC1; compressedDepth png", PNG level 3. Colour as '
+                       'compressed_image_transport records it: /camera/color/image_raw/compressed, '
+                       '"rgb8; jpeg compressed bgr8", the sample\'s JPEG bytes.')
     elif name == 'ros2-compressed-rvl':
         ros2_variant(name, out, fr, poses, depth='rvl')
         e.update(path=name, kind='ros2', depth_topic=CDEPTH,

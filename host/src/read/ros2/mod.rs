@@ -34,6 +34,7 @@
 
 pub mod bag;
 pub mod cdr;
+pub mod color_codec;
 pub mod depth_codec;
 mod mcap_storage;
 pub mod msgs;
@@ -400,6 +401,20 @@ impl Topics {
             .collect()
     }
 
+    /// CompressedImage topics whose first message's format is a colour JPEG
+    /// or PNG.
+    fn compressed_color(&self) -> Vec<&str> {
+        self.images
+            .iter()
+            .filter(|(_, v)| {
+                v.first().is_some_and(|i| {
+                    i.compressed.is_some() && color_codec::codec(&i.encoding).is_some()
+                })
+            })
+            .map(|(t, _)| t.as_str())
+            .collect()
+    }
+
     /// CompressedImage topics whose first message's format names depth.
     fn compressed_depth(&self) -> Vec<&str> {
         self.images
@@ -532,21 +547,31 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions, format: Format) -> Result<Se
     // Poses.
     let mut poses = pose_source::choose_poses(path, ros, &mut topics)?;
     // Colour (optional).
-    let color_candidates = topics.images_in(&COLOR_ENCODINGS);
-    let color_topic = match (&ros.color_topic, color_candidates.as_slice()) {
+    // Raw colour is preferred; a robot usually records it compressed
+    // (JPEG or PNG through image_transport).
+    let raw_color = topics.images_in(&COLOR_ENCODINGS);
+    let compressed_color = topics.compressed_color();
+    let color_candidates: Vec<&str> = raw_color.iter().chain(&compressed_color).copied().collect();
+    let only = if raw_color.is_empty() {
+        compressed_color.as_slice()
+    } else {
+        raw_color.as_slice()
+    };
+    let color_topic = match (&ros.color_topic, only) {
         (Some(t), _) if *t == depth_topic => {
             return Err(text::layout(
                 path,
                 format!(
                     "--color-topic {t} is the depth topic: give the colour images' topic \
-                     (sensor_msgs/msg/Image, rgb8, bgr8, rgba8, bgra8 or mono8), or leave \
-                     --color-topic out"
+                     (sensor_msgs/msg/Image, rgb8, bgr8, rgba8, bgra8 or mono8, or its JPEG or \
+                     PNG CompressedImage), or leave --color-topic out"
                 ),
             ))
         }
         (Some(t), _) => Some(choose(
             path,
-            "colour topic (sensor_msgs/msg/Image, rgb8, bgr8, rgba8, bgra8 or mono8)",
+            "colour topic (sensor_msgs/msg/Image, rgb8, bgr8, rgba8, bgra8 or mono8, or its \
+             JPEG or PNG CompressedImage)",
             "--color-topic",
             Some(t),
             &color_candidates,
@@ -885,6 +910,16 @@ impl DepthSource for BagSource {
                 format!("colour image at t={:.6}: {reason}", r.stamp),
             )
         };
+        if r.compressed.is_some() {
+            let img = r.wire.compressed_image(&bytes).map_err(&at)?;
+            let codec = color_codec::codec(&img.format).ok_or_else(|| {
+                at(format!(
+                    "CompressedImage format `{}` is not a colour JPEG or PNG",
+                    img.format
+                ))
+            })?;
+            return color_codec::decode(codec, img.data).map(Some).map_err(at);
+        }
         let img = r.wire.image(&bytes).map_err(&at)?;
         decode_color(&img).map(Some).map_err(at)
     }
