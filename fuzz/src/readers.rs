@@ -18,8 +18,8 @@ use std::path::{Path, PathBuf};
 
 /// `compressed_depth` target: `data` as the payload of a depth
 /// CompressedImage in every coding the reader takes (compressedDepth PNG
-/// and RVL of depth and of inverse depth, a bare 16-bit PNG), and as a CDR
-/// CompressedImage message. A payload that decodes holds exactly its
+/// and RVL of depth and of inverse depth, a bare 16-bit PNG), as a CDR
+/// CompressedImage message, and as a colour JPEG or PNG. A payload that decodes holds exactly its
 /// claimed pixels, and the size read from its header alone is the size it
 /// decodes to.
 pub fn compressed_depth(data: &[u8]) {
@@ -53,6 +53,13 @@ pub fn compressed_depth(data: &[u8]) {
     if let Ok(img) = msgs::compressed_image(data) {
         if let Ok(codec) = depth_codec::codec(&img.format) {
             let _ = depth_codec::decode(codec, img.data, 1000.0);
+        }
+    }
+    // The same bytes as a colour JPEG or PNG: RGB of exactly its pixels.
+    use ros2::color_codec::{self, ColorCodec};
+    for codec in [ColorCodec::Jpeg, ColorCodec::Png] {
+        if let Ok(img) = color_codec::decode(codec, data) {
+            assert_eq!(img.rgb.len(), 3 * img.width as usize * img.height as usize);
         }
     }
 }
