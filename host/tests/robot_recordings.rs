@@ -4,73 +4,24 @@
 //! each must read as the 7-Scenes layout of the same frames, and each broken
 //! one must be refused in words with nothing written.
 
+mod bag_common;
 mod cli_common;
 
-use cli_common::{placedb, stderr, TempDir, SEVEN_SCENES};
-use placedb_host::pipeline::{self, Solver, SolverParams};
+use bag_common::{assert_same_selection, database, write_recordings, SEVEN_SCENES};
+use cli_common::{placedb, stderr, TempDir};
+use placedb_host::pipeline::Solver;
 use placedb_host::read::ros2::{color_codec, Ros2Options};
 use placedb_host::read::timed_poses::{interpolate, TimedPose};
 use placedb_host::read::{self, ReadOptions};
 use placedb_host::sequence::PoseInterpolation;
-use placedb_host::{output, Format, Sequence, VoxelConfig};
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use placedb_host::{Format, Sequence};
+use std::path::Path;
 
 /// Frames of the sample each recording holds.
 const FRAMES: usize = 16;
 
-const FIXTURE: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/tests/recordings/write_recordings.py"
-);
-
 fn sevenscenes() -> Sequence {
-    let mut seq = read::open(Path::new(SEVEN_SCENES), &ReadOptions::default())
-        .expect("tests read ../shared/data");
-    seq.frames.truncate(FRAMES);
-    seq
-}
-
-/// Writes the recordings `only` of the first [`FRAMES`] frames into `dir`
-/// and returns the folder holding them. The poses are this reader's own
-/// 7-Scenes poses, written so that they parse back to the same bits.
-fn write_recordings(dir: &Path, s7: &Sequence, only: &[&str]) -> PathBuf {
-    let poses: String = s7
-        .frames
-        .iter()
-        .map(|f| {
-            let [x, y, z] = f.translation;
-            let [qx, qy, qz, qw] = f.rotation;
-            format!("{} {x} {y} {z} {qx} {qy} {qz} {qw}\n", f.timestamp)
-        })
-        .collect();
-    let poses_file = dir.join("poses.txt");
-    std::fs::write(&poses_file, poses).unwrap();
-    let out = dir.join("recordings");
-    let run = Command::new("python3")
-        .arg(FIXTURE)
-        .arg("--sevenscenes")
-        .arg(SEVEN_SCENES)
-        .arg("--poses")
-        .arg(&poses_file)
-        .arg("--frames")
-        .arg(FRAMES.to_string())
-        .arg("--out")
-        .arg(&out)
-        .arg("--only")
-        .args(only)
-        .output()
-        .expect(
-            "python3 runs the fixture writer (set up: pip install -r \
-             host/tests/recordings/requirements.txt)",
-        );
-    assert!(
-        run.status.success(),
-        "the fixture writer failed (set up: pip install -r \
-         host/tests/recordings/requirements.txt):\n{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
-    out
+    bag_common::sevenscenes(FRAMES)
 }
 
 fn open(path: &Path, ros2: Ros2Options, rule: PoseInterpolation) -> Sequence {
@@ -83,21 +34,6 @@ fn open(path: &Path, ros2: Ros2Options, rule: PoseInterpolation) -> Sequence {
         },
     )
     .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
-}
-
-/// database.csv and labels.csv of `solver` at mu 0.3.
-fn database(seq: &Sequence, solver: Solver) -> (String, String) {
-    let prep = pipeline::prepare(seq, VoxelConfig::default(), true).unwrap();
-    let o = pipeline::solve(seq, &prep, solver, 0.3, &SolverParams::default(), true).unwrap();
-    let rows = match &o.online {
-        Some(run) => output::rows_from_records(&run.database),
-        None => output::rows_from_sequence(seq, &o.database),
-    };
-    let ts: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
-    (
-        output::database_csv(&rows),
-        output::labels_csv(&ts, &o.labels),
-    )
 }
 
 /// `depth` with 65535 ("no measurement" in 7-Scenes, dropped by the
@@ -263,16 +199,7 @@ fn poses_from_the_tf_tree_and_between_half_rate_samples() {
     }
     // The same database and labels; database.csv's poses are the composed
     // ones, equal to the last few bits of a double.
-    for solver in [Solver::InOrder, Solver::Online] {
-        let ((db, labels), (want_db, want_labels)) = (database(&tf, solver), database(&s7, solver));
-        let indices = |csv: &str| -> Vec<String> {
-            csv.lines()
-                .map(|l| l.split(',').next().unwrap_or("").to_string())
-                .collect()
-        };
-        assert_eq!(indices(&db), indices(&want_db), "{solver:?}");
-        assert_eq!(labels, want_labels, "{solver:?}");
-    }
+    assert_same_selection(&tf, &s7, "ros2-tf");
     // From odom instead of the root: the map -> odom offset is left out.
     let from_odom = open(
         &out.join("ros2-tf"),

@@ -5,28 +5,20 @@
 //! reader must give back the same frames, depth and database as the 7-Scenes
 //! layout, and refuse a bag cut inside a chunk in words naming the file.
 
-use placedb_host::pipeline::{self, Solver, SolverParams};
+mod bag_common;
+
+use bag_common::{assert_same_selection, database, write_recordings};
+use placedb_host::pipeline::Solver;
 use placedb_host::read::{self, ReadOptions};
 use placedb_host::sequence::PoseInterpolation;
-use placedb_host::{output, Format, ReadError, Sequence, VoxelConfig};
+use placedb_host::{Format, ReadError, Sequence};
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 /// Frames of 7scenes-1000 written to the bags (each is 600 KB of depth).
 const FRAMES: usize = 14;
 
-fn sevenscenes_dir() -> PathBuf {
-    PathBuf::from(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../shared/data/7scenes-1000"
-    ))
-}
-
 fn sevenscenes() -> Sequence {
-    let mut seq =
-        read::open(&sevenscenes_dir(), &ReadOptions::default()).expect("tests read ../shared/data");
-    seq.frames.truncate(FRAMES);
-    seq
+    bag_common::sevenscenes(FRAMES)
 }
 
 /// A fresh folder for one test (tests of one binary run in parallel).
@@ -35,54 +27,6 @@ fn temp(name: &str) -> PathBuf {
     let _ = std::fs::remove_dir_all(&p);
     std::fs::create_dir_all(&p).unwrap();
     p
-}
-
-/// Writes POSES.txt from `s7`'s frames and runs the fixture script for
-/// `variants` into `dir`. A missing python3 or rosbags fails the test with
-/// what to install: these tests must never pass without running.
-fn write_recordings(dir: &Path, s7: &Sequence, variants: &[&str]) {
-    let poses: String = s7
-        .frames
-        .iter()
-        .map(|f| {
-            let [tx, ty, tz] = f.translation;
-            let [qx, qy, qz, qw] = f.rotation;
-            format!("{} {tx} {ty} {tz} {qx} {qy} {qz} {qw}\n", f.timestamp)
-        })
-        .collect();
-    let poses_file = dir.join("POSES.txt");
-    std::fs::write(&poses_file, poses).unwrap();
-    let script = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/recordings/write_recordings.py"
-    );
-    let out = Command::new("python3")
-        .arg(script)
-        .arg("--sevenscenes")
-        .arg(sevenscenes_dir())
-        .arg("--poses")
-        .arg(&poses_file)
-        .arg("--frames")
-        .arg(FRAMES.to_string())
-        .arg("--out")
-        .arg(dir)
-        .arg("--only")
-        .args(variants)
-        .env("PYTHONDONTWRITEBYTECODE", "1")
-        .output()
-        .unwrap_or_else(|e| {
-            panic!(
-                "cannot run python3 ({e}): these tests need python3 and \
-                 `pip install -r host/tests/recordings/requirements.txt`"
-            )
-        });
-    assert!(
-        out.status.success(),
-        "write_recordings.py failed ({}); if a module is missing: \
-         pip install -r host/tests/recordings/requirements.txt\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
 }
 
 /// Reads a bag with the nearest pose rule (the bags hold a pose at every
@@ -94,21 +38,6 @@ fn open(path: &Path) -> Result<Sequence, ReadError> {
             pose_interpolation: PoseInterpolation::Nearest,
             ..ReadOptions::default()
         },
-    )
-}
-
-/// database.csv and labels.csv of `solver` at mu 0.3.
-fn database(seq: &Sequence, solver: Solver) -> (String, String) {
-    let prep = pipeline::prepare(seq, VoxelConfig::default(), true).unwrap();
-    let o = pipeline::solve(seq, &prep, solver, 0.3, &SolverParams::default(), true).unwrap();
-    let rows = match &o.online {
-        Some(run) => output::rows_from_records(&run.database),
-        None => output::rows_from_sequence(seq, &o.database),
-    };
-    let ts: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
-    (
-        output::database_csv(&rows),
-        output::labels_csv(&ts, &o.labels),
     )
 }
 
@@ -127,9 +56,9 @@ fn plain_bz2_and_lz4_bags_give_the_7scenes_frames_depth_and_database() {
     let s7 = sevenscenes();
     let dir = temp("chunks");
     let variants = ["ros1", "ros1-bz2", "ros1-lz4"];
-    write_recordings(&dir, &s7, &variants);
+    let out = write_recordings(&dir, &s7, &variants);
     for name in variants {
-        let bag = dir.join(format!("{name}.bag"));
+        let bag = out.join(format!("{name}.bag"));
         assert_eq!(read::detect(&bag).unwrap(), Format::Ros1, "{name}");
         let ros = open(&bag).unwrap_or_else(|e| panic!("{name}: {e}"));
         assert_eq!(ros.format, Format::Ros1);
@@ -158,8 +87,8 @@ fn plain_bz2_and_lz4_bags_give_the_7scenes_frames_depth_and_database() {
 fn a_tf_tree_bag_gives_the_7scenes_poses_and_database() {
     let s7 = sevenscenes();
     let dir = temp("tf");
-    write_recordings(&dir, &s7, &["ros1-tf"]);
-    let ros = open(&dir.join("ros1-tf.bag")).unwrap();
+    let out = write_recordings(&dir, &s7, &["ros1-tf"]);
+    let ros = open(&out.join("ros1-tf.bag")).unwrap();
     assert_eq!(ros.frames.len(), s7.frames.len());
     for (a, b) in ros.frames.iter().zip(&s7.frames) {
         assert_eq!(a.timestamp, b.timestamp);
@@ -176,26 +105,7 @@ fn a_tf_tree_bag_gives_the_7scenes_poses_and_database() {
     }
     // The same frames selected, the same labels; the poses in database.csv
     // are the composed ones (equal to float64 rounding).
-    for solver in [Solver::InOrder, Solver::Online] {
-        let (got_db, got_labels) = database(&ros, solver);
-        let (want_db, want_labels) = database(&s7, solver);
-        assert_eq!(got_labels, want_labels, "{solver:?}");
-        let rows = |csv: &str| -> Vec<Vec<String>> {
-            csv.lines()
-                .map(|l| l.split(',').map(String::from).collect())
-                .collect()
-        };
-        let (got, want) = (rows(&got_db), rows(&want_db));
-        assert_eq!(got.len(), want.len(), "{solver:?}\n{got_db}\n{want_db}");
-        assert_eq!(got[0], want[0], "{solver:?}: the column names");
-        for (g, w) in got.iter().zip(&want).skip(1) {
-            assert_eq!(g[..2], w[..2], "{solver:?}: index and timestamp");
-            for (x, y) in g[2..].iter().zip(&w[2..]) {
-                let (x, y): (f64, f64) = (x.parse().unwrap(), y.parse().unwrap());
-                assert!((x - y).abs() <= 1e-9, "{solver:?}: {g:?} vs {w:?}");
-            }
-        }
-    }
+    assert_same_selection(&ros, &s7, "ros1-tf");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -203,8 +113,8 @@ fn a_tf_tree_bag_gives_the_7scenes_poses_and_database() {
 fn a_bag_cut_inside_a_chunk_or_of_format_1_2_is_an_error_naming_the_file() {
     let s7 = sevenscenes();
     let dir = temp("truncated");
-    write_recordings(&dir, &s7, &["bad-truncated-bag"]);
-    let bag = dir.join("bad-truncated-bag.bag");
+    let out = write_recordings(&dir, &s7, &["bad-truncated-bag"]);
+    let bag = out.join("bad-truncated-bag.bag");
     let Err(e) = open(&bag) else {
         panic!("a truncated bag must be refused");
     };

@@ -6,12 +6,15 @@
 //! and time, never a panic. The dataset writer's output reads back as the
 //! reference layout with the same classes.
 
+mod bag_common;
+
+use bag_common::database;
 use placedb_host::pipeline::{self, Solver, SolverParams};
 use placedb_host::read::ros2::msgs::{self, CameraInfo, Header, Image, PoseMsg, Transform};
 use placedb_host::read::ros2::Ros2Options;
 use placedb_host::read::{self, ReadOptions};
 use placedb_host::sequence::PoseInterpolation;
-use placedb_host::{output, output::dataset, Format, ReadError, Sequence, VoxelConfig};
+use placedb_host::{output::dataset, Format, ReadError, Sequence, VoxelConfig};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -19,10 +22,7 @@ use std::path::{Path, PathBuf};
 const FRAMES: usize = 60;
 
 fn sevenscenes() -> Sequence {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/7scenes-1000");
-    let mut seq = read::open(&p, &ReadOptions::default()).expect("tests read ../shared/data");
-    seq.frames.truncate(FRAMES);
-    seq
+    bag_common::sevenscenes(FRAMES)
 }
 
 fn temp(name: &str) -> PathBuf {
@@ -262,21 +262,6 @@ fn open(path: &Path, ros2: Ros2Options) -> Result<Sequence, ReadError> {
             pose_interpolation: PoseInterpolation::Nearest,
             ..ReadOptions::default()
         },
-    )
-}
-
-/// database.csv and labels.csv of `solver` at mu 0.3.
-fn database(seq: &Sequence, solver: Solver) -> (String, String) {
-    let prep = pipeline::prepare(seq, VoxelConfig::default(), true).unwrap();
-    let o = pipeline::solve(seq, &prep, solver, 0.3, &SolverParams::default(), true).unwrap();
-    let rows = match &o.online {
-        Some(run) => output::rows_from_records(&run.database),
-        None => output::rows_from_sequence(seq, &o.database),
-    };
-    let ts: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
-    (
-        output::database_csv(&rows),
-        output::labels_csv(&ts, &o.labels),
     )
 }
 
