@@ -41,29 +41,7 @@ pub(crate) fn looks_like_scannet(dir: &Path) -> bool {
 /// of the last column and row `0 0 0 1`.
 fn parse_intrinsics(path: &Path) -> Result<CameraModel, ReadError> {
     let content = text::read_text(path)?;
-    let mut rows: Vec<(usize, Vec<f64>)> = Vec::with_capacity(4);
-    let mut last_line = 1;
-    for (line, l) in text::data_lines(&content) {
-        if rows.len() == 4 {
-            return Err(text::parse_error(
-                path,
-                line,
-                "more than 4 rows in a 4x4 intrinsics matrix",
-            ));
-        }
-        rows.push((
-            line,
-            text::numbers(path, line, l, &[4], "a row of the 4x4 intrinsics matrix")?,
-        ));
-        last_line = line;
-    }
-    if rows.len() < 4 {
-        return Err(text::parse_error(
-            path,
-            last_line,
-            format!("a 4x4 intrinsics matrix has 4 rows, found {}", rows.len()),
-        ));
-    }
+    let rows = text::square_rows(path, &content, 4, "intrinsics")?;
     let k = |r: usize, c: usize| rows[r].1[c];
     for (r, c, want) in [
         (0, 1, 0.0),

@@ -43,29 +43,7 @@ pub(crate) fn frame_number(name: &str) -> Option<u64> {
 /// quaternion `[qx, qy, qz, qw]`.
 pub(crate) fn parse_pose_file(path: &Path) -> Result<([f64; 3], [f64; 4]), ReadError> {
     let content = text::read_text(path)?;
-    let mut rows: Vec<(usize, Vec<f64>)> = Vec::with_capacity(4);
-    let mut last_line = 1;
-    for (line, l) in text::data_lines(&content) {
-        if rows.len() == 4 {
-            return Err(text::parse_error(
-                path,
-                line,
-                "more than 4 rows in a 4x4 pose matrix",
-            ));
-        }
-        rows.push((
-            line,
-            text::numbers(path, line, l, &[4], "a row of the 4x4 pose")?,
-        ));
-        last_line = line;
-    }
-    if rows.len() < 4 {
-        return Err(text::parse_error(
-            path,
-            last_line,
-            format!("a 4x4 pose matrix has 4 rows, found {}", rows.len()),
-        ));
-    }
+    let rows = text::square_rows(path, &content, 4, "pose")?;
     let m = |r: usize, c: usize| rows[r].1[c];
     let first_line = rows[0].0;
     let r: [[f64; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| m(i, j)));

@@ -67,6 +67,40 @@ pub(crate) fn numbers(
     Ok(out)
 }
 
+/// The rows of an `n` x `n` matrix written a row a line in `content` (the
+/// text of `path`), each with its 1-based line; `what` names the matrix in
+/// errors ("pose", "intrinsics"): a row of another length, a row too many
+/// or too few is an error naming the line.
+pub(crate) fn square_rows(
+    path: &Path,
+    content: &str,
+    n: usize,
+    what: &str,
+) -> Result<Vec<(usize, Vec<f64>)>, ReadError> {
+    let mut rows: Vec<(usize, Vec<f64>)> = Vec::with_capacity(n);
+    let mut last_line = 1;
+    for (line, l) in data_lines(content) {
+        if rows.len() == n {
+            return Err(parse_error(
+                path,
+                line,
+                format!("more than {n} rows in a {n}x{n} {what} matrix"),
+            ));
+        }
+        let row_of = format!("a row of the {n}x{n} {what} matrix");
+        rows.push((line, numbers(path, line, l, &[n], &row_of)?));
+        last_line = line;
+    }
+    if rows.len() < n {
+        return Err(parse_error(
+            path,
+            last_line,
+            format!("a {n}x{n} {what} matrix has {n} rows, found {}", rows.len()),
+        ));
+    }
+    Ok(rows)
+}
+
 /// Checks a translation and quaternion `[qx, qy, qz, qw]` with the core's
 /// rules and returns the quaternion normalised in `f64`.
 pub(crate) fn checked_quaternion(
