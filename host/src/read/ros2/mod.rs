@@ -388,44 +388,29 @@ impl Topics {
             .collect()
     }
 
-    /// Image topics (raw) whose first message has one of `encodings`.
-    fn images_in(&self, encodings: &[&str]) -> Vec<&str> {
+    /// Image topics (raw or compressed) whose first message passes `first`.
+    fn image_topics(&self, first: impl Fn(&ImageRef) -> bool) -> Vec<&str> {
         self.images
             .iter()
-            .filter(|(_, v)| {
-                v.first().is_some_and(|i| {
-                    i.compressed.is_none() && encodings.contains(&i.encoding.as_str())
-                })
-            })
+            .filter(|(_, v)| v.first().is_some_and(&first))
             .map(|(t, _)| t.as_str())
             .collect()
+    }
+
+    /// Image topics (raw) whose first message has one of `encodings`.
+    fn images_in(&self, encodings: &[&str]) -> Vec<&str> {
+        self.image_topics(|i| i.compressed.is_none() && encodings.contains(&i.encoding.as_str()))
     }
 
     /// CompressedImage topics whose first message's format is a colour JPEG
     /// or PNG.
     fn compressed_color(&self) -> Vec<&str> {
-        self.images
-            .iter()
-            .filter(|(_, v)| {
-                v.first().is_some_and(|i| {
-                    i.compressed.is_some() && color_codec::codec(&i.encoding).is_some()
-                })
-            })
-            .map(|(t, _)| t.as_str())
-            .collect()
+        self.image_topics(|i| i.compressed.is_some() && color_codec::codec(&i.encoding).is_some())
     }
 
     /// CompressedImage topics whose first message's format names depth.
     fn compressed_depth(&self) -> Vec<&str> {
-        self.images
-            .iter()
-            .filter(|(_, v)| {
-                v.first().is_some_and(|i| {
-                    i.compressed.is_some() && depth_codec::is_depth_format(&i.encoding)
-                })
-            })
-            .map(|(t, _)| t.as_str())
-            .collect()
+        self.image_topics(|i| i.compressed.is_some() && depth_codec::is_depth_format(&i.encoding))
     }
 }
 
