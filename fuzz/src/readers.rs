@@ -10,6 +10,7 @@
 //! consistent (sizes, frame order, round trips), and the decoders with a
 //! fast path must agree with a plain one.
 
+use placedb_host::read::ros2::wire::Wire;
 use placedb_host::read::ros2::{self, bag, msgs, ros1_msgs, Ros2Options};
 use placedb_host::read::{self, fuzzing, ReadOptions};
 use placedb_host::vector_unit::VectorUnit;
@@ -68,7 +69,7 @@ pub fn compressed_depth(data: &[u8]) {
 /// decodes, and as a `.mcap` file read by the full bag reader (with and
 /// without a TF frame to take poses from).
 pub fn ros2(data: &[u8]) {
-    cdr_messages(data);
+    wire_messages(Wire::Cdr, &CDR, data);
     if data.starts_with(b"\x89MCAP") {
         whole_reader(&InputFile::new(data, "mcap"));
     }
@@ -79,66 +80,11 @@ pub fn ros2(data: &[u8]) {
 /// message it hands on reads back the same by its place) and read by the
 /// full bag reader.
 pub fn ros1(data: &[u8]) {
-    ros1_messages(data);
+    wire_messages(Wire::Ros1, &ROS1, data);
     if data.starts_with(b"#ROSBAG V2.0\n") {
         let file = InputFile::new(data, "bag");
         container_walk(file.path());
         whole_reader(&file);
-    }
-}
-
-/// Decoded ROS 1 messages re-encode to messages that decode to the same
-/// fields (stamps aside, as for CDR).
-fn ros1_messages(data: &[u8]) {
-    if let Ok(img) = ros1_msgs::image(data) {
-        let again = ros1_msgs::encode::image(&img);
-        let back = ros1_msgs::image(&again).expect("a re-encoded ROS 1 Image decodes");
-        assert_eq!(
-            (back.width, back.height, back.step, back.is_bigendian),
-            (img.width, img.height, img.step, img.is_bigendian)
-        );
-        assert_eq!(
-            (&back.encoding, &back.header.frame_id, back.data),
-            (&img.encoding, &img.header.frame_id, img.data)
-        );
-        for scale in [1000.0, 5000.0] {
-            if let Ok(d) = ros2::decode_depth(&img, scale) {
-                assert_eq!(d.data.len(), img.width as usize * img.height as usize);
-            }
-        }
-    }
-    if let Ok(c) = ros1_msgs::compressed_image(data) {
-        let again = ros1_msgs::encode::compressed_image(&c);
-        let back = ros1_msgs::compressed_image(&again)
-            .expect("a re-encoded ROS 1 CompressedImage decodes");
-        assert_eq!((&back.format, back.data), (&c.format, c.data));
-    }
-    if let Ok(info) = ros1_msgs::camera_info(data) {
-        let back = ros1_msgs::camera_info(&ros1_msgs::encode::camera_info(&info))
-            .expect("a re-encoded ROS 1 CameraInfo decodes");
-        assert_eq!((back.width, back.height), (info.width, info.height));
-        assert_eq!(bits(&back.k), bits(&info.k));
-        assert_eq!(bits(&back.d), bits(&info.d));
-    }
-    if let Ok((h, p)) = ros1_msgs::pose_stamped(data) {
-        let (back_h, back) = ros1_msgs::pose_stamped(&ros1_msgs::encode::pose_stamped(&h, &p))
-            .expect("a re-encoded ROS 1 PoseStamped decodes");
-        assert_eq!(back_h.frame_id, h.frame_id);
-        assert_eq!(pose_bits(&back), pose_bits(&p));
-    }
-    if let Ok((h, p)) = ros1_msgs::odometry(data) {
-        let (_, back) = ros1_msgs::odometry(&ros1_msgs::encode::odometry(&h, "child", &p))
-            .expect("a re-encoded ROS 1 Odometry decodes");
-        assert_eq!(pose_bits(&back), pose_bits(&p));
-    }
-    if let Ok(tf) = ros1_msgs::tf_message(data) {
-        let back = ros1_msgs::tf_message(&ros1_msgs::encode::tf_message(&tf))
-            .expect("a re-encoded ROS 1 TFMessage decodes");
-        assert_eq!(back.len(), tf.len());
-        for (b, t) in back.iter().zip(&tf) {
-            assert_eq!(b.child_frame_id, t.child_frame_id);
-            assert_eq!(pose_bits(&b.pose), pose_bits(&t.pose));
-        }
     }
 }
 
@@ -162,12 +108,43 @@ fn container_walk(path: &Path) {
     }
 }
 
-/// Decoded messages re-encode to messages that decode to the same fields
-/// (stamps aside: a header's seconds and nanoseconds are kept as one `f64`).
-fn cdr_messages(data: &[u8]) {
-    if let Ok(img) = msgs::image(data) {
-        let again = msgs::encode_image(&img);
-        let back = msgs::image(&again).expect("a re-encoded Image decodes");
+/// A wire's encoders, to re-encode what its decoders ([`Wire`]) read.
+struct Encoders {
+    image: fn(&msgs::Image<'_>) -> Vec<u8>,
+    compressed_image: fn(&msgs::CompressedImage<'_>) -> Vec<u8>,
+    camera_info: fn(&msgs::CameraInfo) -> Vec<u8>,
+    pose_stamped: fn(&msgs::Header, &msgs::PoseMsg) -> Vec<u8>,
+    odometry: fn(&msgs::Header, &str, &msgs::PoseMsg) -> Vec<u8>,
+    tf_message: fn(&[msgs::Transform]) -> Vec<u8>,
+}
+
+const CDR: Encoders = Encoders {
+    image: msgs::encode_image,
+    compressed_image: msgs::encode_compressed_image,
+    camera_info: msgs::encode_camera_info,
+    pose_stamped: msgs::encode_pose_stamped,
+    odometry: msgs::encode_odometry,
+    tf_message: msgs::encode_tf_message,
+};
+
+const ROS1: Encoders = Encoders {
+    image: ros1_msgs::encode::image,
+    compressed_image: ros1_msgs::encode::compressed_image,
+    camera_info: ros1_msgs::encode::camera_info,
+    pose_stamped: ros1_msgs::encode::pose_stamped,
+    odometry: ros1_msgs::encode::odometry,
+    tf_message: ros1_msgs::encode::tf_message,
+};
+
+/// `data` as one message of every kind the reader decodes on `wire`:
+/// what decodes re-encodes (`enc`) to a message that decodes to the same
+/// fields (stamps aside: a header's seconds and nanoseconds are kept as one
+/// `f64`), and an image decodes to depth and colour of exactly its pixels.
+fn wire_messages(wire: Wire, enc: &Encoders, data: &[u8]) {
+    let again = |what: &str| format!("a re-encoded {wire:?} {what} decodes");
+    if let Ok(img) = wire.image(data) {
+        let bytes = (enc.image)(&img);
+        let back = wire.image(&bytes).expect(&again("Image"));
         assert_eq!(
             (back.width, back.height, back.step, back.is_bigendian),
             (img.width, img.height, img.step, img.is_bigendian)
@@ -190,27 +167,38 @@ fn cdr_messages(data: &[u8]) {
             assert_eq!(c.rgb.len(), 3 * pixels);
         }
     }
-    if let Ok(info) = msgs::camera_info(data) {
-        let back = msgs::camera_info(&msgs::encode_camera_info(&info))
-            .expect("a re-encoded CameraInfo decodes");
+    if let Ok(c) = wire.compressed_image(data) {
+        let bytes = (enc.compressed_image)(&c);
+        let back = wire
+            .compressed_image(&bytes)
+            .expect(&again("CompressedImage"));
+        assert_eq!((&back.format, back.data), (&c.format, c.data));
+    }
+    if let Ok(info) = wire.camera_info(data) {
+        let back = wire
+            .camera_info(&(enc.camera_info)(&info))
+            .expect(&again("CameraInfo"));
         assert_eq!((back.width, back.height), (info.width, info.height));
         assert_eq!(bits(&back.k), bits(&info.k));
         assert_eq!(bits(&back.d), bits(&info.d));
     }
-    if let Ok((h, p)) = msgs::pose_stamped(data) {
-        let (back_h, back) = msgs::pose_stamped(&msgs::encode_pose_stamped(&h, &p))
-            .expect("a re-encoded PoseStamped decodes");
+    if let Ok((h, p)) = wire.pose_stamped(data) {
+        let (back_h, back) = wire
+            .pose_stamped(&(enc.pose_stamped)(&h, &p))
+            .expect(&again("PoseStamped"));
         assert_eq!(back_h.frame_id, h.frame_id);
         assert_eq!(pose_bits(&back), pose_bits(&p));
     }
-    if let Ok((h, p)) = msgs::odometry(data) {
-        let (_, back) = msgs::odometry(&msgs::encode_odometry(&h, "child", &p))
-            .expect("a re-encoded Odometry decodes");
+    if let Ok((h, p)) = wire.odometry(data) {
+        let (_, back) = wire
+            .odometry(&(enc.odometry)(&h, "child", &p))
+            .expect(&again("Odometry"));
         assert_eq!(pose_bits(&back), pose_bits(&p));
     }
-    if let Ok(tf) = msgs::tf_message(data) {
-        let back = msgs::tf_message(&msgs::encode_tf_message(&tf))
-            .expect("a re-encoded TFMessage decodes");
+    if let Ok(tf) = wire.tf_message(data) {
+        let back = wire
+            .tf_message(&(enc.tf_message)(&tf))
+            .expect(&again("TFMessage"));
         assert_eq!(back.len(), tf.len());
         for (b, t) in back.iter().zip(&tf) {
             assert_eq!(b.child_frame_id, t.child_frame_id);

@@ -44,7 +44,7 @@ pub mod ros1_msgs;
 pub mod ros1_storage;
 mod sqlite_storage;
 pub mod tf_tree;
-mod wire;
+pub mod wire;
 
 use super::timed_poses::{self, TimedPose};
 use super::{text, ReadOptions};

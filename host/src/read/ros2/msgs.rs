@@ -1,6 +1,6 @@
 //! The ROS 2 messages the bag reader needs, decoded from CDR ([`super::cdr`])
 //! field by field as their `.msg` definitions lay them out, and encoded the
-//! same way (for tests and tools that write bags).
+//! same way (for tests, fuzz checks and tools that write bags).
 //!
 //! | type | fields read |
 //! |---|---|
@@ -209,6 +209,14 @@ pub fn encode_image(m: &Image<'_>) -> Vec<u8> {
     w.finish()
 }
 
+/// Encodes a CompressedImage.
+pub fn encode_compressed_image(m: &CompressedImage<'_>) -> Vec<u8> {
+    let mut w = Writer::new(true);
+    put_header(&mut w, &m.header);
+    w.string(&m.format).bytes(m.data);
+    w.finish()
+}
+
 /// Encodes a CameraInfo (plumb_bob; `r` identity, `p` from `k`, no binning, no ROI).
 pub fn encode_camera_info(m: &CameraInfo) -> Vec<u8> {
     let mut w = Writer::new(true);
@@ -291,6 +299,12 @@ mod tests {
         };
         let bytes = encode_image(&img);
         assert_eq!(image(&bytes).unwrap(), img);
+        let c = CompressedImage {
+            header: h(1.5, "cam"),
+            format: "16UC1; compressedDepth png".into(),
+            data: &data,
+        };
+        assert_eq!(compressed_image(&encode_compressed_image(&c)).unwrap(), c);
         let info = CameraInfo {
             header: h(1.0, "cam"),
             height: 480,
