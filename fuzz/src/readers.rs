@@ -141,10 +141,11 @@ const ROS1: Encoders = Encoders {
 /// fields (stamps aside: a header's seconds and nanoseconds are kept as one
 /// `f64`), and an image decodes to depth and colour of exactly its pixels.
 fn wire_messages(wire: Wire, enc: &Encoders, data: &[u8]) {
-    let again = |what: &str| format!("a re-encoded {wire:?} {what} decodes");
     if let Ok(img) = wire.image(data) {
         let bytes = (enc.image)(&img);
-        let back = wire.image(&bytes).expect(&again("Image"));
+        let back = wire
+            .image(&bytes)
+            .unwrap_or_else(|e| panic!("a re-encoded {wire:?} Image does not decode: {e}"));
         assert_eq!(
             (back.width, back.height, back.step, back.is_bigendian),
             (img.width, img.height, img.step, img.is_bigendian)
@@ -169,15 +170,15 @@ fn wire_messages(wire: Wire, enc: &Encoders, data: &[u8]) {
     }
     if let Ok(c) = wire.compressed_image(data) {
         let bytes = (enc.compressed_image)(&c);
-        let back = wire
-            .compressed_image(&bytes)
-            .expect(&again("CompressedImage"));
+        let back = wire.compressed_image(&bytes).unwrap_or_else(|e| {
+            panic!("a re-encoded {wire:?} CompressedImage does not decode: {e}")
+        });
         assert_eq!((&back.format, back.data), (&c.format, c.data));
     }
     if let Ok(info) = wire.camera_info(data) {
         let back = wire
             .camera_info(&(enc.camera_info)(&info))
-            .expect(&again("CameraInfo"));
+            .unwrap_or_else(|e| panic!("a re-encoded {wire:?} CameraInfo does not decode: {e}"));
         assert_eq!((back.width, back.height), (info.width, info.height));
         assert_eq!(bits(&back.k), bits(&info.k));
         assert_eq!(bits(&back.d), bits(&info.d));
@@ -185,20 +186,20 @@ fn wire_messages(wire: Wire, enc: &Encoders, data: &[u8]) {
     if let Ok((h, p)) = wire.pose_stamped(data) {
         let (back_h, back) = wire
             .pose_stamped(&(enc.pose_stamped)(&h, &p))
-            .expect(&again("PoseStamped"));
+            .unwrap_or_else(|e| panic!("a re-encoded {wire:?} PoseStamped does not decode: {e}"));
         assert_eq!(back_h.frame_id, h.frame_id);
         assert_eq!(pose_bits(&back), pose_bits(&p));
     }
     if let Ok((h, p)) = wire.odometry(data) {
         let (_, back) = wire
             .odometry(&(enc.odometry)(&h, "child", &p))
-            .expect(&again("Odometry"));
+            .unwrap_or_else(|e| panic!("a re-encoded {wire:?} Odometry does not decode: {e}"));
         assert_eq!(pose_bits(&back), pose_bits(&p));
     }
     if let Ok(tf) = wire.tf_message(data) {
         let back = wire
             .tf_message(&(enc.tf_message)(&tf))
-            .expect(&again("TFMessage"));
+            .unwrap_or_else(|e| panic!("a re-encoded {wire:?} TFMessage does not decode: {e}"));
         assert_eq!(back.len(), tf.len());
         for (b, t) in back.iter().zip(&tf) {
             assert_eq!(b.child_frame_id, t.child_frame_id);
