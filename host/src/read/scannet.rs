@@ -79,14 +79,12 @@ fn parse_intrinsics(path: &Path) -> Result<CameraModel, ReadError> {
     Ok(model)
 }
 
-/// Whether a pose file holds the invalid pose ScanNet writes for a frame
-/// whose tracking was lost: any `-inf`, `inf` or NaN entry.
-fn is_invalid_pose(path: &Path) -> Result<bool, ReadError> {
-    let content = text::read_text(path)?;
-    let invalid = text::data_lines(&content)
+/// Whether a pose file's `content` is the invalid pose ScanNet writes for
+/// a frame whose tracking was lost: any `-inf`, `inf` or NaN entry.
+fn is_invalid_pose(content: &str) -> bool {
+    text::data_lines(content)
         .flat_map(|(_, l)| l.split_whitespace())
-        .any(|w| w.parse::<f64>().is_ok_and(|v| !v.is_finite()));
-    Ok(invalid)
+        .any(|w| w.parse::<f64>().is_ok_and(|v| !v.is_finite()))
 }
 
 /// Reads a ScanNet export directory.
@@ -137,11 +135,12 @@ pub(crate) fn read(dir: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError
             ));
         }
         let pose_path = pose_dir.join(&pose_name);
-        if is_invalid_pose(&pose_path)? {
+        let content = text::read_text(&pose_path)?;
+        if is_invalid_pose(&content) {
             invalid.push(format!("pose/{pose_name}"));
             continue;
         }
-        let (translation, rotation) = sevenscenes::parse_pose_file(&pose_path)?;
+        let (translation, rotation) = sevenscenes::parse_pose_text(&pose_path, &content)?;
         let color_name = format!("{number}.jpg");
         frames.push(FrameInfo {
             index: frames.len(),
@@ -204,13 +203,9 @@ mod tests {
         assert_eq!(frame_number(".png", ".png"), None);
         let dir = std::env::temp_dir().join(format!("placedb-scannet-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let p = dir.join("0.txt");
-        std::fs::write(&p, "-inf -inf -inf -inf\n".repeat(4)).unwrap();
-        assert!(is_invalid_pose(&p).unwrap());
-        std::fs::write(&p, "1 0 0 nan\n0 1 0 0\n0 0 1 0\n0 0 0 1\n").unwrap();
-        assert!(is_invalid_pose(&p).unwrap());
-        std::fs::write(&p, "1 0 0 0.5\n0 1 0 0\n0 0 1 0\n0 0 0 1\n").unwrap();
-        assert!(!is_invalid_pose(&p).unwrap());
+        assert!(is_invalid_pose(&"-inf -inf -inf -inf\n".repeat(4)));
+        assert!(is_invalid_pose("1 0 0 nan\n0 1 0 0\n0 0 1 0\n0 0 0 1\n"));
+        assert!(!is_invalid_pose("1 0 0 0.5\n0 1 0 0\n0 0 1 0\n0 0 0 1\n"));
         let k = dir.join("k.txt");
         std::fs::write(&k, "500 0 320 0\n0 501 240 0\n0 0 1 0\n0 0 0 1\n").unwrap();
         assert_eq!(parse_intrinsics(&k).unwrap().fy, 501.0);

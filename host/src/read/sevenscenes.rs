@@ -42,8 +42,15 @@ pub(crate) fn frame_number(name: &str) -> Option<u64> {
 /// Parses a 4x4 camera-to-world pose file into a translation and a unit
 /// quaternion `[qx, qy, qz, qw]`.
 pub(crate) fn parse_pose_file(path: &Path) -> Result<([f64; 3], [f64; 4]), ReadError> {
-    let content = text::read_text(path)?;
-    let rows = text::square_rows(path, &content, 4, "pose")?;
+    parse_pose_text(path, &text::read_text(path)?)
+}
+
+/// [`parse_pose_file`] of the file's `content`, already read.
+pub(crate) fn parse_pose_text(
+    path: &Path,
+    content: &str,
+) -> Result<([f64; 3], [f64; 4]), ReadError> {
+    let rows = text::square_rows(path, content, 4, "pose")?;
     let m = |r: usize, c: usize| rows[r].1[c];
     let first_line = rows[0].0;
     let r: [[f64; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| m(i, j)));

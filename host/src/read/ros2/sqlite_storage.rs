@@ -39,35 +39,21 @@ pub fn scan(
     visit: &mut dyn FnMut(Message<'_>) -> Result<(), BagError>,
 ) -> Result<(), BagError> {
     let db = open(path)?;
-    let mut channels: HashMap<i64, Channel> = HashMap::new();
-    {
-        let mut topics = db
-            .prepare("SELECT id, name, type, serialization_format FROM topics")
-            .map_err(|e| damaged(path, e, "reading its topics table"))?;
-        let mut rows = topics
-            .query([])
-            .map_err(|e| damaged(path, e, "reading its topics table"))?;
-        while let Some(row) = rows
-            .next()
-            .map_err(|e| damaged(path, e, "reading its topics table"))?
-        {
-            let field = |i| -> Result<String, BagError> {
-                row.get(i)
-                    .map_err(|e| damaged(path, e, "reading its topics table"))
-            };
-            let id: i64 = row
-                .get(0)
-                .map_err(|e| damaged(path, e, "reading its topics table"))?;
-            channels.insert(
-                id,
-                Channel {
-                    topic: field(1)?,
-                    schema: field(2)?,
-                    encoding: field(3)?,
-                },
-            );
-        }
-    }
+    let channels: HashMap<i64, Channel> = db
+        .prepare("SELECT id, name, type, serialization_format FROM topics")
+        .and_then(|mut topics| {
+            topics
+                .query_map([], |row| {
+                    let channel = Channel {
+                        topic: row.get(1)?,
+                        schema: row.get(2)?,
+                        encoding: row.get(3)?,
+                    };
+                    Ok((row.get(0)?, channel))
+                })?
+                .collect()
+        })
+        .map_err(|e| damaged(path, e, "reading its topics table"))?;
     let mut messages = db
         .prepare("SELECT id, topic_id, timestamp, data FROM messages ORDER BY id")
         .map_err(|e| damaged(path, e, "reading its messages table"))?;
