@@ -97,8 +97,8 @@ impl<L: Link> Client<L> {
             .first_wait(ceiling)
     }
 
-    /// Takes a round trip of kind `kind` measured outside [`exchange`] (an
-    /// export batch's records, answered without a resend).
+    /// Takes a round trip of a message of kind `kind` answered at its first
+    /// sending ([`exchange`]'s, and an export batch's records).
     pub(crate) fn note_round_trip(&mut self, kind: &'static str, rtt: Duration) {
         self.resend.entry(kind).or_default().sample(rtt);
     }
@@ -305,12 +305,7 @@ pub fn exchange<L: Link>(
     let seq = client.take_seq();
     let mut got = Vec::new();
     let kind = kind(&msg);
-    let mut wait = client
-        .resend
-        .get(kind)
-        .copied()
-        .unwrap_or_default()
-        .first_wait(resend_after);
+    let mut wait = client.first_wait(kind, resend_after);
     let (mut sent, mut counted) = (0u64, 0usize);
     while counted <= retries {
         if sent > 0 {
@@ -347,11 +342,7 @@ pub fn exchange<L: Link>(
                 Some(s) if s == seq => {
                     got.push(item);
                     if sent == 0 {
-                        client
-                            .resend
-                            .entry(kind)
-                            .or_default()
-                            .sample(sent_at.elapsed());
+                        client.note_round_trip(kind, sent_at.elapsed());
                     }
                     return Ok((got, sent));
                 }
