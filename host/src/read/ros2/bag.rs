@@ -100,10 +100,8 @@ enum Storage {
     Ros1,
 }
 
-/// The storage of the file at `path`, by its first bytes (MCAP when they
-/// are neither sqlite3's nor a ROS 1 bag's: the MCAP reader names the
-/// file if they are not MCAP's either).
-fn storage(path: &Path) -> Result<Storage, BagError> {
+/// The storage the first bytes of the file at `path` name, if any.
+fn by_magic(path: &Path) -> Result<Option<Storage>, BagError> {
     let mut head = [0u8; 16];
     let mut file = std::fs::File::open(path).map_err(|e| err(path, e.to_string()))?;
     let mut got = 0;
@@ -115,8 +113,29 @@ fn storage(path: &Path) -> Result<Storage, BagError> {
         }
     }
     Ok(if &head == SQLITE_MAGIC {
-        Storage::Sqlite
+        Some(Storage::Sqlite)
     } else if head.starts_with(ros1_storage::MAGIC) {
+        Some(Storage::Ros1)
+    } else {
+        None
+    })
+}
+
+/// The storage of the file at `path`, by its first bytes; when they are
+/// neither sqlite3's nor a ROS 1 bag's, by its name (`.db3`, `.bag`), else
+/// MCAP: the reader of that storage then says in its words what the file
+/// is not.
+fn storage(path: &Path) -> Result<Storage, BagError> {
+    if let Some(storage) = by_magic(path)? {
+        return Ok(storage);
+    }
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy())
+        .unwrap_or_default();
+    Ok(if name.ends_with(".db3") {
+        Storage::Sqlite
+    } else if name.ends_with(".bag") {
         Storage::Ros1
     } else {
         Storage::Mcap
@@ -125,7 +144,7 @@ fn storage(path: &Path) -> Result<Storage, BagError> {
 
 /// Whether the file at `path` is a ROS 1 bag of format 2.0, by its first bytes.
 pub fn is_ros1(path: &Path) -> Result<bool, BagError> {
-    Ok(matches!(storage(path)?, Storage::Ros1))
+    Ok(matches!(by_magic(path)?, Some(Storage::Ros1)))
 }
 
 /// Walks every message of file `index` (`path`), in file order. Returns
@@ -157,5 +176,27 @@ pub fn fetch(path: &Path, at: Location) -> Result<Vec<u8>, BagError> {
             len,
             in_chunk,
         } => ros1_storage::fetch(path, offset, len, in_chunk),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_file_of_no_storage_is_refused_in_the_words_of_the_one_its_name_says() {
+        let dir = std::env::temp_dir().join(format!("placedb-bag-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for (name, says) in [
+            ("a.db3", "sqlite3"),
+            ("a.bag", "not a ROS 1 bag"),
+            ("a.mcap", "not an MCAP file"),
+        ] {
+            let path = dir.join(name);
+            std::fs::write(&path, b"garbage, not a bag at all").unwrap();
+            let e = scan(0, &path, &mut |_| Ok(())).unwrap_err();
+            assert!(e.1.contains(says), "{name}: {}", e.1);
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

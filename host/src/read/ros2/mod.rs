@@ -458,6 +458,10 @@ fn choose(
     }
     match candidates {
         [one] => Ok(one.to_string()),
+        [] if topics.kinds.is_empty() => Err(text::layout(
+            dir,
+            format!("no {what} in the bag: it has no topic at all"),
+        )),
         [] => Err(text::layout(
             dir,
             format!(
