@@ -265,3 +265,18 @@ fn a_frame_of_the_wrong_size_is_named_with_its_directory() {
         "{err}"
     );
 }
+
+#[test]
+fn bench_refuses_a_bag_that_is_not_a_recording_before_it_times_anything() {
+    let tmp = TempDir::new("bench-bag");
+    let missing = tmp.arg("missing.mcap");
+    let run = placedb(&["bench", "--bag", &missing, "--solvers", "in-order"]);
+    let err = stderr(&run);
+    assert_eq!(run.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("--bag") && err.contains("missing.mcap"),
+        "{err}"
+    );
+    // Refused at once: no row of the table was printed.
+    assert!(String::from_utf8_lossy(&run.stdout).is_empty());
+}

@@ -18,6 +18,10 @@ const PAPER_7SCENES: (f64, f64) = (51.0, 400.0);
 /// The timing table: every solver of `a.solvers` on each input, `a.repeat`
 /// rounds, printed with the ratios to the decode-only floor.
 pub fn table(a: &BenchOptions) -> Result<(), Error> {
+    // A recording that is not one is refused before any row runs.
+    for bag in &a.bags {
+        read::detect(bag).map_err(|e| format!("--bag: {e}"))?;
+    }
     let exe = std::env::current_exe()?;
     let out = std::env::temp_dir().join(format!("placedb-bench-{}", std::process::id()));
     let mut inputs: Vec<(String, Vec<String>)> = vec![(
