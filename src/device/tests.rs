@@ -400,6 +400,43 @@ fn input_received_in_place_gives_the_same_replies() {
     });
 }
 
+/// The host's resynchronisation byte (a lone 0x00) taken by the copying
+/// path, which the Pico uses whenever its in-place room is short, must not
+/// shift the next frame received in place (it once was read one byte off:
+/// `BadFraming` with no sequence number, so the host could only time out).
+/// The lone byte is given at each of the four alignments.
+#[test]
+fn a_lone_delimiter_copied_then_a_frame_in_place_is_answered() {
+    on_big_stack(|| {
+        let mut buf = vec![0u8; crate::protocol::MAX_FRAME_LEN];
+        let request = HostFrame {
+            seq: 7,
+            msg: HostMessage::StatusRequest,
+        };
+        let frame = encode(&request, &mut buf).unwrap().to_vec();
+        let words = [0u32; 2];
+        let bytes: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
+        for offset in 0..4 {
+            let mut device = Small::new_boxed();
+            let mut replies = Vec::new();
+            let lone = &bytes[offset..offset + 1];
+            device.receive_logged(lone, &mut NoJournal, &mut |f| replies.push(f.to_vec()));
+            assert!(replies.is_empty(), "a lone delimiter is not a message");
+            let room = device.receive_room(64);
+            room[..frame.len()].copy_from_slice(&frame);
+            device.commit_received(frame.len());
+            while device.holds_input() {
+                device.receive_held(&mut NoJournal, &mut |f| replies.push(f.to_vec()));
+            }
+            let got: Vec<_> = replies.iter().map(|r| decode_reply(r)).collect();
+            assert!(
+                matches!(got.as_slice(), [DeviceMessage::Status(s)] if s.seq == 7),
+                "lone 0x00 at alignment {offset}: {got:?}"
+            );
+        }
+    });
+}
+
 #[test]
 fn a_retransmitted_message_is_answered_again_not_applied_twice() {
     on_big_stack(|| {
