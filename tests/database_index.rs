@@ -234,7 +234,7 @@ fn an_uncovered_frame_after_a_restore_is_labelled_as_without_it() {
                 .unwrap();
         }
         for i in 0..4 {
-            again.restore_decided(i, Decision::Taken).unwrap();
+            again.restore_decided(i, Decision::Taken, 0).unwrap();
         }
         let reads = store.reads;
         let mut after = Vec::new();

@@ -887,7 +887,7 @@ fn fuzzed_record<'b>(r: &mut Reader<'_>, buf: &'b mut [u8]) -> Option<&'b [u8]> 
         }
         4 => {
             let n = 1 + usize::from(r.u8()) % DECISION_BATCH;
-            let decisions: Vec<_> = (0..n).map(|_| (r.f64(), kind(r))).collect();
+            let decisions: Vec<_> = (0..n).map(|_| (r.f64(), kind(r), r.u32())).collect();
             Record::encode_decisions(frame(r), &decisions, buf).ok()
         }
         5 => {

@@ -88,8 +88,10 @@ impl Losses {
 /// counters, zero or not.
 pub fn online_summary(profile: &str, window: u16, st: &placedb::Status) -> String {
     format!(
-        "online core: profile {profile}, window {window}, {} by sketch, {} truncated, {} uncovered by capacity, {} outside the key range",
+        "online core: profile {profile}, window {window}, {} by sketch ({} measured by sketch, {} database frames without exact keys in the store), {} truncated, {} uncovered by capacity, {} outside the key range",
         plural(st.sketched_frames.into(), "frame", "frames"),
+        st.sketch_compared_frames,
+        st.unkeyed_frames,
         st.truncated_frames,
         st.uncovered_frames,
         plural(st.out_of_range_points.into(), "point", "points"),
@@ -110,6 +112,18 @@ pub fn device_warnings(st: &DeviceCounters) -> Vec<String> {
         "frame",
         "frames",
         "compared by sketch (its key pool was full): sketched_frames",
+    );
+    say(
+        st.unkeyed_frames,
+        "database frame",
+        "database frames",
+        "kept without exact keys (no room for them in the key pool or the key budget), compared by sketch: unkeyed_frames",
+    );
+    say(
+        st.sketch_compared_frames,
+        "frame",
+        "frames",
+        "measured by sketch against some frame (a coverage decision may rest on an estimate): sketch_compared_frames",
     );
     say(
         st.truncated_frames,
@@ -137,6 +151,10 @@ pub fn device_warnings(st: &DeviceCounters) -> Vec<String> {
 pub struct DeviceCounters {
     /// Frames compared by sketch.
     pub sketched_frames: u64,
+    /// Database frames stored without exact keys.
+    pub unkeyed_frames: u64,
+    /// Frames measured by sketch against some frame.
+    pub sketch_compared_frames: u64,
     /// Frames whose voxel set was truncated.
     pub truncated_frames: u64,
     /// Frames decided uncovered for lack of capacity.
@@ -150,6 +168,8 @@ impl DeviceCounters {
     pub fn of_selector(st: &placedb::Status) -> Self {
         DeviceCounters {
             sketched_frames: st.sketched_frames.into(),
+            unkeyed_frames: st.unkeyed_frames.into(),
+            sketch_compared_frames: st.sketch_compared_frames.into(),
             truncated_frames: st.truncated_frames.into(),
             uncovered_frames: st.uncovered_frames.into(),
             labels_dropped: 0,
@@ -160,6 +180,8 @@ impl DeviceCounters {
     pub fn of_device(st: &placedb::protocol::Status) -> Self {
         DeviceCounters {
             sketched_frames: st.sketched_frames.into(),
+            unkeyed_frames: st.unkeyed_frames.into(),
+            sketch_compared_frames: st.sketch_compared_frames.into(),
             truncated_frames: st.truncated_frames.into(),
             uncovered_frames: st.uncovered_frames.into(),
             labels_dropped: st.labels_dropped.into(),

@@ -516,8 +516,8 @@ fn reply_queue_backpressure() {
 
     // The device replies with 16 longest frames (the queue's size) and reads
     // 64 bytes of input after each. Nothing waits: the IN endpoint holds a
-    // packet (64 bytes), the queue the rest. Input is read while 2 KiB of
-    // the queue are free: after frames 1..=8 (8 * 256 - 64 bytes queued),
+    // packet (64 bytes), the queue the rest. Input is read while half of
+    // the queue is free: after frames 1..=8 (8 * MAX_REPLY_LEN - 64 bytes queued),
     // not after 9..=16.
     assert_eq!(TX_QUEUE_LEN, 16 * MAX_REPLY_LEN);
     assert_eq!(RX_HEADROOM, TX_QUEUE_LEN / 2);
@@ -563,14 +563,14 @@ fn reply_queue_backpressure() {
             w.polls > polls_before + 100,
             "send returned before the host read"
         );
-        // It returned as soon as the frame fitted: 192 bytes had to leave
-        // the full queue (64 fitted at once), so the host has taken the
-        // packet that waited and two of those three.
-        assert_eq!(w.received.len(), 3 * 64);
+        // It returned as soon as the frame fitted: all but 64 bytes of it
+        // had to leave the full queue (64 fitted at once), so the host has
+        // taken as many packets as that needs, and no more.
+        assert_eq!(w.received.len(), (MAX_REPLY_LEN - 64).div_ceil(64) * 64);
     }
 
     // The host reads everything: every reply byte arrives once, in order;
-    // input is read again once 2 KiB of the queue are free, all of it.
+    // input is read again once half of the queue is free, all of it.
     let replies: Vec<u8> = (0..17).flat_map(frame).collect();
     let mut turns = 0;
     loop {

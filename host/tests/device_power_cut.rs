@@ -204,13 +204,10 @@ impl<D: AnyDevice> Rig<D> {
         self.silent_while = None;
     }
 
-    /// Flash steps so far (`None` without flash).
-    fn steps(&mut self) -> Option<u64> {
-        self.log.as_mut().map(|log| log.flash().steps())
-    }
-
     fn is_off(&mut self) -> bool {
-        self.log.as_mut().is_some_and(|log| log.flash().is_off())
+        self.log
+            .as_mut()
+            .is_some_and(|log| log.flash().inner().is_off())
     }
 
     /// The device's status (changes nothing; also from a device whose power
@@ -227,7 +224,7 @@ impl<D: AnyDevice> Rig<D> {
     /// the labels in its flash as the power left it).
     fn export(&mut self) -> Vec<ExportRecord> {
         let silent = self.silent_while.take();
-        let power = self.log.as_mut().map(|log| log.flash().power());
+        let power = self.log.as_mut().map(|log| log.flash().inner().power());
         let off = power
             .as_ref()
             .is_some_and(|power| power.swap(false, Ordering::Relaxed));
@@ -331,13 +328,17 @@ fn drive_to<D: AnyDevice>(
 ) -> bool {
     let st = rig.status();
     let from = st.frames_seen;
-    let steps = rig.steps();
     if !step(rig, HostMessage::Hello(scan.cfg), seen, ctx) {
         return false;
     }
     seen.hello = true;
     if st.phase == Phase::Finished {
-        assert_eq!(rig.steps(), steps, "{ctx}: Hello again is not a no-op");
+        // (The board may erase its next sector ahead while idle after it.)
+        assert_eq!(
+            rig.status().stored_records,
+            st.stored_records,
+            "{ctx}: Hello again is not a no-op"
+        );
     }
     if from > 0 || st.phase == Phase::Finished {
         // A scan restored unfinished logs its resume (one record), once.
@@ -878,7 +879,13 @@ fn generations_rotate_around_the_range() {
         assert_eq!(restored, Ok(0));
         let mut heads = Vec::new();
         let (mut scans, mut resets) = (0, 0);
-        for cycle in 0..30usize {
+        // At least 30 cycles, and on until the head has been in every
+        // sector (how soon depends on the records' sizes).
+        let visited = |heads: &[(u32, usize)]| heads.iter().map(|h| h.1).collect::<BTreeSet<_>>();
+        for cycle in 0..200usize {
+            if cycle >= 30 && visited(&heads).len() == SECTORS {
+                break;
+            }
             let ctx = format!("cycle {cycle}");
             if cycle > 0 {
                 rig.ok(HostMessage::Reset);
@@ -1180,8 +1187,10 @@ fn a_full_log_refuses_frame_end_and_changes_nothing() {
 fn a_failing_flash_degrades_and_restores_a_prefix() {
     on_big_stack(|| {
         let scan = Scan::synthetic(0, 40, 8);
-        // The uninterrupted run.
+        // The uninterrupted run (its flash steps are the log's own: see
+        // below).
         let (mut rig, _) = Rig::<Small>::boot(SimFlash::new(SECTORS));
+        rig.erase_ahead_when_idle = false;
         let mut reference_seen = Seen::default();
         assert!(drive(&mut rig, &scan, &mut reference_seen, "uninterrupted"));
         let steps = rig.flash().steps();
@@ -1199,19 +1208,21 @@ fn a_failing_flash_degrades_and_restores_a_prefix() {
             let (mut rig, _) = Rig::<Small>::boot(SimFlash::new(SECTORS));
             // The device itself keeps running: the host hears every reply.
             rig.listen_always();
+            // The log's own writes fail here, not an erase while idle (which
+            // the log never sees: it erases that sector again itself).
+            rig.erase_ahead_when_idle = false;
             rig.flash().cut_at(k, Tear::Half);
             let hello = rig.send(HostMessage::Hello(scan.cfg));
             let seq = rig.seq;
-            if rig.is_off() {
+            let failed = DeviceMessage::Error {
+                seq: Some(seq),
+                kind: ErrorKind::StorageFailed,
+            };
+            // The flash may also fail in the erase ahead after an
+            // acknowledged Hello: the device meets that at its next write.
+            if hello == [failed] {
                 // The scan could not start: Hello refused, nothing configured.
-                assert_eq!(
-                    hello,
-                    vec![DeviceMessage::Error {
-                        seq: Some(seq),
-                        kind: ErrorKind::StorageFailed
-                    }],
-                    "{ctx}"
-                );
+                assert!(rig.is_off(), "{ctx}");
                 assert_eq!(rig.status().phase, Phase::Unconfigured, "{ctx}");
                 assert_eq!(rig.refused(HostMessage::Finish), ErrorKind::NotConfigured);
                 hello_refusals += 1;

@@ -37,6 +37,7 @@
 //! counters, flags and decisions; never a panic.
 
 use placedb::key_pool::Aabb;
+use placedb::select::database::CoarseBox;
 use placedb::select::flags;
 use placedb::sketch::Sketch;
 use placedb::voxel::{intersection_size, iou};
@@ -710,7 +711,8 @@ fn model(sets: &[Vec<u64>], mu: f32, window: usize) -> Vec<(usize, FrameDecision
 
 /// The rule when every frame is compared by sketch (no key fits the pool):
 /// the bottom-`K` Jaccard estimate of sets whose boxes touch, counted as an
-/// overlap only above `mu + margin`.
+/// overlap only above `mu + margin`, and only where the bound of the later
+/// frame's voxels inside the earlier one's box allows an IoU above mu.
 fn sketch_model<const K: usize>(
     sets: &[Vec<u64>],
     mu: f32,
@@ -723,11 +725,21 @@ fn sketch_model<const K: usize>(
         .map(|s| Sketch::from_keys(s.iter().copied()))
         .collect();
     let n = sets.len();
+    let bound_allows = |a: usize, b: usize| {
+        let (later, earlier) = (a.max(b), a.min(b));
+        boxes[earlier].as_ref().is_some_and(|e| {
+            let inside = CoarseBox::of(e).count_in(&sets[later]);
+            let (l, r) = (sets[later].len() as u32, sets[earlier].len() as u32);
+            iou(l, r, inside) > mu
+        })
+    };
     let estimates: Vec<Vec<f32>> = (0..n)
         .map(|a| {
             (0..n)
                 .map(|b| match (&boxes[a], &boxes[b]) {
-                    (Some(x), Some(y)) if x.touches(y) => sketches[a].jaccard(&sketches[b]),
+                    (Some(x), Some(y)) if x.touches(y) && bound_allows(a, b) => {
+                        sketches[a].jaccard(&sketches[b])
+                    }
                     _ => 0.0,
                 })
                 .collect()

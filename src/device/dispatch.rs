@@ -135,6 +135,10 @@ impl<
 
     /// Configures the selector with `cfg` (no frames seen yet).
     pub(super) fn configure(&mut self, cfg: Config) -> Result<(), ErrorKind> {
+        // The key budget is the log's: a restore (which configures from the
+        // log's Begin) counts it as the scan did.
+        let budget = crate::select::database::key_budget_for_log(self.flash.1);
+        self.selector.set_key_budget(budget);
         self.selector
             .configure(cfg.scan_config(), cfg.selector_config())
             .map_err(select_error)?;
@@ -397,7 +401,8 @@ impl<
                 .get(d.index as usize % timestamps.len())
                 .copied()
                 .unwrap_or(0.0);
-            decisions.push(d.index, timestamp, kind, &mut store, &mut out);
+            let held = selector.decided_held(d.index).unwrap_or(0);
+            decisions.push(d.index, (timestamp, kind, held), &mut store, &mut out);
         }
         if flush {
             decisions.flush(&mut store, &mut out);

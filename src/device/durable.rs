@@ -10,9 +10,9 @@
 
 use crate::key_pool::{key_of, Aabb};
 use crate::persist::keys::{self, MAX_KEY_CHUNKS};
-use crate::persist::record::{KeyChunks, DECISION_BATCH, DECISION_LEN};
+use crate::persist::record::{Decided, KeyChunks, DECISION_BATCH, DECISION_LEN};
 use crate::persist::{Journal, Record};
-use crate::protocol::{DecisionKind, DeviceMessage};
+use crate::protocol::DeviceMessage;
 use crate::select::{DbSnapshot, FrameStore};
 use crate::sketch::Sketch;
 
@@ -226,7 +226,7 @@ fn load<const K: usize>(journal: &mut dyn Journal, at: u32) -> Option<DbSnapshot
 #[derive(Debug)]
 pub(super) struct Decisions {
     /// Timestamp and kind of frames `first ..`, not yet durable.
-    batch: heapless::Vec<(f64, DecisionKind), DECISION_BATCH>,
+    batch: heapless::Vec<Decided, DECISION_BATCH>,
     first: u32,
     /// Frames `0 .. labels` have their decision in the journal.
     pub labels: u32,
@@ -260,8 +260,7 @@ impl Decisions {
     pub fn push(
         &mut self,
         frame: u32,
-        timestamp: f64,
-        kind: DecisionKind,
+        decided: Decided,
         store: &mut LogStore<'_>,
         out: &mut Out<'_>,
     ) {
@@ -274,10 +273,10 @@ impl Decisions {
         if self.batch.is_empty() {
             self.first = frame;
         }
-        if self.batch.push((timestamp, kind)).is_err() {
+        if self.batch.push(decided).is_err() {
             self.flush(store, out);
             self.first = frame;
-            let _ = self.batch.push((timestamp, kind));
+            let _ = self.batch.push(decided);
         }
         if self.batch.is_full() || !store.journal.keeps() {
             self.flush(store, out);
@@ -314,7 +313,7 @@ impl Decisions {
         } else {
             self.dropped = self.dropped.saturating_add(n);
         }
-        for (i, &(_, kind)) in self.batch.iter().enumerate() {
+        for (i, &(_, kind, _)) in self.batch.iter().enumerate() {
             out.reply(&DeviceMessage::Decision {
                 frame: self.first.saturating_add(i as u32),
                 kind,

@@ -6,11 +6,15 @@
 //! remembers where the last request stopped, so exporting in consecutive
 //! requests reads the log once, not once per request. A record the log
 //! cannot give back (a damaged database frame or decision batch) ends the
-//! reply with `ExportUnreadable` instead of an `ExportEnd`: an export is
-//! never shorter than the device's count with a count and CRC that agree.
+//! reply with `ExportUnreadable` (the record, its frame and where in the
+//! log it was looked for) instead of an `ExportEnd`: an export is never
+//! shorter than the device's count with a count and CRC that agree.
 
 use crate::persist::{Cursor, Journal, Record};
-use crate::protocol::{DeviceMessage, ErrorKind, ExportCrc, ExportRecord, RecordKind};
+use crate::protocol::{
+    DeviceMessage, ErrorKind, ExportCrc, ExportRecord, ExportUnreadable, RecordKind,
+};
+use crate::select::database::NOWHERE;
 
 use super::durable::LogReader;
 use super::reply::{to_u32, Out};
@@ -76,12 +80,19 @@ impl<
             out.reply(&DeviceMessage::ExportRecord(record));
         };
         let db = selector.database_len();
-        // A record the log cannot give back ends the reply with an error,
-        // never with an ExportEnd whose count and CRC agree on fewer.
-        let mut unreadable = false;
+        // A record the log cannot give back ends the reply with an error
+        // naming it, never with an ExportEnd whose count and CRC agree on
+        // fewer.
+        let mut unreadable = None;
         for r in from.min(db)..end.min(db) {
             let Some(rec) = selector.database_record(r, &mut LogReader(journal)) else {
-                unreadable = true;
+                let entry = selector.database_entry(r);
+                unreadable = Some(ExportUnreadable {
+                    seq,
+                    record: to_u32(r),
+                    frame: entry.map_or(0, |e| e.index),
+                    log_at: entry.map(|e| e.at).filter(|&at| at != NOWHERE),
+                });
                 break;
             };
             emit(ExportRecord {
@@ -97,29 +108,36 @@ impl<
             to_u32(end.saturating_sub(db)).min(labels),
         );
         let mut next_label = first_label;
-        if first_label < last_label && !unreadable {
+        // The last decision batch read, for the error naming a missing one.
+        let mut batch_at = None;
+        if first_label < last_label && unreadable.is_none() {
             let (mut cursor, start) = *export_cursor;
             if start > first_label {
                 cursor = Cursor::START;
             }
             loop {
                 let before = cursor;
-                let Ok(Some((_, payload))) = journal.next(&mut cursor) else {
+                let Ok(Some((at, payload))) = journal.next(&mut cursor) else {
                     break;
                 };
-                let Ok((Record::Decisions { first, count }, tail)) = Record::decode(payload) else {
+                let Ok((record, tail)) = Record::decode(payload) else {
+                    continue;
+                };
+                let Some((first, count)) = record.decision_batch() else {
                     continue;
                 };
                 if first.saturating_add(u32::from(count)) <= first_label {
+                    batch_at = Some(at);
                     continue;
                 }
-                for (i, (timestamp, kind)) in tail.decisions().enumerate() {
+                let mut missing = false;
+                for (i, (timestamp, kind, _)) in tail.decisions(&record).enumerate() {
                     let frame = first.saturating_add(i as u32);
                     if (first_label..last_label).contains(&frame) {
                         if frame != next_label {
                             // A decision batch before this one was
                             // unreadable (or skipped): labels are missing.
-                            unreadable = true;
+                            missing = true;
                             break;
                         }
                         next_label = frame.saturating_add(1);
@@ -133,22 +151,25 @@ impl<
                         });
                     }
                 }
-                if unreadable || first.saturating_add(u32::from(count)) >= last_label {
+                if missing || first.saturating_add(u32::from(count)) >= last_label {
                     // The next request most likely starts in this batch.
                     *export_cursor = (before, first);
                     break;
                 }
+                batch_at = Some(at);
             }
         }
-        if next_label < last_label {
-            unreadable = true;
-        }
-        if unreadable {
-            *refused = refused.saturating_add(1);
-            return out.reply(&DeviceMessage::Error {
-                seq: Some(seq),
-                kind: ErrorKind::ExportUnreadable,
+        if unreadable.is_none() && next_label < last_label {
+            unreadable = Some(ExportUnreadable {
+                seq,
+                record: to_u32(db.saturating_add(next_label as usize)),
+                frame: next_label,
+                log_at: batch_at,
             });
+        }
+        if let Some(what) = unreadable {
+            *refused = refused.saturating_add(1);
+            return out.reply(&DeviceMessage::ExportUnreadable(what));
         }
         // The sessions after the first, after the labels.
         let before_sessions = db.saturating_add(labels as usize);

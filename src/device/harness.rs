@@ -6,8 +6,11 @@
 //! and check replies with its [`decode_reply`], [`terminal`] and
 //! [`check_export`].
 //!
-//! A [`Harness`] holds a device, its log on a [`SimFlash`] (or no journal)
-//! and the host's sequence numbers. It encodes each message as a host would,
+//! A [`Harness`] holds a device, its log on a [`SimFlash`] under the
+//! boards' [`EraseAhead`] (or no journal) and the host's sequence numbers.
+//! Between messages, when a board is idle, it erases the log's next sector
+//! ahead of need as the boards do, so that power cuts land in those erases
+//! too. It encodes each message as a host would,
 //! decodes every reply frame the device sends, and checks what every reply
 //! must be: one complete frame within [`MAX_REPLY_LEN`], and exactly one
 //! terminal reply per message, last, with the message's sequence number.
@@ -33,11 +36,14 @@ use std::vec::Vec;
 
 use super::{Device, RestoreFailure};
 use crate::persist::sim::SimFlash;
-use crate::persist::{Journal, Log, NoJournal};
+use crate::persist::{EraseAhead, Journal, Log, NoJournal};
 use crate::protocol::{
     encode, export_crc, DeviceMessage, ErrorKind, ExportRecord, Feed, FrameDecoder, HostFrame,
     HostMessage, RecordKind, Status, MAX_FRAME_LEN, MAX_REPLY_LEN,
 };
+
+/// The log of a harness: on a simulated flash, under the boards' erase-ahead.
+pub type HarnessLog = Log<EraseAhead<SimFlash>>;
 
 /// A [`Device`] of any capacities (it has six const parameters), as the
 /// harness drives it.
@@ -52,7 +58,7 @@ pub trait AnyDevice: Send + 'static {
         send: &mut dyn FnMut(&[u8]),
     );
     /// [`Device::restore`].
-    fn restore_from(&mut self, log: &mut Log<SimFlash>) -> Result<u32, RestoreFailure>;
+    fn restore_from(&mut self, log: &mut HarnessLog) -> Result<u32, RestoreFailure>;
     /// [`Device::add_receive_ticks`].
     fn add_receive_ticks(&mut self, ticks: u64);
 }
@@ -79,7 +85,7 @@ impl<
         self.receive_logged(bytes, journal, send);
     }
 
-    fn restore_from(&mut self, log: &mut Log<SimFlash>) -> Result<u32, RestoreFailure> {
+    fn restore_from(&mut self, log: &mut HarnessLog) -> Result<u32, RestoreFailure> {
         self.restore(log)
     }
 
@@ -94,13 +100,17 @@ pub struct Harness<D> {
     /// The device under test.
     pub device: Box<D>,
     /// `None`: a device without flash ([`Device::receive`], no journal).
-    pub log: Option<Log<SimFlash>>,
+    pub log: Option<HarnessLog>,
     /// The sequence number of the last message sent.
     pub seq: u32,
     /// While this flag is set the host hears nothing the device sends
     /// (`host/tests/device_power_cut.rs` sets it to the flash's power switch: a device
     /// without power sends nothing). `None`: the host hears everything.
     pub silent_while: Option<Arc<AtomicBool>>,
+    /// Whether the board erases the log's next sector ahead while idle
+    /// (after each message [`Self::send`] sends), as both boards do; a test
+    /// of the log's own failure paths may turn it off.
+    pub erase_ahead_when_idle: bool,
 }
 
 impl<D: AnyDevice> Harness<D> {
@@ -111,9 +121,10 @@ impl<D: AnyDevice> Harness<D> {
         let end = (sectors * SimFlash::SECTOR) as u32;
         Harness {
             device: D::new_boxed(),
-            log: Some(Log::open(flash, 0, end).unwrap()),
+            log: Some(Log::open(EraseAhead::new(flash), 0, end).unwrap()),
             seq: 0,
             silent_while: None,
+            erase_ahead_when_idle: true,
         }
     }
 
@@ -124,6 +135,7 @@ impl<D: AnyDevice> Harness<D> {
             log: None,
             seq: 0,
             silent_while: None,
+            erase_ahead_when_idle: true,
         }
     }
 
@@ -132,7 +144,8 @@ impl<D: AnyDevice> Harness<D> {
     pub fn boot(mut flash: SimFlash) -> (Self, Result<u32, RestoreFailure>) {
         flash.power_on();
         let end = flash.bytes().len() as u32;
-        let mut log = Log::open(flash, 0, end).expect("the log opens on any flash contents");
+        let mut log =
+            Log::open(EraseAhead::new(flash), 0, end).expect("the log opens on any flash contents");
         let mut device = D::new_boxed();
         let restored = device.restore_from(&mut log);
         let harness = Harness {
@@ -140,18 +153,35 @@ impl<D: AnyDevice> Harness<D> {
             log: Some(log),
             seq: 0,
             silent_while: None,
+            erase_ahead_when_idle: true,
         };
         (harness, restored)
     }
 
     /// The flash (a device with flash).
     pub fn flash(&mut self) -> &mut SimFlash {
-        self.log.as_mut().expect("a device with flash").flash()
+        self.log
+            .as_mut()
+            .expect("a device with flash")
+            .flash()
+            .inner()
     }
 
     /// The flash, the device gone.
     pub fn into_flash(self) -> SimFlash {
-        self.log.expect("a device with flash").into_flash()
+        self.log
+            .expect("a device with flash")
+            .into_flash()
+            .into_inner()
+    }
+
+    /// What a board does when idle: erases the sector the log's next erase
+    /// goes to (a failure is the log's to meet when it writes there).
+    pub fn erase_ahead(&mut self) {
+        if let Some(log) = self.log.as_mut() {
+            let next = log.next_sector();
+            let _ = log.flash().erase_ahead(next);
+        }
     }
 
     /// Whether the host hears the device now (see `silent_while`).
@@ -185,6 +215,18 @@ impl<D: AnyDevice> Harness<D> {
     /// its sequence number. The host does not talk to a device it cannot
     /// hear.
     pub fn send(&mut self, msg: HostMessage<'_>) -> Vec<DeviceMessage<'static>> {
+        let replies = self.exchange(msg);
+        if self.erase_ahead_when_idle {
+            // The message handled, the board is idle until the next.
+            self.erase_ahead();
+        }
+        replies
+    }
+
+    /// [`Self::send`] without the idle time after it: what [`Self::status`]
+    /// and [`Self::export_from`] use, so that a test's looks at the device
+    /// move no flash step.
+    fn exchange(&mut self, msg: HostMessage<'_>) -> Vec<DeviceMessage<'static>> {
         assert!(self.hears(), "the host talks to a device it cannot hear");
         self.seq = self.seq.wrapping_add(1);
         let mut buf = vec![0u8; MAX_FRAME_LEN];
@@ -235,7 +277,7 @@ impl<D: AnyDevice> Harness<D> {
 
     /// The device's status.
     pub fn status(&mut self) -> Status {
-        match self.send(HostMessage::StatusRequest).as_slice() {
+        match self.exchange(HostMessage::StatusRequest).as_slice() {
             [DeviceMessage::Status(s)] if s.seq == self.seq => *s,
             other => panic!("no status: {other:?}"),
         }
@@ -250,7 +292,7 @@ impl<D: AnyDevice> Harness<D> {
     /// numbered from `from` on, then an ExportEnd whose sequence number,
     /// start, count and CRC are those of the request and the records.
     pub fn export_from(&mut self, from: u32, max: u32) -> Vec<ExportRecord> {
-        let replies = self.send(HostMessage::ExportRequest {
+        let replies = self.exchange(HostMessage::ExportRequest {
             from_record: from,
             max_records: max,
         });
@@ -347,6 +389,7 @@ pub fn terminal(msg: &DeviceMessage<'_>) -> Option<Option<u32>> {
         DeviceMessage::Ack { seq } | DeviceMessage::ExportEnd { seq, .. } => Some(Some(*seq)),
         DeviceMessage::Status(s) => Some(Some(s.seq)),
         DeviceMessage::LogBytes(b) => Some(Some(b.seq)),
+        DeviceMessage::ExportUnreadable(u) => Some(Some(u.seq)),
         DeviceMessage::Error { seq, .. } => Some(*seq),
         DeviceMessage::Decision { .. } | DeviceMessage::ExportRecord(_) | DeviceMessage::Log(_) => {
             None

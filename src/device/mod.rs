@@ -624,6 +624,8 @@ impl<
             capacities,
             degradation: st.flags | device_flags,
             sketched_frames: st.sketched_frames,
+            unkeyed_frames: st.unkeyed_frames,
+            sketch_compared_frames: st.sketch_compared_frames,
             truncated_frames: st.truncated_frames,
             uncovered_frames: st.uncovered_frames,
             labels_dropped: self.decisions.dropped,

@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! log     := Cleared | Begin session (Finished Session session)* Finished?
-//! session := (Keys | Database | Decisions)*
+//! session := (Keys | Database | Decisions | Labels)*
 //! ```
 //!
 //! (a log of format 2, written before sessions, has no `Session` record;
@@ -238,6 +238,8 @@ impl<
         usage: (u32, u32),
     ) -> Result<u32, RestoreFailure> {
         self.reset();
+        // The log's size sets the key budget the restored scan counts.
+        self.flash = usage;
         let (mut n, mut failure, mut replay) = (0u32, None, Replay::START);
         let replayed = records(&mut |at, payload| {
             if failure.is_none() {
@@ -338,12 +340,12 @@ impl<
             (Grammar::Scan, Record::Keys { frame, .. }) => {
                 replay.add_keys(at, frame, tail.len());
             }
-            (Grammar::Scan, Record::Decisions { first, .. }) => {
+            (Grammar::Scan, Record::Decisions { first, .. } | Record::Labels { first, .. }) => {
                 if first != self.decisions.labels {
                     return Err(malformed);
                 }
                 let mut labels = first;
-                for (i, (_, kind)) in tail.decisions().enumerate() {
+                for (i, (_, kind, held)) in tail.decisions(&record).enumerate() {
                     let frame = first.saturating_add(i as u32);
                     let decision = Decision::from(kind);
                     if let Some(j) = replay.ahead(frame) {
@@ -366,7 +368,7 @@ impl<
                         }
                     }
                     self.selector
-                        .restore_decided(frame, decision)
+                        .restore_decided(frame, decision, held)
                         .map_err(refused)?;
                     labels = frame.saturating_add(1);
                 }
@@ -375,6 +377,7 @@ impl<
             // A resume changes no state: the export reads it from the log.
             (Grammar::Scan, Record::Resumed { .. }) => {}
             (Grammar::Scan, Record::Finished) => {
+                self.selector.restore_finished().map_err(refused)?;
                 self.finished = true;
                 *grammar = Grammar::Finished;
             }

@@ -4,6 +4,7 @@ use super::harness::{decode_reply, on_big_stack, AnyDevice, Harness};
 use super::*;
 use crate::camera::{DepthRange, Intrinsics, Pose};
 use crate::frame::FrameMeta;
+use crate::persist::record::DECISION_BATCH;
 use crate::persist::sim::SimFlash;
 use crate::persist::Record;
 use crate::protocol::{encode, DepthRows, PROTOCOL_VERSION};
@@ -942,7 +943,7 @@ proptest! {
 /// scan: each breaks the record grammar or contradicts the records before it.
 fn unusable_records(cfg: Config) -> Vec<(&'static str, Vec<u8>)> {
     let mut buf = [0u8; 512];
-    let decisions = Record::encode_decisions(1000, &[(0.0, DecisionKind::Taken)], &mut buf)
+    let decisions = Record::encode_decisions(1000, &[(0.0, DecisionKind::Taken, 0)], &mut buf)
         .unwrap()
         .to_vec();
     vec![
@@ -1001,7 +1002,7 @@ fn an_unusable_record_drops_the_tail_and_the_scan_goes_on_from_before_it() {
                 if finished {
                     before.append(bad).unwrap();
                 }
-                let reference_flash = before.flash().clone();
+                let reference_flash = before.flash().inner().clone();
                 if !finished {
                     before.append(bad).unwrap();
                 }
@@ -1285,23 +1286,19 @@ fn a_record_the_log_cannot_give_back_is_an_error_not_a_shorter_export() {
             records.push((at as usize, Record::decode(&payload).map(|(r, _)| r)));
         }
         let before = b.flash().bytes().to_vec();
-        let unreadable = |b: &mut Harness<_>, at: usize| {
+        let db = st.database_size;
+        let unreadable = |b: &mut Harness<_>, at: usize, named: (u32, u32, Option<u32>)| {
             // The payload's first byte: the record's CRC no longer holds.
             b.flash().bytes_mut()[at + crate::persist::log::HEADER_LEN] ^= 0x5A;
             let replies = b.send(HostMessage::ExportRequest {
                 from_record: 0,
                 max_records: u32::MAX,
             });
-            assert!(
-                matches!(
-                    replies.last(),
-                    Some(DeviceMessage::Error {
-                        kind: ErrorKind::ExportUnreadable,
-                        ..
-                    })
-                ),
-                "{replies:?}"
-            );
+            let Some(DeviceMessage::ExportUnreadable(u)) = replies.last() else {
+                panic!("no ExportUnreadable: {replies:?}");
+            };
+            assert_eq!((u.record, u.frame, u.log_at), named, "{replies:?}");
+            assert_eq!(replies.len() as u32, u.record + 1, "the records before it");
             assert!(
                 !replies
                     .iter()
@@ -1316,13 +1313,15 @@ fn a_record_the_log_cannot_give_back_is_an_error_not_a_shorter_export() {
             .iter()
             .find(|(_, r)| matches!(r, Ok(Record::Database { meta, .. }) if meta.index == first))
             .expect("the first database frame's record");
-        unreadable(&mut b, at);
-        // The first decision batch: the labels from it on.
-        let (at, _) = *records
+        unreadable(&mut b, at, (0, first, Some(at as u32)));
+        // The second decision batch: the labels from it on, after the first.
+        let mut batches = records
             .iter()
-            .find(|(_, r)| matches!(r, Ok(Record::Decisions { .. })))
-            .expect("a decision batch");
-        unreadable(&mut b, at);
+            .filter(|(_, r)| matches!(r, Ok(Record::Labels { .. })));
+        let (first_batch, _) = *batches.next().expect("a decision batch");
+        let (at, _) = *batches.next().expect("a second decision batch");
+        let after = DECISION_BATCH as u32;
+        unreadable(&mut b, at, (db + after, after, Some(first_batch as u32)));
     });
 }
 

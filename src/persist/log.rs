@@ -102,8 +102,9 @@ pub const MAX_PAYLOAD: usize = 1024;
 /// Layout version this code writes in every header. 3: a record may be a
 /// session boundary ([`super::Record::Session`]); 4: a session boundary may
 /// carry the new session's camera ([`super::Record::SessionCamera`]), and a
-/// resume is recorded ([`super::Record::Resumed`]); the layout is that of 2.
-pub const FORMAT: u16 = 4;
+/// resume is recorded ([`super::Record::Resumed`]); 5: decisions carry their
+/// frame's key pool words ([`super::Record::Labels`]); the layout is that of 2.
+pub const FORMAT: u16 = 5;
 /// The oldest version still read: a log of 2 (written before sessions) is
 /// read as it is, and a scan restored from it may be extended with records
 /// of the current version. Records of any other version are not read (a

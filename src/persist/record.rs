@@ -6,7 +6,11 @@
 //! Decisions are written in batches of up to [`DECISION_BATCH`] consecutive
 //! frames, one record each: a scan of 20,000 frames writes ~1,250 of them
 //! instead of 20,000, whose 20-byte headers alone would fill a third of a
-//! 1 MiB log.
+//! 1 MiB log. Each decision carries the key pool words its frame got on
+//! arrival ([`Record::Labels`], log format 5; see
+//! [`crate::select::Selector::decided_held`]): a restored selector counts
+//! the last decided frames in its window rule as the uninterrupted one did.
+//! Logs of older formats hold [`Record::Decisions`], read with no counts.
 
 use super::keys::MAX_KEY_CHUNKS;
 use crate::camera::Intrinsics;
@@ -18,8 +22,14 @@ use crate::protocol::{Config, DecisionKind};
 pub const DECISION_BATCH: usize = 16;
 
 /// Bound on the encoded length of one decision of a batch: the timestamp
-/// (8 bytes) and the kind (tag, option tag, varint class: at most 7).
-pub const DECISION_LEN: usize = 15;
+/// (8 bytes), the kind (tag, option tag, varint class: at most 7) and the
+/// frame's key pool words (varint: at most 5).
+pub const DECISION_LEN: usize = 20;
+
+/// One decision of a batch: the frame's timestamp, its kind and the key
+/// pool words it got on arrival (0 in a batch of format 4 or older, which
+/// did not keep them).
+pub type Decided = (f64, DecisionKind, u32);
 
 /// One durable fact about the scan.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -50,7 +60,8 @@ pub enum Record {
         count: u16,
     },
     /// The final decisions of frames `first .. first + count` (never
-    /// `Pending`), each a timestamp and a [`DecisionKind`], follow.
+    /// `Pending`), each a timestamp and a [`DecisionKind`], follow (log
+    /// formats 2 to 4; read, no longer written: see [`Record::Labels`]).
     Decisions {
         /// First frame index.
         first: u32,
@@ -89,6 +100,15 @@ pub enum Record {
     Resumed {
         /// The frames seen when it was resumed.
         at: u32,
+    },
+    /// The final decisions of frames `first .. first + count` (never
+    /// `Pending`), each a [`Decided`] (timestamp, kind, key pool words),
+    /// follow (log format 5).
+    Labels {
+        /// First frame index.
+        first: u32,
+        /// Decisions that follow (1..=[`DECISION_BATCH`]).
+        count: u16,
     },
 }
 
@@ -178,15 +198,15 @@ impl Record {
         buf.get(..used + len).ok_or(RecordError::TooLarge)
     }
 
-    /// Encodes a [`Record::Decisions`] of the frames from `first`, one
-    /// `(timestamp, kind)` each, into `buf`.
+    /// Encodes a [`Record::Labels`] of the frames from `first`, one
+    /// [`Decided`] each, into `buf`.
     pub fn encode_decisions<'b>(
         first: u32,
-        decisions: &[(f64, DecisionKind)],
+        decisions: &[Decided],
         buf: &'b mut [u8],
     ) -> Result<&'b [u8], RecordError> {
         let count = u16::try_from(decisions.len()).map_err(|_| RecordError::TooLarge)?;
-        let record = Record::Decisions { first, count };
+        let record = Record::Labels { first, count };
         let mut end = postcard::to_slice(&record, buf)
             .map_err(|_| RecordError::TooLarge)?
             .len();
@@ -209,11 +229,13 @@ impl Record {
                 rest.len() == usize::from(hashes) * 4 && usize::from(keys.count) <= MAX_KEY_CHUNKS
             }
             Record::Keys { count, .. } => super::keys::decode(rest).count() == usize::from(count),
-            Record::Decisions { count, .. } => {
+            Record::Decisions { count, .. } | Record::Labels { count, .. } => {
+                let tail = Tail(rest);
+                let with_counts = matches!(record, Record::Labels { .. });
                 count > 0
                     && usize::from(count) <= DECISION_BATCH
-                    && Tail(rest).decisions().count() == usize::from(count)
-                    && Tail(rest).decisions_fit()
+                    && tail.entries(with_counts).count() == usize::from(count)
+                    && tail.entries_fit(with_counts)
             }
             _ => rest.is_empty(),
         };
@@ -251,29 +273,57 @@ impl<'a> Tail<'a> {
             .map(|c| <[u8; 4]>::try_from(c).map_or(0, u32::from_le_bytes))
     }
 
-    /// A decisions record's `(timestamp, kind)` pairs, in frame order; stops
-    /// at the first that does not decode.
-    pub fn decisions(&self) -> impl Iterator<Item = (f64, DecisionKind)> + 'a {
+    /// A decision batch's decisions ([`Record::Labels`] or
+    /// [`Record::Decisions`], as `record` is), in frame order; stops at
+    /// the first that does not decode.
+    pub fn decisions(&self, record: &Record) -> impl Iterator<Item = Decided> + 'a {
+        self.entries(matches!(record, Record::Labels { .. }))
+    }
+
+    /// The decisions of a batch with key pool words or without.
+    fn entries(&self, with_counts: bool) -> impl Iterator<Item = Decided> + 'a {
         let mut rest = self.0;
         core::iter::from_fn(move || {
             if rest.is_empty() {
                 return None;
             }
-            let (d, r) = postcard::take_from_bytes::<(f64, DecisionKind)>(rest).ok()?;
+            let (d, r) = take_decided(rest, with_counts)?;
             rest = r;
             Some(d)
         })
     }
 
     /// Whether the decisions use every byte (nothing undecodable after them).
-    fn decisions_fit(&self) -> bool {
+    fn entries_fit(&self, with_counts: bool) -> bool {
         let mut rest = self.0;
         while !rest.is_empty() {
-            match postcard::take_from_bytes::<(f64, DecisionKind)>(rest) {
-                Ok((_, r)) => rest = r,
-                Err(_) => return false,
+            match take_decided(rest, with_counts) {
+                Some((_, r)) => rest = r,
+                None => return false,
             }
         }
         true
+    }
+}
+
+impl Record {
+    /// The first frame and count of a decision batch of either format.
+    pub fn decision_batch(&self) -> Option<(u32, u16)> {
+        match *self {
+            Record::Decisions { first, count } | Record::Labels { first, count } => {
+                Some((first, count))
+            }
+            _ => None,
+        }
+    }
+}
+
+/// One decision from the front of `bytes`, and the rest.
+fn take_decided(bytes: &[u8], with_counts: bool) -> Option<(Decided, &[u8])> {
+    if with_counts {
+        postcard::take_from_bytes::<Decided>(bytes).ok()
+    } else {
+        let ((t, kind), rest) = postcard::take_from_bytes::<(f64, DecisionKind)>(bytes).ok()?;
+        Some(((t, kind, 0), rest))
     }
 }

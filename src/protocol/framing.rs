@@ -138,7 +138,7 @@ impl WireMessage for HostFrame<'_> {
 
 impl WireMessage for DeviceMessage<'_> {
     const SEQ_PREFIX: bool = false;
-    const VARIANTS: u32 = 8;
+    const VARIANTS: u32 = 9;
 }
 
 /// Result of [`FrameDecoder::push`].

@@ -397,6 +397,27 @@ pub enum DeviceMessage<'a> {
     Log(&'a str),
     /// Terminal reply to [`HostMessage::LogRead`] (protocol 6).
     LogBytes(LogBytes),
+    /// Terminal reply to an [`HostMessage::ExportRequest`] that reached a
+    /// record the device cannot read back from its flash log (a damaged
+    /// database frame or decision batch; protocol 7): the records before it
+    /// were sent, and no `ExportEnd` follows, so an export never ends short
+    /// with a count and CRC that agree.
+    ExportUnreadable(ExportUnreadable),
+}
+
+/// What [`DeviceMessage::ExportUnreadable`] names.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ExportUnreadable {
+    /// Sequence number of the export request.
+    pub seq: u32,
+    /// The export record that cannot be read.
+    pub record: u32,
+    /// Its frame: the database frame, or the frame whose label it is.
+    pub frame: u32,
+    /// Where in the log the device looked for it (byte position of the
+    /// database frame's record, or of the last decision batch it could
+    /// read before the missing one); `None` when there is none.
+    pub log_at: Option<u32>,
 }
 
 impl DeviceMessage<'_> {
@@ -423,6 +444,7 @@ impl DeviceMessage<'_> {
             },
             M::Log(_) => return None,
             M::LogBytes(b) => M::LogBytes(b),
+            M::ExportUnreadable(u) => M::ExportUnreadable(u),
         })
     }
 }
@@ -645,8 +667,16 @@ pub struct Status {
     pub capacities: [Capacity; CAPACITY_SLOTS],
     /// [`degradation`] flags.
     pub degradation: u32,
-    /// Frames stored without exact keys (compared by sketch).
+    /// Frames whose exact keys the key pool could not hold (compared by
+    /// sketch; protocol 7 counts only these, not database frames whose keys
+    /// are in flash).
     pub sketched_frames: u32,
+    /// Database frames kept in flash without their exact keys (the key
+    /// budget was spent): compared by sketch (protocol 7).
+    pub unkeyed_frames: u32,
+    /// Frames measured by sketch against some database or window frame:
+    /// their coverage decision may rest on an estimate (protocol 7).
+    pub sketch_compared_frames: u32,
     /// Frames whose voxel set was truncated.
     pub truncated_frames: u32,
     /// Frames decided `Uncovered`.
@@ -687,6 +717,8 @@ impl Status {
             capacities: [ZERO; CAPACITY_SLOTS],
             degradation: 0,
             sketched_frames: 0,
+            unkeyed_frames: 0,
+            sketch_compared_frames: 0,
             truncated_frames: 0,
             uncovered_frames: 0,
             labels_dropped: 0,
@@ -832,9 +864,8 @@ pub enum ErrorKind {
     /// Extend with another configuration than the scan it would continue.
     ExtendOtherConfig = 26,
     /// An ExportRequest reached a record the device cannot read back from
-    /// its flash log (a damaged database frame or decision batch): the
-    /// records before it were sent, and no `ExportEnd` follows, so an
-    /// export never ends short with a count and CRC that agree.
+    /// its flash log (protocol 6; since 7 the device answers
+    /// [`DeviceMessage::ExportUnreadable`], which names the record).
     ExportUnreadable = 27,
 }
 

@@ -89,9 +89,9 @@ pub use framing::{
 };
 pub use messages::{
     degradation, Capacity, CapacitySlot, Config, DecisionKind, DepthRows, DeviceMessage, ErrorKind,
-    ExportRecord, FrameCost, HostFrame, HostMessage, LogBytes, Phase, ProtocolError, RecordKind,
-    Status, UnknownErrorKind, CAPACITY_SLOTS, DEPTH_ROWS_OVERHEAD, LOG_CHUNK, MAX_ROW_VALUES,
-    MAX_SESSIONS,
+    ExportRecord, ExportUnreadable, FrameCost, HostFrame, HostMessage, LogBytes, Phase,
+    ProtocolError, RecordKind, Status, UnknownErrorKind, CAPACITY_SLOTS, DEPTH_ROWS_OVERHEAD,
+    LOG_CHUNK, MAX_ROW_VALUES, MAX_SESSIONS,
 };
 
 /// Version of this wire protocol; a device refuses a [`HostMessage::Hello`] whose
@@ -114,11 +114,16 @@ pub use messages::{
 ///   several sessions), `ErrorKind::NothingToExtend` and `ExtendOtherConfig`;
 ///   `HostMessage::LogRead` and `DeviceMessage::LogBytes` (a log record's
 ///   bytes).
-pub const PROTOCOL_VERSION: u16 = 6;
+/// - 7: `Status::unkeyed_frames` and `sketch_compared_frames` (why and how
+///   often coverage rests on a sketch estimate);
+///   `DeviceMessage::ExportUnreadable` (the record, frame and log position
+///   an export cannot read back) replaces `Error` with
+///   `ErrorKind::ExportUnreadable`.
+pub const PROTOCOL_VERSION: u16 = 7;
 
 /// Largest encoded frame (delimiter included) of any [`DeviceMessage`] but a
 /// [`DeviceMessage::Log`]: a device's transmit buffer. Longer logs are dropped.
-pub const MAX_REPLY_LEN: usize = 256;
+pub const MAX_REPLY_LEN: usize = 272;
 
 /// How many strided rows of `width_sent` depth values fit in one
 /// [`HostMessage::DepthRows`] frame of at most [`MAX_FRAME_LEN`] bytes, whatever

@@ -183,6 +183,12 @@ fn device_messages() -> Vec<DeviceMessage<'static>> {
         },
         DeviceMessage::Log("boot ok"),
         DeviceMessage::LogBytes(log_bytes(5, 0)),
+        DeviceMessage::ExportUnreadable(ExportUnreadable {
+            seq: u32::MAX,
+            record: u32::MAX,
+            frame: u32::MAX,
+            log_at: Some(u32::MAX),
+        }),
     ]
 }
 
@@ -396,6 +402,7 @@ fn device_tag(msg: &DeviceMessage<'_>) -> u32 {
         DeviceMessage::ExportEnd { .. } => 5,
         DeviceMessage::Log(_) => 6,
         DeviceMessage::LogBytes(_) => 7,
+        DeviceMessage::ExportUnreadable(_) => 8,
     }
 }
 
@@ -594,6 +601,8 @@ fn the_largest_replies_fit_the_reply_buffer() {
         capacities: [big; CAPACITY_SLOTS],
         degradation: u32::MAX,
         sketched_frames: u32::MAX,
+        unkeyed_frames: u32::MAX,
+        sketch_compared_frames: u32::MAX,
         truncated_frames: u32::MAX,
         uncovered_frames: u32::MAX,
         labels_dropped: u32::MAX,

@@ -21,13 +21,16 @@
 //! memory: the best frame so far is all it keeps. A frame with bound 0
 //! shares no voxel with the new one (IoU 0), so it is never read.
 //!
-//! The measure: exact keys when RAM or the store has them (exact IoU, an
-//! overlap above mu), else the bottom-k sketches (an overlap above mu +
-//! margin). A resident frame is measured whenever the boxes touch (it costs
-//! no read), so a sketched frame (no exact keys anywhere) whose estimate
-//! exceeds mu + margin while its bound is at most mu covers a frame while
-//! resident and not once stored: sketch noise above a proven bound, the one
-//! case where RAM still matters. Frames compared exactly never differ.
+//! The measure: exact keys when the store keeps them (exact IoU, an overlap
+//! above mu; read from RAM instead while the frame is resident with them),
+//! else the bottom-k sketches (an overlap above mu + margin). Which of the
+//! two is a fact of the frame, not of RAM: a frame the store keeps without
+//! keys is compared by sketch even while RAM still holds its keys, because
+//! a device restored from flash would hold none, and must decide as the
+//! device that never lost power. Only a frame that was never stored (a
+//! store that keeps nothing: no restore to agree with) is compared exactly
+//! from RAM alone. Resident or not, a frame is measured only when its bound
+//! allows it, so sketch noise above a proven bound never covers a frame.
 
 use super::database::{DbEntry, DbIndex, FrameStore, NOWHERE};
 use super::{better, Best, SelectorConfig, Stored};
@@ -55,6 +58,8 @@ pub(super) struct Measured {
     pub nearest: Best,
     /// Stored frames that could not be read back.
     pub unreadable: u32,
+    /// Some database frame was measured by sketch.
+    pub sketched: bool,
 }
 
 /// Whether the frame being measured, `ahead` frames behind the oldest in
@@ -91,6 +96,7 @@ pub(super) fn against_database<const POOL: usize, const DB: usize, const K: usiz
         // keeps the highest IoU, ties to the lowest index.
         nearest: db.index.entries().first().map(|e| (0.0, e.index)),
         unreadable: 0,
+        sketched: false,
     };
     let bound = |e: &DbEntry| match &new.aabb {
         Some(a) if e.len > 0 && e.bbox.touches(a) => {
@@ -106,19 +112,14 @@ pub(super) fn against_database<const POOL: usize, const DB: usize, const K: usiz
         }
         for e in db.index.entries() {
             let b = bound(e);
-            // A resident frame costs no read: measured whenever the boxes
-            // touch, as the sketch model of the selector has it.
-            let near = new
-                .aabb
-                .as_ref()
-                .is_some_and(|a| e.len > 0 && e.bbox.touches(a));
-            let first = b > mu || (e.resident && near);
+            let first = b > mu;
             let wanted = if pass == 0 { first } else { !first && b > 0.0 };
             if !wanted {
                 continue;
             }
             match measure(cfg, pool, &mut db, e, new, fresh) {
-                Some((x, overlaps)) => {
+                Some((x, overlaps, by_sketch)) => {
+                    m.sketched |= by_sketch;
                     m.nearest = better(m.nearest, x, e.index);
                     if overlaps {
                         m.cover = better(m.cover, x, e.index);
@@ -131,8 +132,9 @@ pub(super) fn against_database<const POOL: usize, const DB: usize, const K: usiz
     m
 }
 
-/// The IoU of the new frame with database frame `e` and whether it counts
-/// as an overlap; `None` when the store cannot read the frame back.
+/// The IoU of the new frame with database frame `e`, whether it counts as
+/// an overlap, and whether it was measured by sketch; `None` when the store
+/// cannot read the frame back.
 fn measure<const POOL: usize, const DB: usize, const K: usize>(
     cfg: &SelectorConfig,
     pool: &KeyPool<POOL>,
@@ -140,11 +142,14 @@ fn measure<const POOL: usize, const DB: usize, const K: usize>(
     e: &DbEntry,
     new: &Stored<K>,
     fresh: Fresh<'_>,
-) -> Option<(f32, bool)> {
-    let exact = |x: f32| (x, x > cfg.mu);
-    let sketched = |x: f32| (x, x > cfg.mu + cfg.sketch_margin);
+) -> Option<(f32, bool, bool)> {
+    let exact = |x: f32| (x, x > cfg.mu, false);
+    let sketched = |x: f32| (x, x > cfg.mu + cfg.sketch_margin, true);
     let resident = db.resident.iter().find(|r| r.meta.index == e.index);
-    if let Some((r, run)) = resident.and_then(|r| Some((r, r.keys.as_ref()?))) {
+    // Exact from RAM only where a restored device is exact too.
+    let exact_in_ram = e.keyed || e.at == NOWHERE;
+    let in_ram = resident.filter(|_| exact_in_ram);
+    if let Some((r, run)) = in_ram.and_then(|r| Some((r, r.keys.as_ref()?))) {
         let common = pool.intersect_fresh(run, r.aabb.as_ref(), fresh);
         return Some(exact(iou(new.len, r.len, common)));
     }

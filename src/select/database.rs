@@ -24,11 +24,26 @@ pub const NOWHERE: u32 = u32::MAX;
 
 /// Bytes of encoded exact keys (see [`crate::persist::keys`]) a scan may
 /// give to the store: the keys of the first database frames, until this
-/// much, go with them (frames after that are compared by sketch once they
-/// leave RAM). 384 KiB leaves the rest of a 1 MiB log for the sketches of
-/// ~1,000 database frames and the labels of ~20,000 frames. The selector
-/// counts it, not the store, so that a replay decides as a board does.
+/// much, go with them (frames after that are kept without keys and compared
+/// by sketch, resident or not: see [`super::Selector`]). 384 KiB leaves the
+/// rest of a 1 MiB log for the sketches of ~1,000 database frames and the
+/// labels of ~20,000 frames. The selector counts it, not the store, so that
+/// a replay decides as a board does.
 pub const KEY_BUDGET: u32 = 384 * 1024;
+
+/// The key budget of a store of `log_bytes` (a device's flash log; see
+/// [`crate::persist::Journal::usage`]): [`KEY_BUDGET`], or half the log
+/// when that is less, so that a small log keeps room for the labels and
+/// sketches. Both boards' logs (1 MiB) give [`KEY_BUDGET`], as the host's
+/// replay counts.
+pub const fn key_budget_for_log(log_bytes: u32) -> u32 {
+    let half = log_bytes / 2;
+    if half < KEY_BUDGET {
+        half
+    } else {
+        KEY_BUDGET
+    }
+}
 
 /// Where database frames live once they leave RAM. A device backs it with its
 /// flash log; the host replay with a `Vec`; [`NoStore`] keeps nothing (a

@@ -152,9 +152,18 @@ pub struct Status {
     pub window: Usage,
     /// Distinct voxels in one frame.
     pub frame_voxels: Usage,
-    /// Frames stored without exact keys, or that gave theirs up to a newer
-    /// frame (compared by sketch).
+    /// Frames whose exact keys the key pool could not hold while they were
+    /// in the window (see [`Selector`]'s window rule), or, without a store,
+    /// database frames that gave theirs up to a newer frame: compared by
+    /// sketch.
     pub sketched_frames: u32,
+    /// Database frames the store keeps without their exact keys (the key
+    /// budget was spent, or the pool held none of them): compared by sketch
+    /// for the rest of the scan.
+    pub unkeyed_frames: u32,
+    /// Frames measured by sketch against at least one database or window
+    /// frame: their coverage decision may rest on an estimate.
+    pub sketch_compared_frames: u32,
     /// Frames whose voxel set was truncated.
     pub truncated_frames: u32,
     /// Frames decided [`Decision::Uncovered`].
@@ -164,7 +173,8 @@ pub struct Status {
     /// Stored database frames that could not be read back (compared as
     /// overlapping nothing).
     pub unreadable_frames: u32,
-    /// Bytes of exact keys given to the store (at most [`database::KEY_BUDGET`]).
+    /// Bytes of exact keys given to the store (at most the key budget:
+    /// [`Selector::key_budget`]).
     pub stored_key_bytes: u32,
     /// Sampled pixels with a valid depth, over all frames.
     pub valid_pixels: u64,
@@ -183,6 +193,8 @@ impl Status {
         window: Usage::ZERO,
         frame_voxels: Usage::ZERO,
         sketched_frames: 0,
+        unkeyed_frames: 0,
+        sketch_compared_frames: 0,
         truncated_frames: 0,
         uncovered_frames: 0,
         out_of_range_points: 0,
@@ -226,6 +238,9 @@ struct Slot<const W: usize, const K: usize> {
     adjacent: u64,
     /// IoU with the frame in ring slot t (valid while both are live).
     iou: [f32; W],
+    /// Key pool words the window rule counts for it: its voxels when it
+    /// got its exact keys on arrival, else 0.
+    held: u32,
 }
 
 /// A window ring entry. Not `Option<Slot>`: its `None` would be encoded in
@@ -260,6 +275,7 @@ impl<const W: usize, const K: usize> RingEntry<W, K> {
             nearest: None,
             adjacent: 0,
             iou: [0.0; W],
+            held: 0,
         },
     };
 
@@ -300,6 +316,16 @@ pub struct Selector<
     ring: [RingEntry<W, K>; W],
     head: usize,
     len: usize,
+    /// Key pool words of decided frames (their `Slot::held`), by frame
+    /// index modulo `W`: the window rule counts the frames of the window's
+    /// span that a restore brought back decided (see [`Self::window_voxels`]).
+    recent: [u32; W],
+    /// The first frame the window rule counts: the window emptied before it
+    /// (a finish).
+    recent_from: u32,
+    /// The key budget when not [`KEY_BUDGET`] (see [`Self::set_key_budget`]);
+    /// `None` keeps a fresh selector all zero bytes.
+    key_budget: Option<core::num::NonZeroU32>,
     status: Status,
 }
 
@@ -307,7 +333,7 @@ pub struct Selector<
 /// rule for when keys are stored, and the selector alone applies it: a
 /// frame taken while deciding for a new frame (`end_frame_with`) offers its
 /// keys when they take at most [`crate::persist::keys::MAX_KEY_CHUNKS`]
-/// chunks and fit what is left of [`database::KEY_BUDGET`], and so does a
+/// chunks and fit what is left of the key budget ([`Selector::key_budget`]), and so does a
 /// frame taken by `finish_with` (a later session is compared with it);
 /// `finish_without_keys` offers none. A store keeps every key it is offered: the host replay's store always can,
 /// and a device refuses the frame (`StorageFull`) before its log could not
@@ -351,7 +377,8 @@ struct WindowView {
 /// Measures the overlap of a new frame (its exact keys in hand) with every
 /// database frame near it and every open window frame, records the window
 /// relations in both directions, and returns the new frame's window slot and
-/// the number of stored frames that could not be read. The keys come staged
+/// the number of stored frames that could not be read, and whether any
+/// overlap was measured by sketch. The keys come staged
 /// in the pool's free space too when it had room (the merges then compare
 /// 32-bit words). Kept out of line so instruction counts split voxelize /
 /// overlap / select.
@@ -364,13 +391,14 @@ fn overlaps<const POOL: usize, const DB: usize, const W: usize, const K: usize>(
     window: WindowView,
     new: Stored<K>,
     fresh: Fresh<'_>,
-) -> (Slot<W, K>, u32) {
+) -> (Slot<W, K>, u32, bool) {
     let (mu, margin) = (cfg.mu, cfg.sketch_margin);
     let touching = |a: &Option<Aabb>, b: &Option<Aabb>| match (a, b) {
         (Some(a), Some(b)) => a.touches(b),
         _ => false,
     };
-    let overlap = |other: &Stored<K>| -> (f32, bool) {
+    let mut sketched = false;
+    let mut overlap = |other: &Stored<K>| -> (f32, bool) {
         if !touching(&new.aabb, &other.aabb) {
             return (0.0, false);
         }
@@ -381,8 +409,19 @@ fn overlaps<const POOL: usize, const DB: usize, const W: usize, const K: usize>(
                 (x, x > mu)
             }
             None => {
+                // As against a database frame: the estimate counts only
+                // where the new frame's voxels in the other's box allow an
+                // IoU above mu (sketch noise above a proven bound never
+                // makes an overlap).
+                sketched = true;
                 let x = new.sketch.jaccard(&other.sketch);
-                (x, x > mu + margin)
+                let allowed = || {
+                    other.aabb.as_ref().is_some_and(|a| {
+                        let inside = database::CoarseBox::of(a).count_in(fresh.keys);
+                        iou(new.len, other.len, inside) > mu
+                    })
+                };
+                (x, x > mu + margin && allowed())
             }
         }
     };
@@ -390,6 +429,7 @@ fn overlaps<const POOL: usize, const DB: usize, const W: usize, const K: usize>(
         cover,
         nearest,
         unreadable,
+        sketched: db_sketched,
     } = against_database(cfg, pool, db, &new, fresh, window.len);
     let s = window.slot;
     let mut slot = Slot {
@@ -399,6 +439,7 @@ fn overlaps<const POOL: usize, const DB: usize, const W: usize, const K: usize>(
         nearest,
         adjacent: 0,
         iou: [0.0; W],
+        held: 0,
     };
     for k in 0..window.len {
         let t = (window.head + k) % W;
@@ -421,7 +462,7 @@ fn overlaps<const POOL: usize, const DB: usize, const W: usize, const K: usize>(
             }
         }
     }
-    (slot, unreadable)
+    (slot, unreadable, sketched || db_sketched)
 }
 
 impl<
@@ -465,6 +506,9 @@ impl<
             ring: [const { RingEntry::EMPTY }; W],
             head: 0,
             len: 0,
+            recent: [0; W],
+            recent_from: 0,
+            key_budget: None,
             status: Status::ZERO,
         }
     }
@@ -479,6 +523,8 @@ impl<
         self.ring.iter_mut().for_each(|s| *s = RingEntry::EMPTY);
         self.head = 0;
         self.len = 0;
+        self.recent = [0; W];
+        self.recent_from = 0;
         self.status = Status::default();
     }
 
@@ -545,7 +591,9 @@ impl<
     /// what is left of the key budget.
     fn key_chunks_for(&self, takes: usize) -> usize {
         use crate::persist::keys::{KEY_CHUNK_BYTES, MAX_KEY_CHUNKS};
-        let left = KEY_BUDGET.saturating_sub(self.status.stored_key_bytes) as usize;
+        let left = self
+            .key_budget()
+            .saturating_sub(self.status.stored_key_bytes) as usize;
         if left == 0 || takes == 0 {
             return 0;
         }
@@ -553,9 +601,42 @@ impl<
         by_budget.min(takes.saturating_mul(MAX_KEY_CHUNKS))
     }
 
+    /// The key pool words decided frame `index` got on arrival (its voxels
+    /// when it kept its exact keys, else 0), while it is among the last `W`
+    /// decided (every frame one step decides is): what a device stores with
+    /// its decision, for the window rule of a restored scan.
+    pub fn decided_held(&self, index: u32) -> Option<u32> {
+        let decided = self.status.frames_decided;
+        let recent = decided.saturating_sub(W as u32)..decided;
+        if !recent.contains(&index) {
+            return None;
+        }
+        self.recent.get(index as usize % W).copied()
+    }
+
+    /// Sets the bytes of exact keys a scan may give to the store (default
+    /// [`KEY_BUDGET`]; a device sets [`database::key_budget_for_log`] of its
+    /// log). A property of the store, kept by [`Self::reset`]; set it before
+    /// a scan, and the same for a restore as for the scan it restores.
+    pub fn set_key_budget(&mut self, bytes: u32) {
+        self.key_budget = core::num::NonZeroU32::new(bytes.max(1));
+    }
+
+    /// The key budget in force (see [`Self::set_key_budget`]).
+    pub fn key_budget(&self) -> u32 {
+        self.key_budget
+            .map_or(KEY_BUDGET, core::num::NonZeroU32::get)
+    }
+
     /// Number of database entries.
     pub fn database_len(&self) -> usize {
         self.db.len()
+    }
+
+    /// The index entry of database frame `i` in frame order (its frame
+    /// index and where the store keeps it).
+    pub fn database_entry(&self, i: usize) -> Option<database::DbEntry> {
+        self.db.entries().get(i).copied()
     }
 
     /// Database entry `i` in frame order, from RAM when it is resident, else
@@ -629,6 +710,11 @@ impl<
             Some((_, cfg)) => *cfg,
             None => return Err(SelectError::NotConfigured),
         };
+        // The window's span before this frame (see the window rule below).
+        let span = self
+            .ingest
+            .current()
+            .map_or(0, |m| self.window_voxels(m.index, usize::from(cfg.window)));
         let (meta, keys, stats) = self.ingest.end()?;
         let n = keys.len() as u32;
         let aabb = Aabb::of_sorted(keys);
@@ -653,19 +739,28 @@ impl<
             store,
         };
         // Encoded once for the store, and merged as words meanwhile.
+        // The window rule: the frame keeps its exact keys in the pool when
+        // they fit beside the keys the frames before it in the window's span
+        // (the last `window` frames of the session) got on arrival. It
+        // depends on the frames alone, never on what RAM held (resident
+        // keys give way), so a device restored from flash keeps the keys of
+        // the same frames as one that never lost power.
+        let admitted = span.saturating_add(u64::from(n)) <= POOL as u64;
         let staged = aabb.as_ref().and_then(|a| self.pool.stage(keys, a));
         let fresh = Fresh {
             keys,
             staged: staged.as_ref(),
         };
-        let (mut slot, unreadable) =
+        let (mut slot, unreadable, sketch_compared) =
             overlaps(&cfg, &self.pool, db, &mut self.ring, window, new, fresh);
-        if let Some(a) = &aabb {
+        if let (Some(a), true) = (&aabb, admitted) {
             // What `store` would give: staging refuses exactly what it refuses.
             slot.frame.keys = staged.and_then(|s| self.pool.commit(&s));
-            // Pool full: the oldest database frames give up their exact keys
-            // (they are compared least, only on revisits) so that the frames
-            // of the window, compared with every new frame, stay exact.
+            // The resident database frames give up their keys until the frame
+            // fits, oldest first. By the window rule it then does: the pool
+            // holds, besides resident keys, only window frames' keys. A frame
+            // the store keeps with its keys is still compared exactly from
+            // there; one only in RAM (no store) is compared by sketch since.
             let worth_it = a.fits_relative() && keys.len() <= POOL;
             let mut next = 0;
             while slot.frame.keys.is_none() && worth_it {
@@ -675,19 +770,31 @@ impl<
                     break;
                 };
                 next = i + 1;
-                if let Some(run) = self.resident.get_mut(i).and_then(|r| r.keys.take()) {
+                let Some(r) = self.resident.get_mut(i) else {
+                    break;
+                };
+                let index = r.meta.index;
+                if let Some(run) = r.keys.take() {
                     drop_keys(&mut self.pool, &mut self.resident, &mut self.ring, &run);
-                    self.status.sketched_frames = self.status.sketched_frames.saturating_add(1);
-                    self.status.flags |= flags::POOL_FULL;
+                    let ram_only = self.db.find(index).and_then(|j| self.db.entries().get(j));
+                    if ram_only.is_some_and(|e| e.at == NOWHERE) {
+                        let st = &mut self.status;
+                        st.sketched_frames = st.sketched_frames.saturating_add(1);
+                        st.flags |= flags::POOL_FULL;
+                    }
                 }
                 slot.frame.keys = self.pool.store(keys, a);
             }
         }
+        slot.held = if slot.frame.keys.is_some() { n } else { 0 };
         // Bookkeeping of this frame's degradations.
         let st = &mut self.status;
         if n > 0 && slot.frame.keys.is_none() {
             st.sketched_frames = st.sketched_frames.saturating_add(1);
             st.flags |= flags::POOL_FULL;
+        }
+        if sketch_compared {
+            st.sketch_compared_frames = st.sketch_compared_frames.saturating_add(1);
         }
         if stats.dropped > 0 {
             st.truncated_frames = st.truncated_frames.saturating_add(1);
@@ -815,7 +922,31 @@ impl<
         while self.len > 0 {
             self.decide_oldest(store, offer, &mut emit);
         }
+        self.recent_from = self.status.frames_decided;
         Ok(())
+    }
+
+    /// Key pool words the window rule counts before frame `index`: those
+    /// the frames from `index + 1 - window` (or from the last finish) to
+    /// `index - 1` got on arrival, in the window or, after a restore,
+    /// decided already (their counts come back with their decisions).
+    fn window_voxels(&self, index: u32, window: usize) -> u64 {
+        let in_ring: u64 = (0..self.len)
+            .filter_map(|k| self.ring.get((self.head + k) % W).and_then(RingEntry::get))
+            .map(|s| u64::from(s.held))
+            .sum();
+        let lo = index
+            .saturating_add(1)
+            .saturating_sub(window as u32)
+            .max(self.recent_from);
+        let decided = self.status.frames_decided.min(index);
+        // At most `window - 1` frames (lo > index - window), all among the
+        // last `W` decided.
+        let restored: u64 = (lo..decided)
+            .filter_map(|f| self.recent.get(f as usize % W))
+            .map(|&v| u64::from(v))
+            .sum();
+        in_ring.saturating_add(restored)
     }
 
     fn note_usage(&mut self) {
@@ -894,6 +1025,7 @@ impl<
             return;
         };
         let index = oldest.frame.meta.index;
+        let oldest_held = oldest.held;
         let decision = if oldest.taken {
             Decision::Taken
         } else if let Some((_, k)) = oldest.cover {
@@ -931,6 +1063,9 @@ impl<
             }
         };
         emit(FrameDecision { index, decision });
+        if let Some(v) = self.recent.get_mut(index as usize % W) {
+            *v = oldest_held;
+        }
         self.status.frames_decided = self.status.frames_decided.saturating_add(1);
         if let Some(gone) = self.ring.get_mut(o).and_then(RingEntry::take) {
             if let (false, Some(run)) = (gone.taken, gone.frame.keys) {
@@ -962,7 +1097,7 @@ impl<
             return false;
         }
         // Evicting may have moved the pool: read the frame's run afterwards.
-        let Some(frame) = self
+        let Some(mut frame) = self
             .ring
             .get(t)
             .and_then(RingEntry::get)
@@ -974,7 +1109,9 @@ impl<
         // see `KeyOffer`).
         let words = frame.keys.as_ref().map(|run| self.pool.words(run));
         let (chunks, bytes) = words.map_or((0, 0), crate::persist::keys::encoded_size);
-        let budget_left = KEY_BUDGET.saturating_sub(self.status.stored_key_bytes) as usize;
+        let budget_left = self
+            .key_budget()
+            .saturating_sub(self.status.stored_key_bytes) as usize;
         let offer = words.filter(|_| {
             offer == KeyOffer::WithinBudget
                 && chunks <= crate::persist::keys::MAX_KEY_CHUNKS
@@ -984,6 +1121,17 @@ impl<
         if keyed {
             let st = &mut self.status;
             st.stored_key_bytes = st.stored_key_bytes.saturating_add(bytes as u32);
+        }
+        if at != NOWHERE && !keyed {
+            // Stored without its keys: compared by sketch from now on,
+            // resident or not (a restore brings it back without them), so
+            // its keys in the pool serve nothing.
+            if let Some(run) = frame.keys.take() {
+                self.drop_keys(&run);
+            }
+            if frame.len > 0 {
+                self.status.unkeyed_frames = self.status.unkeyed_frames.saturating_add(1);
+            }
         }
         let entry = database::DbEntry {
             resident: true,
@@ -1008,16 +1156,27 @@ impl<
             return;
         };
         slot.taken = true;
-        let frame = slot.frame.clone();
+        let mut frame = slot.frame.clone();
         let index = frame.meta.index;
+        let keyed = self
+            .db
+            .find(index)
+            .and_then(|i| self.db.entries().get(i))
+            .is_some_and(|e| e.keyed || e.at == NOWHERE);
+        if !keyed {
+            // The store holds it without keys: compared by sketch (as in
+            // `take`), so the copy in RAM keeps none either.
+            frame.keys = None;
+        }
         let already = self.resident.iter().any(|r| r.meta.index == index);
         let resident = !already && self.evict() && self.resident.push(frame).is_ok();
         if let Some(e) = self.db.get_mut(index) {
             e.resident = resident || already;
         }
-        if !resident {
-            // Not resident through this copy (no room, or resident already):
-            // its keys go back to the pool, the store (or RAM) has the rest.
+        if !resident || !keyed {
+            // Not resident through this copy (no room, or resident already),
+            // or resident without keys: its keys go back to the pool, the
+            // store (or RAM) has the rest.
             let keys = self.ring.get_mut(s).and_then(RingEntry::get_mut);
             if let Some(run) = keys.and_then(|s| s.frame.keys.take()) {
                 self.release(&run);

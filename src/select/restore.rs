@@ -95,9 +95,11 @@ impl<
         if !self.db.add(entry) {
             return Err(RestoreError::DatabaseFull);
         }
+        let st = &mut self.status;
         if keyed {
-            let st = &mut self.status;
             st.stored_key_bytes = st.stored_key_bytes.saturating_add(key_bytes);
+        } else if frame.voxels > 0 {
+            st.unkeyed_frames = st.unkeyed_frames.saturating_add(1);
         }
         self.note_usage();
         Ok(())
@@ -110,17 +112,29 @@ impl<
     pub fn forget_database(&mut self, index: u32, key_bytes: u32) -> Result<(), RestoreError> {
         self.restorable()?;
         let entry = self.db.remove(index).ok_or(RestoreError::BadDecision)?;
+        let st = &mut self.status;
         if entry.keyed {
-            let st = &mut self.status;
             st.stored_key_bytes = st.stored_key_bytes.saturating_sub(key_bytes);
+        } else if entry.len > 0 {
+            st.unkeyed_frames = st.unkeyed_frames.saturating_sub(1);
         }
         self.note_usage();
         Ok(())
     }
 
     /// Records the stored final decision of the next frame (frame
-    /// `frames_decided`); the next frame to stream is the one after it.
-    pub fn restore_decided(&mut self, index: u32, decision: Decision) -> Result<(), RestoreError> {
+    /// `frames_decided`), which got `held` key pool words on arrival (see
+    /// [`Selector::decided_held`]); the next frame to stream is the one
+    /// after it. The window rule counts these words of the last decided
+    /// frames (see [`Selector::end_frame_with`]); 0 where a store did not
+    /// keep them (a log written before they were kept, a database read from
+    /// files) decides as a window without them.
+    pub fn restore_decided(
+        &mut self,
+        index: u32,
+        decision: Decision,
+        held: u32,
+    ) -> Result<(), RestoreError> {
         self.restorable()?;
         let expected = self.status.frames_decided;
         if index != expected {
@@ -140,8 +154,20 @@ impl<
             self.status.uncovered_frames = self.status.uncovered_frames.saturating_add(1);
             self.status.flags |= flags::DATABASE_FULL;
         }
+        if let Some(v) = self.recent.get_mut(index as usize % W) {
+            *v = held;
+        }
         self.status.frames_decided = self.status.frames_decided.saturating_add(1);
         self.status.frames_seen = self.status.frames_decided;
+        Ok(())
+    }
+
+    /// The restored scan was finished after the decisions restored so far:
+    /// its window emptied there, so the frames that follow (a new session)
+    /// start a window of their own, as after [`Selector::finish_with`].
+    pub fn restore_finished(&mut self) -> Result<(), RestoreError> {
+        self.restorable()?;
+        self.recent_from = self.status.frames_decided;
         Ok(())
     }
 }

@@ -19,8 +19,8 @@ use crate::output::{self, metrics_json};
 use crate::sessions::extension::{self, Extension};
 use indicatif::ProgressBar;
 use placedb::protocol::{
-    encode, export_crc, Config, DeviceMessage, ErrorKind, ExportRecord, Feed, FrameDecoder,
-    HostMessage, Phase, RecordKind, Status, MAX_FRAME_LEN,
+    encode, export_crc, Config, DeviceMessage, ExportRecord, Feed, FrameDecoder, HostMessage,
+    Phase, RecordKind, Status, MAX_FRAME_LEN,
 };
 use placedb::DbRecord;
 use std::io;
@@ -154,19 +154,22 @@ fn export_batch<L: Link>(
                     "export batch from {from}: the request was damaged ({kind})"
                 )));
             }
-            Received::Message(DeviceMessage::Error {
-                seq: s,
-                kind: ErrorKind::ExportUnreadable,
-            }) if s == Some(seq) => {
-                let r = from.saturating_add(got.len() as u32);
+            Received::Message(DeviceMessage::ExportUnreadable(u)) if u.seq == seq => {
+                let r = u.record;
                 let what = if r < database {
-                    format!("database frame {} of {database}", r + 1)
+                    format!("database frame {} of {database}: frame {}", r + 1, u.frame)
                 } else {
-                    format!("the label of frame {}", r - database)
+                    format!("the label of frame {}", u.frame)
+                };
+                let place = match (u.log_at, r < database) {
+                    (Some(at), true) => format!(" (its record at log byte {at})"),
+                    (Some(at), false) => format!(" (after the decision batch at log byte {at})"),
+                    (None, _) => String::new(),
                 };
                 return Err(DeviceError::Input(format!(
                     "the device cannot read back record {r} of its export ({what}) from its flash \
-                     log: the flash is damaged there, and an export without it would be incomplete"
+                     log{place}: the flash is damaged there, and an export without it would be \
+                     incomplete"
                 )));
             }
             Received::Message(DeviceMessage::Error { seq: s, kind }) if s == Some(seq) => {
@@ -672,7 +675,7 @@ fn extension_of<L: Link>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use placedb::protocol::HostFrame;
+    use placedb::protocol::{ExportUnreadable, HostFrame};
     use placedb::Pose;
 
     /// A device of three database frames whose second cannot be read back
@@ -715,10 +718,12 @@ mod tests {
                                 })
                             })
                             .collect();
-                        r.push(DeviceMessage::Error {
-                            seq: Some(seq),
-                            kind: ErrorKind::ExportUnreadable,
-                        });
+                        r.push(DeviceMessage::ExportUnreadable(ExportUnreadable {
+                            seq,
+                            record: 1,
+                            frame: 4,
+                            log_at: Some(1234),
+                        }));
                         r
                     }
                     _ => Vec::new(),
@@ -755,8 +760,8 @@ mod tests {
         let err = err.to_string();
         assert!(
             err.contains(
-                "the device cannot read back record 1 of its export (database frame 2 of 3) \
-                 from its flash log"
+                "the device cannot read back record 1 of its export (database frame 2 of 3: \
+                 frame 4) from its flash log (its record at log byte 1234)"
             ),
             "{err}"
         );

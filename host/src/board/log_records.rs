@@ -244,11 +244,11 @@ pub fn scan_of(records: &[LogRecord]) -> Result<LoggedScan, DeviceError> {
                 };
                 latest.insert(meta.index, frame);
             }
-            Record::Decisions { first, .. } => {
+            Record::Decisions { first, .. } | Record::Labels { first, .. } => {
                 if first as usize != decisions.len() {
                     return bad(n, "decisions out of order");
                 }
-                decisions.extend(tail.decisions());
+                decisions.extend(tail.decisions(&record).map(|(t, kind, _)| (t, kind)));
             }
             Record::Session { first } | Record::SessionCamera { first, .. }
                 if finished && first as usize == decisions.len() =>

@@ -97,6 +97,8 @@ pub fn of_select(
         put("window", params.window.into());
         let st = &run.status;
         put("sketched_frames", st.sketched_frames.into());
+        put("unkeyed_frames", st.unkeyed_frames.into());
+        put("sketch_compared_frames", st.sketch_compared_frames.into());
         put("truncated_frames", st.truncated_frames.into());
         put("uncovered_by_capacity", st.uncovered_frames.into());
         put("degradation_flags", st.flags.into());
@@ -122,8 +124,9 @@ pub struct OnSequence<'a> {
 
 /// The keys of a device's `metrics.json` that it counts in RAM only, lost
 /// when it restarts.
-pub const RAM_COUNTERS: [&str; 9] = [
+pub const RAM_COUNTERS: [&str; 10] = [
     "sketched_frames",
+    "sketch_compared_frames",
     "truncated_frames",
     "uncovered_by_capacity",
     "labels_dropped",
@@ -169,6 +172,9 @@ pub fn of_device(
         "frames_decided": st.frames_decided,
         "frames_undecided": st.frames_seen.saturating_sub(st.frames_decided),
         "sketched_frames": st.sketched_frames,
+        // Restored from the log with the database: not lost at a restart.
+        "unkeyed_frames": st.unkeyed_frames,
+        "sketch_compared_frames": st.sketch_compared_frames,
         "truncated_frames": st.truncated_frames,
         "uncovered_by_capacity": st.uncovered_frames,
         "labels_dropped": st.labels_dropped,

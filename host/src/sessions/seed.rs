@@ -97,9 +97,13 @@ impl Seed for Extension {
                 })?;
         }
         for (i, f) in self.frames.iter().enumerate() {
-            sel.restore_decided(i as u32, decision_of(f.fate))
+            // Files keep no voxel counts: the window rule needs none after
+            // a finished scan (its window emptied at the finish).
+            sel.restore_decided(i as u32, decision_of(f.fate), 0)
                 .map_err(|_| refused(format!("the decision of frame {i} cannot be restored")))?;
         }
+        sel.restore_finished()
+            .map_err(|_| refused("the finished scan cannot be restored".to_string()))?;
         Ok(self.next_index())
     }
 

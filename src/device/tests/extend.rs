@@ -110,8 +110,9 @@ fn seeded_reference(cfg: &Config) -> (Vec<(u32, DecisionKind)>, Vec<u32>) {
         sel.restore_database(frame, at, keyed, bytes).unwrap();
     }
     for &(i, kind) in &labels_a {
-        sel.restore_decided(i, kind.into()).unwrap();
+        sel.restore_decided(i, kind.into(), 0).unwrap();
     }
+    sel.restore_finished().unwrap();
     let b = (0..B_FRAMES).map(|k| (A_FRAMES + k, B_FROM + k));
     let mut labels = labels_a;
     labels.extend(run(&mut sel, &mut seeded, b));
