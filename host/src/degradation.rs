@@ -88,10 +88,15 @@ impl Losses {
 /// counters, zero or not.
 pub fn online_summary(profile: &str, window: u16, st: &placedb::Status) -> String {
     format!(
-        "online core: profile {profile}, window {window}, {} by sketch ({} measured by sketch, {} database frames without exact keys in the store), {} truncated, {} uncovered by capacity, {} outside the key range",
-        plural(st.sketched_frames.into(), "frame", "frames"),
-        st.sketch_compared_frames,
+        "online core: profile {profile}, window {window}, {} without exact keys ({} for the key pool, {} after the key budget; {} measured by sketch), {} truncated, {} uncovered by capacity, {} outside the key range",
+        plural(
+            u64::from(st.sketched_frames) + u64::from(st.unkeyed_frames),
+            "frame",
+            "frames"
+        ),
+        st.sketched_frames,
         st.unkeyed_frames,
+        st.sketch_compared_frames,
         st.truncated_frames,
         st.uncovered_frames,
         plural(st.out_of_range_points.into(), "point", "points"),
@@ -115,9 +120,9 @@ pub fn device_warnings(st: &DeviceCounters) -> Vec<String> {
     );
     say(
         st.unkeyed_frames,
-        "database frame",
-        "database frames",
-        "kept without exact keys (no room for them in the key pool or the key budget), compared by sketch: unkeyed_frames",
+        "frame",
+        "frames",
+        "compared by sketch (the key budget of the flash log was spent): unkeyed_frames",
     );
     say(
         st.sketch_compared_frames,
@@ -151,7 +156,7 @@ pub fn device_warnings(st: &DeviceCounters) -> Vec<String> {
 pub struct DeviceCounters {
     /// Frames compared by sketch.
     pub sketched_frames: u64,
-    /// Database frames stored without exact keys.
+    /// Frames without exact keys because the key budget was spent.
     pub unkeyed_frames: u64,
     /// Frames measured by sketch against some frame.
     pub sketch_compared_frames: u64,

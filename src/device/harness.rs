@@ -61,6 +61,8 @@ pub trait AnyDevice: Send + 'static {
     fn restore_from(&mut self, log: &mut HarnessLog) -> Result<u32, RestoreFailure>;
     /// [`Device::add_receive_ticks`].
     fn add_receive_ticks(&mut self, ticks: u64);
+    /// The counters of [`Device::selector`].
+    fn selector_status(&self) -> crate::select::Status;
 }
 
 impl<
@@ -91,6 +93,10 @@ impl<
 
     fn add_receive_ticks(&mut self, ticks: u64) {
         Device::add_receive_ticks(self, ticks);
+    }
+
+    fn selector_status(&self) -> crate::select::Status {
+        self.selector().status()
     }
 }
 

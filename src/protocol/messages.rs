@@ -589,6 +589,8 @@ pub mod degradation {
     pub const DATABASE_FULL: u32 = flags::DATABASE_FULL;
     /// Points beyond the voxel key range were skipped.
     pub const OUT_OF_RANGE: u32 = flags::OUT_OF_RANGE;
+    /// See [`flags::KEY_BUDGET_SPENT`].
+    pub const KEY_BUDGET_SPENT: u32 = flags::KEY_BUDGET_SPENT;
     /// Labels of some frames were not stored (no flash, a full or failed
     /// log); selection went on, and the host received every decision live.
     pub const LABELS_FULL: u32 = 1 << 8;
@@ -671,8 +673,9 @@ pub struct Status {
     /// sketch; protocol 7 counts only these, not database frames whose keys
     /// are in flash).
     pub sketched_frames: u32,
-    /// Database frames kept in flash without their exact keys (the key
-    /// budget was spent): compared by sketch (protocol 7).
+    /// Frames that arrived after the key budget was spent: they keep no
+    /// exact keys (none would be kept in flash) and are compared by sketch
+    /// (protocol 7).
     pub unkeyed_frames: u32,
     /// Frames measured by sketch against some database or window frame:
     /// their coverage decision may rest on an estimate (protocol 7).

@@ -90,11 +90,19 @@ pub(super) fn against_database<const POOL: usize, const DB: usize, const K: usiz
     ahead: usize,
 ) -> Measured {
     let mu = cfg.mu;
+    // Only the database frames before the new one: a later frame is in the
+    // database only when a restore brought it back ahead of its own
+    // decision (see `Selector::restore_database`), and the uninterrupted
+    // scan met it as a window frame when it arrived, after this one; so
+    // does the resumed scan, when it is streamed again.
+    let index = new.meta.index;
+    let earlier = db.index.entries().partition_point(|e| e.index < index);
+    let entries = db.index.entries().get(..earlier).unwrap_or(&[]);
     let mut m = Measured {
         cover: None,
         // The lowest frame index, in case nothing overlaps at all: `better`
         // keeps the highest IoU, ties to the lowest index.
-        nearest: db.index.entries().first().map(|e| (0.0, e.index)),
+        nearest: entries.first().map(|e| (0.0, e.index)),
         unreadable: 0,
         sketched: false,
     };
@@ -110,7 +118,7 @@ pub(super) fn against_database<const POOL: usize, const DB: usize, const K: usiz
         if pass == 1 && (m.cover.is_some() || !may_end_uncovered(&db, ahead)) {
             break;
         }
-        for e in db.index.entries() {
+        for e in entries {
             let b = bound(e);
             let first = b > mu;
             let wanted = if pass == 0 { first } else { !first && b > 0.0 };
@@ -147,13 +155,13 @@ fn measure<const POOL: usize, const DB: usize, const K: usize>(
     let sketched = |x: f32| (x, x > cfg.mu + cfg.sketch_margin, true);
     let resident = db.resident.iter().find(|r| r.meta.index == e.index);
     // Exact from RAM only where a restored device is exact too.
-    let exact_in_ram = e.keyed || e.at == NOWHERE;
+    let exact_in_ram = e.keyed() || e.at == NOWHERE;
     let in_ram = resident.filter(|_| exact_in_ram);
     if let Some((r, run)) = in_ram.and_then(|r| Some((r, r.keys.as_ref()?))) {
         let common = pool.intersect_fresh(run, r.aabb.as_ref(), fresh);
         return Some(exact(iou(new.len, r.len, common)));
     }
-    if e.keyed {
+    if e.keyed() {
         if let Some((common, len)) = db.store.intersect(e.at, fresh.keys) {
             return Some(exact(iou(new.len, len, common)));
         }

@@ -32,14 +32,14 @@ pub const NOWHERE: u32 = u32::MAX;
 pub const KEY_BUDGET: u32 = 384 * 1024;
 
 /// The key budget of a store of `log_bytes` (a device's flash log; see
-/// [`crate::persist::Journal::usage`]): [`KEY_BUDGET`], or half the log
-/// when that is less, so that a small log keeps room for the labels and
-/// sketches. Both boards' logs (1 MiB) give [`KEY_BUDGET`], as the host's
-/// replay counts.
+/// [`crate::persist::Journal::usage`]): [`KEY_BUDGET`], or two fifths of
+/// the log when that is less, so that a small log keeps room for the
+/// labels and sketches. Both boards' logs (1 MiB, of which 1,020 KiB hold
+/// records) give [`KEY_BUDGET`], as the host's replay counts.
 pub const fn key_budget_for_log(log_bytes: u32) -> u32 {
-    let half = log_bytes / 2;
-    if half < KEY_BUDGET {
-        half
+    let share = log_bytes / 5 * 2;
+    if share < KEY_BUDGET {
+        share
     } else {
         KEY_BUDGET
     }
@@ -181,8 +181,32 @@ pub struct DbEntry {
     pub len: u16,
     /// It is held whole in RAM (the selector's resident set).
     pub resident: bool,
+    /// The bytes of exact keys the store kept of it, in units of
+    /// [`KEY_UNIT`] bytes, rounded up (0: none kept; it is compared by
+    /// sketch). What the key budget counts of it.
+    pub key_units: u8,
+}
+
+/// The unit of [`DbEntry::key_units`]: a frame's keys take at most
+/// `MAX_KEY_CHUNKS` chunks of `KEY_CHUNK_BYTES` (5,888 bytes, 92 units).
+pub const KEY_UNIT: u32 = 64;
+
+impl DbEntry {
     /// The store kept its exact keys: it is compared exactly from there.
-    pub keyed: bool,
+    pub fn keyed(&self) -> bool {
+        self.key_units > 0
+    }
+}
+
+/// [`DbEntry::key_units`] of keys that took `bytes` (at least 1 when the
+/// keys were kept, whatever their size).
+pub fn key_units(keyed: bool, bytes: u32) -> u8 {
+    if !keyed {
+        return 0;
+    }
+    u8::try_from(bytes.div_ceil(KEY_UNIT))
+        .unwrap_or(u8::MAX)
+        .max(1)
 }
 
 /// Database entries sorted by frame index, at most `N`.
@@ -270,7 +294,7 @@ pub fn entry_of<const K: usize>(frame: &DbSnapshot<K>, at: u32) -> DbEntry {
             0
         },
         resident: false,
-        keyed: false,
+        key_units: 0,
     }
 }
 

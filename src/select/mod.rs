@@ -38,6 +38,7 @@ mod restore;
 pub use database::{FrameStore, NoStore};
 pub use restore::{DbSnapshot, RestoreError};
 
+use crate::persist::keys::{KEY_CHUNK_BYTES, MAX_KEY_CHUNKS};
 use against_db::{against_database, DbView, Measured};
 use database::{entry_of, DbIndex, KEY_BUDGET, NOWHERE};
 
@@ -109,6 +110,9 @@ pub mod flags {
     pub const DATABASE_FULL: u32 = 1 << 2;
     /// Some points were too far from the grid origin for a voxel key.
     pub const OUT_OF_RANGE: u32 = 1 << 3;
+    /// The key budget was spent: later frames keep no exact keys and are
+    /// compared by sketch.
+    pub const KEY_BUDGET_SPENT: u32 = 1 << 4;
 }
 
 /// One capacity: what is used now, the most ever used, and the limit.
@@ -152,14 +156,13 @@ pub struct Status {
     pub window: Usage,
     /// Distinct voxels in one frame.
     pub frame_voxels: Usage,
-    /// Frames whose exact keys the key pool could not hold while they were
-    /// in the window (see [`Selector`]'s window rule), or, without a store,
+    /// Frames whose exact keys the key pool could not hold on arrival (see
+    /// [`Selector::end_frame_with`]'s window rule), or, without a store,
     /// database frames that gave theirs up to a newer frame: compared by
     /// sketch.
     pub sketched_frames: u32,
-    /// Database frames the store keeps without their exact keys (the key
-    /// budget was spent, or the pool held none of them): compared by sketch
-    /// for the rest of the scan.
+    /// Frames that arrived after the key budget was spent: their keys would
+    /// not be kept in flash, so they keep none and are compared by sketch.
     pub unkeyed_frames: u32,
     /// Frames measured by sketch against at least one database or window
     /// frame: their coverage decision may rest on an estimate.
@@ -326,23 +329,28 @@ pub struct Selector<
     /// The key budget when not [`KEY_BUDGET`] (see [`Self::set_key_budget`]);
     /// `None` keeps a fresh selector all zero bytes.
     key_budget: Option<core::num::NonZeroU32>,
+    /// The key bytes (in [`database::KEY_UNIT`]s) of the database frames
+    /// before a frame index: `(index, units)`, a running sum for the key
+    /// budget rule (see [`Self::settled_key_bytes`]).
+    settled: (u32, u32),
     status: Status,
 }
 
 /// Whether a frame taken gives the store its exact keys. This is the one
 /// rule for when keys are stored, and the selector alone applies it: a
-/// frame taken while deciding for a new frame (`end_frame_with`) offers its
-/// keys when they take at most [`crate::persist::keys::MAX_KEY_CHUNKS`]
-/// chunks and fit what is left of the key budget ([`Selector::key_budget`]), and so does a
+/// frame taken while deciding for a new frame (`end_frame_with`) offers the
+/// keys it kept on arrival (the window rule decided that, the key budget
+/// ([`Selector::key_budget`]) and the chunk limit included), and so does a
 /// frame taken by `finish_with` (a later session is compared with it);
-/// `finish_without_keys` offers none. A store keeps every key it is offered: the host replay's store always can,
-/// and a device refuses the frame (`StorageFull`) before its log could not
+/// `finish_without_keys` offers none. A store keeps every key it is
+/// offered: the host replay's store always can, and a device refuses the
+/// frame (`StorageFull`) before its log could not
 /// ([`Selector::key_chunks_next_frame`]), so a replay and a device decide
 /// alike up to the last frame the device's log accepts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum KeyOffer {
-    /// The keys while they fit the budget.
-    WithinBudget,
+    /// The keys the frame kept on arrival.
+    Held,
     /// No keys.
     None,
 }
@@ -509,6 +517,7 @@ impl<
             recent: [0; W],
             recent_from: 0,
             key_budget: None,
+            settled: (0, 0),
             status: Status::ZERO,
         }
     }
@@ -525,6 +534,7 @@ impl<
         self.len = 0;
         self.recent = [0; W];
         self.recent_from = 0;
+        self.settled = (0, 0);
         self.status = Status::default();
     }
 
@@ -573,32 +583,32 @@ impl<
     }
 
     /// Most key chunks the store may be given while the next frame ends
-    /// (see `KeyOffer`): each frame it decides may take one frame, whose
-    /// keys take at most [`crate::persist::keys::MAX_KEY_CHUNKS`] chunks and
-    /// at most what is left of the key budget (every chunk but a frame's last
-    /// holds more than `KEY_CHUNK_BYTES - 5` bytes). A device reserves log
-    /// room for them before it accepts the frame.
+    /// (see `KeyOffer`): each frame it decides may take one frame, and a
+    /// frame taken gives the keys it kept on arrival, at most
+    /// [`crate::persist::keys::MAX_KEY_CHUNKS`] chunks; the next frame may
+    /// keep its keys too. A device reserves log room for them before it
+    /// accepts the frame.
     pub fn key_chunks_next_frame(&self) -> usize {
         let window = self
             .config
             .as_ref()
             .map_or(1, |(_, c)| usize::from(c.window));
         // The frames that leave the window when the next frame ends.
-        self.key_chunks_for((self.len + 1).saturating_sub(window.saturating_sub(1)))
+        let takes = (self.len + 1).saturating_sub(window.saturating_sub(1));
+        self.key_chunks_for(takes, 1)
     }
 
-    /// The most key chunk records `takes` frames taken may write, within
-    /// what is left of the key budget.
-    fn key_chunks_for(&self, takes: usize) -> usize {
-        use crate::persist::keys::{KEY_CHUNK_BYTES, MAX_KEY_CHUNKS};
-        let left = self
-            .key_budget()
-            .saturating_sub(self.status.stored_key_bytes) as usize;
-        if left == 0 || takes == 0 {
-            return 0;
-        }
-        let by_budget = left / (KEY_CHUNK_BYTES - 5) + takes;
-        by_budget.min(takes.saturating_mul(MAX_KEY_CHUNKS))
+    /// The most key chunk records `takes` frames taken may write: only
+    /// frames holding exact keys give any (the window's, and `arriving`
+    /// more), each at most [`MAX_KEY_CHUNKS`].
+    fn key_chunks_for(&self, takes: usize, arriving: usize) -> usize {
+        let holding = (0..self.len)
+            .filter_map(|k| self.ring.get((self.head + k) % W).and_then(RingEntry::get))
+            .filter(|s| !s.taken && s.frame.keys.is_some())
+            .count();
+        takes
+            .min(holding.saturating_add(arriving))
+            .saturating_mul(MAX_KEY_CHUNKS)
     }
 
     /// The key pool words decided frame `index` got on arrival (its voxels
@@ -711,10 +721,14 @@ impl<
             None => return Err(SelectError::NotConfigured),
         };
         // The window's span before this frame (see the window rule below).
-        let span = self
-            .ingest
-            .current()
-            .map_or(0, |m| self.window_voxels(m.index, usize::from(cfg.window)));
+        let (span, budget_spent) = match self.ingest.current().map(|m| m.index) {
+            Some(index) => {
+                let from = self.span_start(index, usize::from(cfg.window));
+                let spent = self.settled_key_bytes(from) >= self.key_budget();
+                (self.window_voxels(index, usize::from(cfg.window)), spent)
+            }
+            None => (0, false),
+        };
         let (meta, keys, stats) = self.ingest.end()?;
         let n = keys.len() as u32;
         let aabb = Aabb::of_sorted(keys);
@@ -738,14 +752,17 @@ impl<
             index: &self.db,
             store,
         };
-        // Encoded once for the store, and merged as words meanwhile.
         // The window rule: the frame keeps its exact keys in the pool when
         // they fit beside the keys the frames before it in the window's span
-        // (the last `window` frames of the session) got on arrival. It
-        // depends on the frames alone, never on what RAM held (resident
+        // (the last `window` frames of the session) got on arrival, and the
+        // key budget was not spent by the database frames before that span.
+        // Both depend on the frames alone, never on what RAM held (resident
         // keys give way), so a device restored from flash keeps the keys of
-        // the same frames as one that never lost power.
-        let admitted = span.saturating_add(u64::from(n)) <= POOL as u64;
+        // the same frames as one that never lost power; and a frame that
+        // keeps its keys gives them to the store when it is taken, so it is
+        // compared exactly in the window and in the database alike.
+        let admitted = !budget_spent && span.saturating_add(u64::from(n)) <= POOL as u64;
+        // Encoded once for the store, and merged as words meanwhile.
         let staged = aabb.as_ref().and_then(|a| self.pool.stage(keys, a));
         let fresh = Fresh {
             keys,
@@ -786,10 +803,23 @@ impl<
                 slot.frame.keys = self.pool.store(keys, a);
             }
         }
+        // Keys a store could not keep whole (more chunks than a frame may
+        // write: a fact of the keys) are not kept here either.
+        if let Some(run) = slot.frame.keys {
+            let worst = n as usize * 5 > MAX_KEY_CHUNKS * (KEY_CHUNK_BYTES - 5);
+            let words = self.pool.words(&run);
+            if worst && crate::persist::keys::encoded_size(words).0 > MAX_KEY_CHUNKS {
+                slot.frame.keys = None;
+                self.release(&run);
+            }
+        }
         slot.held = if slot.frame.keys.is_some() { n } else { 0 };
         // Bookkeeping of this frame's degradations.
         let st = &mut self.status;
-        if n > 0 && slot.frame.keys.is_none() {
+        if n > 0 && budget_spent {
+            st.unkeyed_frames = st.unkeyed_frames.saturating_add(1);
+            st.flags |= flags::KEY_BUDGET_SPENT;
+        } else if n > 0 && slot.frame.keys.is_none() {
             st.sketched_frames = st.sketched_frames.saturating_add(1);
             st.flags |= flags::POOL_FULL;
         }
@@ -822,7 +852,7 @@ impl<
         }
         self.note_usage();
         while self.len >= cfg.window as usize {
-            self.decide_oldest(store, KeyOffer::WithinBudget, &mut emit);
+            self.decide_oldest(store, KeyOffer::Held, &mut emit);
         }
         if self.len > 0 && self.ring.get(s).is_some_and(|e| e.live) {
             emit(FrameDecision {
@@ -887,7 +917,7 @@ impl<
         store: &mut dyn FrameStore<K>,
         emit: impl FnMut(FrameDecision),
     ) -> Result<(), SelectError> {
-        self.finish_offering(store, KeyOffer::WithinBudget, emit)
+        self.finish_offering(store, KeyOffer::Held, emit)
     }
 
     /// [`Self::finish_with`] for a store with no room left for keys (a
@@ -902,11 +932,10 @@ impl<
     }
 
     /// The most key chunk records [`Self::finish_with`] may write: those of
-    /// every frame in the window, within what is left of the key budget. A
-    /// device checks its log has room for them, else it finishes
-    /// [`Self::finish_without_keys`].
+    /// every frame in the window that holds exact keys. A device checks its
+    /// log has room for them, else it finishes [`Self::finish_without_keys`].
     pub fn key_chunks_finish(&self) -> usize {
-        self.key_chunks_for(self.len)
+        self.key_chunks_for(self.len, 0)
     }
 
     #[inline(never)]
@@ -926,6 +955,37 @@ impl<
         Ok(())
     }
 
+    /// The first frame of frame `index`'s window span: `index + 1 -
+    /// window`, or the first frame after the last finish.
+    fn span_start(&self, index: u32, window: usize) -> u32 {
+        index
+            .saturating_add(1)
+            .saturating_sub(window as u32)
+            .max(self.recent_from)
+    }
+
+    /// The key bytes (whole [`database::KEY_UNIT`]s) the store kept of the
+    /// database frames before frame `from`: frames decided for good when
+    /// a frame whose window span starts at `from` arrives, the same in a
+    /// scan restored from flash as in one that never lost power (a frame
+    /// taken later, or restored ahead of its decision, is not counted).
+    fn settled_key_bytes(&mut self, from: u32) -> u32 {
+        let (upto, units) = self.settled;
+        let entries = self.db.entries();
+        let (start, units) = if from < upto { (0, 0) } else { (upto, units) };
+        let lo = entries.partition_point(|e| e.index < start);
+        let hi = entries.partition_point(|e| e.index < from);
+        let more: u32 = entries
+            .get(lo..hi.max(lo))
+            .unwrap_or(&[])
+            .iter()
+            .map(|e| u32::from(e.key_units))
+            .sum();
+        let units = units.saturating_add(more);
+        self.settled = (from, units);
+        units.saturating_mul(database::KEY_UNIT)
+    }
+
     /// Key pool words the window rule counts before frame `index`: those
     /// the frames from `index + 1 - window` (or from the last finish) to
     /// `index - 1` got on arrival, in the window or, after a restore,
@@ -935,10 +995,7 @@ impl<
             .filter_map(|k| self.ring.get((self.head + k) % W).and_then(RingEntry::get))
             .map(|s| u64::from(s.held))
             .sum();
-        let lo = index
-            .saturating_add(1)
-            .saturating_sub(window as u32)
-            .max(self.recent_from);
+        let lo = self.span_start(index, window);
         let decided = self.status.frames_decided.min(index);
         // At most `window - 1` frames (lo > index - window), all among the
         // last `W` decided.
@@ -1105,37 +1162,28 @@ impl<
         else {
             return false;
         };
-        // Its exact keys go with it while the budget lasts (the one rule:
-        // see `KeyOffer`).
+        // Its exact keys go with it when it kept them on arrival (the one
+        // rule: see `KeyOffer`).
         let words = frame.keys.as_ref().map(|run| self.pool.words(run));
         let (chunks, bytes) = words.map_or((0, 0), crate::persist::keys::encoded_size);
-        let budget_left = self
-            .key_budget()
-            .saturating_sub(self.status.stored_key_bytes) as usize;
-        let offer = words.filter(|_| {
-            offer == KeyOffer::WithinBudget
-                && chunks <= crate::persist::keys::MAX_KEY_CHUNKS
-                && bytes <= budget_left
-        });
+        let offer = words.filter(|_| offer == KeyOffer::Held && chunks <= MAX_KEY_CHUNKS);
         let (at, keyed) = store.save(&snapshot, offer).unwrap_or((NOWHERE, false));
         if keyed {
             let st = &mut self.status;
             st.stored_key_bytes = st.stored_key_bytes.saturating_add(bytes as u32);
         }
         if at != NOWHERE && !keyed {
-            // Stored without its keys: compared by sketch from now on,
-            // resident or not (a restore brings it back without them), so
-            // its keys in the pool serve nothing.
+            // Stored without its keys (a finish without room for them):
+            // compared by sketch from now on, resident or not (a restore
+            // brings it back without them), so its keys in the pool serve
+            // nothing.
             if let Some(run) = frame.keys.take() {
                 self.drop_keys(&run);
-            }
-            if frame.len > 0 {
-                self.status.unkeyed_frames = self.status.unkeyed_frames.saturating_add(1);
             }
         }
         let entry = database::DbEntry {
             resident: true,
-            keyed,
+            key_units: database::key_units(keyed, bytes as u32),
             ..entry_of(&snapshot, at)
         };
         if !self.db.add(entry) || self.resident.push(frame).is_err() {
@@ -1162,7 +1210,7 @@ impl<
             .db
             .find(index)
             .and_then(|i| self.db.entries().get(i))
-            .is_some_and(|e| e.keyed || e.at == NOWHERE);
+            .is_some_and(|e| e.keyed() || e.at == NOWHERE);
         if !keyed {
             // The store holds it without keys: compared by sketch (as in
             // `take`), so the copy in RAM keeps none either.

@@ -89,17 +89,16 @@ impl<
             return Err(RestoreError::Duplicate);
         }
         let entry = super::database::DbEntry {
-            keyed,
+            key_units: super::database::key_units(keyed, key_bytes),
             ..entry_of(frame, at)
         };
         if !self.db.add(entry) {
             return Err(RestoreError::DatabaseFull);
         }
-        let st = &mut self.status;
+        self.settled = (0, 0);
         if keyed {
+            let st = &mut self.status;
             st.stored_key_bytes = st.stored_key_bytes.saturating_add(key_bytes);
-        } else if frame.voxels > 0 {
-            st.unkeyed_frames = st.unkeyed_frames.saturating_add(1);
         }
         self.note_usage();
         Ok(())
@@ -112,11 +111,10 @@ impl<
     pub fn forget_database(&mut self, index: u32, key_bytes: u32) -> Result<(), RestoreError> {
         self.restorable()?;
         let entry = self.db.remove(index).ok_or(RestoreError::BadDecision)?;
-        let st = &mut self.status;
-        if entry.keyed {
+        self.settled = (0, 0);
+        if entry.keyed() {
+            let st = &mut self.status;
             st.stored_key_bytes = st.stored_key_bytes.saturating_sub(key_bytes);
-        } else if entry.len > 0 {
-            st.unkeyed_frames = st.unkeyed_frames.saturating_sub(1);
         }
         self.note_usage();
         Ok(())

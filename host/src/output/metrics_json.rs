@@ -124,8 +124,9 @@ pub struct OnSequence<'a> {
 
 /// The keys of a device's `metrics.json` that it counts in RAM only, lost
 /// when it restarts.
-pub const RAM_COUNTERS: [&str; 10] = [
+pub const RAM_COUNTERS: [&str; 11] = [
     "sketched_frames",
+    "unkeyed_frames",
     "sketch_compared_frames",
     "truncated_frames",
     "uncovered_by_capacity",
@@ -172,7 +173,6 @@ pub fn of_device(
         "frames_decided": st.frames_decided,
         "frames_undecided": st.frames_seen.saturating_sub(st.frames_decided),
         "sketched_frames": st.sketched_frames,
-        // Restored from the log with the database: not lost at a restart.
         "unkeyed_frames": st.unkeyed_frames,
         "sketch_compared_frames": st.sketch_compared_frames,
         "truncated_frames": st.truncated_frames,
