@@ -1582,3 +1582,196 @@ fn power_cuts_past_the_key_budget_resume_to_the_same_export() {
         );
     });
 }
+
+/// The host's second session on a finished scan (or the resume of one):
+/// Extend (a no-op on a restored open second session), the frames from
+/// `from`, Finish. `false` when the power went.
+fn extend_from<D: AnyDevice>(rig: &mut Rig<D>, scan: &Scan, from: u32, seen: &mut Seen) -> bool {
+    let ctx = "second session";
+    if !step(rig, HostMessage::Extend(scan.cfg), seen, ctx) {
+        return false;
+    }
+    for i in from..scan.len() {
+        if !send_frame(rig, scan, i, seen, ctx) {
+            return false;
+        }
+    }
+    step(rig, HostMessage::Finish, seen, ctx)
+}
+
+/// Issue 36: a power cut at every flash step (every tear) of a second
+/// session, its Extend and Finish included, on the device of
+/// [`power_cuts_past_the_key_budget_resume_to_the_same_export`]: the
+/// restored scan holds every decision the host received, and the resumed
+/// session ends with the uninterrupted two-session export.
+#[test]
+fn power_cuts_in_a_second_session_resume_to_the_same_export() {
+    on_big_stack(|| {
+        const FIRST: u32 = 45;
+        let scan = Scan::strided(300, 0, 70, (16, 0.5), (4, 0.1));
+        // The first session, finished: every cut starts from this flash.
+        let (mut rig, _) = Rig::<Tight>::boot(SimFlash::new(TIGHT_SECTORS));
+        let mut seen_a = Seen::default();
+        assert!(drive_to(
+            &mut rig,
+            &scan,
+            FIRST,
+            true,
+            &mut seen_a,
+            "first session"
+        ));
+        let first = rig.into_flash();
+        // The uninterrupted second session, and its flash steps.
+        let (mut rig, _) = Rig::<Tight>::boot(first.clone());
+        let start = rig.flash().steps();
+        let mut seen = seen_a.clone();
+        assert!(extend_from(&mut rig, &scan, FIRST, &mut seen));
+        let steps = rig.flash().steps() - start;
+        let reference = rig.export();
+        assert_eq!(rig.status().sessions, 2);
+        let mut cuts = 0;
+        for k in 0..steps {
+            for tear in TEARS {
+                let ctx = format!("second session: cut at step {k} ({})", tear_name(tear));
+                let (mut rig, _) = Rig::<Tight>::boot(first.clone());
+                let at = rig.flash().steps() + k;
+                rig.flash().cut_at(at, tear);
+                let mut seen = seen_a.clone();
+                assert!(
+                    !extend_from(&mut rig, &scan, FIRST, &mut seen),
+                    "{ctx}: no cut"
+                );
+                cuts += 1;
+                let (mut rig, restored) = Rig::<Tight>::boot(rig.into_flash());
+                assert!(restored.is_ok(), "{ctx}: {restored:?}");
+                let st = rig.status();
+                let from = st.frames_seen;
+                assert!(from >= FIRST, "{ctx}: the first session is whole");
+                // A second session finished before the cut is done; any
+                // other state goes on with it.
+                if !(st.sessions == 2 && st.phase == Phase::Finished) {
+                    assert!(extend_from(&mut rig, &scan, from, &mut seen), "{ctx}");
+                }
+                let export = rig.export();
+                // Every decision the host received is the exported one.
+                let labels: BTreeMap<u32, u32> = export
+                    .iter()
+                    .filter_map(|r| match r.kind {
+                        RecordKind::Label { class } => Some((r.frame, class)),
+                        _ => None,
+                    })
+                    .collect();
+                for (&frame, &kind) in &seen.finals {
+                    let class = match kind {
+                        DecisionKind::Taken => Some(frame),
+                        DecisionKind::DominatedBy(k) => Some(k),
+                        _ => None,
+                    };
+                    if let Some(class) = class {
+                        assert_eq!(labels.get(&frame), Some(&class), "{ctx}: frame {frame}");
+                    }
+                }
+                assert_eq!(export, reference, "{ctx}: the resumed export differs");
+            }
+        }
+        assert_eq!(cuts, 3 * steps);
+        println!(
+            "power cuts in a second session: {cuts} cuts over the {steps} flash steps of its \
+             {} frames, every resumed export identical",
+            scan.len() - FIRST
+        );
+    });
+}
+
+/// Issue 36 at the real sizes: the Pico's profile (`ram256k`), its 1 MiB
+/// log and the real key budget (384 KiB), on the demo building walked for
+/// 1,200 frames at 0.1 m voxels and mu 0.8 (~900 database frames, ~1 KB of
+/// keys each), so that the budget is spent half way: a power cut at every
+/// flash step of 16 frames near the end (every tear) resumes to the
+/// uninterrupted export.
+#[test]
+fn power_cuts_past_the_real_key_budget_on_the_pico_profile() {
+    on_big_stack(|| {
+        type Pico = placedb::profile::Device256K;
+        const LOG_SECTORS: usize = 256;
+        const CUT_FRAMES: u32 = 16;
+        let scan = Scan::strided(1200, 0, 1200, (32, 0.8), (4, 0.1));
+        let prefix_frames = scan.len() - 40;
+        // The uninterrupted run.
+        let (mut rig, _) = Rig::<Pico>::boot(SimFlash::new(LOG_SECTORS));
+        let mut seen = Seen::default();
+        assert!(drive(&mut rig, &scan, &mut seen, "uninterrupted"));
+        let sel = rig.device.selector_status();
+        assert!(
+            sel.stored_key_bytes >= placedb::select::database::KEY_BUDGET,
+            "{sel:?}"
+        );
+        assert!(
+            sel.unkeyed_frames > 0,
+            "the key budget was not spent: {sel:?}"
+        );
+        let (_, reference) = check_complete(rig, &scan, &seen, "uninterrupted");
+        // The prefix, past the budget already.
+        let (mut rig, _) = Rig::<Pico>::boot(SimFlash::new(LOG_SECTORS));
+        let mut prefix_seen = Seen::default();
+        assert!(drive_to(
+            &mut rig,
+            &scan,
+            prefix_frames,
+            false,
+            &mut prefix_seen,
+            "prefix"
+        ));
+        let at_prefix = rig.device.selector_status();
+        assert!(
+            at_prefix.unkeyed_frames > 0,
+            "the prefix is not past the budget"
+        );
+        let prefix = rig.into_flash();
+        // The flash steps of the next frames.
+        let (mut rig, restored) = Rig::<Pico>::boot(prefix.clone());
+        assert!(restored.is_ok(), "{restored:?}");
+        let start = rig.flash().steps();
+        let mut seen = prefix_seen.clone();
+        let end = prefix_frames + CUT_FRAMES;
+        assert!(drive_to(&mut rig, &scan, end, false, &mut seen, "resumed"));
+        let steps = rig.flash().steps() - start;
+        let mut cuts = 0;
+        for k in 0..steps {
+            for tear in TEARS {
+                let ctx = format!("real sizes: cut at step {k} ({})", tear_name(tear));
+                let (mut rig, _) = Rig::<Pico>::boot(prefix.clone());
+                let at = rig.flash().steps() + k;
+                rig.flash().cut_at(at, tear);
+                let mut seen = prefix_seen.clone();
+                assert!(!drive(&mut rig, &scan, &mut seen, &ctx), "{ctx}: no cut");
+                cuts += 1;
+                let ram = parse(&rig.export(), &scan, &ctx);
+                let (mut rig, restored) = Rig::<Pico>::boot(rig.into_flash());
+                check_restored(
+                    &mut rig,
+                    restored,
+                    &scan,
+                    &seen,
+                    &ram,
+                    Some(&reference),
+                    &ctx,
+                );
+                assert!(drive(&mut rig, &scan, &mut seen, &ctx), "{ctx}: cut again");
+                let (_, got) = check_complete(rig, &scan, &seen, &ctx);
+                assert_eq!(got, reference, "{ctx}: the resumed export differs");
+            }
+        }
+        println!(
+            "power cuts past the real key budget: {} frames on ram256k, {} database frames, \
+             {} key bytes in flash, {} frames after the budget was spent, {} without room in \
+             the key pool; {cuts} cuts over the {steps} flash steps of frames {prefix_frames}..{end}, \
+             every resumed export identical",
+            scan.len(),
+            reference.db.len(),
+            sel.stored_key_bytes,
+            sel.unkeyed_frames,
+            sel.sketched_frames,
+        );
+    });
+}
