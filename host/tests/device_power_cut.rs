@@ -1489,32 +1489,12 @@ fn power_cuts_with_500_database_frames_in_flash() {
         let (_, resumed) = check_complete(rig, &scan, &seen, "resumed");
         assert_eq!(resumed, reference, "resumed after a reboot");
         // Every flash step of the next frames, every tear.
-        let mut cuts = 0;
-        for k in 0..steps {
-            for tear in TEARS {
-                let ctx = format!("at scale: cut at step {k} ({})", tear_name(tear));
-                let (mut rig, _) = Rig::<Big>::boot(prefix.clone());
-                let at = rig.flash().steps() + k;
-                rig.flash().cut_at(at, tear);
-                let mut seen = prefix_seen.clone();
-                assert!(!drive(&mut rig, &scan, &mut seen, &ctx), "{ctx}: no cut");
-                cuts += 1;
-                let ram = parse(&rig.export(), &scan, &ctx);
-                let (mut rig, restored) = Rig::<Big>::boot(rig.into_flash());
-                check_restored(
-                    &mut rig,
-                    restored,
-                    &scan,
-                    &seen,
-                    &ram,
-                    Some(&reference),
-                    &ctx,
-                );
-                assert!(drive(&mut rig, &scan, &mut seen, &ctx), "{ctx}: cut again");
-                let (_, got) = check_complete(rig, &scan, &seen, &ctx);
-                assert_eq!(got, reference, "{ctx}: the resumed export differs");
-            }
-        }
+        let cuts = cut_after_prefix::<Big>(
+            (&scan, &prefix, &prefix_seen),
+            steps,
+            &reference,
+            "at scale",
+        );
         println!(
             "power cuts at scale: {} database frames in flash ({resident} resident) after {SCALE_PREFIX} \
              frames, {records} records restored in {:.1} ms; {cuts} cuts over the {steps} flash steps \
@@ -1736,32 +1716,12 @@ fn power_cuts_past_the_real_key_budget_on_the_pico_profile() {
         let end = prefix_frames + CUT_FRAMES;
         assert!(drive_to(&mut rig, &scan, end, false, &mut seen, "resumed"));
         let steps = rig.flash().steps() - start;
-        let mut cuts = 0;
-        for k in 0..steps {
-            for tear in TEARS {
-                let ctx = format!("real sizes: cut at step {k} ({})", tear_name(tear));
-                let (mut rig, _) = Rig::<Pico>::boot(prefix.clone());
-                let at = rig.flash().steps() + k;
-                rig.flash().cut_at(at, tear);
-                let mut seen = prefix_seen.clone();
-                assert!(!drive(&mut rig, &scan, &mut seen, &ctx), "{ctx}: no cut");
-                cuts += 1;
-                let ram = parse(&rig.export(), &scan, &ctx);
-                let (mut rig, restored) = Rig::<Pico>::boot(rig.into_flash());
-                check_restored(
-                    &mut rig,
-                    restored,
-                    &scan,
-                    &seen,
-                    &ram,
-                    Some(&reference),
-                    &ctx,
-                );
-                assert!(drive(&mut rig, &scan, &mut seen, &ctx), "{ctx}: cut again");
-                let (_, got) = check_complete(rig, &scan, &seen, &ctx);
-                assert_eq!(got, reference, "{ctx}: the resumed export differs");
-            }
-        }
+        let cuts = cut_after_prefix::<Pico>(
+            (&scan, &prefix, &prefix_seen),
+            steps,
+            &reference,
+            "real sizes",
+        );
         println!(
             "power cuts past the real key budget: {} frames on ram256k, {} database frames, \
              {} key bytes in flash, {} frames after the budget was spent, {} without room in \
@@ -1774,4 +1734,35 @@ fn power_cuts_past_the_real_key_budget_on_the_pico_profile() {
             sel.sketched_frames,
         );
     });
+}
+
+/// A cut at each of the first `steps` flash steps after the `prefix` flash
+/// (the scan streamed up to where `prefix_seen` stops), every tear: each
+/// restore is checked, the scan resumed to its end, and its export must be
+/// `reference`. Returns the cuts made.
+fn cut_after_prefix<D: AnyDevice>(
+    (scan, prefix, prefix_seen): (&Scan, &SimFlash, &Seen),
+    steps: u64,
+    reference: &Parsed,
+    what: &str,
+) -> u64 {
+    let mut cuts = 0;
+    for k in 0..steps {
+        for tear in TEARS {
+            let ctx = format!("{what}: cut at step {k} ({})", tear_name(tear));
+            let (mut rig, _) = Rig::<D>::boot(prefix.clone());
+            let at = rig.flash().steps() + k;
+            rig.flash().cut_at(at, tear);
+            let mut seen = prefix_seen.clone();
+            assert!(!drive(&mut rig, scan, &mut seen, &ctx), "{ctx}: no cut");
+            cuts += 1;
+            let ram = parse(&rig.export(), scan, &ctx);
+            let (mut rig, restored) = Rig::<D>::boot(rig.into_flash());
+            check_restored(&mut rig, restored, scan, &seen, &ram, Some(reference), &ctx);
+            assert!(drive(&mut rig, scan, &mut seen, &ctx), "{ctx}: cut again");
+            let (_, got) = check_complete(rig, scan, &seen, &ctx);
+            assert_eq!(&got, reference, "{ctx}: the resumed export differs");
+        }
+    }
+    cuts
 }
