@@ -599,6 +599,10 @@ fn tear_name(t: Tear) -> &'static str {
         Tear::Before => "before",
         Tear::Half => "half",
         Tear::After => "after",
+        Tear::Marginal => "marginal",
+        Tear::Scattered(_) => "scattered",
+        Tear::KeepHead => "erase from the end",
+        Tear::Zeroed => "erase left zero",
     }
 }
 
@@ -844,6 +848,67 @@ fn a_power_cut_at_every_flash_step_loses_nothing_acknowledged() {
 }
 
 // ------------------------------------------------------- focused: the log
+
+/// What silicon's cuts leave and a prefix-and-a-byte tear does not: a
+/// record that restores at the next boot and reads wrong at the one after
+/// (cells just past the read threshold), a write that took a random part of
+/// its bits, an erase that went from the end (the record at offset 0
+/// intact) or left the sector all zero. A cut at every flash step of a scan
+/// with each of them, a boot that resumes to the end (every frame
+/// acknowledged), time (what was weak reads wrong), and another boot: the
+/// export is the uninterrupted run's.
+#[test]
+fn a_record_that_restores_once_then_fades_loses_nothing_acknowledged() {
+    on_big_stack(|| {
+        let scan = Scan::synthetic(0, FRAMES, 8);
+        let (mut rig, _) = Rig::<Small>::boot(SimFlash::new(SECTORS));
+        let mut seen = Seen::default();
+        assert!(drive(&mut rig, &scan, &mut seen, "uninterrupted"));
+        let steps = rig.flash().steps();
+        let sectors = rig.log.as_ref().unwrap().sectors_used();
+        assert!(sectors >= 3, "the scan fits in {sectors} sectors");
+        let (_, reference) = check_complete(rig, &scan, &seen, "uninterrupted");
+        let (mut cuts, mut faded) = (0u32, 0usize);
+        for k in 0..steps {
+            let tears = [
+                Tear::Marginal,
+                Tear::Scattered(k as u8),
+                Tear::KeepHead,
+                Tear::Zeroed,
+            ];
+            for tear in tears {
+                let ctx = format!("cut at step {k} ({})", tear_name(tear));
+                let (mut rig, _) = Rig::<Small>::boot(SimFlash::new(SECTORS));
+                rig.flash().cut_at(k, tear);
+                let mut seen = Seen::default();
+                assert!(!drive(&mut rig, &scan, &mut seen, &ctx), "{ctx}: no cut");
+                cuts += 1;
+                let ram = parse(&rig.export(), &scan, &ctx);
+                let (mut rig, restored) = Rig::<Small>::boot(rig.into_flash());
+                check_restored(
+                    &mut rig,
+                    restored,
+                    &scan,
+                    &seen,
+                    &ram,
+                    Some(&reference),
+                    &ctx,
+                );
+                if !seen.finish {
+                    assert!(drive(&mut rig, &scan, &mut seen, &ctx), "{ctx}: cut again");
+                }
+                faded += rig.flash().fade();
+                let (rig, restored) = Rig::<Small>::boot(rig.into_flash());
+                let ctx = format!("{ctx}, after the weak cells faded");
+                assert!(restored.is_ok(), "{ctx}: {restored:?}");
+                let (_, got) = check_complete(rig, &scan, &seen, &ctx);
+                assert_eq!(got, reference, "{ctx}: the export differs");
+            }
+        }
+        println!("{cuts} cuts over {steps} flash steps, {faded} weak places faded");
+        assert!(faded as u64 >= steps / 2, "{faded} faded");
+    });
+}
 
 /// The live generation's number and head sector, read from the raw flash
 /// (the layout of `placedb::persist::log`: "PDBL", format, length,

@@ -448,7 +448,18 @@ impl<
                 self.core.tail_dropped = true;
                 Ok(records)
             }
-            restored => restored,
+            Ok(records) => {
+                // The tail a cut may have left weak is made whole before
+                // anything is acknowledged on it (see the log's "A record
+                // that reads valid once"); the positions just read still
+                // read it. A settle that fails changes nothing the log
+                // reads: the scan is restored as it is, and a flash that
+                // failed here fails the next record, which the status
+                // reports. (After a drop there is nothing to settle: what
+                // is kept was followed by other writes.)
+                let _ = log.settle();
+                Ok(records)
+            }
         }
     }
 

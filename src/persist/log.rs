@@ -27,7 +27,9 @@
 //!   generation exactly as it was.
 //! - Reading stops at the first record that does not check out, then goes on
 //!   at the next sector only if that sector opens with the expected sequence
-//!   number of the same generation (or a lower one: see the next section).
+//!   number of the same generation (or a lower one: see "Dropping a tail";
+//!   or a rewrite of the record read last, past sectors whose head does
+//!   not check out: see "A record that reads valid once").
 //!   After a restore, and after any failed
 //!   write, appending resumes at the next sector (the current one is
 //!   *sealed*): a byte that a torn write may have touched is never written
@@ -69,6 +71,34 @@
 //! needs to follow). It costs a copy of the kept records, and it is refused
 //! ([`LogError::Full`], nothing changed) when they do not fit beside the
 //! live generation.
+//!
+//! # A record that reads valid once
+//!
+//! A cut in the middle of a program can leave cells just past the read
+//! threshold: the record checks out at the next boot and fails at a later
+//! one. Only the last write before a cut can be like that, so it is the
+//! tail the boot finds; but a boot acknowledges it (the host sees the scan
+//! it restored) and records follow it, and a walk that later stops at it
+//! would lose them all. So a boot calls [`Log::settle`] once it restored:
+//! the tail is written again, twice, at the head of a fresh sector (same
+//! generation, number and CRC: the same bytes). The first copy voids the
+//! original (the rule of "Dropping a tail"); the second, written after the
+//! first returned in the same power-on, proves it whole, so a boot that
+//! finds a record followed by its repeat in one sector has nothing to do
+//! (a reset loop costs one sector, not one a boot). Reading passes over a
+//! repeat of the record it read last, wherever it is; and where a sector's
+//! head does not check out (a copy or an original that faded), reading
+//! looks ahead to the next sector that opens with a record: it goes on
+//! there if that record is the one expected or a repeat of the one read
+//! last. No sector is passed over that could hold a live record: a record
+//! after a head that does not check out was never read, and sectors past
+//! the end of a generation are erased before it uses them. A generation of
+//! one record cannot repeat record 0 in another sector (it would open the
+//! generation twice), so it is copied into a new generation and repeated
+//! there. What this does not cover: a record that fades although it was
+//! written whole (that is a flash that loses data, see the end), and the
+//! first record after a drop fading where its sector's head was all that
+//! voided the dropped ones (a drop needs a damaged record to begin with).
 //!
 //! # Generation numbers never wrap into the past
 //!
@@ -164,6 +194,23 @@ struct Header {
     generation: u32,
     seq: u32,
     len: usize,
+    crc: u32,
+}
+
+impl Header {
+    /// Whether this record, found at the head of a sector, goes on with
+    /// generation `generation` after `read` records, the last with CRC
+    /// `last_crc`: it is the next one, or the rewrite of the last one (the
+    /// same bytes: see "A record that reads valid once").
+    fn goes_on(&self, generation: u32, read: u32, last_crc: u32) -> bool {
+        self.generation == generation
+            && (self.seq == read || (self.seq.wrapping_add(1) == read && self.crc == last_crc))
+    }
+
+    /// Whether it is the rewrite of the record read last.
+    fn repeats(&self, read: u32, last_crc: u32) -> bool {
+        self.seq.wrapping_add(1) == read && self.crc == last_crc
+    }
 }
 
 /// Where the live generation ends and the next record goes.
@@ -198,6 +245,8 @@ pub struct Cursor {
     /// ... while the live generation held this many records (an append may
     /// since have opened the next sector).
     void_checked: u32,
+    /// CRC of the record read last, to know its rewrite.
+    last_crc: u32,
 }
 
 impl Cursor {
@@ -208,6 +257,7 @@ impl Cursor {
         records: 0,
         void_from: 0,
         void_checked: 0,
+        last_crc: 0,
     };
 
     /// Records before this position.
@@ -227,6 +277,12 @@ pub struct Log<F> {
     /// Highest generation number seen anywhere in the range.
     newest: u32,
     live: Option<Live>,
+    /// Position of the tail record the last scan found, when no repeat of
+    /// it follows it yet (see "A record that reads valid once").
+    unsettled: Option<u32>,
+    /// Where [`Log::settle`] put that record: (old position, new position),
+    /// so that a position read before it still reads the record.
+    moved: Option<(u32, u32)>,
     buf: [u8; HEADER_LEN + MAX_PAYLOAD + MAX_ALIGN],
 }
 
@@ -281,6 +337,8 @@ impl<F: NorFlash> Log<F> {
             align,
             newest: 0,
             live: None,
+            unsettled: None,
+            moved: None,
             buf: [0xFF; HEADER_LEN + MAX_PAYLOAD + MAX_ALIGN],
         };
         log.scan()?;
@@ -380,6 +438,7 @@ impl<F: NorFlash> Log<F> {
             generation: u32::from_le_bytes(gen),
             seq: u32::from_le_bytes(seq),
             len,
+            crc: u32::from_le_bytes(crc),
         }))
     }
 
@@ -394,12 +453,19 @@ impl<F: NorFlash> Log<F> {
                 }
             }
         }
+        let mut tail = None;
+        let mut repeated = false;
         self.live = match head {
             Some((generation, head)) => {
-                Some(self.walk(generation, head, u32::MAX, &mut |_, _| {})?)
+                let visit = &mut |at, _: &[u8]| tail = Some(at);
+                let (live, settled) = self.walk(generation, head, u32::MAX, visit)?;
+                repeated = settled;
+                Some(live)
             }
             None => None,
         };
+        self.unsettled = tail.filter(|_| !repeated);
+        self.moved = None;
         Ok(())
     }
 
@@ -419,14 +485,16 @@ impl<F: NorFlash> Log<F> {
     }
 
     /// Follows generation `generation` from sector `head`, handing each of
-    /// its first `limit` payloads to `visit`; returns its extent, sealed.
+    /// its first `limit` payloads to `visit`; returns its extent, sealed,
+    /// and whether the last record read was followed by its repeat in the
+    /// same sector (it is settled: see "A record that reads valid once").
     fn walk(
         &mut self,
         generation: u32,
         head: u32,
         limit: u32,
         visit: &mut dyn FnMut(u32, &[u8]),
-    ) -> Result<Live, LogError> {
+    ) -> Result<(Live, bool), LogError> {
         let mut live = Live {
             generation,
             head,
@@ -437,6 +505,8 @@ impl<F: NorFlash> Log<F> {
         let sector_len = self.sector_len();
         let mut offset = 0u32;
         let mut void_from = u32::MAX;
+        let mut last_crc = 0;
+        let mut repeated = false;
         while live.records < limit {
             let sector = head + live.sectors - 1;
             if offset == 0 {
@@ -444,7 +514,23 @@ impl<F: NorFlash> Log<F> {
             }
             let found = self
                 .read_record(sector, offset)?
-                .filter(|h| h.generation == generation && h.seq == live.records);
+                .filter(|h| h.generation == generation);
+            if let Some(h) = found.filter(|h| h.repeats(live.records, last_crc)) {
+                // A rewrite of the record read last: the same bytes. Right
+                // after it in its sector, it proves that record whole.
+                repeated = offset > 0;
+                offset += align_up(HEADER_LEN + h.len, self.align) as u32;
+                if offset < sector_len {
+                    continue;
+                }
+                if live.sectors + 1 >= self.sectors {
+                    return Ok((live, repeated));
+                }
+                live.sectors += 1;
+                offset = 0;
+                continue;
+            }
+            let found = found.filter(|h| h.seq == live.records);
             match found {
                 Some(h) if h.seq < void_from => {
                     let at = self.position(sector, offset);
@@ -455,6 +541,8 @@ impl<F: NorFlash> Log<F> {
                             .unwrap_or_default(),
                     );
                     live.records += 1;
+                    last_crc = h.crc;
+                    repeated = false;
                     offset += align_up(HEADER_LEN + h.len, self.align) as u32;
                     if offset < sector_len {
                         continue;
@@ -464,19 +552,53 @@ impl<F: NorFlash> Log<F> {
                 // none of it): the next sector goes on with this number.
                 Some(_) => {}
                 None if offset == 0 => {
-                    // This sector does not continue the generation.
+                    // Sectors whose head does not check out are passed over
+                    // when the next sector that opens with a record opens
+                    // with the very record expected here, or a rewrite of
+                    // the one read last (see "A record that reads valid
+                    // once"). Otherwise this sector does not continue the
+                    // generation.
+                    if live.sectors > 1 {
+                        let ahead = self.resumes(generation, sector, live, last_crc)?;
+                        if let Some(k) = ahead {
+                            live.sectors += k;
+                            continue;
+                        }
+                    }
                     live.sectors -= 1;
-                    return Ok(live);
+                    return Ok((live, repeated));
                 }
                 None => {}
             }
             if live.sectors + 1 >= self.sectors {
-                return Ok(live);
+                return Ok((live, repeated));
             }
             live.sectors += 1;
             offset = 0;
         }
-        Ok(live)
+        Ok((live, repeated))
+    }
+
+    /// How many sectors after `sector` (the last of `live`, whose head does
+    /// not check out) the generation goes on: the first sector after it
+    /// that opens with a record opens with the one expected next, or a
+    /// rewrite of the one read last (CRC `last_crc`). `None` when it does
+    /// not, or only past the `n - 1` sectors a generation may use.
+    fn resumes(
+        &mut self,
+        generation: u32,
+        sector: u32,
+        live: Live,
+        last_crc: u32,
+    ) -> Result<Option<u32>, LogError> {
+        let mut k = 1;
+        while live.sectors + k < self.sectors {
+            if let Some(h) = self.read_record(sector + k, 0)? {
+                return Ok(h.goes_on(generation, live.records, last_crc).then_some(k));
+            }
+            k += 1;
+        }
+        Ok(None)
     }
 
     /// Where record `offset` bytes into `sector` (counted from the range's
@@ -491,7 +613,7 @@ impl<F: NorFlash> Log<F> {
         let Some(live) = self.live else {
             return Ok(0);
         };
-        let again = self.walk(live.generation, live.head, live.records, visit)?;
+        let (again, _) = self.walk(live.generation, live.head, live.records, visit)?;
         Ok(again.records)
     }
 
@@ -538,6 +660,7 @@ impl<F: NorFlash> Log<F> {
             }
         }
         self.newest = self.newest.max(next.generation);
+        (self.unsettled, self.moved) = (None, None);
         Ok(())
     }
 
@@ -565,6 +688,10 @@ impl<F: NorFlash> Log<F> {
     /// [`Self::append`] and [`Self::replay`] give it).
     pub fn read_at(&mut self, at: u32) -> Result<&[u8], LogError> {
         let live = self.live.ok_or(LogError::NotStarted)?;
+        let at = match self.moved {
+            Some((old, new)) if old == at => new,
+            _ => at,
+        };
         let (sector, offset) = (at / self.sector_len(), at % self.sector_len());
         if sector >= self.sectors {
             return Err(LogError::NoRecord);
@@ -591,11 +718,20 @@ impl<F: NorFlash> Log<F> {
                 cursor.void_from = self.void_from(live.generation, sector, cursor.sector + 1)?;
                 cursor.void_checked = live.records;
             }
-            let found = self.read_record(sector, cursor.offset)?.filter(|h| {
-                h.generation == live.generation
-                    && h.seq == cursor.records
-                    && h.seq < cursor.void_from
-            });
+            let found = self
+                .read_record(sector, cursor.offset)?
+                .filter(|h| h.generation == live.generation);
+            if let Some(h) = found.filter(|h| h.repeats(cursor.records, cursor.last_crc)) {
+                // A rewrite of the record this cursor read last (see "A
+                // record that reads valid once"): the same bytes, read.
+                cursor.offset += align_up(HEADER_LEN + h.len, self.align) as u32;
+                if cursor.offset >= sector_len {
+                    cursor.sector += 1;
+                    cursor.offset = 0;
+                }
+                continue;
+            }
+            let found = found.filter(|h| h.seq == cursor.records && h.seq < cursor.void_from);
             let Some(h) = found else {
                 // The rest of this sector is not the generation's: on to the next.
                 cursor.sector += 1;
@@ -604,6 +740,7 @@ impl<F: NorFlash> Log<F> {
             };
             let at = self.position(sector, cursor.offset);
             cursor.records += 1;
+            cursor.last_crc = h.crc;
             cursor.offset += align_up(HEADER_LEN + h.len, self.align) as u32;
             if cursor.offset >= sector_len {
                 cursor.sector += 1;
@@ -660,6 +797,9 @@ impl<F: NorFlash> Log<F> {
             offset: None,
             ..live
         });
+        // The kept tail was written before what was dropped: not the last
+        // write a cut can have left weak.
+        (self.unsettled, self.moved) = (None, None);
         Ok(())
     }
 
@@ -740,6 +880,7 @@ impl<F: NorFlash> Log<F> {
                 self.flash
                     .erase(start, start + self.sector_len())
                     .map_err(flash_err)?;
+                self.check_erased(start)?;
                 erased = Some(sector);
             }
             if seq > 0 {
@@ -765,6 +906,7 @@ impl<F: NorFlash> Log<F> {
             records: keep,
             offset: Some(at.1 as u32),
         });
+        (self.unsettled, self.moved) = (None, None);
         Ok(())
     }
 
@@ -793,7 +935,8 @@ impl<F: NorFlash> Log<F> {
             .get_mut(HEADER_LEN + len..)
             .unwrap_or_default()
             .fill(0xFF);
-        self.flash.write(at, record).map_err(flash_err)
+        self.flash.write(at, record).map_err(flash_err)?;
+        self.check_written(at, total)
     }
 
     /// Bytes the live generation occupies (whole sectors), and the most one
@@ -807,11 +950,11 @@ impl<F: NorFlash> Log<F> {
     /// Appends one record to the live generation; `Ok` (with the record's
     /// position, for [`Self::read_at`]) means it is durable.
     pub fn append(&mut self, payload: &[u8]) -> Result<u32, LogError> {
-        let mut live = self.live.ok_or(LogError::NotStarted)?;
         let total = align_up(HEADER_LEN + payload.len(), self.align);
         if payload.len() > MAX_PAYLOAD || total > self.sector_len() as usize {
             return Err(LogError::TooLarge);
         }
+        let mut live = self.live.ok_or(LogError::NotStarted)?;
         let offset = match live.offset {
             Some(o) if o as usize + total <= self.sector_len() as usize => o,
             _ => {
@@ -862,6 +1005,81 @@ impl<F: NorFlash> Log<F> {
         live.offset = Some(offset + total as u32);
         self.live = Some(live);
         Ok(self.position(live.head + live.sectors - 1, offset))
+    }
+
+    /// Makes the tail record [`Self::open`] found whole before anything is
+    /// acknowledged on it: a boot calls it once it has read the log (see "A
+    /// record that reads valid once"); the position it read the record at
+    /// still reads it ([`Self::read_at`]). The record is written twice at the head of
+    /// a fresh sector (record 0: as a new generation, then again after it);
+    /// nothing to do when its repeat follows it already. On error the live
+    /// generation is as it was, and the log reads as before.
+    pub fn settle(&mut self) -> Result<(), LogError> {
+        let (Some(tail), Some(mut live)) = (self.unsettled, self.live) else {
+            return Ok(());
+        };
+        if live.records <= 1 {
+            // Record 0 opens its generation: no sector may repeat it there.
+            self.truncate_by_copy(live, 1)?;
+            live = self.live.ok_or(LogError::NotStarted)?;
+            let len = self
+                .read_record(live.head, 0)?
+                .ok_or(LogError::Flash(FlashErrorKind::Other))?
+                .len;
+            let total = align_up(HEADER_LEN + len, self.align);
+            if let Err(e) = self.write_copy(live.generation, 0, len, live.head, total) {
+                // Bytes it may have touched are never written again; record
+                // 0 is still to settle (by the next boot).
+                self.live = Some(Live {
+                    offset: None,
+                    ..live
+                });
+                self.unsettled = Some(self.position(live.head, 0));
+                return Err(e);
+            }
+            live.offset = Some(2 * total as u32);
+            self.live = Some(live);
+            self.moved = Some((tail, self.position(live.head, 0)));
+            return Ok(());
+        }
+        let (sector, offset) = (tail / self.sector_len(), tail % self.sector_len());
+        let len = self
+            .read_record(sector, offset)?
+            .filter(|h| h.generation == live.generation && h.seq.wrapping_add(1) == live.records)
+            .ok_or(LogError::Flash(FlashErrorKind::Other))?
+            .len;
+        if live.sectors + 1 >= self.sectors {
+            return Err(LogError::Full);
+        }
+        let fresh = live.head + live.sectors;
+        let at = self.sector_offset(fresh);
+        self.flash
+            .erase(at, at + self.sector_len())
+            .map_err(flash_err)?;
+        self.check_erased(at)?;
+        // The same bytes as the original (same generation and number),
+        // twice: the second proves the first whole.
+        let total = align_up(HEADER_LEN + len, self.align);
+        self.write_copy(
+            live.generation,
+            live.records.saturating_sub(1),
+            len,
+            fresh,
+            0,
+        )?;
+        self.write_copy(
+            live.generation,
+            live.records.saturating_sub(1),
+            len,
+            fresh,
+            total,
+        )?;
+        live.sectors += 1;
+        live.offset = Some(2 * total as u32);
+        self.live = Some(live);
+        self.unsettled = None;
+        self.moved = Some((tail, self.position(fresh, 0)));
+        Ok(())
     }
 
     /// Reads the sector at `at` back: an error unless every byte is 0xFF.
@@ -1367,5 +1585,210 @@ mod tests {
         assert_eq!(log.sectors_used(), 1, "the unerased sector is not used");
         let (_, found) = reboot(log);
         assert_eq!(found, acked);
+    }
+
+    /// What a boot finds, as a device boots: the log opened afresh and its
+    /// tail settled ([`Log::settle`]) before anything is read.
+    fn settled_boot(flash: SimFlash) -> (Log<SimFlash>, Vec<Vec<u8>>) {
+        let mut log = open(flash);
+        log.settle().unwrap();
+        let found = payloads(&mut log);
+        (log, found)
+    }
+
+    /// One step of a workload: a new generation, or a record appended.
+    #[derive(Debug, Clone)]
+    enum Op {
+        Start(Vec<u8>),
+        Append(Vec<u8>),
+    }
+
+    /// Each record's first byte and length (the workloads' payloads are
+    /// fills), for readable failures.
+    fn shape(records: &[Vec<u8>]) -> Vec<(u8, usize)> {
+        records
+            .iter()
+            .map(|r| (r.first().copied().unwrap_or(0), r.len()))
+            .collect()
+    }
+
+    /// Every way a step can lose power.
+    const TEARS: [Tear; 9] = [
+        Tear::Before,
+        Tear::Half,
+        Tear::After,
+        Tear::Marginal,
+        Tear::Scattered(1),
+        Tear::Scattered(2),
+        Tear::Scattered(3),
+        Tear::KeepHead,
+        Tear::Zeroed,
+    ];
+
+    /// Runs `ops` on `log` until one fails; returns the live records
+    /// acknowledged (starting from `held`) and the operation that failed.
+    fn run(
+        log: &mut Log<SimFlash>,
+        mut held: Vec<Vec<u8>>,
+        ops: &[Op],
+    ) -> (Vec<Vec<u8>>, Option<Op>) {
+        for op in ops {
+            match op {
+                Op::Start(p) if log.start(p).is_ok() => held = vec![p.clone()],
+                Op::Append(p) if log.append(p).is_ok() => held.push(p.clone()),
+                _ => return (held, Some(op.clone())),
+            }
+        }
+        (held, None)
+    }
+
+    /// Whether a log holding `found` after a cut kept every acknowledged
+    /// record: `held`, or what the operation in flight would have made.
+    fn kept(found: &[Vec<u8>], held: &[Vec<u8>], in_flight: &Option<Op>) -> bool {
+        found == held
+            || match in_flight {
+                Some(Op::Start(p)) => found == [p.clone()],
+                Some(Op::Append(p)) => found.split_last() == Some((p, held)),
+                None => false,
+            }
+    }
+
+    /// A cut at every step of a workload, torn every way, then a boot that
+    /// appends, then time (what a cut left weak reads wrong: a record that
+    /// restored at one boot fails at the next), then another boot: every
+    /// acknowledged record is there. The same again with a second cut at
+    /// every step of the first boot's appends (the rewrite of the tail
+    /// among them).
+    #[test]
+    fn a_record_that_reads_valid_once_never_costs_what_follows_it() {
+        let mut ops = vec![Op::Start(vec![0xA0; 300])];
+        for (i, n) in [1004, 1004, 1004, 17, 900, 1004, 1004, 60]
+            .into_iter()
+            .enumerate()
+        {
+            ops.push(Op::Append(vec![i as u8; n]));
+        }
+        ops.push(Op::Start(vec![0xB0; 100]));
+        ops.push(Op::Append(vec![0xB1; 1004]));
+        ops.push(Op::Append(vec![0xB2; 500]));
+        let appends: Vec<Op> = (1..4u8).map(|i| Op::Append(vec![0xC0 + i; 40])).collect();
+        // What the next boot does: go on, or start when nothing came back.
+        let next_boot = |found: &[Vec<u8>]| match found.is_empty() {
+            true => [&[Op::Start(vec![0xC0; 40])], &appends[..]].concat(),
+            false => appends.clone(),
+        };
+        let (mut cuts, mut second_cuts, mut faded) = (0u32, 0u32, 0usize);
+        for tear in TEARS {
+            for step in 0.. {
+                let ctx = format!("cut at step {step} ({tear:?})");
+                let mut flash = SimFlash::new(6);
+                flash.cut_at(step, tear);
+                let mut log = open(flash);
+                let (held, in_flight) = run(&mut log, Vec::new(), &ops);
+                if !log.flash().is_off() {
+                    break;
+                }
+                cuts += 1;
+                log.flash().power_on();
+                let boot = log.into_flash();
+                // The next boot settles and goes on, uninterrupted; then
+                // time passes.
+                let (mut log, found) = settled_boot(boot.clone());
+                assert!(
+                    kept(&found, &held, &in_flight),
+                    "{ctx}: {} found",
+                    found.len()
+                );
+                let (held, in_flight) = run(&mut log, found.clone(), &next_boot(&found));
+                assert!(in_flight.is_none(), "{ctx}: {in_flight:?}");
+                faded += log.flash().fade();
+                let (mut log, again) = settled_boot(log.into_flash());
+                assert_eq!(
+                    shape(&again),
+                    shape(&held),
+                    "{ctx}: after the weak cells faded"
+                );
+                log.append(b"last").unwrap();
+                log.flash().fade();
+                let (_, again) = settled_boot(log.into_flash());
+                assert_eq!(shape(&again), shape(&with(&held, &[b"last"])), "{ctx}");
+                // Or the next boot is cut too, at each of its steps.
+                for tear2 in TEARS {
+                    for step2 in 0.. {
+                        let ctx = format!("{ctx}, then at step {step2} ({tear2:?})");
+                        let mut flash = boot.clone();
+                        flash.cut_at(flash.steps() + step2, tear2);
+                        let mut log = open(flash);
+                        let (held, in_flight) = match log.settle() {
+                            Ok(()) => run(&mut log, found.clone(), &next_boot(&found)),
+                            Err(_) => (found.clone(), None),
+                        };
+                        if !log.flash().is_off() {
+                            break;
+                        }
+                        second_cuts += 1;
+                        log.flash().power_on();
+                        let (mut log, again) = settled_boot(log.into_flash());
+                        assert!(
+                            kept(&again, &held, &in_flight),
+                            "{ctx}: {} found",
+                            again.len()
+                        );
+                        match again.is_empty() {
+                            true => log.start(b"last").unwrap(),
+                            false => drop(log.append(b"last").unwrap()),
+                        }
+                        log.flash().fade();
+                        let (_, last) = settled_boot(log.into_flash());
+                        assert_eq!(
+                            shape(&last),
+                            shape(&with(&again, &[b"last"])),
+                            "{ctx}: after fading"
+                        );
+                    }
+                }
+            }
+        }
+        std::println!("{cuts} cuts, {second_cuts} second cuts, {faded} weak ranges faded");
+        assert!(faded > 0 && cuts > 9 * 12, "{cuts} cuts, {faded} faded");
+    }
+
+    /// A board that boots again and again (a reset loop, a user who plugs
+    /// it in and out) without recording anything settles its tail once:
+    /// the log does not grow by a sector a boot.
+    #[test]
+    fn boots_without_records_settle_once() {
+        let (flash, written) = three_sectors();
+        let mut log = open(flash);
+        let before = log.sectors_used();
+        for boot in 0..10 {
+            log.settle().unwrap();
+            let (again, found) = reboot(log);
+            log = again;
+            assert_eq!(found, written, "boot {boot}");
+            assert!(
+                log.sectors_used() <= before + 1,
+                "boot {boot}: {} sectors",
+                log.sectors_used()
+            );
+        }
+        // And a generation of one record: settled as a new generation, once.
+        let mut log = open(SimFlash::new(SECTORS));
+        log.start(b"only").unwrap();
+        let (mut log, _) = reboot(log);
+        log.settle().unwrap();
+        let head = live_head_of(&mut log);
+        for _ in 0..5 {
+            let (mut again, found) = reboot(log);
+            assert_eq!(found, owned(&[b"only"]));
+            again.settle().unwrap();
+            assert_eq!(live_head_of(&mut again), head, "settled again");
+            log = again;
+        }
+    }
+
+    /// The live generation's number and head sector.
+    fn live_head_of(log: &mut Log<SimFlash>) -> Option<(u32, u32)> {
+        log.live.map(|l| (l.generation, l.head))
     }
 }

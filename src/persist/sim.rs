@@ -14,6 +14,12 @@
 //! unprogrammed (a worn sector, a supply below the part's minimum), and
 //! [`SimFlash::protect`] makes a sector's erases and programs do nothing
 //! (protect bits left set by earlier firmware); both report success.
+//!
+//! Tears a real part leaves and a prefix does not ([`Tear`]): a program
+//! whose cells are just past the read threshold ([`Tear::Marginal`]: right
+//! now, wrong after [`SimFlash::fade`], a later boot), a program that took
+//! a random part of its bits, an erase that went from the sector's end
+//! (offset 0 intact) or that stopped after the part zeroed every cell.
 
 // Host-only test code: plain indexing of its own vector is fine here.
 #![allow(clippy::indexing_slicing)]
@@ -37,6 +43,18 @@ pub enum Tear {
     Half,
     /// All of it, but the caller never learns it succeeded.
     After,
+    /// All of it, reading back right, but with cells just past the read
+    /// threshold: [`SimFlash::fade`] (a later boot) makes it read wrong.
+    Marginal,
+    /// A write clears a pseudo-random subset (from the seed) of the bits it
+    /// should; an erase sets a pseudo-random subset of the sector's bits.
+    Scattered(u8),
+    /// An erase that went from the sector's end: its second half erased,
+    /// the first half (and the record at offset 0) as it was.
+    KeepHead,
+    /// An erase cut after the part programmed every cell to 0 and before
+    /// it erased: the whole sector reads 0x00.
+    Zeroed,
 }
 
 /// Why a flash operation failed.
@@ -73,6 +91,9 @@ pub struct SimFlash {
     weak: Option<(usize, u8)>,
     /// A sector whose erases and programs do nothing.
     protected: Option<usize>,
+    /// Ranges a [`Tear::Marginal`] step left weak, erased (`true`) or
+    /// programmed, until [`SimFlash::fade`] or an erase over them.
+    marginal: Vec<(std::ops::Range<usize>, bool)>,
 }
 
 impl SimFlash {
@@ -88,7 +109,27 @@ impl SimFlash {
             off: Arc::new(AtomicBool::new(false)),
             weak: None,
             protected: None,
+            marginal: Vec::new(),
         }
+    }
+
+    /// Time passes (a later boot): what a [`Tear::Marginal`] step left
+    /// weak reads wrong from now on. A programmed range gets one bit back
+    /// at 1 (its first programmed byte), an erased one a bit at 0 (its
+    /// first byte). Returns how many ranges faded.
+    pub fn fade(&mut self) -> usize {
+        let faded = self.marginal.len();
+        for (range, erased) in std::mem::take(&mut self.marginal) {
+            let bytes = &mut self.bytes[range];
+            if erased {
+                if let Some(b) = bytes.first_mut() {
+                    *b &= 0xFE;
+                }
+            } else if let Some(b) = bytes.iter_mut().find(|b| **b != 0xFF) {
+                *b |= 1 << b.trailing_ones();
+            }
+        }
+        faded
     }
 
     /// Every program in sector `sector` from now on leaves the bits of
@@ -213,9 +254,27 @@ impl SimFlash {
 /// How much of a torn step of `len` bytes lands.
 fn landed(len: usize, tear: Option<Tear>) -> usize {
     match tear {
-        None | Some(Tear::After) => len,
         Some(Tear::Before) => 0,
         Some(Tear::Half) => len / 2,
+        _ => len,
+    }
+}
+
+/// A pseudo-random bit mask per byte (xorshift), for [`Tear::Scattered`].
+struct Scatter(u32);
+
+impl Scatter {
+    fn new(seed: u8) -> Self {
+        Scatter(0x9E37_79B9 ^ u32::from(seed).wrapping_mul(0x0101_0101) | 1)
+    }
+
+    fn next(&mut self) -> u8 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 17;
+        self.0 ^= self.0 << 5;
+        // About one bit in four.
+        let [a, b, ..] = self.0.to_le_bytes();
+        a & b
     }
 }
 
@@ -259,12 +318,32 @@ impl NorFlash for SimFlash {
                 None => Ok(()),
             };
         }
-        self.bytes[range.start..range.start + n].fill(0xFF);
-        if tear == Some(Tear::Half) {
-            // The rest is left as it was but weakened: some bits set.
-            if let Some(b) = self.bytes.get_mut(range.start + n) {
-                *b |= 0x0F;
+        // A completed erase leaves nothing weak in its range.
+        self.marginal
+            .retain(|(r, _)| r.end <= range.start || r.start >= range.end);
+        match tear {
+            Some(Tear::KeepHead) => {
+                let half = range.start + len / 2;
+                self.bytes[half..range.end].fill(0xFF);
             }
+            Some(Tear::Zeroed) => self.bytes[range.clone()].fill(0),
+            Some(Tear::Scattered(seed)) => {
+                let mut bits = Scatter::new(seed);
+                for b in &mut self.bytes[range.clone()] {
+                    *b |= bits.next();
+                }
+            }
+            _ => self.bytes[range.start..range.start + n].fill(0xFF),
+        }
+        match tear {
+            // The rest is left as it was but weakened: some bits set.
+            Some(Tear::Half) => {
+                if let Some(b) = self.bytes.get_mut(range.start + n) {
+                    *b |= 0x0F;
+                }
+            }
+            Some(Tear::Marginal) => self.marginal.push((range, true)),
+            _ => {}
         }
         if tear.is_some() {
             return Err(SimFlashError::PowerCut);
@@ -290,16 +369,26 @@ impl NorFlash for SimFlash {
             Some((sector, mask)) if range.start / Self::SECTOR == sector => mask,
             _ => 0,
         };
+        let mut scatter = match tear {
+            Some(Tear::Scattered(seed)) => Some(Scatter::new(seed)),
+            _ => None,
+        };
         for (b, d) in self.bytes[range.start..range.start + n]
             .iter_mut()
             .zip(data)
         {
-            *b &= d | keep;
+            // Bits the scatter keeps at 1 did not program.
+            let missed = scatter.as_mut().map_or(0, Scatter::next);
+            *b &= d | keep | missed;
         }
-        if tear == Some(Tear::Half) {
-            if let (Some(b), Some(d)) = (self.bytes.get_mut(range.start + n), data.get(n)) {
-                *b &= d | 0xF0;
+        match tear {
+            Some(Tear::Half) => {
+                if let (Some(b), Some(d)) = (self.bytes.get_mut(range.start + n), data.get(n)) {
+                    *b &= d | 0xF0;
+                }
             }
+            Some(Tear::Marginal) => self.marginal.push((range, false)),
+            _ => {}
         }
         if tear.is_some() {
             return Err(SimFlashError::PowerCut);
