@@ -25,7 +25,7 @@ mod new_places;
 mod pico;
 
 use new_places::new_place_every_frame;
-use pico::{boot, exit_field, export_csv, latency, stream, Cut, PROFILE};
+use pico::{boot, boot_with_bus_resets, exit_field, export_csv, latency, stream, Cut, PROFILE};
 use placedb::protocol::DecisionKind;
 use placedb_host::board::client::Client;
 use placedb_host::board::flash_timing::FlashTiming;
@@ -46,18 +46,23 @@ const MIN_ERASES: u64 = 50;
 
 /// Streams the scan at `timing` with the host's default options
 /// (pipelined, 60 s reply timeout: a stall the host did not outlast would
-/// end the stream with an error), checks the export against the host
-/// replay, and returns the harness's exit lines.
-fn scan_with_many_erases(timing: FlashTiming) -> String {
+/// end the stream with an error), the host resetting the bus after each
+/// FrameEnd in `bus_resets`; checks the export against the host replay
+/// and that the host never had to reset the port (an erase the firmware
+/// started while it enumerated: see the harness), and returns the
+/// harness's exit lines.
+fn scan_with_many_erases(timing: FlashTiming, bus_resets: &[u32]) -> String {
     let started = Instant::now();
     let seq = new_place_every_frame(FRAMES);
     let (vcfg, sel) = (new_places::voxel_config(), selector(WINDOW));
-    let mut client = Client::new(boot(None, timing, Cut::Never));
+    let mut client = Client::new(boot_with_bus_resets(None, timing, Cut::Never, bus_resets));
     let opts = StreamOptions::default();
     let report = stream(&mut client, &seq, &vcfg, sel, &opts);
     assert_eq!(report.status.frames_seen as usize, FRAMES);
     assert!(report.decisions.iter().all(Option::is_some));
-    assert_eq!(report.retransmissions, 0, "the host sent a message again");
+    if bus_resets.is_empty() {
+        assert_eq!(report.retransmissions, 0, "the host sent a message again");
+    }
     let csv = export_csv(&mut client);
     assert_eq!(
         csv,
@@ -67,6 +72,21 @@ fn scan_with_many_erases(timing: FlashTiming) -> String {
     let console = client.into_link().stop();
     let erases = exit_field(&console, "stats", "sectors_erased");
     let pages = exit_field(&console, "stats", "pages_programmed");
+    assert_eq!(
+        exit_field(&console, "stats", "bus_resets"),
+        bus_resets.len() as u64,
+        "{console}"
+    );
+    assert_eq!(
+        exit_field(&console, "stats", "usb_host_resets"),
+        0,
+        "the host had to reset the port: {console}"
+    );
+    assert_eq!(
+        exit_field(&console, "stats", "erases_while_enumerating"),
+        0,
+        "the firmware erased while the host enumerated: {console}"
+    );
     assert!(
         erases >= MIN_ERASES,
         "{erases} sectors erased, fewer than the {MIN_ERASES} the test is for: {console}"
@@ -82,12 +102,15 @@ fn scan_with_many_erases(timing: FlashTiming) -> String {
     println!(
         "pico, {FRAMES} frames of {} at {timing} flash timing: {erases} sectors erased, {pages} \
          pages programmed; frame answer latency median {} us, worst {} us of emulated time; \
-         {} answers waited for an erase; export identical to the host replay, no resend; \
-         {} database frames; {:.1} s",
+         {} answers waited for an erase; {} bus resets, {} host port resets; export identical \
+         to the host replay, {} messages sent again; {} database frames; {:.1} s",
         seq.name,
         lat.median_us,
         lat.worst_us,
         lat.waited,
+        bus_resets.len(),
+        exit_field(&console, "stats", "usb_host_resets"),
+        report.retransmissions,
         report.status.database_size,
         started.elapsed().as_secs_f64()
     );
@@ -98,7 +121,7 @@ fn scan_with_many_erases(timing: FlashTiming) -> String {
 /// frame's path: no answer waits for one.
 #[test]
 fn many_erases_at_typical_timing_no_answer_waits_for_one() {
-    let console = scan_with_many_erases(FlashTiming::Typical);
+    let console = scan_with_many_erases(FlashTiming::Typical, &[]);
     let lat = latency(&console);
     assert_eq!(lat.waited, 0, "answers waited for an erase: {console}");
 }
@@ -107,9 +130,21 @@ fn many_erases_at_typical_timing_no_answer_waits_for_one() {
 /// still all ahead: the order of events does not depend on their length.
 #[test]
 fn many_erases_at_max_timing_no_answer_waits_for_one() {
-    let console = scan_with_many_erases(FlashTiming::Max);
+    let console = scan_with_many_erases(FlashTiming::Max, &[]);
     let lat = latency(&console);
     assert_eq!(lat.waited, 0, "answers waited for an erase: {console}");
+}
+
+/// USB first (issue 40): the host resets the bus mid-stream (a hub reset,
+/// a host's resume) after every fifth frame, at the maximum erase time,
+/// while the log opens a sector every frame or two: the device takes its
+/// new address and answers every enumeration request in time (the
+/// firmware erases nothing until it is configured and USB has been quiet
+/// for a while), and the scan goes on to the host replay's export.
+#[test]
+fn bus_resets_mid_stream_at_max_timing_and_the_scan_goes_on() {
+    let resets: Vec<u32> = (1..FRAMES as u32 / 5).map(|k| 5 * k).collect();
+    scan_with_many_erases(FlashTiming::Max, &resets);
 }
 
 /// Line `i` (from 0, after the header) of a CSV text.
@@ -208,6 +243,13 @@ fn cut_restore_and_resume(cut: Cut, min_acknowledged: usize) {
     assert!(
         csv == (want_db.clone(), want_labels.clone()),
         "the resumed scan's export differs from the uninterrupted run's"
+    );
+    // USB first: what the restore erased, it erased before USB started.
+    let console = client.into_link().stop();
+    assert_eq!(
+        exit_field(&console, "stats", "erases_while_enumerating"),
+        0,
+        "the restored board erased while the host enumerated: {console}"
     );
     println!(
         "pico, {cut:?} at max flash timing, in frame {} of {FRAMES}: {} decisions acknowledged \

@@ -193,6 +193,10 @@ fn check_line_coding<'a>(mut link: Link<'a, EmulatedUsbBus>, mut host: Host<'a>)
     // DTR and RTS up (what a host's open() sends) is accepted.
     host.control_write(&mut link, to_device, SET_CONTROL_LINE_STATE, 3, 0, 0, &[])
         .unwrap();
+    // Control requests are seen (the firmware erases nothing for a while
+    // after one), and told once.
+    assert!(link.take_control_seen());
+    assert!(!link.take_control_seen());
     // Requests for another interface or unknown CDC requests are stalled.
     assert_eq!(
         host.control_read(&mut link, to_host, GET_LINE_CODING, 0, 1, 7),
@@ -212,6 +216,14 @@ fn check_line_coding<'a>(mut link: Link<'a, EmulatedUsbBus>, mut host: Host<'a>)
     assert_eq!(got, data);
     link.send(host.usb_dev(), &data);
     assert_eq!(host.ep_read(&mut link, in_ep, 1024).unwrap(), data);
+    // The descriptor read was one; bulk data is none.
+    assert!(link.take_control_seen());
+    assert_eq!(host.ep_write(&mut link, out_ep, &data).unwrap(), 256);
+    assert_eq!(device_read(&mut link, &mut host, data.len()), data);
+    assert!(
+        !link.take_control_seen(),
+        "bulk data is not a control request"
+    );
 }
 
 #[test]

@@ -8,12 +8,16 @@
 //                    [--port N] [--flash FILE] [--deadline SECONDS]
 //                    [--flash-timing none|typical|max] [--cut-during-erase N]
 //                    [--cut-during-program N] [--unique-id HEX16]
+//                    [--bus-reset-after-frames N[,N...]]
 //
 // stdout, one line each (tests and `placedb device --rp2040` read them):
 //   "listening tcp:127.0.0.1:PORT"     ready for the host (one client at a time)
 //   "usb configured ... serial S ..."  enumeration done, descriptors parsed
 //                                      (S: the serial number string descriptor)
 //   "client connected" / "client closed"
+//   "bus reset after frame N"          --bus-reset-after-frames (below)
+//   "usb: REQUEST not done within ..." a control transfer the firmware was
+//                                      too late for (below)
 //   "stats cycles=N ..."               on exit (SIGTERM, SIGINT, deadline)
 //   "latency frames=N ..."             on exit: frame answer latencies (below)
 // A fatal condition prints "error: ..." on stderr and exits 2 (3: deadline).
@@ -31,6 +35,29 @@
 // command answers, 16 hex digits, first byte sent first; default
 // E6614103E7452D2F), which the firmware makes its USB serial number: two
 // emulated boards with different IDs differ as two real ones do.
+// --bus-reset-after-frames N,M,...: once the host has handed the firmware
+// the N-th FrameEnd (counted from 1), it resets the bus and enumerates
+// again, as a hub reset or a host's resume does mid-stream; the bytes the
+// TCP client sends meanwhile wait until the port is configured again.
+//
+// The host enumerates 20 ms after it starts a bus reset (10 ms of reset,
+// 10 ms of reset recovery: USB 2.0 section 7.1.7.5), whatever the firmware
+// is doing then, and times control transfers as Linux does: 5 s for a
+// transfer (USB_CTRL_GET_TIMEOUT, USB_CTRL_SET_TIMEOUT; USB 2.0's 50 ms
+// for a request without data stage, section 9.2.6.4, is not enforced by
+// it), and 2 ms after SET_ADDRESS (section 9.2.6.3) the next request goes
+// to the new address, which the firmware must have written to the
+// controller by then (usb-device applies it at its next poll after the
+// status stage, so a firmware busy in a flash erase, or computing a frame,
+// misses it). A transfer that fails so makes the host print "usb: ..."
+// and reset the port 100 ms later, as Linux does ("device descriptor
+// read/64, error -71"); after four in a row it gives up (exit 2, "error:
+// ... unable to enumerate"). The stats line counts them (usb_host_resets),
+// and the sectors the firmware began to erase while the host enumerated
+// (erases_while_enumerating: from a bus reset until the port is configured
+// again; an erase begun before the reset is not the firmware's choice).
+// The firmware sees a bus reset as soon as it starts, as on silicon
+// (SIE_STATUS.BUS_RESET; rp2040js alone raises it after 10 ms).
 //
 // Flash: rp2040js does not model the QSPI flash chip; the boot ROM's flash
 // functions run but change nothing. This harness stops the core at the
@@ -91,13 +118,13 @@ const FLASH_TIMING = {
 function usage(msg) {
   if (msg) process.stderr.write(`error: ${msg}\n`);
   process.stderr.write(
-    'usage: node harness.mjs --elf FIRMWARE.elf --bootrom bootrom-b1.bin [--port N] [--flash FILE] [--deadline SECONDS] [--flash-timing none|typical|max] [--cut-during-erase N] [--cut-during-program N] [--unique-id HEX16]\n',
+    'usage: node harness.mjs --elf FIRMWARE.elf --bootrom bootrom-b1.bin [--port N] [--flash FILE] [--deadline SECONDS] [--flash-timing none|typical|max] [--cut-during-erase N] [--cut-during-program N] [--unique-id HEX16] [--bus-reset-after-frames N[,N...]]\n',
   );
   process.exit(2);
 }
 
 function parseArgs(argv) {
-  const opts = { port: 0, flash: null, deadline: 0, elf: null, bootrom: null, quiet: false, timing: 'typical', cutErase: 0, cutProgram: 0, uniqueId: DEFAULT_UNIQUE_ID };
+  const opts = { port: 0, flash: null, deadline: 0, elf: null, bootrom: null, quiet: false, timing: 'typical', cutErase: 0, cutProgram: 0, uniqueId: DEFAULT_UNIQUE_ID, busResets: [] };
   for (let i = 0; i < argv.length; i++) {
     const a = argv[i];
     const value = () => {
@@ -148,6 +175,12 @@ function parseArgs(argv) {
         const h = value();
         if (!/^[0-9a-fA-F]{16}$/.test(h)) usage('--unique-id takes 16 hex digits (the flash chip\'s 64-bit unique ID)');
         opts.uniqueId = h.toUpperCase();
+        break;
+      }
+      case '--bus-reset-after-frames': {
+        const list = value().split(',').map(Number);
+        if (!list.every((n) => Number.isInteger(n) && n >= 1)) usage('--bus-reset-after-frames takes frame numbers from 1, comma-separated');
+        opts.busResets = list;
         break;
       }
       case '--quiet':
@@ -456,6 +489,9 @@ const stats = {
   bytesIn: 0,
   bytesOut: 0,
   flashBusyNs: 0,
+  busResets: 0, // --bus-reset-after-frames resets done
+  hostResets: 0, // control transfers the firmware was too late for
+  erasesWhileEnumerating: 0, // sectors erased between a bus reset and configured
 };
 
 const inRam = (a) => a >= 0x20000000 && a < 0x20042000;
@@ -495,6 +531,7 @@ function flashCall(code) {
     mcu.flash.fill(0xff, addr, addr + count);
     persist(addr, count);
     stats.erases += count / SECTOR;
+    if (host.enumerating) stats.erasesWhileEnumerating += count / SECTOR;
     hold((count / SECTOR) * FLASH_TIMING[opts.timing].erase);
     latency.erased(); // when it ends (see the header: Latency)
   } else if (code === 'RP') {
@@ -633,7 +670,25 @@ const latency = {
     );
   },
 };
-const hostFrames = frameSplitter((body) => latency.hostFrame(body));
+/** --bus-reset-after-frames: counts the FrameEnds handed to the firmware. */
+const framesEnded = {
+  seen: new Set(),
+  hostFrame(body) {
+    const seq = body && varint(body, 0);
+    const kind = seq && varint(body, seq[1]);
+    if (!kind || kind[0] !== HOST_FRAME_END || this.seen.has(seq[0])) return;
+    this.seen.add(seq[0]);
+    if (opts.busResets.includes(this.seen.size)) {
+      log(`bus reset after frame ${this.seen.size}`);
+      stats.busResets++;
+      resetBus();
+    }
+  },
+};
+const hostFrames = frameSplitter((body) => {
+  latency.hostFrame(body);
+  framesEnded.hostFrame(body);
+});
 const deviceFrames = frameSplitter((body) => latency.deviceFrame(body));
 
 // ---------------------------------------------------------------- USB host
@@ -651,6 +706,58 @@ const host = {
   rxBytes: 0,
   activity: 0,
   descriptors: {},
+  lateInARow: 0, // control transfers failed since the port was last configured
+  address: null, // what the firmware last wrote to ADDR_ENDP since the last reset
+  awaitingAddress: false, // SET_ADDRESS done, the next request goes to address 1
+  enumerating: false, // from a bus reset until the port is configured
+};
+
+/** How long a host waits (see the header), in emulated nanoseconds. */
+const CONTROL_TIMEOUT_NS = 5000e6;
+const RESET_TO_ENUMERATION_NS = 20e6;
+const SET_ADDRESS_RECOVERY_NS = 2e6;
+const RETRY_GAP_NS = 100e6;
+/** Failed transfers in a row before the host gives up on the device. */
+const ENUMERATION_TRIES = 4;
+const controlDeadline = mcu.clock.createAlarm(() => {
+  const c = host.control;
+  if (c) hostGivesUp(`${c.name} not done within ${CONTROL_TIMEOUT_NS / 1e6} ms of its SETUP`);
+});
+const enumerateAfterReset = mcu.clock.createAlarm(() => enumerate());
+
+/** The host resets the bus and enumerates `after` ns later: no bulk OUT
+ * until the port is configured again. */
+function resetBus(after = RESET_TO_ENUMERATION_NS) {
+  host.configured = false;
+  host.enumerating = true;
+  host.outArmed = 0;
+  host.control = null;
+  host.queue = [];
+  host.address = null;
+  nextControl.cancel();
+  controlDeadline.cancel();
+  // rp2040js's resetDevice() raises BUS_RESET at the reset's end (10 ms);
+  // the controller raises it at its start.
+  usb.resetAlarm.schedule(1000);
+  enumerateAfterReset.schedule(after);
+}
+
+/** A transfer the firmware was too late for: the host resets the port. */
+function hostGivesUp(what) {
+  stats.hostResets++;
+  log(`usb: ${what}, at ${(mcu.clock.nanos / 1e6).toFixed(1)} ms: the host resets the port (device descriptor read/64, error -71)`);
+  if (++host.lateInARow >= ENUMERATION_TRIES) {
+    fatal(`usb: ${ENUMERATION_TRIES} control transfers in a row failed: the host gives up (unable to enumerate USB device)`);
+    return;
+  }
+  resetBus(RETRY_GAP_NS + RESET_TO_ENUMERATION_NS);
+}
+
+// The address the firmware wrote to the controller (ADDR_ENDP), and when.
+const usbWrite = usb.writeUint32.bind(usb);
+usb.writeUint32 = (offset, value) => {
+  if (offset === 0) host.address = value & 0x7f;
+  usbWrite(offset, value);
 };
 
 function setup(bmRequestType, bRequest, wValue, wIndex, wLength, data = null, name = '') {
@@ -667,9 +774,17 @@ function setup(bmRequestType, bRequest, wValue, wIndex, wLength, data = null, na
 }
 
 function startNextControl() {
+  if (host.awaitingAddress) {
+    host.awaitingAddress = false;
+    if (host.address !== 1) {
+      return hostGivesUp('the device had not taken its new address 2 ms after SET_ADDRESS');
+    }
+  }
   host.control = host.queue.shift() ?? null;
   debug(`control ${host.control ? host.control.name : 'done'}`);
-  if (host.control) usb.sendSetupPacket(host.control.setup);
+  if (!host.control) return;
+  controlDeadline.schedule(CONTROL_TIMEOUT_NS);
+  usb.sendSetupPacket(host.control.setup);
 }
 
 /** The next control transfer starts this long after one ends, so that the
@@ -680,9 +795,11 @@ const nextControl = mcu.clock.createAlarm(() => startNextControl());
 
 function controlDone(c) {
   const bytes = Buffer.concat(c.received.map((b) => Buffer.from(b)));
+  controlDeadline.cancel();
   host.control = null;
   if (c.onDone) c.onDone(bytes);
-  nextControl.schedule(CONTROL_GAP_NS);
+  host.awaitingAddress = c.name === 'SET_ADDRESS';
+  nextControl.schedule(host.awaitingAddress ? SET_ADDRESS_RECOVERY_NS : CONTROL_GAP_NS);
 }
 
 function enumerate() {
@@ -732,6 +849,8 @@ function enumerate() {
     Object.assign(setup(0x21, 0x22, 0x0003, 0, 0, null, 'SET_CONTROL_LINE_STATE'), {
       onDone: () => {
         host.configured = true;
+        host.enumerating = false;
+        host.lateInARow = 0;
         const d = host.descriptors.device ?? Buffer.alloc(0);
         const vidpid = d.length >= 12 ? `${d.readUInt16LE(8).toString(16).padStart(4, '0')}:${d.readUInt16LE(10).toString(16).padStart(4, '0')}` : '?';
         const lc = host.descriptors.lineCoding ?? Buffer.alloc(0);
@@ -767,12 +886,9 @@ if (process.env.PICO_DEBUG) {
 }
 usb.onUSBEnabled = () => {
   debug('usb enabled');
-  usb.resetDevice();
+  resetBus();
 };
-usb.onResetReceived = () => {
-  debug('bus reset');
-  enumerate();
-};
+usb.onResetReceived = () => debug('bus reset seen by the firmware');
 
 usb.onEndpointWrite = (ep, buffer) => {
   host.activity++;
@@ -990,6 +1106,8 @@ function finish(code = 0) {
       `wall_ms=${Date.now() - started} rom_flash_calls=${stats.romFlashCalls} ` +
       `sectors_erased=${stats.erases} pages_programmed=${stats.programs} ` +
       `flash_busy_ms=${(stats.flashBusyNs / 1e6).toFixed(1)} ` +
+      `bus_resets=${stats.busResets} usb_host_resets=${stats.hostResets} ` +
+      `erases_while_enumerating=${stats.erasesWhileEnumerating} ` +
       `usb_bytes_in=${stats.bytesIn} usb_bytes_out=${stats.bytesOut}\n`,
   );
   process.stdout.write(latency.line() + '\n');

@@ -137,9 +137,13 @@ pub struct Link<'a, B: UsbBus> {
     /// transfer is open and the next packet, if the queue is empty, is a
     /// zero-length one.
     full_run: u32,
+    /// A control request or a bus reset came since
+    /// [`Self::take_control_seen`] last looked.
+    control_seen: bool,
 }
 
-fn configured<B: UsbBus>(usb: &UsbDevice<'_, B>) -> bool {
+/// Whether the host has configured the device (enumeration is over).
+pub fn configured<B: UsbBus>(usb: &UsbDevice<'_, B>) -> bool {
     usb.state() == UsbDeviceState::Configured
 }
 
@@ -150,7 +154,15 @@ impl<'a, B: UsbBus> Link<'a, B> {
             class: CdcAcmClass::new(bus, PACKET_LEN as u16),
             tx: TxQueue::new(),
             full_run: 0,
+            control_seen: false,
         }
+    }
+
+    /// Whether a control request (every one, standard ones included, passes
+    /// through the class first) or a bus reset came since the last call:
+    /// the host may be enumerating, and more requests follow closely.
+    pub fn take_control_seen(&mut self) -> bool {
+        core::mem::take(&mut self.control_seen)
     }
 
     /// Services the USB device (enumeration, control requests, endpoint
@@ -271,6 +283,7 @@ impl<B: UsbBus> UsbClass<B> for Link<'_, B> {
     fn reset(&mut self) {
         // The queue stays; the packet in flight went with the reset.
         self.full_run = 0;
+        self.control_seen = true;
         self.class.reset();
     }
 
@@ -279,10 +292,12 @@ impl<B: UsbBus> UsbClass<B> for Link<'_, B> {
     }
 
     fn control_out(&mut self, xfer: ControlOut<B>) {
+        self.control_seen = true;
         self.class.control_out(xfer);
     }
 
     fn control_in(&mut self, xfer: ControlIn<B>) {
+        self.control_seen = true;
         self.class.control_in(xfer);
     }
 

@@ -20,6 +20,15 @@
 //! finds no host byte waiting, or between two frames (after a frame's
 //! answer has left, before the next frame is read), and the append that
 //! opens it only writes.
+//!
+//! USB first: an erase while the host enumerates makes the device miss its
+//! new address (usb-device applies SET_ADDRESS at its next poll; the host
+//! then reports "device descriptor read/64, error -71" and resets the
+//! port). So what a boot must erase (the restore's, and the first sector
+//! ahead) is erased before USB starts, and later erases ahead wait until
+//! the device is configured and no control request or bus reset has come
+//! for [`USB_QUIET_US`] (a host sends its requests in bursts: a bus reset,
+//! a re-enumeration, a port opened).
 #![no_std]
 #![no_main]
 
@@ -54,6 +63,10 @@ const TIMER_HZ: u32 = 1_000_000;
 /// waiting: a bound on how long a control request (or a bus reset) waits,
 /// a few milliseconds of 64-byte frames' work.
 const MAX_UNPOLLED: u32 = 16;
+/// No erase ahead within this long of a control request or a bus reset
+/// (the gaps inside an enumeration are a few milliseconds; USB 2.0 gives
+/// the device 2 ms to take a new address, 50 ms for a request).
+const USB_QUIET_US: u64 = 20_000;
 
 /// One bulk packet, for the rare packet the device's receive buffer has no
 /// room for: word-aligned as the controller's buffers are, so that the
@@ -132,6 +145,8 @@ fn main() -> ! {
     critical_section::with(|cs| {
         let _ = DEVICE.borrow_ref_mut(cs).restore(&mut log);
     });
+    // USB first: the first erase ahead too happens before USB starts.
+    erase_ahead(&mut log);
 
     let sio = hal::Sio::new(pac.SIO);
     let pins = hal::gpio::Pins::new(
@@ -160,6 +175,7 @@ fn main() -> ! {
 
     let mut packet = Packet([0; link::PACKET_LEN]);
     let mut unpolled = 0u32;
+    let mut quiet = UsbQuiet { control_at: 0 };
     loop {
         link.drain(&usb);
         // One critical section (one borrow of the device) a turn, not one
@@ -201,8 +217,10 @@ fn main() -> ! {
                 Got::Nothing => {
                     // Nothing from the host: the time to erase what the
                     // log needs next (a failed erase is the log's own
-                    // erase's to retry).
-                    erase_ahead(&mut log);
+                    // erase's to retry), once USB has settled.
+                    if quiet.now(&mut link, &mut usb) {
+                        erase_ahead(&mut log);
+                    }
                     return;
                 }
                 Got::InPlace => loop {
@@ -213,9 +231,14 @@ fn main() -> ! {
                         link.send(&mut usb, frame);
                     });
                     if ended && device.phase() != Phase::InFrame {
-                        erase_between_frames(&mut link, &mut usb, &mut log);
+                        erase_between_frames(&mut link, &mut usb, &mut log, &mut quiet);
                     }
-                    if !device.holds_input() {
+                    // USB first: a bus reset (a re-enumeration) stops the
+                    // held frames' work until the device is configured
+                    // again, so that no frame's computing keeps the
+                    // firmware from its polls while the host enumerates
+                    // (a SET_ADDRESS not applied within 2 ms is missed).
+                    if !device.holds_input() || !link::configured(&usb) {
                         break;
                     }
                 },
@@ -230,7 +253,7 @@ fn main() -> ! {
                         });
                         rest = after;
                         if ended && device.phase() != Phase::InFrame {
-                            erase_between_frames(&mut link, &mut usb, &mut log);
+                            erase_between_frames(&mut link, &mut usb, &mut log, &mut quiet);
                         }
                     }
                 }
@@ -255,13 +278,22 @@ enum Got {
 /// Reads the packet the host sent, if any, straight into the device's
 /// receive buffer (the framing then scans it where it lies: no copy
 /// between the USB controller and the frame's decode), or into `packet`
-/// when that has no room for a whole packet.
+/// when that has no room for a whole packet; or, when input is held
+/// already, reads nothing and says so once USB is configured.
 fn read_packet<'a>(
     link: &mut link::Link<'a, UsbBus>,
     usb: &UsbDevice<'a, UsbBus>,
     device: &mut Device256K,
     packet: &mut Packet,
 ) -> Got {
+    if device.holds_input() {
+        // Input held back while USB was not configured (the receive loop).
+        return if link::configured(usb) {
+            Got::InPlace
+        } else {
+            Got::Nothing
+        };
+    }
     let room = device.receive_room(link::PACKET_LEN);
     if room.len() >= link::PACKET_LEN {
         let n = link.read(usb, room);
@@ -285,15 +317,45 @@ fn read_packet<'a>(
 /// answers are out of the chip (`flush` waits, boundedly, until the USB
 /// controller holds them: it sends them from its own buffers during the
 /// erase). The erase then delays the next frame's start, not a frame's
-/// answer.
+/// answer. USB is looked at after the flush: its polls are where a bus
+/// reset or a request shows.
 fn erase_between_frames<'a>(
     link: &mut link::Link<'a, UsbBus>,
     usb: &mut UsbDevice<'a, UsbBus>,
     log: &mut Log<LogFlash>,
+    quiet: &mut UsbQuiet,
 ) {
     if !erased_ahead(log) {
         link.flush(usb);
-        erase_ahead(log);
+        if quiet.now(link, usb) {
+            erase_ahead(log);
+        }
+    }
+}
+
+/// When USB last saw a control request or a bus reset: erases ahead wait
+/// [`USB_QUIET_US`] after it.
+struct UsbQuiet {
+    /// [`ticks`] when [`Self::now`] last found one had come.
+    control_at: u64,
+}
+
+impl UsbQuiet {
+    /// Whether an erase may start now: the device configured, and no
+    /// control request or bus reset for [`USB_QUIET_US`]. USB is polled
+    /// first: a bus reset shows at once in the controller, and the work
+    /// since the last poll (a frame's) may have been long.
+    fn now<'a>(
+        &mut self,
+        link: &mut link::Link<'a, UsbBus>,
+        usb: &mut UsbDevice<'a, UsbBus>,
+    ) -> bool {
+        link.service(usb);
+        let now = ticks();
+        if link.take_control_seen() {
+            self.control_at = now;
+        }
+        link::configured(usb) && now.wrapping_sub(self.control_at) >= USB_QUIET_US
     }
 }
 

@@ -44,7 +44,19 @@ impl Cut {
 /// The emulated Pico at flash timing `timing`, on the flash file `flash`
 /// (a fresh erased flash if `None`), losing power at `cut`.
 pub fn boot(flash: Option<&Path>, timing: FlashTiming, cut: Cut) -> Rp2040 {
+    boot_with_bus_resets(flash, timing, cut, &[])
+}
+
+/// [`boot`], with the host resetting the bus once it has handed the
+/// firmware each FrameEnd numbered in `bus_reset_after_frames` (from 1).
+pub fn boot_with_bus_resets(
+    flash: Option<&Path>,
+    timing: FlashTiming,
+    cut: Cut,
+    bus_reset_after_frames: &[u32],
+) -> Rp2040 {
     let options = Rp2040Options {
+        bus_reset_after_frames: bus_reset_after_frames.to_vec(),
         flash: flash.map(Path::to_path_buf),
         deadline: Duration::from_secs(300),
         flash_timing: timing,

@@ -101,6 +101,10 @@ pub struct Rp2040Options {
     /// USB serial number: two boards with different IDs differ as two real
     /// Picos do. Default [`DEFAULT_UNIQUE_ID`].
     pub unique_id: u64,
+    /// The host resets the bus (and enumerates again) once it has handed
+    /// the firmware each of these FrameEnds (counted from 1), as a hub
+    /// reset or a host's resume does mid-stream.
+    pub bus_reset_after_frames: Vec<u32>,
 }
 
 /// The emulated flash chip's unique ID unless told otherwise (the harness's
@@ -120,6 +124,7 @@ impl Default for Rp2040Options {
             cut_during_erase: None,
             cut_during_program: None,
             unique_id: DEFAULT_UNIQUE_ID,
+            bus_reset_after_frames: Vec::new(),
         }
     }
 }
@@ -147,6 +152,16 @@ pub fn harness_command(firmware: &Path, options: &Rp2040Options) -> Command {
     }
     if let Some(n) = options.cut_during_program {
         command.arg("--cut-during-program").arg(n.to_string());
+    }
+    if !options.bus_reset_after_frames.is_empty() {
+        let frames: Vec<String> = options
+            .bus_reset_after_frames
+            .iter()
+            .map(u32::to_string)
+            .collect();
+        command
+            .arg("--bus-reset-after-frames")
+            .arg(frames.join(","));
     }
     if !options.deadline.is_zero() {
         command
