@@ -18,9 +18,9 @@
 mod board_common;
 
 use board_common::{demo, host_replay, killed_mid_scan_restores_and_resumes, Board};
-use placedb::protocol::{Phase, Status};
+use placedb::protocol::{DeviceMessage, HostMessage, Phase, Status};
 use placedb::SelectorConfig;
-use placedb_host::board::client::Client;
+use placedb_host::board::client::{Client, Received};
 use placedb_host::board::emulator::rp2040::{Rp2040, Rp2040Options};
 use placedb_host::board::export::ExportOptions;
 use placedb_host::board::flash_timing::FlashTiming;
@@ -446,4 +446,71 @@ fn a_pico_cut_during_an_erase_restores_and_resumes() {
         started.elapsed().as_secs_f64()
     );
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A new host session starts clean (issue 40): one program asks the board
+/// for its export and closes the port once the first record came; the
+/// next program to open the port gets nothing of that export but the one
+/// 64-byte packet the USB controller held (as from a real board: at most
+/// three small records and the start of another, which it reads as one
+/// damaged frame, and no terminal reply), its first request is answered
+/// at once (the firmware did not go on waiting to send the export to
+/// nobody), and the export it asks for is whole.
+#[test]
+fn a_port_closed_with_replies_pending_leaves_the_next_session_clean() {
+    let mut client = Client::new(boot(None, Duration::from_secs(300)));
+    // An export of some 300 records: far more than leave the board before
+    // the first one reaches the test and it closes the port.
+    let seq = demo(300);
+    stream(
+        &mut client,
+        &seq,
+        &stride(8),
+        sel(8),
+        &StreamOptions::replacing(),
+    );
+    let want = export_csv(&mut client, &ExportOptions::default());
+
+    client
+        .send(HostMessage::ExportRequest {
+            from_record: 0,
+            max_records: u32::MAX,
+        })
+        .unwrap();
+    let first = client.recv(REPLY).unwrap();
+    assert!(
+        matches!(first, Received::Message(DeviceMessage::ExportRecord(_))),
+        "{first:?}"
+    );
+    let mut board = client.into_link();
+    board.reopen().unwrap();
+
+    let mut client = Client::new(board);
+    let (seq_no, replies) = client.request(HostMessage::StatusRequest, REPLY).unwrap();
+    let stale: Vec<&Received> = replies
+        .iter()
+        .filter(|r| matches!(r, Received::Message(_)) && r.terminal_seq() != Some(seq_no))
+        .collect();
+    let damaged = replies
+        .iter()
+        .filter(|r| matches!(r, Received::Damaged(_)))
+        .count();
+    let stale_ends = stale.iter().filter(|r| r.terminal_seq().is_some()).count();
+    assert!(
+        stale.len() <= 3 && stale_ends == 0 && damaged <= 1,
+        "the new session got {} replies of the earlier one ({stale_ends} terminal) and \
+         {damaged} damaged frames: {:?}",
+        stale.len(),
+        stale.iter().take(3).collect::<Vec<_>>()
+    );
+    assert_eq!(export_csv(&mut client, &ExportOptions::default()), want);
+    let console = client.into_link().stop();
+    assert!(!console.contains("error:"), "{console}");
+    println!(
+        "port closed with an export pending, opened again: {} replies to the new session's \
+         first request, {} of them the earlier session's (the packet the controller held), \
+         {damaged} damaged; export whole",
+        replies.len(),
+        stale.len()
+    );
 }

@@ -215,7 +215,11 @@ fn check_line_coding<'a>(mut link: Link<'a, EmulatedUsbBus>, mut host: Host<'a>)
     let got = device_read(&mut link, &mut host, data.len());
     assert_eq!(got, data);
     link.send(host.usb_dev(), &data);
-    assert_eq!(host.ep_read(&mut link, in_ep, 1024).unwrap(), data);
+    // DTR rose above (a host session began): a lone delimiter went first.
+    assert_eq!(
+        host.ep_read(&mut link, in_ep, 1024).unwrap(),
+        [&[0u8][..], &data[..]].concat()
+    );
     // The descriptor read was one; bulk data is none.
     assert!(link.take_control_seen());
     assert_eq!(host.ep_write(&mut link, out_ep, &data).unwrap(), 256);
@@ -285,6 +289,89 @@ fn check_bulk<'a>(mut link: Link<'a, EmulatedUsbBus>, mut host: Host<'a>) {
 #[test]
 fn bulk_both_ways() {
     Pico.with_usb(check_bulk).unwrap();
+}
+
+/// SET_CONTROL_LINE_STATE with DTR (bit 0) and RTS (bit 1) as `dtr` says:
+/// what a host sends when a program opens (true) or closes (false) the port.
+fn set_dtr<'a>(link: &mut Link<'a, EmulatedUsbBus>, host: &mut Host<'a>, dtr: bool) {
+    let to_device = CtrRequestType::to_device().class().interface();
+    let value = if dtr { 3 } else { 0 };
+    host.control_write(link, to_device, SET_CONTROL_LINE_STATE, value, 0, 0, &[])
+        .unwrap();
+}
+
+/// Host sessions (issue 40): a host that never raises DTR is answered as
+/// ever; when DTR falls (the port closed) the queued replies and later ones
+/// are dropped, and the device never waits for a reader that is gone; when
+/// it rises (the port opened again) the new session gets no reply of an
+/// earlier one, only a lone delimiter ending whatever part of one the
+/// controller still held, and the caller is told to drop its partial input.
+fn check_sessions<'a>(mut link: Link<'a, EmulatedUsbBus>, mut host: Host<'a>) {
+    let config = config_descriptor(&mut link, &mut host);
+    let (out_ep, in_ep) = bulk_endpoints(&config);
+    let reply = |tag: u8| -> Vec<u8> { vec![tag; 40].into_iter().chain([0]).collect() };
+
+    // DTR never raised: replies go as ever, no session is announced.
+    link.send(host.usb_dev(), &reply(1));
+    assert_eq!(host.ep_read(&mut link, in_ep, 1024).unwrap(), reply(1));
+    assert!(!link.take_new_session());
+
+    // The port opened: a delimiter, then the session's replies.
+    set_dtr(&mut link, &mut host, true);
+    assert!(link.take_new_session());
+    assert!(!link.take_new_session());
+    link.send(host.usb_dev(), &reply(2));
+    assert_eq!(
+        host.ep_read(&mut link, in_ep, 1024).unwrap(),
+        [&[0u8][..], &reply(2)].concat()
+    );
+
+    // Replies the program did not read when it closed the port: what the
+    // controller took (this emulated bus takes up to 1 KiB; the RP2040 one
+    // packet), the rest queued. Closed, the queue is dropped and nothing
+    // more is queued, however much (more than the queue holds: a send that
+    // waited for a reader would never return).
+    let unread = 40 * reply(3).len();
+    for _ in 0..40 {
+        link.send(host.usb_dev(), &reply(3));
+    }
+    set_dtr(&mut link, &mut host, false);
+    for _ in 0..2 * TX_QUEUE_LEN / reply(4).len() {
+        link.send(host.usb_dev(), &reply(4));
+    }
+    // Opened again: what the controller held, a delimiter ending it, and
+    // nothing of what stayed queued or was sent while the port was closed.
+    set_dtr(&mut link, &mut host, true);
+    assert!(link.take_new_session());
+    let stale = host.ep_read(&mut link, in_ep, 4096).unwrap();
+    assert!(
+        stale.len() <= 1024 + 1 && stale.len() < unread,
+        "{} bytes of the {unread} unread went to the new session",
+        stale.len()
+    );
+    assert_eq!(
+        stale.last(),
+        Some(&0),
+        "no delimiter after the stale packet"
+    );
+    assert!(
+        !stale.contains(&4),
+        "a reply sent while the port was closed went out"
+    );
+    link.send(host.usb_dev(), &reply(5));
+    assert_eq!(host.ep_read(&mut link, in_ep, 1024).unwrap(), reply(5));
+
+    // A program that drops DTR and then writes is a reader again.
+    set_dtr(&mut link, &mut host, false);
+    host.ep_write(&mut link, out_ep, &[9, 9, 0]).unwrap();
+    assert_eq!(device_read(&mut link, &mut host, 3), [9, 9, 0]);
+    link.send(host.usb_dev(), &reply(6));
+    assert_eq!(host.ep_read(&mut link, in_ep, 1024).unwrap(), reply(6));
+}
+
+#[test]
+fn host_sessions_follow_dtr() {
+    Pico.with_usb(check_sessions).unwrap();
 }
 
 /// A full-speed USB bus and a scripted host: every endpoint holds one packet,

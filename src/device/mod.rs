@@ -411,6 +411,13 @@ impl<
         self.core.cost.clock_hz = hz;
     }
 
+    /// Drops received input that no message ended yet (a partial frame):
+    /// a new host session began (the port was opened again), and its
+    /// bytes do not continue the previous session's. The scan is kept.
+    pub fn drop_input(&mut self) {
+        self.decoder.clear();
+    }
+
     /// Forgets everything but the clock, as [`crate::protocol::HostMessage::Reset`]
     /// does; a partly received frame is dropped too.
     pub fn reset(&mut self) {

@@ -35,6 +35,14 @@
 // command answers, 16 hex digits, first byte sent first; default
 // E6614103E7452D2F), which the firmware makes its USB serial number: two
 // emulated boards with different IDs differ as two real ones do.
+// The TCP client is a program with the serial port open, and the host
+// says so as Linux's cdc-acm driver does: SET_CONTROL_LINE_STATE with DTR
+// and RTS up when a client connects (after enumeration, with them up if a
+// client is connected then, down if not) and down when it goes. While no
+// client is connected the host does not read the bulk IN endpoint: a
+// packet the firmware arms stays in its buffer (NAKed) until the next
+// client's DTR is up, as it stays in a real device while no program has
+// the port open.
 // --bus-reset-after-frames N,M,...: once the host has handed the firmware
 // the N-th FrameEnd (counted from 1), it resets the bus and enumerates
 // again, as a hub reset or a host's resume does mid-stream; the bytes the
@@ -710,6 +718,9 @@ const host = {
   address: null, // what the firmware last wrote to ADDR_ENDP since the last reset
   awaitingAddress: false, // SET_ADDRESS done, the next request goes to address 1
   enumerating: false, // from a bus reset until the port is configured
+  heldIn: null, // a bulk IN packet armed while no client is connected
+  gap: false, // the next control transfer is scheduled (nextControl)
+  dtrUp: false, // the connected client's DTR is up: its bytes go to the device
 };
 
 /** How long a host waits (see the header), in emulated nanoseconds. */
@@ -734,6 +745,8 @@ function resetBus(after = RESET_TO_ENUMERATION_NS) {
   host.control = null;
   host.queue = [];
   host.address = null;
+  host.heldIn = null;
+  host.gap = false;
   nextControl.cancel();
   controlDeadline.cancel();
   // rp2040js's resetDevice() raises BUS_RESET at the reset's end (10 ms);
@@ -774,6 +787,7 @@ function setup(bmRequestType, bRequest, wValue, wIndex, wLength, data = null, na
 }
 
 function startNextControl() {
+  host.gap = false;
   if (host.awaitingAddress) {
     host.awaitingAddress = false;
     if (host.address !== 1) {
@@ -799,6 +813,7 @@ function controlDone(c) {
   host.control = null;
   if (c.onDone) c.onDone(bytes);
   host.awaitingAddress = c.name === 'SET_ADDRESS';
+  host.gap = true;
   nextControl.schedule(host.awaitingAddress ? SET_ADDRESS_RECOVERY_NS : CONTROL_GAP_NS);
 }
 
@@ -846,10 +861,12 @@ function enumerate() {
     Object.assign(setup(0xa1, 0x21, 0, 0, 7, null, 'GET_LINE_CODING'), {
       onDone: (b) => (host.descriptors.lineCoding = b),
     }),
-    Object.assign(setup(0x21, 0x22, 0x0003, 0, 0, null, 'SET_CONTROL_LINE_STATE'), {
+    Object.assign(setup(0x21, 0x22, clientOpen() ? 0x0003 : 0, 0, 0, null, 'SET_CONTROL_LINE_STATE'), {
       onDone: () => {
         host.configured = true;
         host.enumerating = false;
+        host.dtrUp = clientOpen();
+        if (host.dtrUp) releaseIn();
         host.lateInARow = 0;
         const d = host.descriptors.device ?? Buffer.alloc(0);
         const vidpid = d.length >= 12 ? `${d.readUInt16LE(8).toString(16).padStart(4, '0')}:${d.readUInt16LE(10).toString(16).padStart(4, '0')}` : '?';
@@ -866,6 +883,43 @@ function enumerate() {
   host.queue = q;
   startNextControl();
 }
+
+const clientOpen = () => client !== null && !client.destroyed;
+
+/** DTR and RTS up (a program opened the port) or down (it closed it);
+ * bulk IN is read again once they are up. */
+function lineState(up) {
+  const s = Object.assign(setup(0x21, 0x22, up ? 0x0003 : 0, 0, 0, null, 'SET_CONTROL_LINE_STATE'), {
+    onDone: () => {
+      if (!up) return;
+      // The program's open() returns once DTR is up: only then does it
+      // write, and is the device's IN endpoint read.
+      host.dtrUp = true;
+      releaseIn();
+      feedOut();
+    },
+  });
+  host.queue.push(s);
+  if (host.configured && !host.control && !host.gap) startNextControl();
+}
+
+/** The bulk IN buffer control word the firmware armed while no program had
+ * the port open, handed on now. */
+function releaseIn() {
+  const held = host.heldIn;
+  host.heldIn = null;
+  if (held) dpramUpdated(held.offset, held.value);
+}
+
+const BUF_CTRL_AVAILABLE = 1 << 10;
+const dpramUpdated = usb.DPRAMUpdated.bind(usb);
+usb.DPRAMUpdated = (offset, value) => {
+  if (host.bulkIn > 0 && offset === 0x80 + host.bulkIn * 8 && value & BUF_CTRL_AVAILABLE && !clientOpen()) {
+    host.heldIn = { offset, value };
+    return;
+  }
+  dpramUpdated(offset, value);
+};
 
 function parseConfiguration(d) {
   for (let i = 0; i + 2 <= d.length && d[i] >= 2; i += d[i]) {
@@ -957,7 +1011,7 @@ function answerEp0Out() {
 
 /** Hands the firmware one bulk OUT packet if it has a buffer armed. */
 function feedOut() {
-  if (!host.configured || host.outArmed === 0 || host.rxBytes === 0) return;
+  if (!host.configured || !host.dtrUp || host.outArmed === 0 || host.rxBytes === 0) return;
   const want = Math.min(host.outArmed, 64);
   const chunks = [];
   let n = 0;
@@ -990,6 +1044,8 @@ const server = net.createServer({ noDelay: true }, (socket) => {
   client = socket;
   socket.setNoDelay(true);
   log('client connected');
+  host.dtrUp = false;
+  lineState(true);
   socket.on('data', (data) => {
     if (client !== socket) return;
     host.rx.push(data);
@@ -1004,6 +1060,8 @@ const server = net.createServer({ noDelay: true }, (socket) => {
     log('client closed');
     if (client !== socket) return;
     client = null;
+    host.dtrUp = false;
+    lineState(false);
     // Bytes not yet taken by the firmware are lost with the connection, as
     // unread data of a closed serial port is.
     host.rx = [];

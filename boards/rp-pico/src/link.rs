@@ -19,6 +19,18 @@
 //! may be answered by many frames (an export streams a record per frame): the
 //! device then waits inside `receive` for the host to read.
 //!
+//! A host session is a program having the port open, which the host
+//! signals with DTR (SET_CONTROL_LINE_STATE: Linux, macOS and Windows raise
+//! it when a program opens the port and drop it when it closes it). When
+//! it falls, the replies still queued are dropped and later ones are not
+//! queued (nobody reads them: the device would otherwise wait in
+//! [`Link::send`] for the next program to drain them); when it rises, what
+//! an earlier session left is dropped too, a lone frame delimiter (0x00)
+//! ends whatever part of a reply the controller still holds for the new
+//! session's decoder, and [`Link::take_new_session`] tells the caller to
+//! drop the partial frame the previous program may have left in its
+//! input. A host that never raises DTR changes nothing.
+//!
 //! Nothing here depends on the RP2040: the link is generic over
 //! [`UsbBus`], and the [`UsbDevice`] is the caller's (every method takes it),
 //! so host tests (`host/tests/board_usb_link.rs`) drive this file over emulated
@@ -31,6 +43,7 @@ use placedb::protocol::MAX_REPLY_LEN;
 use tx_queue::TxQueue;
 use usb_device::bus::{InterfaceNumber, StringIndex, UsbBus, UsbBusAllocator};
 use usb_device::class::{ControlIn, ControlOut, UsbClass};
+use usb_device::control::RequestType;
 use usb_device::descriptor::{BosWriter, DescriptorWriter};
 use usb_device::device::{
     StringDescriptors, UsbDevice, UsbDeviceBuilder, UsbDeviceState, UsbVidPid,
@@ -70,6 +83,9 @@ pub const PRODUCT: &str = "placedb device";
 /// whoever ships these boards must replace it with a domain the project
 /// owns (obdev's rules for 16c0:27dd), or move to a VID:PID of its own.
 pub const SERIAL_DOMAIN: &str = "placedb.example";
+/// CDC's SET_CONTROL_LINE_STATE (DTR in bit 0 of its value).
+const SET_CONTROL_LINE_STATE: u8 = 0x22;
+
 /// Characters of a serial number: the domain, ":", 16 hex digits.
 pub const SERIAL_LEN: usize = SERIAL_DOMAIN.len() + 1 + 16;
 
@@ -140,6 +156,12 @@ pub struct Link<'a, B: UsbBus> {
     /// A control request or a bus reset came since
     /// [`Self::take_control_seen`] last looked.
     control_seen: bool,
+    /// DTR as the host last set it.
+    dtr: bool,
+    /// DTR fell and no new session began since: replies are dropped.
+    closed: bool,
+    /// DTR rose since [`Self::take_new_session`] last looked.
+    new_session: bool,
 }
 
 /// Whether the host has configured the device (enumeration is over).
@@ -155,6 +177,35 @@ impl<'a, B: UsbBus> Link<'a, B> {
             tx: TxQueue::new(),
             full_run: 0,
             control_seen: false,
+            dtr: false,
+            closed: false,
+            new_session: false,
+        }
+    }
+
+    /// Whether a host session began (DTR rose) since the last call: the
+    /// caller drops the partial input an earlier one may have left.
+    pub fn take_new_session(&mut self) -> bool {
+        core::mem::take(&mut self.new_session)
+    }
+
+    /// Follows DTR after a SET_CONTROL_LINE_STATE (see the module doc).
+    /// Only that request moves it: a bus reset clears the class's line
+    /// state until the host sets it again, and is no new session.
+    fn follow_dtr(&mut self) {
+        let dtr = self.class.dtr();
+        if dtr == self.dtr {
+            return;
+        }
+        self.dtr = dtr;
+        // Whatever is queued belongs to the session that ended, or to one
+        // before the session that begins.
+        self.tx.pop(usize::MAX);
+        self.full_run = 0;
+        self.closed = !dtr;
+        if dtr {
+            self.new_session = true;
+            self.tx.push(&[0]);
         }
     }
 
@@ -208,6 +259,11 @@ impl<'a, B: UsbBus> Link<'a, B> {
         let Ok(n) = self.class.write_packet(packet) else {
             return false;
         };
+        if n == 0 && !packet.is_empty() {
+            // Taken as nothing (a bus whose buffer is full says so rather
+            // than `WouldBlock`): not sent, or `drain` would spin on it.
+            return false;
+        }
         self.tx.pop(n);
         self.full_run = if n == PACKET_LEN {
             self.full_run + 1
@@ -241,15 +297,26 @@ impl<'a, B: UsbBus> Link<'a, B> {
         if self.tx.free() < RX_HEADROOM || !configured(usb) {
             return 0;
         }
-        self.class.read_packet(buf).unwrap_or(0)
+        let n = self.class.read_packet(buf).unwrap_or(0);
+        if n > 0 {
+            // A host writing is a host reading, whatever DTR says (one
+            // that dropped it and never raises it again).
+            self.closed = false;
+        }
+        n
     }
 
     /// Queues one reply frame, waiting (and polling USB) while the queue is
     /// full. A USB bus reset meanwhile keeps the queue: the host's decoder
-    /// resynchronises on the next frame delimiter.
+    /// resynchronises on the next frame delimiter. While the host has the
+    /// port closed (DTR fell) the frame is dropped, and so is the rest of
+    /// one it closes the port during.
     pub fn send(&mut self, usb: &mut UsbDevice<'a, B>, frame: &[u8]) {
         let mut rest = frame;
         loop {
+            if self.closed {
+                return;
+            }
             let n = self.tx.push(rest);
             rest = rest.get(n..).unwrap_or_default();
             if rest.is_empty() {
@@ -293,7 +360,13 @@ impl<B: UsbBus> UsbClass<B> for Link<'_, B> {
 
     fn control_out(&mut self, xfer: ControlOut<B>) {
         self.control_seen = true;
+        let request = xfer.request();
+        let line_state =
+            request.request_type == RequestType::Class && request.request == SET_CONTROL_LINE_STATE;
         self.class.control_out(xfer);
+        if line_state {
+            self.follow_dtr();
+        }
     }
 
     fn control_in(&mut self, xfer: ControlIn<B>) {

@@ -279,13 +279,20 @@ enum Got {
 /// receive buffer (the framing then scans it where it lies: no copy
 /// between the USB controller and the frame's decode), or into `packet`
 /// when that has no room for a whole packet; or, when input is held
-/// already, reads nothing and says so once USB is configured.
+/// already, reads nothing and says so once USB is configured. The only
+/// place input is read, so where a new host session's start is taken.
 fn read_packet<'a>(
     link: &mut link::Link<'a, UsbBus>,
     usb: &UsbDevice<'a, UsbBus>,
     device: &mut Device256K,
     packet: &mut Packet,
 ) -> Got {
+    // A new host session (DTR rose, before its program wrote anything):
+    // input the previous program left (a partial frame, killed mid-write)
+    // is not the start of the new one's.
+    if link.take_new_session() {
+        device.drop_input();
+    }
     if device.holds_input() {
         // Input held back while USB was not configured (the receive loop).
         return if link::configured(usb) {

@@ -67,13 +67,17 @@ pub struct Client<L: Link> {
 }
 
 impl<L: Link> Client<L> {
-    /// A client whose first sequence number is 1.
+    /// A client whose first sequence number is drawn at random: a session
+    /// nonce. A board may still send replies to an earlier session (a
+    /// program killed with requests pending, a board without DTR, the QEMU
+    /// board's UART): they carry that session's numbers, so they are
+    /// dropped as late replies, never taken as answers to this one's.
     pub fn new(link: L) -> Client<L> {
         Client {
             link,
             decoder: Box::new(FrameDecoder::new()),
             pending: Vec::new(),
-            next_seq: 1,
+            next_seq: session_first_seq(),
             tx: vec![0u8; MAX_FRAME_LEN],
             first_sent_bytes: 0,
             resend: HashMap::new(),
@@ -449,6 +453,21 @@ pub(crate) fn check_profile(st: &Status, profile: &str) -> Result<(), DeviceErro
     }
 }
 
+/// A random sequence number below 2^31 (its varint stays 5 bytes at
+/// most, and a session has room before it wraps), from the standard
+/// library's per-process random hash keys and the clock: two sessions'
+/// numbers meet with a chance of one in two billion per reply in flight.
+fn session_first_seq() -> u32 {
+    use std::hash::{BuildHasher, Hasher};
+    let mut hasher = std::collections::hash_map::RandomState::new().build_hasher();
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap_or_default();
+    hasher.write_u128(now.as_nanos());
+    hasher.write_u32(std::process::id());
+    (hasher.finish() as u32 & 0x7FFF_FFFF).max(1)
+}
+
 /// Opens the link `port` for the device subcommands.
 pub fn connect(port: &str) -> Result<Client<Box<dyn Link>>, DeviceError> {
     let link = link::open(port, Duration::from_secs(10))?;
@@ -463,6 +482,17 @@ mod tests {
     use std::io::{Read, Write};
     use std::net::TcpListener;
     use std::thread::{self, JoinHandle};
+
+    /// Each session numbers its messages from its own random start, so a
+    /// reply to an earlier session's message is not one to this one's.
+    #[test]
+    fn sessions_start_their_sequence_numbers_apart() {
+        let starts: Vec<u32> = (0..4).map(|_| session_first_seq()).collect();
+        for (i, a) in starts.iter().enumerate() {
+            assert!((1..1 << 31).contains(a), "{a}");
+            assert!(!starts[i + 1..].contains(a), "two sessions start at {a}");
+        }
+    }
 
     /// A fake device on loopback: answers StatusRequest with Status, logs once,
     /// refuses anything else, reports framing errors.

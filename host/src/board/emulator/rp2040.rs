@@ -275,6 +275,28 @@ impl Rp2040 {
         true
     }
 
+    /// Closes the bridged port and opens it again, as one program closing
+    /// the board's serial port and the next opening it: the harness's host
+    /// drops DTR, then raises it. The new connection is made once the
+    /// harness has seen the old one end.
+    pub fn reopen(&mut self) -> io::Result<()> {
+        let addr = self.link.peer_addr()?;
+        let closed = self.console().matches("client closed").count();
+        self.link.shutdown();
+        let end = Instant::now() + Duration::from_secs(10);
+        while self.console().matches("client closed").count() == closed {
+            if Instant::now() >= end {
+                return Err(io::Error::new(
+                    io::ErrorKind::TimedOut,
+                    "the RP2040 harness did not see the port closed within 10 s",
+                ));
+            }
+            thread::sleep(Duration::from_millis(10));
+        }
+        self.link = TcpLink::connect(addr, Duration::from_secs(5))?;
+        Ok(())
+    }
+
     /// The harness's exit status if it has exited.
     pub fn try_wait(&mut self) -> io::Result<Option<ExitStatus>> {
         self.child.try_wait()

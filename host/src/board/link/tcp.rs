@@ -47,6 +47,12 @@ impl TcpLink {
     pub fn peer_addr(&self) -> io::Result<SocketAddr> {
         self.stream.peer_addr()
     }
+
+    /// Closes the connection both ways (the peer sees it end); what the
+    /// peer sends after is not read.
+    pub fn shutdown(&self) {
+        let _ = self.stream.shutdown(Shutdown::Both);
+    }
 }
 
 impl Link for TcpLink {
