@@ -514,3 +514,39 @@ fn a_port_closed_with_replies_pending_leaves_the_next_session_clean() {
         stale.len()
     );
 }
+
+/// One program at a time (issue 41): while a session has the emulated
+/// Pico's port open, `placedb export` on the same port is refused at once
+/// in words, writes nothing, and the first session goes on untouched.
+#[test]
+fn a_second_program_on_the_port_is_refused_and_the_first_goes_on() {
+    let mut client = Client::new(boot(None, Duration::from_secs(300)));
+    let seq = demo(20);
+    stream(
+        &mut client,
+        &seq,
+        &stride(8),
+        sel(8),
+        &StreamOptions::replacing(),
+    );
+    let want = export_csv(&mut client, &ExportOptions::default());
+    let port = format!("tcp:{}", client.link().address().unwrap());
+    let out = std::env::temp_dir().join(format!("placedb-second-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    let second = std::process::Command::new(env!("CARGO_BIN_EXE_placedb"))
+        .args(["export", "--port", &port, "-o"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&second.stderr);
+    assert_eq!(second.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("serves one connection at a time"),
+        "the refusal is not in words: {stderr}"
+    );
+    assert!(!out.exists(), "the refused export wrote {}", out.display());
+    assert_eq!(export_csv(&mut client, &ExportOptions::default()), want);
+    let console = client.into_link().stop();
+    assert!(console.contains("client refused"), "{console}");
+    println!("second program refused: {}", stderr.trim());
+}

@@ -15,6 +15,7 @@
 //   "usb configured ... serial S ..."  enumeration done, descriptors parsed
 //                                      (S: the serial number string descriptor)
 //   "client connected" / "client closed"
+//   "client refused: another one is connected"   (one client at a time)
 //   "bus reset after frame N"          --bus-reset-after-frames (below)
 //   "usb: REQUEST not done within ..." a control transfer the firmware was
 //                                      too late for (below)
@@ -1035,10 +1036,33 @@ function feedOut() {
 // ---------------------------------------------------------------- TCP bridge
 
 let client = null;
+/** How long a second connection waits for the first one's end (a program
+ * killed just before the next one started) before it is refused. */
+const SECOND_CLIENT_WAIT_MS = 300;
+
 const server = net.createServer({ noDelay: true }, (socket) => {
-  // One host at a time; a new connection takes over, like a serial port
-  // opened again (what the previous one left unread is dropped).
-  if (client && !client.destroyed) client.destroy();
+  // One program at a time, as a real port opened exclusively: a
+  // connection while another is open is closed at once, unsaid (the host
+  // reports it in words), after a short wait for the other's end.
+  if (clientOpen()) {
+    socket.on('error', () => {});
+    socket.pause();
+    setTimeout(() => {
+      if (clientOpen()) {
+        log('client refused: another one is connected');
+        socket.destroy();
+      } else {
+        socket.resume();
+        accept(socket);
+      }
+    }, SECOND_CLIENT_WAIT_MS);
+    return;
+  }
+  accept(socket);
+});
+
+/** The program of `socket` has the port open. */
+function accept(socket) {
   host.rx = [];
   host.rxBytes = 0;
   client = socket;
@@ -1067,7 +1091,7 @@ const server = net.createServer({ noDelay: true }, (socket) => {
     host.rx = [];
     host.rxBytes = 0;
   });
-});
+}
 server.on('error', (e) => fatal(`cannot listen on 127.0.0.1:${opts.port}: ${e.message}`));
 server.listen(opts.port, '127.0.0.1', () => {
   log(`listening tcp:127.0.0.1:${server.address().port}`);

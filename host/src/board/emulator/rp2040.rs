@@ -275,6 +275,12 @@ impl Rp2040 {
         true
     }
 
+    /// The loopback address of the bridged port (`tcp:` + this is what
+    /// `placedb --port` takes).
+    pub fn address(&self) -> io::Result<std::net::SocketAddr> {
+        self.link.peer_addr()
+    }
+
     /// Closes the bridged port and opens it again, as one program closing
     /// the board's serial port and the next opening it: the harness's host
     /// drops DTR, then raises it. The new connection is made once the

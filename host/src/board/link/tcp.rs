@@ -14,6 +14,8 @@ pub struct TcpLink {
     rx: Receiver<io::Result<Vec<u8>>>,
     reader: Option<JoinHandle<()>>,
     closed: bool,
+    /// Some byte came from the peer.
+    heard: bool,
 }
 
 impl TcpLink {
@@ -40,6 +42,7 @@ impl TcpLink {
             rx,
             reader: Some(reader),
             closed: false,
+            heard: false,
         })
     }
 
@@ -62,7 +65,22 @@ impl Link for TcpLink {
     }
 
     fn recv(&mut self, timeout: Duration) -> io::Result<Vec<u8>> {
-        recv_channel(&self.rx, &mut self.closed, timeout)
+        match recv_channel(&self.rx, &mut self.closed, timeout) {
+            Ok(bytes) => {
+                self.heard = true;
+                Ok(bytes)
+            }
+            // An emulated board takes one connection at a time and closes
+            // a second one at once, before anything is said.
+            Err(e) if e.kind() == io::ErrorKind::UnexpectedEof && !self.heard => {
+                Err(io::Error::new(
+                    io::ErrorKind::UnexpectedEof,
+                    "the board closed the connection before it sent anything: it serves one \
+                     connection at a time, so another program is probably connected to it",
+                ))
+            }
+            Err(e) => Err(e),
+        }
     }
 }
 
