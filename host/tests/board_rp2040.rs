@@ -21,7 +21,7 @@ use board_common::{demo, host_replay, killed_mid_scan_restores_and_resumes, Boar
 use placedb::protocol::{DeviceMessage, HostMessage, Phase, Status};
 use placedb::SelectorConfig;
 use placedb_host::board::client::{Client, Received};
-use placedb_host::board::emulator::rp2040::{Rp2040, Rp2040Options};
+use placedb_host::board::emulator::rp2040::{check_stack, Rp2040, Rp2040Options};
 use placedb_host::board::export::ExportOptions;
 use placedb_host::board::flash_timing::FlashTiming;
 use placedb_host::board::link::fault::{FaultConfig, FaultInjector};
@@ -135,6 +135,13 @@ fn the_emulated_pico_matches_the_host_replay() {
     if let Some(line) = console.lines().find(|l| l.starts_with("stats")) {
         println!("emulator {line}");
     }
+    let stack = check_stack(&console).unwrap_or_else(|e| panic!("{e}"));
+    println!(
+        "stack: {} bytes at the deepest, of {} ({} reserved at link time)",
+        stack.peak,
+        stack.room,
+        placedb_host::board::emulator::rp2040::STACK_RESERVE
+    );
     println!("pico end to end: {:.1} s", started.elapsed().as_secs_f64());
 }
 
@@ -506,6 +513,7 @@ fn a_port_closed_with_replies_pending_leaves_the_next_session_clean() {
     assert_eq!(export_csv(&mut client, &ExportOptions::default()), want);
     let console = client.into_link().stop();
     assert!(!console.contains("error:"), "{console}");
+    check_stack(&console).unwrap_or_else(|e| panic!("{e}"));
     println!(
         "port closed with an export pending, opened again: {} replies to the new session's \
          first request, {} of them the earlier session's (the packet the controller held), \

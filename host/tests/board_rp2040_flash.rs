@@ -28,6 +28,7 @@ use new_places::new_place_every_frame;
 use pico::{boot, boot_with_bus_resets, exit_field, export_csv, latency, stream, Cut, PROFILE};
 use placedb::protocol::DecisionKind;
 use placedb_host::board::client::Client;
+use placedb_host::board::emulator::rp2040::check_stack;
 use placedb_host::board::flash_timing::FlashTiming;
 use placedb_host::board::scan::StreamOptions;
 use placedb_host::board::session::{DepthFrame, Session};
@@ -72,6 +73,7 @@ fn scan_with_many_erases(timing: FlashTiming, bus_resets: &[u32]) -> String {
     let console = client.into_link().stop();
     let erases = exit_field(&console, "stats", "sectors_erased");
     let pages = exit_field(&console, "stats", "pages_programmed");
+    check_stack(&console).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(
         exit_field(&console, "stats", "bus_resets"),
         bus_resets.len() as u64,
@@ -250,6 +252,12 @@ fn cut_restore_and_resume(cut: Cut, min_acknowledged: usize) {
         exit_field(&console, "stats", "erases_while_enumerating"),
         0,
         "the restored board erased while the host enumerated: {console}"
+    );
+    // Restoring and resuming are the deepest paths of all.
+    let stack = check_stack(&console).unwrap_or_else(|e| panic!("{e}"));
+    println!(
+        "stack after restore and resume: {} bytes at the deepest",
+        stack.peak
     );
     println!(
         "pico, {cut:?} at max flash timing, in frame {} of {FRAMES}: {} decisions acknowledged \

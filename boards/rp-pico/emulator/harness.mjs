@@ -21,6 +21,8 @@
 //                                      too late for (below)
 //   "stats cycles=N ..."               on exit (SIGTERM, SIGINT, deadline)
 //   "latency frames=N ..."             on exit: frame answer latencies (below)
+//   "stack peak_bytes=P room_bytes=R"  on exit: the stack's high-water mark
+//                                      (the firmware paints its stack)
 // A fatal condition prints "error: ..." on stderr and exits 2 (3: deadline).
 // PICO_PROFILE=FILE: on exit, the cycles spent at each instruction address
 // are appended to FILE ("address cycles" lines; see docs/PERFORMANCE.md).
@@ -243,6 +245,24 @@ function elfSegments(buf) {
   return segments;
 }
 
+/** The end of the statics in RAM (.data, .bss, .uninit): the highest end
+ * of a load segment in RAM, 4-aligned, which is cortex-m-rt's `_stack_end`
+ * (the lowest address the stack may reach). */
+function elfRamEnd(buf) {
+  const phoff = buf.readUInt32LE(28);
+  const phentsize = buf.readUInt16LE(42);
+  const phnum = buf.readUInt16LE(44);
+  let end = 0x20000000;
+  for (let i = 0; i < phnum; i++) {
+    const at = phoff + i * phentsize;
+    if (at + 32 > buf.length || buf.readUInt32LE(at) !== 1) continue;
+    const vaddr = buf.readUInt32LE(at + 8);
+    const memsz = buf.readUInt32LE(at + 20);
+    if (vaddr >= 0x20000000 && vaddr < 0x20042000) end = Math.max(end, vaddr + memsz);
+  }
+  return Math.ceil(end / 4) * 4;
+}
+
 // ---------------------------------------------------------------- flash file
 
 /** Opens (creating it erased if missing or empty) the flash image file. */
@@ -434,8 +454,11 @@ if (opts.flash) {
 // Program the firmware into flash, like a UF2 drag and drop: every sector the
 // ELF's load segments touch is erased and programmed; the rest is kept.
 let elf;
+let stackFloor;
 try {
-  elf = elfSegments(fs.readFileSync(opts.elf));
+  const image = fs.readFileSync(opts.elf);
+  elf = elfSegments(image);
+  stackFloor = elfRamEnd(image);
 } catch (e) {
   usage(`${opts.elf}: ${e.message}`);
 }
@@ -1178,6 +1201,19 @@ function run() {
   }
 }
 
+/** The stack's high-water mark: the firmware paints its stack at reset
+ * (cortex-m-rt's `paint-stack`: 0xCCCCCCCC from `_stack_end` to the initial
+ * stack pointer), so the lowest word no longer painted is as deep as it
+ * went. "stack peak_bytes=P room_bytes=R": P deepest use, R the stack's
+ * whole room (from the statics' end to the top of RAM). */
+function stackLine() {
+  const flash = new DataView(mcu.flash.buffer, mcu.flash.byteOffset);
+  const top = flash.getUint32(0x100, true); // the vector table's initial SP
+  let low = stackFloor;
+  while (low < top && mcu.readUint32(low) === 0xcccccccc) low += 4;
+  return `stack peak_bytes=${top - low} room_bytes=${top - stackFloor}`;
+}
+
 function finish(code = 0) {
   if (stopped) return;
   stopped = true;
@@ -1193,6 +1229,7 @@ function finish(code = 0) {
       `usb_bytes_in=${stats.bytesIn} usb_bytes_out=${stats.bytesOut}\n`,
   );
   process.stdout.write(latency.line() + '\n');
+  process.stdout.write(stackLine() + '\n');
   if (profile) profile.write();
   if (flashFd !== null) {
     try {

@@ -416,6 +416,56 @@ fn usb_serial_number(console: &str) -> Option<String> {
     (serial != "?").then(|| serial.to_string())
 }
 
+/// How deep the firmware's stack went, from the harness's exit line
+/// "stack peak_bytes=P room_bytes=R" (the firmware paints its stack at
+/// reset; the harness finds the deepest word no longer painted).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StackUse {
+    /// Bytes of the deepest use since boot.
+    pub peak: u64,
+    /// Bytes between the statics' end and the top of RAM.
+    pub room: u64,
+}
+
+/// The link-time minimum room for the stack (`STACK_RESERVE` in
+/// `boards/rp-pico/memory.x`).
+pub const STACK_RESERVE: u64 = 32 * 1024;
+
+/// How far below [`STACK_RESERVE`] the stack's peak must stay on the paths
+/// the tests run: paths they do not run (rarer errors, other inputs) may go
+/// deeper, and an overflow runs into the statics with no guard.
+pub const STACK_MARGIN: u64 = 8 * 1024;
+
+/// The [`StackUse`] a stopped harness printed, checked: an error in words
+/// when it is missing or its peak is within [`STACK_MARGIN`] of
+/// [`STACK_RESERVE`].
+pub fn check_stack(console: &str) -> Result<StackUse, String> {
+    let st = stack_use(console).ok_or("the harness printed no stack line")?;
+    if st.peak + STACK_MARGIN > STACK_RESERVE {
+        return Err(format!(
+            "the Pico's stack went {} bytes deep, within {} of the {} bytes reserved at link \
+             time (memory.x STACK_RESERVE): raise the reserve or make the path shallower",
+            st.peak, STACK_MARGIN, STACK_RESERVE
+        ));
+    }
+    Ok(st)
+}
+
+/// The [`StackUse`] a stopped harness printed, if it printed one.
+pub fn stack_use(console: &str) -> Option<StackUse> {
+    let line = console.lines().find(|l| l.starts_with("stack "))?;
+    let field = |name: &str| -> Option<u64> {
+        line.split(' ')
+            .find_map(|w| w.strip_prefix(name)?.strip_prefix('='))?
+            .parse()
+            .ok()
+    };
+    Some(StackUse {
+        peak: field("peak_bytes")?,
+        room: field("room_bytes")?,
+    })
+}
+
 /// The port of the harness's "listening tcp:127.0.0.1:PORT" line.
 fn listening_port(console: &str) -> Option<u16> {
     let rest = console.split("listening tcp:127.0.0.1:").nth(1)?;
@@ -482,6 +532,17 @@ pub fn spawn_foreground(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_stack_line_is_read_and_checked() {
+        let console = "stats pc=0x1 cycles=2\nstack peak_bytes=13048 room_bytes=33768\n";
+        let st = stack_use(console).unwrap();
+        assert_eq!((st.peak, st.room), (13048, 33768));
+        assert_eq!(check_stack(console), Ok(st));
+        let deep = "stack peak_bytes=25000 room_bytes=33768";
+        assert!(check_stack(deep).unwrap_err().contains("25000 bytes deep"));
+        assert!(check_stack("stats pc=0x1").is_err());
+    }
 
     #[test]
     fn harness_command_names_every_file() {
