@@ -465,6 +465,9 @@ impl<
                 // reports. (After a drop there is nothing to settle: what
                 // is kept was followed by other writes.)
                 let _ = log.settle();
+                // What the scan occupies now, as the status reports it
+                // before any message refreshes it.
+                self.core.flash = Journal::usage(log);
                 Ok(records)
             }
         }
