@@ -507,3 +507,46 @@ fn ctrl_c_stops_a_stream_cleanly_and_resume_goes_on() {
     let labels = std::fs::read_to_string(format!("{out}/labels.csv")).unwrap();
     assert_eq!(labels.lines().count(), 1 + 40, "{labels}");
 }
+
+/// One program at a time (issue 41): while a program has the board's port
+/// open, `placedb export` on it is refused at once in words and writes
+/// nothing, and the first program goes on untouched; once it has closed
+/// the port, the next one is served.
+#[test]
+fn a_second_program_on_the_boards_port_is_refused_and_the_first_goes_on() {
+    use placedb_host::board::client::{self, Client};
+    use placedb_host::board::link::TcpLink;
+    let tmp = TempDir::new("second-program");
+    let board = Board::start();
+    let addr = board.port.trim_start_matches("tcp:").to_string();
+    let reply = Duration::from_secs(30);
+    let mut first = Client::new(TcpLink::connect(addr.as_str(), reply).unwrap());
+    let before = client::status(&mut first, reply).unwrap();
+
+    let out = tmp.arg("second");
+    let run = placedb(&["export", "--port", &board.port, "-q", "-o", &out]);
+    let err = stderr(&run);
+    assert_eq!(run.status.code(), Some(1), "{err}");
+    assert!(err.contains("serves one connection at a time"), "{err}");
+    assert!(
+        !std::path::Path::new(&out).exists(),
+        "the refused export wrote {out}"
+    );
+
+    let after = client::status(&mut first, reply).unwrap();
+    assert_eq!(after.phase, before.phase);
+    drop(first);
+    std::thread::sleep(Duration::from_millis(100));
+    let run = placedb(&[
+        "stream",
+        "--port",
+        &board.port,
+        "--demo",
+        "--stride",
+        "8",
+        "--max-frames",
+        "4",
+        "-q",
+    ]);
+    assert!(run.status.success(), "{}", stderr(&run));
+}

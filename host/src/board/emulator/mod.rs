@@ -2,9 +2,11 @@
 //! runs: the QEMU board ([`qemu`]) and the Pico under rp2040js ([`rp2040`]);
 //! what both share: building their firmware ([`build_board`]) and running
 //! one in the foreground for `placedb device` ([`wait_in_foreground`], with
-//! the process plumbing of [`foreground`]).
+//! the process plumbing of [`foreground`]); the QEMU board's port serves one
+//! program at a time ([`one_client`]; the Pico's harness does the same).
 
 pub mod foreground;
+pub mod one_client;
 pub mod qemu;
 pub mod rp2040;
 

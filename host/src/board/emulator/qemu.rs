@@ -269,7 +269,10 @@ impl Qemu {
             wake: Condvar::new(),
         });
         threads.push(watchdog(Arc::clone(&watch), started + options.deadline)?);
-        let accepted = accept_within(&listener, options.connect_timeout, &watch);
+        let accepted = accept_within(&listener, options.connect_timeout, &mut || {
+            let mut child = watch.child.lock().ok()?;
+            child.try_wait().ok().flatten()
+        });
         let stream = match accepted {
             Ok(stream) => stream,
             Err(e) => {
@@ -426,11 +429,12 @@ fn watchdog(watch: Arc<Watch>, deadline: Instant) -> io::Result<JoinHandle<()>> 
         })
 }
 
-/// Accepts one connection within `timeout`, giving up early if QEMU exits.
+/// Accepts one connection within `timeout`, giving up early if QEMU exits
+/// (`exited` says so).
 fn accept_within(
     listener: &TcpListener,
     timeout: Duration,
-    watch: &Watch,
+    exited: &mut dyn FnMut() -> Option<ExitStatus>,
 ) -> io::Result<TcpStream> {
     listener.set_nonblocking(true)?;
     let end = Instant::now() + timeout;
@@ -446,13 +450,11 @@ fn accept_within(
             Err(e) if e.kind() == io::ErrorKind::WouldBlock => {}
             Err(e) => return Err(e),
         }
-        if let Ok(mut child) = watch.child.lock() {
-            if let Ok(Some(status)) = child.try_wait() {
-                return Err(io::Error::new(
-                    io::ErrorKind::BrokenPipe,
-                    format!("QEMU exited ({status}) before connecting"),
-                ));
-            }
+        if let Some(status) = exited() {
+            return Err(io::Error::new(
+                io::ErrorKind::BrokenPipe,
+                format!("QEMU exited ({status}) before connecting"),
+            ));
         }
         if Instant::now() >= end {
             return Err(io::Error::new(
@@ -465,8 +467,9 @@ fn accept_within(
 }
 
 /// The emulated board of `placedb device --qemu`, started in the
-/// foreground with UART0 listening on `tcp:127.0.0.1:PORT` (0: a free
-/// port): returns QEMU's process and the port. Wait for it with
+/// foreground with UART0 on `tcp:127.0.0.1:PORT` (0: a free port), one
+/// program at a time ([`super::one_client`]: placedb listens there and
+/// QEMU's UART connects to placedb): returns QEMU's process and the port. Wait for it with
 /// [`super::wait_in_foreground`]: Ctrl-C, SIGTERM or SIGHUP stop QEMU first,
 /// and on Linux QEMU is killed if placedb dies any other way
 /// ([`super::foreground`]). `icount` makes instruction counting exact.
@@ -484,15 +487,23 @@ pub fn spawn_foreground(
             FIRMWARE_BUILD
         )));
     }
-    let port = match port {
-        0 => std::net::TcpListener::bind(("127.0.0.1", 0))?
-            .local_addr()?
-            .port(),
-        p => p,
-    };
+    // The user's port first: a port in use is refused before anything
+    // (the flash file included) is made.
+    let listener = TcpListener::bind(("127.0.0.1", port)).map_err(|e| {
+        DeviceError::Io(io::Error::new(
+            e.kind(),
+            format!(
+                "cannot listen on 127.0.0.1:{port}: {}",
+                crate::error::io_words(&e)
+            ),
+        ))
+    })?;
+    let port = listener.local_addr()?.port();
     if let Some(f) = flash {
         prepare_flash_file(f)?;
     }
+    let uart = TcpListener::bind(("127.0.0.1", 0))?;
+    let uart_port = uart.local_addr()?.port();
     let mut options = QemuOptions {
         flash: flash.map(Path::to_path_buf),
         ..QemuOptions::default()
@@ -500,13 +511,9 @@ pub fn spawn_foreground(
     if icount {
         options.extra_args = vec!["-icount".into(), "shift=0".into()];
     }
-    let mut command = qemu_command(
-        &firmware,
-        &options,
-        &format!("tcp:127.0.0.1:{port},server,nowait"),
-    );
+    let mut command = qemu_command(&firmware, &options, &format!("tcp:127.0.0.1:{uart_port}"));
     // QEMU ends with placedb, whatever stops it (foreground.rs).
-    let child = super::foreground::spawn(&mut command).map_err(|e| {
+    let mut child = super::foreground::spawn(&mut command).map_err(|e| {
         DeviceError::Io(io::Error::new(
             e.kind(),
             format!(
@@ -515,6 +522,21 @@ pub fn spawn_foreground(
             ),
         ))
     })?;
+    let connected = accept_within(&uart, Duration::from_secs(30), &mut || {
+        child.try_wait().ok().flatten()
+    });
+    let board = match connected {
+        Ok(board) => board,
+        Err(e) => {
+            let _ = child.kill();
+            let _ = child.wait();
+            return Err(DeviceError::Io(io::Error::new(
+                e.kind(),
+                format!("QEMU did not connect its UART: {e}"),
+            )));
+        }
+    };
+    super::one_client::serve(listener, board)?;
     Ok((child, port))
 }
 
