@@ -455,6 +455,22 @@ fn a_pico_cut_during_an_erase_restores_and_resumes() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A fresh emulated Pico that scanned `frames` synthetic frames (stride
+/// 8, window 8), and its export.
+fn scanned(frames: usize) -> (Client<Rp2040>, (String, String)) {
+    let mut client = Client::new(boot(None, Duration::from_secs(300)));
+    let seq = demo(frames);
+    stream(
+        &mut client,
+        &seq,
+        &stride(8),
+        sel(8),
+        &StreamOptions::replacing(),
+    );
+    let export = export_csv(&mut client, &ExportOptions::default());
+    (client, export)
+}
+
 /// A new host session starts clean (issue 40): one program asks the board
 /// for its export and closes the port once the first record came; the
 /// next program to open the port gets nothing of that export but the one
@@ -465,18 +481,9 @@ fn a_pico_cut_during_an_erase_restores_and_resumes() {
 /// nobody), and the export it asks for is whole.
 #[test]
 fn a_port_closed_with_replies_pending_leaves_the_next_session_clean() {
-    let mut client = Client::new(boot(None, Duration::from_secs(300)));
     // An export of some 300 records: far more than leave the board before
     // the first one reaches the test and it closes the port.
-    let seq = demo(300);
-    stream(
-        &mut client,
-        &seq,
-        &stride(8),
-        sel(8),
-        &StreamOptions::replacing(),
-    );
-    let want = export_csv(&mut client, &ExportOptions::default());
+    let (mut client, want) = scanned(300);
 
     client
         .send(HostMessage::ExportRequest {
@@ -528,16 +535,7 @@ fn a_port_closed_with_replies_pending_leaves_the_next_session_clean() {
 /// in words, writes nothing, and the first session goes on untouched.
 #[test]
 fn a_second_program_on_the_port_is_refused_and_the_first_goes_on() {
-    let mut client = Client::new(boot(None, Duration::from_secs(300)));
-    let seq = demo(20);
-    stream(
-        &mut client,
-        &seq,
-        &stride(8),
-        sel(8),
-        &StreamOptions::replacing(),
-    );
-    let want = export_csv(&mut client, &ExportOptions::default());
+    let (mut client, want) = scanned(20);
     let port = format!("tcp:{}", client.link().address().unwrap());
     let out = std::env::temp_dir().join(format!("placedb-second-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
