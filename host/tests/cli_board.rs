@@ -537,6 +537,15 @@ fn a_second_program_on_the_boards_port_is_refused_and_the_first_goes_on() {
     assert_eq!(after.phase, before.phase);
     drop(first);
     std::thread::sleep(Duration::from_millis(100));
+    // The next program is served: this board holds no scan yet, and the
+    // refusal says so without the hint that only fits a local: device.
+    let run = placedb(&["export", "--port", &board.port, "-q", "-o", &out]);
+    let err = stderr(&run);
+    assert_eq!(run.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("the device holds no scan") && !err.contains("local:PROFILE"),
+        "{err}"
+    );
     let run = placedb(&[
         "stream",
         "--port",

@@ -185,6 +185,10 @@ fn export_batch<L: Link>(
     }
 }
 
+/// The refusal of an export from a device that saw no frame.
+pub const NO_SCAN: &str =
+    "the device holds no scan (no frame seen since its last reset): nothing to export";
+
 /// Pulls every record from the device, in checked batches, starting after
 /// the records in `have` (a resumed export). `saved` is called with each
 /// checked batch (to persist it).
@@ -483,11 +487,7 @@ pub fn pull<L: Link>(
     // Empty CSVs would pass for a scan that saw nothing: refused, before
     // the directory is made.
     if now.frames_seen == 0 && now.export_records() == 0 {
-        return Err(DeviceError::Input(
-            "the device holds no scan (no frame seen since its last reset): nothing to export; \
-             a local:PROFILE device is new in every command, so export it with `placedb stream -o DIR`"
-                .into(),
-        ));
+        return Err(DeviceError::Input(NO_SCAN.into()));
     }
     let have = match saved {
         Some((k, (was, mut records))) => {

@@ -65,19 +65,28 @@ pub fn run(a: DeviceArgs) -> Result<(), Error> {
 
 /// `placedb device --qemu`: QEMU in the foreground, its port printed.
 fn run_qemu(a: DeviceArgs) -> Result<Option<i32>, Error> {
-    let (mut child, port) =
-        qemu::spawn_foreground(a.firmware, a.port, !a.no_icount, a.flash.as_deref())?;
-    println!("emulated board (mps2-an386, profile ram512k) on port tcp:127.0.0.1:{port}");
-    println!("  e.g. placedb stream --port tcp:127.0.0.1:{port} --demo --stride 8 --max-frames 30");
-    println!("       placedb export --port tcp:127.0.0.1:{port} -o out");
-    match &a.flash {
-        Some(f) => println!(
-            "  flash kept in {}: after a restart, `placedb stream --resume` goes on with the scan",
-            f.display()
-        ),
-        None => println!("  no --flash file: the board starts empty every time"),
-    }
-    println!("  Ctrl-C (or SIGTERM, SIGHUP) stops it, QEMU with it");
+    let flash = a.flash.clone();
+    let (mut child, _) = qemu::spawn_foreground(
+        a.firmware,
+        a.port,
+        !a.no_icount,
+        a.flash.as_deref(),
+        &mut |port| {
+            println!("emulated board (mps2-an386, profile ram512k) on port tcp:127.0.0.1:{port}");
+            println!(
+                "  e.g. placedb stream --port tcp:127.0.0.1:{port} --demo --stride 8 --max-frames 30"
+            );
+            println!("       placedb export --port tcp:127.0.0.1:{port} -o out");
+            match &flash {
+                Some(f) => println!(
+                    "  flash kept in {}: after a restart, `placedb stream --resume` goes on with the scan",
+                    f.display()
+                ),
+                None => println!("  no --flash file: the board starts empty every time"),
+            }
+            println!("  Ctrl-C (or SIGTERM, SIGHUP) stops it, QEMU with it");
+        },
+    )?;
     Ok(wait_in_foreground(&mut child, "QEMU")?)
 }
 

@@ -149,7 +149,17 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
         a.from,
         a.quiet,
         &ExportOptions::default(),
-    )?;
+    )
+    .map_err(|e| match e {
+        // An in-process device is new in every command: say where its scan is.
+        DeviceError::Input(m) if m == export::NO_SCAN && a.port.starts_with("local:") => {
+            DeviceError::Input(format!(
+                "{m}; a local:PROFILE device is new in every command, so keep its scan with \
+                 `placedb stream -o DIR`"
+            ))
+        }
+        e => e,
+    })?;
     let mut seq = seq;
     let measuring = match &mut seq {
         Some(seq) => {

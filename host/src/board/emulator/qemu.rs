@@ -473,11 +473,14 @@ fn accept_within(
 /// [`super::wait_in_foreground`]: Ctrl-C, SIGTERM or SIGHUP stop QEMU first,
 /// and on Linux QEMU is killed if placedb dies any other way
 /// ([`super::foreground`]). `icount` makes instruction counting exact.
+/// `announce` is called with the port once it is listening, before QEMU
+/// starts (so what it prints comes before the firmware's boot line).
 pub fn spawn_foreground(
     firmware: Option<PathBuf>,
     port: u16,
     icount: bool,
     flash: Option<&Path>,
+    announce: &mut dyn FnMut(u16),
 ) -> Result<(std::process::Child, u16), DeviceError> {
     let firmware = firmware.unwrap_or_else(default_firmware);
     if !firmware.is_file() {
@@ -504,6 +507,7 @@ pub fn spawn_foreground(
     }
     let uart = TcpListener::bind(("127.0.0.1", 0))?;
     let uart_port = uart.local_addr()?.port();
+    announce(port);
     let mut options = QemuOptions {
         flash: flash.map(Path::to_path_buf),
         ..QemuOptions::default()
