@@ -140,7 +140,7 @@ fn the_emulated_pico_matches_the_host_replay() {
         "stack: {} bytes at the deepest, of {} ({} reserved at link time)",
         stack.peak,
         stack.room,
-        placedb_host::board::emulator::rp2040::STACK_RESERVE
+        placedb_host::board::emulator::rp2040::stack_reserve()
     );
     println!("pico end to end: {:.1} s", started.elapsed().as_secs_f64());
 }

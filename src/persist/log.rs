@@ -203,8 +203,7 @@ impl Header {
     /// `last_crc`: it is the next one, or the rewrite of the last one (the
     /// same bytes: see "A record that reads valid once").
     fn goes_on(&self, generation: u32, read: u32, last_crc: u32) -> bool {
-        self.generation == generation
-            && (self.seq == read || (self.seq.wrapping_add(1) == read && self.crc == last_crc))
+        self.generation == generation && (self.seq == read || self.repeats(read, last_crc))
     }
 
     /// Whether it is the rewrite of the record read last.
@@ -250,6 +249,16 @@ pub struct Cursor {
 }
 
 impl Cursor {
+    /// Moves past a record of `bytes` (aligned), into the next sector when
+    /// it filled this one.
+    fn pass(&mut self, bytes: u32, sector_len: u32) {
+        self.offset += bytes;
+        if self.offset >= sector_len {
+            self.sector += 1;
+            self.offset = 0;
+        }
+    }
+
     /// The first record of the live generation.
     pub const START: Cursor = Cursor {
         sector: 0,
@@ -515,24 +524,18 @@ impl<F: NorFlash> Log<F> {
             let found = self
                 .read_record(sector, offset)?
                 .filter(|h| h.generation == generation);
-            if let Some(h) = found.filter(|h| h.repeats(live.records, last_crc)) {
-                // A rewrite of the record read last: the same bytes. Right
-                // after it in its sector, it proves that record whole.
-                repeated = offset > 0;
-                offset += align_up(HEADER_LEN + h.len, self.align) as u32;
-                if offset < sector_len {
-                    continue;
-                }
-                if live.sectors + 1 >= self.sectors {
-                    return Ok((live, repeated));
-                }
-                live.sectors += 1;
-                offset = 0;
-                continue;
-            }
-            let found = found.filter(|h| h.seq == live.records);
             match found {
-                Some(h) if h.seq < void_from => {
+                Some(h) if h.repeats(live.records, last_crc) => {
+                    // A rewrite of the record read last: the same bytes.
+                    // Right after it in its sector, it proves that record
+                    // whole.
+                    repeated = offset > 0;
+                    offset += align_up(HEADER_LEN + h.len, self.align) as u32;
+                    if offset < sector_len {
+                        continue;
+                    }
+                }
+                Some(h) if h.seq == live.records && h.seq < void_from => {
                     let at = self.position(sector, offset);
                     visit(
                         at,
@@ -550,8 +553,8 @@ impl<F: NorFlash> Log<F> {
                 }
                 // Void from here on (the whole sector, when a drop kept
                 // none of it): the next sector goes on with this number.
-                Some(_) => {}
-                None if offset == 0 => {
+                Some(h) if h.seq == live.records => {}
+                _ if offset == 0 => {
                     // Sectors whose head does not check out are passed over
                     // when the next sector that opens with a record opens
                     // with the very record expected here, or a rewrite of
@@ -568,7 +571,7 @@ impl<F: NorFlash> Log<F> {
                     live.sectors -= 1;
                     return Ok((live, repeated));
                 }
-                None => {}
+                _ => {}
             }
             if live.sectors + 1 >= self.sectors {
                 return Ok((live, repeated));
@@ -724,11 +727,7 @@ impl<F: NorFlash> Log<F> {
             if let Some(h) = found.filter(|h| h.repeats(cursor.records, cursor.last_crc)) {
                 // A rewrite of the record this cursor read last (see "A
                 // record that reads valid once"): the same bytes, read.
-                cursor.offset += align_up(HEADER_LEN + h.len, self.align) as u32;
-                if cursor.offset >= sector_len {
-                    cursor.sector += 1;
-                    cursor.offset = 0;
-                }
+                cursor.pass(align_up(HEADER_LEN + h.len, self.align) as u32, sector_len);
                 continue;
             }
             let found = found.filter(|h| h.seq == cursor.records && h.seq < cursor.void_from);
@@ -741,11 +740,7 @@ impl<F: NorFlash> Log<F> {
             let at = self.position(sector, cursor.offset);
             cursor.records += 1;
             cursor.last_crc = h.crc;
-            cursor.offset += align_up(HEADER_LEN + h.len, self.align) as u32;
-            if cursor.offset >= sector_len {
-                cursor.sector += 1;
-                cursor.offset = 0;
-            }
+            cursor.pass(align_up(HEADER_LEN + h.len, self.align) as u32, sector_len);
             let payload = self.buf.get(HEADER_LEN..HEADER_LEN + h.len);
             return payload.map(|p| Some((at, p))).ok_or(LogError::NoRecord);
         }

@@ -66,7 +66,7 @@ pub fn run(a: DeviceArgs) -> Result<(), Error> {
 /// `placedb device --qemu`: QEMU in the foreground, its port printed.
 fn run_qemu(a: DeviceArgs) -> Result<Option<i32>, Error> {
     let flash = a.flash.clone();
-    let (mut child, _) = qemu::spawn_foreground(
+    let mut child = qemu::spawn_foreground(
         a.firmware,
         a.port,
         !a.no_icount,

@@ -469,7 +469,7 @@ fn accept_within(
 /// The emulated board of `placedb device --qemu`, started in the
 /// foreground with UART0 on `tcp:127.0.0.1:PORT` (0: a free port), one
 /// program at a time ([`super::one_client`]: placedb listens there and
-/// QEMU's UART connects to placedb): returns QEMU's process and the port. Wait for it with
+/// QEMU's UART connects to placedb): returns QEMU's process. Wait for it with
 /// [`super::wait_in_foreground`]: Ctrl-C, SIGTERM or SIGHUP stop QEMU first,
 /// and on Linux QEMU is killed if placedb dies any other way
 /// ([`super::foreground`]). `icount` makes instruction counting exact.
@@ -481,7 +481,7 @@ pub fn spawn_foreground(
     icount: bool,
     flash: Option<&Path>,
     announce: &mut dyn FnMut(u16),
-) -> Result<(std::process::Child, u16), DeviceError> {
+) -> Result<std::process::Child, DeviceError> {
     let firmware = firmware.unwrap_or_else(default_firmware);
     if !firmware.is_file() {
         return Err(DeviceError::Input(format!(
@@ -541,7 +541,7 @@ pub fn spawn_foreground(
         }
     };
     super::one_client::serve(listener, board)?;
-    Ok((child, port))
+    Ok(child)
 }
 
 #[cfg(test)]

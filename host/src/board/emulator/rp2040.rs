@@ -427,25 +427,39 @@ pub struct StackUse {
     pub room: u64,
 }
 
-/// The link-time minimum room for the stack (`STACK_RESERVE` in
-/// `boards/rp-pico/memory.x`).
-pub const STACK_RESERVE: u64 = 32 * 1024;
+/// The link-time minimum room for the stack: `STACK_RESERVE = NK;` in
+/// `boards/rp-pico/memory.x`, read from that file so that the check
+/// follows it (0, and every check fails, if it no longer says so).
+pub fn stack_reserve() -> u64 {
+    const MEMORY_X: &str = include_str!("../../../../boards/rp-pico/memory.x");
+    MEMORY_X
+        .lines()
+        .find_map(|l| {
+            let kib = l
+                .trim()
+                .strip_prefix("STACK_RESERVE = ")?
+                .strip_suffix("K;")?;
+            kib.parse::<u64>().ok()
+        })
+        .map_or(0, |kib| kib * 1024)
+}
 
-/// How far below [`STACK_RESERVE`] the stack's peak must stay on the paths
+/// How far below [`stack_reserve`] the stack's peak must stay on the paths
 /// the tests run: paths they do not run (rarer errors, other inputs) may go
 /// deeper, and an overflow runs into the statics with no guard.
 pub const STACK_MARGIN: u64 = 8 * 1024;
 
 /// The [`StackUse`] a stopped harness printed, checked: an error in words
 /// when it is missing or its peak is within [`STACK_MARGIN`] of
-/// [`STACK_RESERVE`].
+/// [`stack_reserve`].
 pub fn check_stack(console: &str) -> Result<StackUse, String> {
     let st = stack_use(console).ok_or("the harness printed no stack line")?;
-    if st.peak + STACK_MARGIN > STACK_RESERVE {
+    let reserve = stack_reserve();
+    if st.peak + STACK_MARGIN > reserve {
         return Err(format!(
             "the Pico's stack went {} bytes deep, within {} of the {} bytes reserved at link \
              time (memory.x STACK_RESERVE): raise the reserve or make the path shallower",
-            st.peak, STACK_MARGIN, STACK_RESERVE
+            st.peak, STACK_MARGIN, reserve
         ));
     }
     Ok(st)
@@ -535,6 +549,10 @@ mod tests {
 
     #[test]
     fn the_stack_line_is_read_and_checked() {
+        assert!(
+            stack_reserve() >= 16 * 1024,
+            "memory.x's STACK_RESERVE not read"
+        );
         let console = "stats pc=0x1 cycles=2\nstack peak_bytes=13048 room_bytes=33768\n";
         let st = stack_use(console).unwrap();
         assert_eq!((st.peak, st.room), (13048, 33768));
