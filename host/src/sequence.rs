@@ -99,6 +99,9 @@ pub enum Format {
     /// The built-in synthetic renderer (`--demo`; not a layout to read, so
     /// `--format` does not offer it).
     Synthetic,
+    /// Frames handed over in memory (the Python package's arrays,
+    /// [`crate::read::arrays`]); not a layout to read either.
+    Arrays,
 }
 
 /// What [`FrameInfo::timestamp`] counts, so a replay at the camera's rate

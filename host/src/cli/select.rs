@@ -1,19 +1,22 @@
 //! `placedb select`: one solver on a sequence, the database directory
 //! written (and a dataset when asked), a summary printed.
 
-use super::{open_sequence, open_test, print_dataset, solver_params, voxel_config};
+use super::{open_sequence, print_dataset, solver_params};
 use super::{ParamArgs, SeqArgs};
 use crate::degradation::{self, plural};
 use crate::error::CommandError as Error;
-use crate::output::{self, dataset, metrics_json, topview};
-use crate::output::{annotate, exports, replace};
-use crate::pipeline::{self, Solver};
-use crate::sessions::{extension, record};
+use crate::output::{self, exports};
+use crate::pipeline::Solver;
+use crate::Sequence;
 use clap::Args;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 
 mod extend;
+pub mod selection;
+
+pub use selection::{Selection, Written};
 
 #[derive(Args)]
 pub struct SelectArgs {
@@ -44,98 +47,46 @@ pub struct SelectArgs {
     extend: Option<PathBuf>,
 }
 
+impl SelectArgs {
+    /// Reads the sequence these arguments name (or renders `--demo`).
+    pub fn open_sequence(&self) -> Result<Sequence, Error> {
+        open_sequence(&self.seq)
+    }
+
+    /// Refuses what takes two options to see (`--window` above
+    /// `--profile`'s window), as the command does before any work.
+    pub fn check(&self) -> Result<(), Error> {
+        solver_params(&self.params).map(|_| ())
+    }
+
+    /// `--extend`'s directory, when a later session is asked for.
+    pub fn extend(&self) -> Option<&Path> {
+        self.extend.as_deref()
+    }
+}
+
 /// Runs `placedb select`.
 pub fn run(a: SelectArgs) -> Result<(), Error> {
     if let Some(from) = a.extend.clone() {
         return extend::run(a, &from);
     }
     let t0 = Instant::now();
-    let params = solver_params(&a.params)?;
+    solver_params(&a.params)?;
     // A refused or unwritable output fails the run before the work.
     let targets = a.exports.targets();
     output::check_outputs(&a.out, a.dataset.as_deref(), &targets)?;
-    let seq = open_sequence(&a.seq)?;
+    let seq = a.open_sequence()?;
     if let Some(file) = &targets.pairs {
         // A colour file the pairs cannot name fails the run before the work.
         exports::pairs::names(&seq, file)?;
     }
     super::warn_voxel_memory(&seq, &a.seq);
-    let prep = pipeline::prepare(&seq, voxel_config(&a.seq), a.params.quiet)?;
-    // The top view's map and trajectory do not depend on the solver: they
-    // are projected on the other thread while it solves.
-    let (solved, mut view) = rayon::join(
-        || pipeline::solve(&seq, &prep, a.solver, a.mu, &params, a.params.quiet),
-        || topview::project(&seq, &prep.sets.sets, prep.sets.grid),
-    );
-    let mut o = solved?;
-    crate::warning::warn_all(&o.warnings(&prep));
-    let test_seq = match &a.params.test {
-        Some(test) => Some(open_test(test, &a.seq)?),
-        None => None,
-    };
-    if let Some(tseq) = &test_seq {
-        let tsets = pipeline::prepare_test(tseq, &prep, a.params.quiet)?;
-        pipeline::add_oracle_recall(&mut o, &prep, &tsets);
-    }
-    let rows = match &o.online {
-        // The device's own records: what an export from a board would hold.
-        Some(run) => output::rows_from_records(&run.database),
-        None => output::rows_from_sequence(&seq, &o.database),
-    };
-    let timestamps: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
-    let mut json = metrics_json::of_select(&seq, &prep, &o, a.mu, &params);
-    json["total_s"] = t0.elapsed().as_secs_f64().into();
-    if let Some(mb) = metrics_json::peak_rss_mb() {
-        json["peak_rss_mb"] = mb.into();
-    }
-    view.database.clone_from(&o.database);
-    view.classes.clone_from(&o.labels);
-    let caption = annotate::Caption::of_selection(
-        &seq.name,
-        o.solver.name(),
-        a.mu,
-        o.database.len(),
-        seq.frames.len(),
-        topview::horizontal(&seq.frames),
-    );
-    // Every output of the run appears together, or none does.
-    let (dataset, exported) = replace::together(|outputs| {
-        let dir = output::stage_database_dir(outputs, &a.out)?;
-        // The picture is drawn and encoded while the tables are written.
-        let (written, drawn) = rayon::join(
-            || output::write_database_dir(&dir, &rows, &timestamps, &o.labels, &json, None),
-            || {
-                let path = dir.join("topview.png");
-                annotate::render(&view, &caption)
-                    .image
-                    .write_png(&path)
-                    .map_err(|source| crate::error::OutputError::Write { path, source })
-            },
-        );
-        written?;
-        drawn?;
-        let first = record::first_session(&seq, &prep, &o, &params, a.mu, &rows);
-        extension::write(&dir.join(extension::FILE_NAME), &first)?;
-        let dataset = match &a.dataset {
-            Some(dir) => Some((dir, dataset::stage(outputs, dir, &seq, &o.labels)?)),
-            None => None,
-        };
-        let exported = exports::write_all(
-            &targets,
-            &exports::Selection {
-                seq: &seq,
-                rows: &rows,
-                labels: &o.labels,
-                overlaps: Some(&prep.co),
-                mu: a.mu,
-                test: test_seq.as_ref(),
-            },
-            outputs,
-        )?;
-        Ok((dataset, exported))
-    })?;
+    let sel = Selection::compute(Arc::new(seq), &a, t0)?;
+    let Written { dataset, exported } = sel.write(&a.out, a.dataset.as_deref(), &targets)?;
+    let (seq, prep, o, params) = (&*sel.seq, &sel.prep, &sel.outcome, &sel.params);
+    let json = &sel.json;
     if a.params.json {
-        println!("{}", serde_json::to_string_pretty(&json)?);
+        println!("{}", serde_json::to_string_pretty(json)?);
     } else if !a.params.quiet {
         let m = &o.metrics;
         println!(
@@ -147,7 +98,7 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
             o.solver.name(),
             a.mu
         );
-        println!("{}", o.losses(&prep).summary_line());
+        println!("{}", o.losses(prep).summary_line());
         println!(
             "  uncovered {}  spatial coverage {:.3}  frame coverage mean {:.3} min {:.3} (<0.3: {:.1}%)",
             m.uncovered,

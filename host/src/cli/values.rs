@@ -68,7 +68,7 @@ impl ValueEnum for Format {
                 "ros1",
                 "A ROS 1 bag (format 2.0; chunks uncompressed, bz2 or lz4): a `.bag` file",
             ),
-            Format::Synthetic => return None,
+            Format::Synthetic | Format::Arrays => return None,
         };
         Some(PossibleValue::new(name).help(help))
     }

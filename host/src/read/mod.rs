@@ -20,6 +20,7 @@
 //! (the intrinsics file is then not read).
 
 #[doc(hidden)]
+pub mod arrays;
 pub mod fuzzing;
 mod png;
 pub mod ros2;
@@ -88,6 +89,10 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError> {
         Format::Synthetic => Err(text::layout(
             path,
             "the synthetic format is rendered, not read from a directory",
+        )),
+        Format::Arrays => Err(text::layout(
+            path,
+            "frames from arrays are handed over in memory, not read from a directory",
         )),
     }
 }
