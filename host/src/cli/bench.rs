@@ -39,6 +39,9 @@ pub struct BenchOptions {
     /// `--bag`: recordings of the 7scenes-1000 frames whose reading the
     /// timing table compares with reading the PNG files.
     pub bags: Vec<PathBuf>,
+    /// `--python`: an interpreter with the placedb package, for a row per
+    /// solver of the Python API beside the command's.
+    pub python: Option<PathBuf>,
 }
 
 /// `x` with `decimals` decimals, or "-" where it does not apply (NaN, or
@@ -126,6 +129,11 @@ pub struct BenchArgs {
     /// host/tests/recordings/write_recordings.py makes such bags).
     #[arg(long = "bag", value_name = "PATH")]
     bags: Vec<PathBuf>,
+    /// A Python interpreter with the placedb package installed (`pip
+    /// install ./python`): the timing table gains a row per solver of
+    /// `placedb.select(...).write(out)`, beside the command's.
+    #[arg(long, value_name = "PYTHON")]
+    python: Option<PathBuf>,
     /// Internal (a child of the timing table): only decode every depth
     /// image of this sequence, as select would, and exit.
     #[arg(long, hide = true)]
@@ -145,6 +153,7 @@ pub fn run(a: BenchArgs) -> Result<(), Error> {
         building_frames: a.building_frames,
         repeat: a.repeat,
         bags: a.bags.clone(),
+        python: a.python.clone(),
     };
     if a.core {
         return instructions::core_cost(&opts);

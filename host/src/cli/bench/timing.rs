@@ -55,15 +55,20 @@ pub fn table(a: &BenchOptions) -> Result<(), Error> {
         "solve_s",
         "peak_MB"
     );
-    // Runs `placedb ARGS` in a child: its wall time from spawn to exit, its
-    // CPU time (user and system, all threads), and the JSON it printed.
+    // Runs `placedb ARGS` (or, for a row of the Python API, the
+    // interpreter with ARGS) in a child: its wall time from spawn to exit,
+    // its CPU time (user and system, all threads), and the JSON it printed.
     let run = |args: &[String]| -> Result<(f64, f64, serde_json::Value), Error> {
+        let (program, args) = match (args.first(), &a.python) {
+            (Some(first), Some(python)) if first == PYTHON_ROW => (python.as_path(), &args[1..]),
+            _ => (exe.as_path(), args),
+        };
         let (t, cpu) = (Instant::now(), children_cpu_s());
-        let child = std::process::Command::new(&exe).args(args).output()?;
+        let child = std::process::Command::new(program).args(args).output()?;
         let (wall, cpu) = (t.elapsed().as_secs_f64(), children_cpu_s() - cpu);
         if !child.status.success() {
             let err = String::from_utf8_lossy(&child.stderr);
-            return Err(format!("placedb {}: {err}", args.join(" ")).into());
+            return Err(format!("{} {}: {err}", program.display(), args.join(" ")).into());
         }
         Ok((wall, cpu, serde_json::from_slice(&child.stdout)?))
     };
@@ -108,6 +113,18 @@ pub fn table(a: &BenchOptions) -> Result<(), Error> {
             select.extend(["--json", "-q", "-o"].map(String::from));
             select.push(out.display().to_string());
             rows.push((solver.name().into(), select));
+        }
+        if a.python.is_some() {
+            for solver in &a.solvers {
+                let sequence = match args.as_slice() {
+                    [path] => path.clone(),
+                    _ => format!("--demo={}", a.synthetic_frames),
+                };
+                let py = [PYTHON_ROW, "-c", PYTHON_SELECT, &sequence, solver.name()];
+                let mut py: Vec<String> = py.map(String::from).to_vec();
+                py.extend([a.stride.to_string(), out.display().to_string()]);
+                rows.push((format!("py {}", solver.name()), py));
+            }
         }
         // Rounds of every row in turn; each round starts one row later, so
         // that no row always runs first. With a floor, every run of a
@@ -188,6 +205,20 @@ pub fn table(a: &BenchOptions) -> Result<(), Error> {
                     figure(ratio(|(_, cpu)| cpu), 2)
                 );
             }
+            if let Some(solver) = row.strip_prefix("py ") {
+                // The command's row of the same solver: the Python API's
+                // cost is its ratio to it.
+                let command = rows.iter().position(|(r, _)| r == solver);
+                let command_wall = command
+                    .and_then(|c| median_by(&runs[c], |run| run.0))
+                    .map_or(f64::NAN, |run| run.0);
+                println!(
+                    "{:<16} {:<11} {}x the command's wall time for {solver}, medians (target <= 1.1x)",
+                    "",
+                    "",
+                    figure(wall / command_wall, 2),
+                );
+            }
             if *name == "7scenes-1000" && a.stride == 1 && *row == Solver::InOrder.name() {
                 let (s, mb) = PAPER_7SCENES;
                 println!(
@@ -215,6 +246,21 @@ pub fn table(a: &BenchOptions) -> Result<(), Error> {
     );
     Ok(())
 }
+
+/// The first argument of a row run by `--python`'s interpreter instead of
+/// `placedb`.
+const PYTHON_ROW: &str = "<python>";
+
+/// The Python API's row: `placedb.select(SEQ, solver=..., stride=...)`
+/// written to OUT, its metrics printed as JSON, as `select --json` does.
+/// SEQ `--demo=N` is the synthetic scan of N frames.
+const PYTHON_SELECT: &str = "import json, sys, placedb
+seq, solver, stride, out = sys.argv[1:5]
+demo = seq.startswith('--demo=')
+kw = dict(demo=True, demo_frames=int(seq[7:])) if demo else {}
+db = placedb.select(None if demo else seq, solver=solver, stride=int(stride), **kw)
+db.write(out)
+print(json.dumps(db.metrics))";
 
 /// A child of the timing table (`bench --decode-only PATH`): decodes every
 /// depth image of the sequence at `path`, as select would, and prints its
