@@ -4,7 +4,10 @@
 //! `memory.x` gives RAM 512 KiB, so a device that does not fit fails to link).
 //!
 //! The loop is transport-agnostic: read what the UART has, hand it to the
-//! device, write every reply frame back. Frame costs are measured with SysTick
+//! device, write every reply frame back. A read with nothing received
+//! sleeps (`wfi`) until a byte comes, so an idle board leaves QEMU's host
+//! core alone (under `-icount`, QEMU's default `sleep=on` then lets virtual
+//! time follow real time). Frame costs are measured with SysTick
 //! (25 MHz on this board; with `qemu -icount shift=0` one instruction takes
 //! 1 ns of virtual time, so one tick is 40 instructions) and reported by the
 //! device's status in nanoseconds of virtual time = instructions under

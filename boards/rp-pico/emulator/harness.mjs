@@ -736,7 +736,6 @@ const host = {
   outArmed: 0, // bytes the firmware's bulk OUT buffer takes (0: not armed)
   rx: [], // Buffers from the TCP client, for bulk OUT
   rxBytes: 0,
-  activity: 0,
   descriptors: {},
   lateInARow: 0, // control transfers failed since the port was last configured
   address: null, // what the firmware last wrote to ADDR_ENDP since the last reset
@@ -925,6 +924,7 @@ function lineState(up) {
   });
   host.queue.push(s);
   if (host.configured && !host.control && !host.gap) startNextControl();
+  wake();
 }
 
 /** The bulk IN buffer control word the firmware armed while no program had
@@ -969,7 +969,6 @@ usb.onUSBEnabled = () => {
 usb.onResetReceived = () => debug('bus reset seen by the firmware');
 
 usb.onEndpointWrite = (ep, buffer) => {
-  host.activity++;
   debug(`IN ep${ep} ${buffer.length} B ${ep === 0 ? Buffer.from(buffer).toString('hex') : ''}`);
   if (ep === 0) {
     const c = host.control;
@@ -1004,7 +1003,6 @@ usb.onEndpointWrite = (ep, buffer) => {
 };
 
 usb.onEndpointRead = (ep, size) => {
-  host.activity++;
   debug(`OUT ep${ep} armed ${size} B`);
   if (ep === 0) {
     host.ep0OutArmed = true;
@@ -1138,36 +1136,49 @@ const profile = process.env.PICO_PROFILE
     }
   : null;
 
+// Idle: the firmware waits for an interrupt (wfi) when it has nothing to
+// do. The harness then moves emulated time on to the next alarm at once (a
+// timer alarm, the USB controller's delays, the USB host's next step); with
+// no alarm left, only the host can give the firmware something to do, so
+// the harness stops running until the TCP client connects, sends, leaves
+// or drains its socket (wake), and takes no CPU meanwhile. Emulated time
+// stands still while the harness waits for the host, as it always has.
+
 let stopped = false;
-let sleeping = null;
+/** While the run loop is stopped: the timer that resumes it, or WAITING_FOR_HOST
+ * (only wake resumes it). null while it runs. */
+let parked = null;
+const WAITING_FOR_HOST = 'host';
 const started = Date.now();
 
+/** The host did something: the run loop goes on if it was stopped. */
 function wake() {
-  if (sleeping) {
-    clearTimeout(sleeping);
-    sleeping = null;
-    setImmediate(run);
-  }
+  if (parked === null) return;
+  if (parked !== WAITING_FOR_HOST) clearTimeout(parked);
+  parked = null;
+  setImmediate(run);
 }
-
-/** USB register reads in this chunk: many of them and no traffic means the
- * firmware is idle in its polling loop. */
-let usbReads = 0;
-const usbRead = usb.readUint32.bind(usb);
-usb.readUint32 = (offset) => {
-  usbReads++;
-  return usbRead(offset);
-};
 
 function run() {
   if (stopped) return;
   const { core, clock } = mcu;
-  const activityBefore = host.activity;
-  usbReads = 0;
+  let waitForHost = false;
   for (let i = 0; i < CHUNK && !stopped; i++) {
     if (core.waiting) {
-      const next = clock.nanosToNextAlarm;
-      clock.tick(next > 0 ? next : 1000);
+      // An interrupt raised before the wfi ends it too (on silicon it
+      // returns at once; rp2040js wakes the core only when one is raised
+      // while it waits). A wfi may always return early: the firmware
+      // looks again.
+      if (core.pendingInterrupts & core.enabledInterrupts || core.pendingSystick) {
+        core.waiting = false;
+        core.interruptsUpdated = true;
+        continue;
+      }
+      if (!clock.nextAlarm) {
+        waitForHost = true;
+        break;
+      }
+      clock.tick(Math.max(clock.nanosToNextAlarm, 0));
       continue;
     }
     const pc = core.PC;
@@ -1180,22 +1191,15 @@ function run() {
     clock.tick(cycles * NANOS_PER_CYCLE);
   }
   if (stopped) return;
-  if (opts.deadline && Date.now() - started > opts.deadline * 1000) {
-    process.stderr.write(`error: deadline of ${opts.deadline} s reached\n`);
-    return finish(3);
-  }
   // Back-pressure: a TCP client that does not read stops the board.
   const blocked = client && client.writableLength > 1024 * 1024;
-  const idle =
-    host.configured &&
-    host.activity === activityBefore &&
-    host.rxBytes === 0 &&
-    usbReads > CHUNK / 100;
-  if (blocked || idle) {
-    sleeping = setTimeout(() => {
-      sleeping = null;
+  if (waitForHost) {
+    parked = WAITING_FOR_HOST;
+  } else if (blocked) {
+    parked = setTimeout(() => {
+      parked = null;
       run();
-    }, blocked ? 10 : 20);
+    }, 10);
   } else {
     setImmediate(run);
   }
@@ -1217,7 +1221,7 @@ function stackLine() {
 function finish(code = 0) {
   if (stopped) return;
   stopped = true;
-  if (sleeping) clearTimeout(sleeping);
+  if (parked !== null && parked !== WAITING_FOR_HOST) clearTimeout(parked);
   const cycles = mcu.core.cycles;
   process.stdout.write(
     `stats pc=${hex(mcu.core.PC)} cycles=${cycles} emulated_ms=${(mcu.clock.nanos / 1e6).toFixed(1)} ` +
@@ -1247,4 +1251,12 @@ setInterval(() => {
 }, 500).unref();
 process.on('SIGTERM', () => finish(0));
 process.on('SIGINT', () => finish(0));
+// A timer, not a check in the run loop: the loop may be waiting for a host
+// that never comes.
+if (opts.deadline) {
+  setTimeout(() => {
+    process.stderr.write(`error: deadline of ${opts.deadline} s reached\n`);
+    finish(3);
+  }, opts.deadline * 1000);
+}
 setImmediate(run);

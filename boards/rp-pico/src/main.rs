@@ -1,13 +1,21 @@
 //! placedb firmware for the Raspberry Pi Pico (RP2040, Cortex-M0+): the placedb
 //! wire protocol over USB CDC-ACM serial.
 //!
-//! One polled loop, no interrupts: read the packet the host sent straight
-//! into the receive buffer of the [`Device256K`] (a `static`, so its RAM is
+//! One polled loop: read the packet the host sent straight into the
+//! receive buffer of the [`Device256K`] (a `static`, so its RAM is
 //! accounted for at link time; servicing USB only when no packet waits),
 //! let it handle every message that ends there and queue every reply frame
 //! it produces on the [`link::Link`], which never drops a reply byte and
 //! stops reading while its queue is full. The on-board LED (GPIO25) toggles
 //! on every reply frame.
+//!
+//! Idle, it sleeps: a turn of the loop that found nothing to do (no packet,
+//! no erase ahead to start) ends in [`sleep_until_usb`], a `wfi` that the USB
+//! controller's interrupt ends (a packet, a control request, a bus reset, a
+//! reply packet taken by the host), so the core waits for its host instead
+//! of polling it: on silicon it draws less, and under the emulator an idle
+//! board leaves the host's CPU alone. The interrupt only ends the wait: USB
+//! is still serviced by the loop, and no handler runs on silicon.
 //!
 //! The scan is durable: the device writes its database frames and decisions
 //! to a log in the second MiB of flash ([`flash`]) before it acknowledges
@@ -37,11 +45,13 @@ mod link;
 
 use core::cell::RefCell;
 use core::sync::atomic::{AtomicBool, Ordering};
+use cortex_m::peripheral::NVIC;
 use critical_section::Mutex;
 use embedded_hal::digital::StatefulOutputPin;
 use placedb::device::Device256K;
 use placedb::persist::{EraseAhead, Log};
 use placedb::protocol::Phase;
+use rp2040_hal::pac::interrupt;
 use rp2040_hal::{self as hal, pac, usb::UsbBus};
 use usb_device::class_prelude::UsbBusAllocator;
 use usb_device::device::UsbDevice;
@@ -176,12 +186,19 @@ fn main() -> ! {
     let mut packet = Packet([0; link::PACKET_LEN]);
     let mut unpolled = 0u32;
     let mut quiet = UsbQuiet { control_at: 0 };
+    let mut idle = false;
     loop {
         link.drain(&usb);
+        // After the replies have gone to the controller: a turn that found
+        // nothing to do waits for USB's next event.
+        if idle {
+            sleep_until_usb();
+        }
         // One critical section (one borrow of the device) a turn, not one
-        // for the read and one for each message: the firmware uses no
-        // interrupts, and the turn's flash work nests its own.
-        critical_section::with(|cs| {
+        // for the read and one for each message: no interrupt handler
+        // shares anything with the loop, and the turn's flash work nests
+        // its own.
+        idle = critical_section::with(|cs| {
             let mut device = DEVICE.borrow_ref_mut(cs);
             // The receive path is part of a frame's cost (FrameCost):
             // reading a packet out of the controller and, when it came
@@ -217,11 +234,15 @@ fn main() -> ! {
                 Got::Nothing => {
                     // Nothing from the host: the time to erase what the
                     // log needs next (a failed erase is the log's own
-                    // erase's to retry), once USB has settled.
+                    // erase's to retry), once USB has settled. Then the
+                    // board is idle until USB's next event, unless an
+                    // erase waits for the quiet period to end (polled:
+                    // at most USB_QUIET_US after the last control request).
                     if quiet.now(&mut link, &mut usb) {
                         erase_ahead(&mut log);
+                        return true;
                     }
-                    return;
+                    return erased_ahead(&mut log) || !link::configured(&usb);
                 }
                 Got::InPlace => loop {
                     device.add_receive_ticks(received);
@@ -259,8 +280,48 @@ fn main() -> ! {
                 }
             }
             unpolled += 1;
+            false
         });
     }
+}
+
+/// Sleeps (`wfi`) until the USB controller raises its interrupt, at once if
+/// it has raised it already: an event the loop has not serviced yet (it
+/// looks at the controller first thing after).
+///
+/// The interrupt is unmasked only for the `wfi`, with PRIMASK set, and
+/// masked again before PRIMASK is cleared, so on silicon it only ends the
+/// wait and its handler never runs. Its pending state is cleared first (it
+/// stays latched after the loop serviced the event that raised it, and
+/// would end every later sleep at once), and the controller's interrupt
+/// status is read after that: an event before the read is seen there, one
+/// after it pends the interrupt and ends the `wfi`.
+fn sleep_until_usb() {
+    cortex_m::interrupt::free(|_| {
+        NVIC::unpend(pac::Interrupt::USBCTRL_IRQ);
+        // SAFETY: a read of the read-only INTS register, which has no side
+        // effect; the USB bus driver owns the controller, and never
+        // depends on this read.
+        let raised = unsafe { &*pac::USBCTRL_REGS::PTR }.ints().read().bits() != 0;
+        if raised {
+            return;
+        }
+        // SAFETY: unmasked with PRIMASK set and masked again before the
+        // critical section ends: no critical section is broken, and no
+        // handler runs on silicon (see `USBCTRL_IRQ` for the emulator).
+        unsafe { NVIC::unmask(pac::Interrupt::USBCTRL_IRQ) };
+        cortex_m::asm::wfi();
+        NVIC::mask(pac::Interrupt::USBCTRL_IRQ);
+    });
+}
+
+/// The USB controller's interrupt, which only ends [`sleep_until_usb`]'s
+/// `wfi`: masks itself and leaves USB to the loop. Never entered on
+/// silicon (the interrupt is masked again before PRIMASK is cleared), but
+/// rp2040js takes an interrupt that ends a `wfi` even under PRIMASK.
+#[interrupt]
+fn USBCTRL_IRQ() {
+    NVIC::mask(pac::Interrupt::USBCTRL_IRQ);
 }
 
 /// What [`read_packet`] read.
