@@ -22,11 +22,15 @@ from __future__ import annotations
 
 import json
 import os
-from typing import Any, Iterable, NamedTuple, Optional, Sequence as Seq, Tuple, Union
-
-import numpy as np
+from typing import TYPE_CHECKING, Any, Iterable, NamedTuple, Optional, Sequence as Seq, Tuple, Union
 
 from . import _native
+
+if TYPE_CHECKING:
+    import numpy as np
+# numpy is imported where arrays are made (the functions below, and the
+# native module on its first array): a script that only selects and writes
+# starts without its 0.1 s import.
 
 __all__ = [
     "Database",
@@ -97,6 +101,8 @@ class Sequence:
         seconds (default: 30 frames a second). A uint16 C-ordered stack is
         copied once.
         """
+        import numpy as np
+
         depth = _depth_stack(depth, depth_scale)
         poses = np.asarray(poses, dtype=np.float64)
         if poses.ndim != 3:
@@ -180,6 +186,8 @@ def _intrinsics(k: Any) -> Intrinsics:
 def _depth_stack(depth: Any, depth_scale: float) -> np.ndarray:
     """A C-ordered N x H x W uint16 stack of ``depth`` (an array or an
     iterable of H x W images)."""
+    import numpy as np
+
     if not isinstance(depth, np.ndarray):
         depth = np.stack([np.asarray(d) for d in depth])
     if depth.ndim != 3:
@@ -369,6 +377,11 @@ def select(
     if isinstance(source, (str, os.PathLike)):
         argv = [os.fspath(source)] + _flags(intrinsics=intrinsics, **reading, **options)
         return Database(_native.select(argv, None))
+    if not isinstance(source, Sequence) and not hasattr(source, "__array__") and not hasattr(source, "__iter__"):
+        raise TypeError(
+            "source must be a sequence's path, a Sequence, a depth stack or an iterable of "
+            f"(depth, pose, timestamp), got {type(source).__name__}"
+        )
     if not isinstance(source, Sequence):
         source = _from_memory(source, poses, intrinsics, timestamps, depth_scale)
         reading = {}
@@ -383,6 +396,8 @@ def select(
 
 def _from_memory(source: Any, poses: Any, intrinsics: Any, timestamps: Any, depth_scale: Any) -> Sequence:
     """A :class:`Sequence` of a depth stack or of ``(depth, pose, timestamp)`` tuples."""
+    import numpy as np
+
     if intrinsics is None:
         raise ValueError("frames from memory need intrinsics=(fx, fy, cx, cy)")
     scale = 1000.0 if depth_scale is None else depth_scale
@@ -467,6 +482,8 @@ class Device:
         world, ``timestamp`` seconds. Returns the :class:`Decision` s that
         became final since the last call (a frame is decided up to
         ``window`` frames later)."""
+        import numpy as np
+
         d = np.asarray(depth)
         if d.ndim != 2:
             raise ValueError(f"depth must be one H x W image, got shape {d.shape}")
@@ -536,6 +553,8 @@ class Selector:
         """Takes one frame (``depth`` H x W uint16 in ``depth_scale`` units,
         or float metres; ``pose`` 4 x 4 camera to world; ``timestamp``
         seconds) and returns the :class:`Decision` s that became final."""
+        import numpy as np
+
         d = np.asarray(depth)
         if d.ndim == 2 and d.dtype != np.uint16:
             d = _depth_stack(d[None, ...], self._depth_scale)[0]

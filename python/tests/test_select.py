@@ -74,6 +74,8 @@ def test_parameters_are_refused_in_the_command_lines_words(seven_scenes, tmp_pat
         placedb.select(seven_scenes, profile="ram256k", window=40)
     with pytest.raises(ValueError, match="demo=True or a sequence|a sequence .* or demo=True"):
         placedb.select()
+    with pytest.raises(TypeError, match="source must be a sequence's path.*got int"):
+        placedb.select(123)
     with pytest.raises(FileNotFoundError, match="missing-scan"):
         placedb.select(tmp_path / "missing-scan")
 
