@@ -325,6 +325,7 @@ def select(
     profile: Optional[str] = None,
     window: Optional[int] = None,
     test: Optional[PathLike] = None,
+    extend: Optional[PathLike] = None,
     progress: bool = False,
     **bag_options: Any,
 ) -> Database:
@@ -346,7 +347,9 @@ def select(
     ``voxel`` (metres, 0.3), ``stride`` (every s-th pixel, 1),
     ``depth_range`` (min, max metres, (0.1, 10)), ``grid_origin`` ("world",
     "scene-min"); ``test``: a test sequence of the same place
-    (adds oracle_recall@0.3). Reading options and bag topics
+    (adds oracle_recall@0.3); ``extend``: an earlier database directory
+    (written by ``Database.write`` or ``placedb select``/``export``) this
+    sequence is added to as a new session (docs/SESSIONS.md). Reading options and bag topics
     (``depth_topic=...``) are :func:`read_sequence`'s. ``progress``: show
     progress bars on stderr.
     """
@@ -364,6 +367,7 @@ def select(
         profile=profile,
         window=window,
         test=test,
+        extend=extend,
         quiet=not progress,
     )
     reading = dict(format=format, depth_scale=depth_scale, max_frames=max_frames, **bag_options)

@@ -8,7 +8,7 @@ use crate::errors::{interruptible, released, Failure};
 use crate::sequence::Sequence;
 use numpy::{IntoPyArray, PyArray1};
 use placedb_host::board::export::Export;
-use placedb_host::cli::select::Selection;
+use placedb_host::cli::select::{extend, ExtendedSelection, Selection};
 use placedb_host::output::{self, exports::ExportTargets};
 use pyo3::prelude::*;
 use std::path::PathBuf;
@@ -19,6 +19,8 @@ use std::time::Instant;
 pub enum Source {
     /// A solver on a sequence (`placedb.select`).
     Selection(Arc<Selection>),
+    /// A later session on an earlier database (`select(..., extend=)`).
+    Extended(Arc<ExtendedSelection>),
     /// A device's export (`Selector.finish`, `Device.export`): its files
     /// come from the device, `write` pulls them again.
     Export {
@@ -47,23 +49,29 @@ pub fn select(
 ) -> PyResult<Database> {
     let t0 = Instant::now();
     let a = select_args(&argv)?;
-    if a.extend().is_some() {
-        return Err(Failure::value(
-            "extend is not in the Python package yet: use `placedb select SEQ --extend OUT_A -o OUT_AB`",
-        )
-        .into());
-    }
     let given = sequence.map(|s| Arc::clone(&s.inner));
-    let sel = interruptible(py, move || {
+    let source = interruptible(py, move || {
+        // As the command: what --extend refuses, and its directory, before
+        // the sequence is read.
+        let earlier = match a.extend() {
+            Some(from) => {
+                extend::check_extend(&a)?;
+                Some((from.to_path_buf(), extend::read_earlier(from)?))
+            }
+            None => None,
+        };
         let seq = match given {
             Some(seq) => seq,
             None => Arc::new(a.open_sequence()?),
         };
-        Selection::compute(seq, &a, t0).map_err(Failure::from)
+        Ok(match earlier {
+            Some((from, ext)) => Source::Extended(Arc::new(ExtendedSelection::compute(
+                seq, &a, &from, &ext, t0,
+            )?)),
+            None => Source::Selection(Arc::new(Selection::compute(seq, &a, t0)?)),
+        })
     })?;
-    Ok(Database {
-        source: Source::Selection(Arc::new(sel)),
-    })
+    Ok(Database { source })
 }
 
 #[pymethods]
@@ -73,6 +81,13 @@ impl Database {
     fn frames<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<i64>> {
         let frames: Vec<i64> = match &self.source {
             Source::Selection(s) => s.outcome.database.iter().map(|&f| f as i64).collect(),
+            Source::Extended(s) => s
+                .extended
+                .outcome
+                .database
+                .iter()
+                .map(|&f| f as i64)
+                .collect(),
             Source::Export { export, .. } => export
                 .database()
                 .iter()
@@ -88,6 +103,13 @@ impl Database {
     fn labels<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<i64>> {
         let labels: Vec<i64> = match &self.source {
             Source::Selection(s) => s.outcome.labels.iter().map(|&l| l as i64).collect(),
+            Source::Extended(s) => s
+                .extended
+                .outcome
+                .labels
+                .iter()
+                .map(|&l| l as i64)
+                .collect(),
             Source::Export { export, .. } => export.labels().1.iter().map(|&l| l as i64).collect(),
         };
         labels.into_pyarray(py)
@@ -98,6 +120,7 @@ impl Database {
     fn metrics_json(&self) -> String {
         match &self.source {
             Source::Selection(s) => s.json.to_string(),
+            Source::Extended(s) => s.json.to_string(),
             Source::Export { export, .. } => export.metrics(None).to_string(),
         }
     }
@@ -133,6 +156,17 @@ impl Database {
                     .map_err(Failure::from)?;
                 Ok(w.exported)
             }),
+            Source::Extended(sel) => {
+                if dataset.is_some() || targets.any() {
+                    return Err(Failure::value(
+                        "an extended database is written without dataset, colmap, vpr_eval or \
+                         pairs yet (as `placedb select --extend`)",
+                    )
+                    .into());
+                }
+                released(py, || sel.write(&out).map_err(Failure::from))?;
+                Ok(Vec::new())
+            }
             Source::Export { device, .. } => {
                 if dataset.is_some() || targets.any() {
                     return Err(Failure::value(

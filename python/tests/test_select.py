@@ -104,3 +104,22 @@ def test_exports_are_the_commands(seven_scenes, tmp_path):
     for name in ("cameras.txt", "images.txt", "points3D.txt"):
         a = (tmp_path / "py" / "colmap" / "sparse" / "0" / name).read_bytes()
         assert a == (cli / "colmap" / "sparse" / "0" / name).read_bytes(), name
+
+
+def test_a_later_session_extends_as_the_command_does(seven_scenes, tmp_path):
+    cli_a, cli_ab = tmp_path / "cli-a", tmp_path / "cli-ab"
+    run_placedb("select", seven_scenes, "--max-frames", 50, "--mu", 0.9, "-q", "-o", cli_a)
+    run_placedb("select", seven_scenes, "--max-frames", 80, "--mu", 0.9, "--extend", cli_a, "-q", "-o", cli_ab)
+    py_a, py_ab = tmp_path / "py-a", tmp_path / "py-ab"
+    placedb.select(seven_scenes, max_frames=50, mu=0.9).write(py_a)
+    db = placedb.select(seven_scenes, max_frames=80, mu=0.9, extend=py_a)
+    assert db.labels.shape == (130,)
+    db.write(py_ab)
+    for name in ("database.csv", "labels.csv", "extension.bin"):
+        assert (py_ab / name).read_bytes() == (cli_ab / name).read_bytes(), name
+    with pytest.raises(ValueError, match="is the directory being extended"):
+        db.write(py_a)
+    with pytest.raises(ValueError, match="without dataset, colmap"):
+        db.write(tmp_path / "x", pairs=tmp_path / "pairs.txt")
+    with pytest.raises(ValueError, match="no extension.bin here"):
+        placedb.select(seven_scenes, max_frames=10, extend=tmp_path)

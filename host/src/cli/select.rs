@@ -13,9 +13,10 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
-mod extend;
+pub mod extend;
 pub mod selection;
 
+pub use extend::ExtendedSelection;
 pub use selection::{Selection, Written};
 
 #[derive(Args)]
