@@ -110,6 +110,7 @@ pub(super) fn run(a: SelectArgs, from: &Path) -> Result<(), Error> {
             &o.labels,
             &json,
             Some(&session_of),
+            None,
         )?;
         let path = dir.join("topview.png");
         annotate::render(&view, &caption)
