@@ -41,7 +41,10 @@ pub struct CameraModel {
 /// One frame's metadata: everything but the pixels.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FrameInfo {
-    /// Position in the sequence, from 0.
+    /// Position in the sequence as read, from 0: the frame's number, which
+    /// the outputs name it by (`labels.csv`, the dataset, the exports). A
+    /// sequence cut to the frames a device received
+    /// ([`Sequence::keep_frames`]) keeps each frame's number.
     pub index: usize,
     /// Seconds; the index when the format has no timestamps.
     pub timestamp: f64,
@@ -213,6 +216,28 @@ impl Sequence {
         }
     }
 
+    /// The sequence of only the frames at `positions` (ascending), in that
+    /// order: the frames a device received of it (`placedb stream
+    /// --realtime` skips frames). Each keeps its [`FrameInfo::index`], its
+    /// number in the whole sequence, which the outputs name it by; its depth
+    /// and colour are still read from where they were.
+    pub fn keep_frames(mut self, positions: &[usize]) -> Sequence {
+        if positions.iter().copied().eq(0..positions.len()) {
+            // The first frames: their positions are their numbers.
+            self.frames.truncate(positions.len());
+            return self;
+        }
+        let frames = positions.iter().map(|&p| self.frames[p].clone()).collect();
+        Sequence {
+            frames,
+            source: Box::new(Kept {
+                whole: self.source,
+                positions: positions.to_vec(),
+            }),
+            ..self
+        }
+    }
+
     /// The core's intrinsics for this sequence.
     pub fn intrinsics(&self) -> placedb::Intrinsics {
         placedb::Intrinsics {
@@ -223,5 +248,70 @@ impl Sequence {
             cx: self.camera.cx as f32,
             cy: self.camera.cy as f32,
         }
+    }
+}
+
+/// The depth of the frames [`Sequence::keep_frames`] kept: frame `i` is
+/// frame `positions[i]` of the whole sequence's source.
+struct Kept {
+    whole: Box<dyn DepthSource>,
+    positions: Vec<usize>,
+}
+
+impl Kept {
+    /// Where frame `i` is in the whole sequence.
+    fn at(&self, i: usize) -> Result<usize, ReadError> {
+        self.positions
+            .get(i)
+            .copied()
+            .ok_or_else(|| ReadError::Layout {
+                path: PathBuf::new(),
+                reason: format!(
+                    "frame {i} requested, {} frames of the sequence were kept",
+                    self.positions.len()
+                ),
+            })
+    }
+}
+
+impl DepthSource for Kept {
+    fn depth(&self, i: usize) -> Result<DepthImage, ReadError> {
+        self.whole.depth(self.at(i)?)
+    }
+
+    fn depth_into(&self, i: usize, image: &mut DepthImage) -> Result<(), ReadError> {
+        self.whole.depth_into(self.at(i)?, image)
+    }
+
+    fn color(&self, i: usize) -> Result<Option<Image>, ReadError> {
+        self.whole.color(self.at(i)?)
+    }
+
+    fn depth_file(&self, i: usize) -> Option<&std::path::Path> {
+        self.whole.depth_file(self.at(i).ok()?)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::synth::{self, SynthConfig};
+
+    #[test]
+    fn kept_frames_keep_their_numbers_and_their_depth() {
+        let whole = || {
+            let mut seq = synth::sequence(&SynthConfig::demo());
+            seq.frames.truncate(6);
+            seq
+        };
+        let kept = whole().keep_frames(&[0, 2, 5]);
+        let numbers: Vec<usize> = kept.frames.iter().map(|f| f.index).collect();
+        assert_eq!(numbers, [0, 2, 5]);
+        assert_eq!(kept.frames[2], whole().frames[5]);
+        assert_eq!(kept.depth(1).unwrap(), whole().depth(2).unwrap());
+        assert!(kept.depth(3).is_err(), "only three frames were kept");
+        // The first frames are the sequence cut short.
+        let first = whole().keep_frames(&[0, 1]);
+        assert_eq!(first.frames, whole().frames[..2]);
+        assert_eq!(first.depth(1).unwrap(), whole().depth(1).unwrap());
     }
 }

@@ -264,7 +264,7 @@ fn an_interrupted_export_names_its_from() {
         ..ExportOptions::default()
     };
     client.link().left = 40;
-    let err = export_to_with(&mut client, &dir, None, true, &small, &[])
+    let err = export_to_with(&mut client, &dir, None, true, &small, &[], None)
         .unwrap_err()
         .to_string();
     let (_, saved) = read_partial(&dir).unwrap();
@@ -276,8 +276,8 @@ fn an_interrupted_export_names_its_from() {
     assert!(err.contains(&from), "{err}");
     client.link().left = usize::MAX;
     let from = Some(saved.len() as u32);
-    let resumed = export_to_with(&mut client, &dir, from, true, &small, &[]).unwrap();
-    let whole = export_to_with(&mut client, &temp("whole"), None, true, &small, &[]).unwrap();
+    let resumed = export_to_with(&mut client, &dir, from, true, &small, &[], None).unwrap();
+    let whole = export_to_with(&mut client, &temp("whole"), None, true, &small, &[], None).unwrap();
     assert_eq!(resumed.records, whole.records);
     std::fs::remove_dir_all(&dir).unwrap();
     std::fs::remove_dir_all(temp("whole")).ok();

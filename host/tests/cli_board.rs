@@ -559,3 +559,185 @@ fn a_second_program_on_the_boards_port_is_refused_and_the_first_goes_on() {
     ]);
     assert!(run.status.success(), "{}", stderr(&run));
 }
+
+/// The rows of a CSV file after its header, split at commas.
+fn csv_rows(path: &std::path::Path) -> Vec<Vec<String>> {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    text.lines()
+        .skip(1)
+        .map(|l| l.split(',').map(str::to_string).collect())
+        .collect()
+}
+
+/// Column `c` of `rows` as frame numbers.
+fn numbers(rows: &[Vec<String>], c: usize) -> Vec<usize> {
+    rows.iter().map(|r| r[c].parse().unwrap()).collect()
+}
+
+/// `stream --realtime -o` to a board busy for most frames (one due every
+/// 10 ms; the emulated board takes far longer over one) numbers its tables
+/// by the sequence, as `skipped.csv` does: `labels.csv` has a row for each
+/// frame the board received, by its index in the sequence (a skipped frame
+/// has none), and `database.csv` and the classes name those frames (the
+/// board's own numbers were written: labels.csv's second row was sequence
+/// frame 45). `export --sequence SEQ` then takes that very sequence (it
+/// compared the board's frames with SEQ's first ones and refused it),
+/// writes the same tables, and its dataset, COLMAP model, VPR-evaluation
+/// layout and pairs name the frames alike; a sequence missing a frame the
+/// board received is refused, naming it.
+#[test]
+fn a_realtime_scan_is_numbered_by_the_sequence_and_export_sequence_takes_it() {
+    let tmp = TempDir::new("realtime-numbers");
+    let board = Board::start();
+    let (out, frames) = (tmp.arg("out"), 300);
+    let run = placedb(&[
+        "stream",
+        cli_common::SEVEN_SCENES,
+        "--max-frames",
+        &frames.to_string(),
+        "--realtime",
+        "--rate",
+        "100",
+        "--port",
+        &board.port,
+        "--stride",
+        "8",
+        "--window",
+        "8",
+        "-o",
+        &out,
+    ]);
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(run.status.success(), "{}{stdout}", stderr(&run));
+    let dir = tmp.path().join("out");
+    let skipped = numbers(&csv_rows(&dir.join("skipped.csv")), 0);
+    let sent: Vec<usize> = (0..frames).filter(|i| !skipped.contains(i)).collect();
+    // Two sent frames with a skipped one before the second: else the
+    // device's numbers are the sequence's and this proves nothing.
+    assert!(
+        sent.len() >= 2 && sent[1] > 1,
+        "the board skipped no frame between two it received (sent {sent:?}): {stdout}"
+    );
+    let labels = csv_rows(&dir.join("labels.csv"));
+    assert_eq!(numbers(&labels, 0), sent, "labels.csv's frames");
+    for row in &labels {
+        // 7-Scenes stamps a frame with its number: the row is that frame.
+        assert_eq!(row[1], format!("{}.000000", row[0]), "{row:?}");
+    }
+    let database = numbers(&csv_rows(&dir.join("database.csv")), 0);
+    assert!(!database.is_empty());
+    for (&i, &class) in numbers(&labels, 0).iter().zip(&numbers(&labels, 2)) {
+        assert!(database.contains(&class), "frame {i}'s class {class}");
+        assert_eq!(database.contains(&i), class == i, "frame {i}");
+    }
+
+    // The whole sequence (1,000 frames): the board's are among them.
+    let (out2, ds, colmap, vpr, pairs) = (
+        tmp.arg("out2"),
+        tmp.arg("ds"),
+        tmp.arg("colmap"),
+        tmp.arg("vpr"),
+        tmp.arg("pairs.txt"),
+    );
+    let run = placedb(&[
+        "export",
+        "--port",
+        &board.port,
+        "-q",
+        "-o",
+        &out2,
+        "--sequence",
+        cli_common::SEVEN_SCENES,
+        "--dataset",
+        &ds,
+        "--colmap",
+        &colmap,
+        "--vpr-eval",
+        &vpr,
+        "--pairs",
+        &pairs,
+    ]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    for table in ["database.csv", "labels.csv"] {
+        assert_eq!(
+            std::fs::read_to_string(tmp.path().join("out2").join(table)).unwrap(),
+            std::fs::read_to_string(dir.join(table)).unwrap(),
+            "{table} of export --sequence and of stream --realtime -o"
+        );
+    }
+    let classes = csv_rows(&tmp.path().join("ds/classes.csv"));
+    assert_eq!(numbers(&classes, 1), sent, "the dataset's frames");
+    for row in &classes {
+        let depth = tmp.path().join("ds/depth").join(format!("{}.png", row[0]));
+        assert_eq!(row[0], format!("{:06}", row[1].parse::<usize>().unwrap()));
+        assert!(depth.is_file(), "{}", depth.display());
+    }
+    assert_eq!(
+        numbers(&classes, 3),
+        numbers(&labels, 2),
+        "the dataset's classes"
+    );
+    let images: Vec<String> = cli_common::names(&tmp.path().join("colmap/images"));
+    let want: Vec<String> = database.iter().map(|i| format!("{i:06}.jpg")).collect();
+    assert_eq!(images, want, "the COLMAP model's images");
+    // VPR-methods-evaluation's names: @east@north@NNNNNN@.jpg.
+    let vpr_frames = |folder: &str| -> Vec<usize> {
+        let mut v: Vec<usize> = cli_common::names(&tmp.path().join("vpr").join(folder))
+            .iter()
+            .map(|n| n.split('@').nth(3).unwrap().parse().unwrap())
+            .collect();
+        v.sort_unstable();
+        v
+    };
+    assert_eq!(vpr_frames("database"), database, "VPR database images");
+    let queries: Vec<usize> = sent
+        .iter()
+        .copied()
+        .filter(|i| !database.contains(i))
+        .collect();
+    assert_eq!(vpr_frames("queries"), queries, "VPR query images");
+    let text = std::fs::read_to_string(&pairs).unwrap();
+    assert!(text.lines().count() > 0, "no pairs");
+    for line in text.lines() {
+        let frame = |name: &str| -> usize {
+            let n = name
+                .strip_prefix("frame-")
+                .and_then(|r| r.strip_suffix(".color.jpg"));
+            n.unwrap_or_else(|| panic!("{line}")).parse().unwrap()
+        };
+        let names: Vec<&str> = line.split_whitespace().collect();
+        let (q, d) = (frame(names[0]), frame(names[1]));
+        assert!(
+            sent.contains(&q) && !database.contains(&q),
+            "{line}: query {q}"
+        );
+        assert!(database.contains(&d), "{line}: {d} is no database frame");
+    }
+
+    // Without the second frame the board received, the sequence is not
+    // the one streamed: refused, naming that frame, writing nothing.
+    let short = tmp.path().join("short");
+    seven_scenes_copy(&short, sent[1] + sent.len() + 1, true);
+    for kind in ["depth.png", "pose.txt"] {
+        std::fs::remove_file(short.join(format!("frame-{:06}.{kind}", sent[1]))).unwrap();
+    }
+    let out3 = tmp.arg("out3");
+    let run = placedb(&[
+        "export",
+        "--port",
+        &board.port,
+        "-q",
+        "-o",
+        &out3,
+        "--sequence",
+        &tmp.arg("short"),
+    ]);
+    let err = stderr(&run);
+    assert_eq!(run.status.code(), Some(1), "{err}");
+    let want = format!(
+        "the device's frame 1 has timestamp {}, which no frame of the sequence has after frame 0",
+        sent[1]
+    );
+    assert!(err.contains(&want), "{want:?} not in: {err}");
+    assert!(!tmp.path().join("out3").exists());
+}

@@ -12,7 +12,7 @@ use placedb_host::board::client::Client;
 use placedb_host::board::link::LocalLink;
 use placedb_host::board::scan::StreamOptions;
 use placedb_host::board::{export, scan};
-use placedb_host::cli::export::{measure, write_from_device, StreamedWith};
+use placedb_host::cli::export::{measure, streamed_frames, write_from_device, StreamedWith};
 use placedb_host::output::exports::{self, vpr_eval, ExportTargets};
 use placedb_host::output::replace;
 use placedb_host::pipeline::{self, SolverParams};
@@ -422,10 +422,10 @@ fn a_devices_exports_are_selects() {
         voxel: Some(0.3),
         test: None,
     };
-    let mut seq = seq;
-    let measuring = measure(&mut seq, &export, &streamed, true)
-        .unwrap()
-        .unwrap();
+    // As `export --sequence` does: the frames the device labelled, then
+    // measured.
+    let seq = streamed_frames(seq, &export).unwrap();
+    let measuring = measure(&seq, &export, &streamed, true).unwrap().unwrap();
     replace::together(|outputs| write_from_device(&flags, &measuring, &seq, &export, outputs))
         .unwrap();
     assert_eq!(

@@ -84,6 +84,14 @@ pub struct Export {
     /// frames it had seen), read from a finished scan's log by [`pull`]
     /// (`None`: not read, the scan is not finished or there is no log).
     pub resumes: Option<Vec<u32>>,
+    /// Which frame of the streamed sequence each of the device's frames is
+    /// (the device's frame `k` is frame `sequence_frames[k]`), when the host
+    /// knows: a real-time replay's sent frames (`stream --realtime -o`), or
+    /// `export --sequence`'s match. [`stage`] then numbers `database.csv`
+    /// and `labels.csv` by the sequence. `None`: by the device's frames, the
+    /// same numbers when it was sent every frame. The extension file keeps
+    /// the device's numbers, which a later session goes on from.
+    pub sequence_frames: Option<Vec<usize>>,
 }
 
 /// Records `from..from + max` of the device's export (one batch, checked
@@ -277,6 +285,7 @@ pub fn export<L: Link>(
         extension: None,
         config: None,
         resumes: None,
+        sequence_frames: None,
     })
 }
 
@@ -356,7 +365,8 @@ impl Export {
             .unzip()
     }
 
-    /// The text of `database.csv` and `labels.csv`.
+    /// The text of `database.csv` and `labels.csv` as the device numbers
+    /// its frames (what `placedb export` without `--sequence` writes).
     pub fn csv(&self) -> (String, String) {
         let (timestamps, labels) = self.labels();
         output::run_csv(&self.database(), &timestamps, &labels)
@@ -445,11 +455,20 @@ pub fn export_to<L: Link>(
     from: Option<u32>,
     quiet: bool,
 ) -> Result<Export, DeviceError> {
-    export_to_with(client, out, from, quiet, &ExportOptions::default(), &[])
+    export_to_with(
+        client,
+        out,
+        from,
+        quiet,
+        &ExportOptions::default(),
+        &[],
+        None,
+    )
 }
 
-/// [`export_to`] with `opts`, and `extra` files (name, text) written into
-/// `out` with the export's.
+/// [`export_to`] with `opts`, `extra` files (name, text) written into
+/// `out` with the export's, and the tables numbered by the sequence's
+/// `sequence_frames` if given ([`Export::sequence_frames`]).
 pub fn export_to_with<L: Link>(
     client: &mut Client<L>,
     out: &Path,
@@ -457,9 +476,11 @@ pub fn export_to_with<L: Link>(
     quiet: bool,
     opts: &ExportOptions,
     extra: &[(&str, String)],
+    sequence_frames: Option<&[usize]>,
 ) -> Result<Export, DeviceError> {
     output::check_database_dir(out)?;
-    let export = pull(client, out, from, quiet, opts)?;
+    let mut export = pull(client, out, from, quiet, opts)?;
+    export.sequence_frames = sequence_frames.map(<[usize]>::to_vec);
     replace::together(|outputs| stage(outputs, out, &export, None, extra))?;
     finished(out)?;
     Ok(export)
@@ -582,9 +603,10 @@ fn phase_bar(phase: &'static str) -> ProgressBar {
 
 /// Writes `export` as output `out` of the run writing `outputs`:
 /// `database.csv`, `labels.csv` (with the session columns for a scan of
-/// several sessions), `metrics.json` (with the metrics `on` measured on the
-/// streamed sequence, if given), the extension file of a finished scan, and
-/// the `extra` files.
+/// several sessions; numbered by the sequence when
+/// [`Export::sequence_frames`] says how), `metrics.json` (with the metrics
+/// `on` measured on the streamed sequence, if given), the extension file of
+/// a finished scan, and the `extra` files.
 pub fn stage(
     outputs: &mut Outputs,
     out: &Path,
@@ -607,6 +629,7 @@ pub fn stage(
         &labels,
         &export.metrics(on),
         sessions,
+        export.sequence_frames.as_deref(),
     )?;
     if let Some(ext) = &export.extension {
         extension::write(&dir.join(extension::FILE_NAME), ext)?;

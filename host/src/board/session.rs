@@ -162,19 +162,32 @@ impl<L: Link> Session<L> {
     /// [`Session::export`] into directory `dir`: `database.csv`,
     /// `labels.csv`, `metrics.json`, as `placedb export -o DIR` writes them.
     pub fn export_to(&mut self, dir: &std::path::Path) -> Result<Export, DeviceError> {
-        self.export_to_with(dir, &[])
+        self.export_to_with(dir, &[], None)
     }
 
     /// [`Session::export_to`] with `extra` files (name, text) written into
-    /// `dir` with the export's, all or nothing.
+    /// `dir` with the export's, all or nothing, and `database.csv` and
+    /// `labels.csv` numbered by the camera's frames when some were not
+    /// pushed: `sequence_frames[k]` is the frame the device's frame `k` was
+    /// ([`Export::sequence_frames`]; the frames [`Session::try_push_frame`]
+    /// sent, in order).
     pub fn export_to_with(
         &mut self,
         dir: &std::path::Path,
         extra: &[(&str, String)],
+        sequence_frames: Option<&[usize]>,
     ) -> Result<Export, DeviceError> {
         self.state.drain(&mut self.client)?;
         let opts = ExportOptions::default();
-        export::export_to_with(&mut self.client, dir, None, true, &opts, extra)
+        export::export_to_with(
+            &mut self.client,
+            dir,
+            None,
+            true,
+            &opts,
+            extra,
+            sequence_frames,
+        )
     }
 
     /// After a push refused with `StorageFull` (the device's flash log is

@@ -6,6 +6,7 @@ use super::{print_dataset, Ros2Args};
 use crate::board::client::connect;
 use crate::board::error::DeviceError;
 use crate::board::export::{self, export_to, Export, ExportOptions};
+use crate::board::pacing::index_ranges;
 use crate::degradation::plural;
 use crate::error::CommandError as Error;
 use crate::error::OutputError;
@@ -21,7 +22,7 @@ use placedb::protocol::{CapacitySlot, Config};
 use std::path::{Path, PathBuf};
 
 mod measure;
-pub use measure::{measure, Measuring};
+pub use measure::{measure, streamed_frames, Measuring};
 
 /// `placedb export`.
 #[derive(Args)]
@@ -43,7 +44,9 @@ pub struct ExportArgs {
     dataset: Option<PathBuf>,
     /// The sequence that was streamed (directory, ROS 2 or ROS 1 bag): the
     /// coverage metrics of metrics.json are measured on it, and --dataset,
-    /// --colmap, --vpr-eval and --pairs need it.
+    /// --colmap, --vpr-eval and --pairs need it. The device's frames are
+    /// found in it by timestamp (stream --realtime skips some) and every
+    /// output numbers them by the sequence.
     #[arg(long)]
     sequence: Option<PathBuf>,
     /// With --dataset: the sequence's layout (detected when omitted).
@@ -143,7 +146,7 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
         crate::output::exports::pairs::names(seq, file)?;
     }
     let mut client = connect(&a.port)?;
-    let export = export::pull(
+    let mut export = export::pull(
         &mut client,
         &a.out,
         a.from,
@@ -160,8 +163,7 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
         }
         e => e,
     })?;
-    let mut seq = seq;
-    let measuring = match &mut seq {
+    let (seq, measuring) = match seq {
         Some(seq) => {
             if let Some(dir) = &a.dataset {
                 if export.labels().1.is_empty() {
@@ -180,9 +182,14 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
                     .into());
                 }
             }
-            measure::measure(seq, &export, &a.streamed, a.quiet)?
+            let seq = measure::streamed_frames(seq, &export)?;
+            // The tables name the device's frames as the exports do: by
+            // their numbers in the sequence.
+            export.sequence_frames = Some(seq.frames.iter().map(|f| f.index).collect());
+            let measuring = measure::measure(&seq, &export, &a.streamed, a.quiet)?;
+            (Some(seq), measuring)
         }
-        None => None,
+        None => (None, None),
     };
     // The export, its dataset and exports appear together, or none does.
     let (dataset, exported) = replace::together(|outputs| {
@@ -212,6 +219,9 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
     })?;
     export::finished(&a.out)?;
     print_exported(&a.out, &export, a.quiet);
+    if let (Some(seq), false) = (&seq, a.quiet) {
+        print_numbered(seq);
+    }
     if let Some((dir, d)) = &dataset {
         print_dataset(dir, d);
     }
@@ -219,6 +229,24 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
         println!("{line}");
     }
     Ok(())
+}
+
+/// The line saying which frames of `seq` (cut to the device's by
+/// [`streamed_frames`]) the device received, when it was not sent every
+/// frame up to its last: the outputs number them by the sequence.
+fn print_numbered(seq: &Sequence) {
+    let numbers: Vec<usize> = seq.frames.iter().map(|f| f.index).collect();
+    if numbers.iter().copied().eq(0..numbers.len()) {
+        return;
+    }
+    let last = numbers.last().map_or(0, |n| n + 1);
+    println!(
+        "  numbered by {}'s frames: the device received {} of its first {last} ({}; the others, \
+         skipped by stream --realtime, have no row in labels.csv)",
+        seq.name,
+        plural(numbers.len() as u64, "frame", "frames"),
+        index_ranges(&numbers)
+    );
 }
 
 /// `placedb export`: pulls every record from the device on `port` and

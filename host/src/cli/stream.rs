@@ -81,7 +81,7 @@ pub struct StreamArgs {
     /// Replay at the sequence's recorded rate, as a live camera delivers it:
     /// a frame due while the device is still busy with earlier ones is
     /// skipped (named in the output and in skipped.csv with -o; it has no
-    /// label) instead of waiting.
+    /// label) instead of waiting. -o numbers the frames by the sequence.
     /// The camera's rate is the layout's: a stamped sequence (TUM, ROS 2,
     /// the reference layout with timestamps) at its stamps; one that only
     /// numbers its frames (7-Scenes) at 30 frames/s by position, so gaps in
@@ -321,7 +321,7 @@ pub fn stream_cmd(
     match out {
         Some(dir) => {
             let opts = recovery.export_options();
-            let export = export::export_to_with(&mut client, dir, None, quiet, &opts, &[])?;
+            let export = export::export_to_with(&mut client, dir, None, quiet, &opts, &[], None)?;
             super::export::print_exported(dir, &export, quiet);
         }
         None => println!("  pull the result with: placedb export --port {port} -o DIR"),

@@ -13,10 +13,13 @@
 //!   database/               the database frames alone, same layout (its classes.csv: its frames)
 //! ```
 //!
-//! `NNNNNN` is the frame's index in the sequence, so names sort in frame
-//! order and `DIR` and `DIR/database` read back as the reference layout
-//! (`--format vprdb`). A frame's class is the index of the database frame
-//! that covers it (itself for a database frame), as in `labels.csv`.
+//! `NNNNNN` is the frame's index in the sequence
+//! ([`FrameInfo::index`](crate::sequence::FrameInfo::index): a
+//! device's frames, cut from the sequence it was streamed, keep theirs), so
+//! names sort in frame order and `DIR` and `DIR/database` read back as the
+//! reference layout (`--format vprdb`). A frame's class is the index of the
+//! database frame that covers it (itself for a database frame), as in
+//! `labels.csv`.
 //! Colour files are copied as they are; colour held in the sequence itself
 //! (a ROS 2 bag's colour topic) is written as PNG. When some frames have no
 //! colour, `color/` is left out (the layout needs one per depth image).
@@ -74,9 +77,9 @@ enum Color {
     Held,
 }
 
-/// Writes the dataset of `seq` labelled by `labels` (one class, a frame
-/// index, per frame from 0; a device's export may hold fewer frames than the
-/// sequence) into `dir`.
+/// Writes the dataset of `seq` labelled by `labels` (one class, a frame's
+/// position in `seq`, per frame from 0; a device's export may hold fewer
+/// frames than the sequence) into `dir`.
 pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSummary, OutputError> {
     if labels.len() > seq.frames.len() {
         return Err(OutputError::Mismatch(format!(
@@ -91,7 +94,8 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
         .find(|&(_, &c)| c >= labels.len() || labels[c] != c)
     {
         return Err(OutputError::Mismatch(format!(
-            "frame {i} has class {c}, which is not a database frame"
+            "frame {} has class {c}, which is not a database frame",
+            seq.frames[i].index
         )));
     }
     let frames: Vec<usize> = (0..labels.len()).collect();
@@ -113,7 +117,8 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
             std::fs::create_dir_all(d.join("color")).map_err(OutputError::writing(d))?;
         }
     }
-    let name = |i: usize| format!("{i:06}");
+    // Named by its number in the sequence, not its position in `seq`.
+    let name = |i: usize| format!("{:06}", seq.frames[i].index);
     frames
         .par_iter()
         .try_for_each(|&i| -> Result<(), OutputError> {
@@ -162,7 +167,7 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
                     }
                     _ => {
                         let img = seq.source.color(i)?.ok_or_else(|| {
-                            OutputError::Mismatch(format!("frame {i}: colour vanished"))
+                            OutputError::Mismatch(format!("{}: colour vanished", name(i)))
                         })?;
                         for t in &targets {
                             let path = t.join("color").join(format!("{}.png", name(i)));
@@ -190,10 +195,11 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
         for &i in which {
             let _ = writeln!(
                 s,
-                "{},{i},{:.6},{},{}",
+                "{},{},{:.6},{},{}",
                 name(i),
+                seq.frames[i].index,
                 seq.frames[i].timestamp,
-                labels[i],
+                seq.frames[labels[i]].index,
                 u8::from(labels[i] == i)
             );
         }

@@ -51,14 +51,57 @@ pub fn rows_from_records(database: &[placedb::DbRecord]) -> Vec<DbRow> {
         .collect()
 }
 
+/// Which frame of its sequence each frame of a run is, as the index
+/// columns of `database.csv` and `labels.csv` (and `class_index`) write it:
+/// frame `k` of the run is frame `numbers[k]` of the sequence. A device
+/// numbers the frames it received 0, 1, 2, ...; when it was not sent every
+/// frame (`stream --realtime` skips frames while it is busy) the host
+/// knows which ones it got. `None`: frame `k` is frame `k`.
+pub type Numbers<'a> = Option<&'a [usize]>;
+
+/// Frame `k`'s number by `numbers` ([`Numbers`]); checked by
+/// [`check_numbers`] first.
+fn number(numbers: Numbers<'_>, k: usize) -> usize {
+    numbers.map_or(k, |n| n[k])
+}
+
+/// Refuses `numbers` that do not name, in increasing order, a sequence
+/// frame for every frame the tables name (the database rows' frames, each
+/// labelled frame and its class).
+fn check_numbers(
+    numbers: Numbers<'_>,
+    rows: &[DbRow],
+    labels: &[usize],
+) -> Result<(), OutputError> {
+    let Some(n) = numbers else { return Ok(()) };
+    if n.windows(2).any(|w| w[0] >= w[1]) {
+        return Err(OutputError::Mismatch(
+            "the frames' numbers in the sequence are not increasing".into(),
+        ));
+    }
+    let named = rows.iter().map(|r| r.0).chain(labels.iter().copied());
+    match named.chain(labels.len().checked_sub(1)).max() {
+        Some(k) if k >= n.len() => Err(OutputError::Mismatch(format!(
+            "frame {k} of the run has no number in the sequence (it numbers {} frames)",
+            n.len()
+        ))),
+        _ => Ok(()),
+    }
+}
+
 /// The text of `database.csv`: header and one line per database frame, in
 /// sequence order.
 pub fn database_csv(rows: &[DbRow]) -> String {
+    database_csv_numbered(rows, None)
+}
+
+/// [`database_csv`] with the frames numbered by `numbers`.
+fn database_csv_numbered(rows: &[DbRow], numbers: Numbers<'_>) -> String {
     let mut s = String::from("index,timestamp,tx,ty,tz,qx,qy,qz,qw\n");
     let mut rows = rows.to_vec();
     rows.sort_by_key(|r| r.0);
     for (i, ts, p) in rows {
-        let _ = write!(s, "{i},{ts:.6}");
+        let _ = write!(s, "{},{ts:.6}", number(numbers, i));
         for c in p {
             let _ = write!(s, ",{c}");
         }
@@ -69,9 +112,15 @@ pub fn database_csv(rows: &[DbRow]) -> String {
 
 /// The text of `labels.csv`: `index,timestamp,class_index` for every frame.
 pub fn labels_csv(timestamps: &[f64], labels: &[usize]) -> String {
+    labels_csv_numbered(timestamps, labels, None)
+}
+
+/// [`labels_csv`] with the frames (and classes) numbered by `numbers`: a
+/// frame the run has no label of (one a device never received) has no row.
+fn labels_csv_numbered(timestamps: &[f64], labels: &[usize], numbers: Numbers<'_>) -> String {
     let mut s = String::from("index,timestamp,class_index\n");
-    for (i, (ts, l)) in timestamps.iter().zip(labels).enumerate() {
-        let _ = writeln!(s, "{i},{ts:.6},{l}");
+    for (i, (ts, &l)) in timestamps.iter().zip(labels).enumerate() {
+        let _ = writeln!(s, "{},{ts:.6},{}", number(numbers, i), number(numbers, l));
     }
     s
 }
@@ -133,7 +182,8 @@ pub fn stage_database_dir(outputs: &mut Outputs, dir: &Path) -> Result<PathBuf, 
 /// Writes `database.csv`, `labels.csv` and `metrics.json` into directory
 /// `dir` (one from [`stage_database_dir`]); `metrics` must be a flat JSON
 /// object. With `sessions` (a run of several sessions), the two tables
-/// carry the session columns ([`session_columns`]).
+/// carry the session columns ([`session_columns`]); with `numbers`, their
+/// index columns number the frames by the sequence ([`Numbers`]).
 pub fn write_database_dir(
     dir: &Path,
     rows: &[DbRow],
@@ -141,17 +191,51 @@ pub fn write_database_dir(
     labels: &[usize],
     metrics: &serde_json::Value,
     sessions: Option<session_columns::SessionOf<'_>>,
+    numbers: Numbers<'_>,
 ) -> Result<(), OutputError> {
+    check_numbers(numbers, rows, labels)?;
     let metrics_path = dir.join("metrics.json");
     let metrics = metrics_json::text(metrics).map_err(OutputError::writing(&metrics_path))?;
     let (database, labels) = match sessions {
         Some(session_of) => (
-            session_columns::database_csv(rows, session_of),
-            session_columns::labels_csv(timestamps, labels, session_of),
+            session_columns::database_csv(rows, session_of, numbers),
+            session_columns::labels_csv(timestamps, labels, session_of, numbers),
         ),
-        None => (database_csv(rows), labels_csv(timestamps, labels)),
+        None => (
+            database_csv_numbered(rows, numbers),
+            labels_csv_numbered(timestamps, labels, numbers),
+        ),
     };
     replace::write_text(&dir.join("database.csv"), &database)?;
     replace::write_text(&dir.join("labels.csv"), &labels)?;
     replace::write_text(&metrics_path, &metrics)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_name_the_frames_and_classes_by_the_sequence() {
+        // A device received frames 0, 4 and 9 of the sequence; its frame 2
+        // (frame 9) is the database frame.
+        let rows: Vec<DbRow> = vec![(2, 9.0, [0.0; 7])];
+        let numbers = [0, 4, 9];
+        assert!(check_numbers(Some(&numbers), &rows, &[2, 2, 2]).is_ok());
+        assert_eq!(
+            labels_csv_numbered(&[0.0, 4.0, 9.0], &[2, 2, 2], Some(&numbers)),
+            "index,timestamp,class_index\n0,0.000000,9\n4,4.000000,9\n9,9.000000,9\n"
+        );
+        assert!(
+            database_csv_numbered(&rows, Some(&numbers)).ends_with("\n9,9.000000,0,0,0,0,0,0,0\n")
+        );
+        assert_eq!(database_csv_numbered(&rows, None), database_csv(&rows));
+        // A frame without a number, or numbers out of order, are refused.
+        let e = check_numbers(Some(&numbers[..2]), &rows, &[2, 2, 2]).unwrap_err();
+        assert!(
+            e.to_string().contains("frame 2 of the run has no number"),
+            "{e}"
+        );
+        assert!(check_numbers(Some(&[0, 4, 4]), &rows, &[2, 2, 2]).is_err());
+    }
 }

@@ -172,6 +172,7 @@ impl ExtendedSelection {
                 &o.labels,
                 &self.json,
                 Some(&session_of),
+                None,
             )?;
             let path = dir.join("topview.png");
             annotate::render(&self.view, &self.caption)

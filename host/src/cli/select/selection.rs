@@ -128,6 +128,7 @@ impl Selection {
                         &o.labels,
                         &self.json,
                         None,
+                        None,
                     )
                 },
                 || {

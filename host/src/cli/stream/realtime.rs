@@ -52,8 +52,10 @@ fn numbered(count: usize) -> String {
 /// `placedb stream --realtime` on `link` (the device on `port`):
 /// [`stream_realtime`] at [`Pace::of`]`(seq, rate)`, refused if it measured nothing
 /// ([`RealtimeReport::check_measured`]); prints what was skipped and the
-/// database the device got, and with `out` exports it there, with
-/// `skipped.csv` (sequence frame and timestamp of every skipped frame).
+/// database the device got, and with `out` exports it there numbered by
+/// the sequence's frames (the device numbers only those it received), with
+/// `skipped.csv` (sequence frame and timestamp of every skipped frame,
+/// which has no row in `labels.csv`).
 #[allow(clippy::too_many_arguments)]
 pub fn realtime_on<L: Link>(
     link: L,
@@ -108,11 +110,15 @@ pub fn realtime_on<L: Link>(
             for &i in &report.skipped {
                 csv.push_str(&format!("{i},{:.6}\n", seq.frames[i].timestamp));
             }
-            // skipped.csv is part of the export's directory: both or neither.
-            session.export_to_with(dir, &[("skipped.csv", csv)])?;
+            // skipped.csv is part of the export's directory: both or
+            // neither. The tables name the sent frames as skipped.csv names
+            // the others, by their place in the sequence, so that `export
+            // --sequence SEQ` and its exports name them alike.
+            session.export_to_with(dir, &[("skipped.csv", csv)], Some(&report.sent))?;
             let path = dir.join("skipped.csv");
             println!(
-                "  {} skipped frames listed in {}",
+                "  {} numbered by the sequence's frames; {} skipped frames listed in {}",
+                dir.join("{database,labels}.csv").display(),
                 report.skipped.len(),
                 path.display()
             );

@@ -78,7 +78,7 @@ pub fn write(dir: &Path, sel: &Selection) -> Result<usize, OutputError> {
             text,
             "{} {qw} {qx} {qy} {qz} {tx} {ty} {tz} 1 {}\n",
             id + 1,
-            image_name(*i)
+            image_name(sel.seq.frames[*i].index)
         );
     }
     let points = "# 3D point list with one line of data per point:\n\
@@ -95,13 +95,13 @@ pub fn write(dir: &Path, sel: &Selection) -> Result<usize, OutputError> {
     rows.par_iter()
         .try_for_each(|&(i, _, _): &DbRow| -> Result<(), OutputError> {
             let bytes = super::image::frame_jpeg(sel.seq, i)?;
-            let path = images.join(image_name(i));
+            let path = images.join(image_name(sel.seq.frames[i].index));
             std::fs::write(&path, bytes).map_err(OutputError::writing(&path))
         })?;
-    let sources = super::sources_csv(
-        rows.iter()
-            .map(|&(i, _, _)| (format!("images/{}", image_name(i)), sel.seq, i)),
-    );
+    let sources = super::sources_csv(rows.iter().map(|&(i, _, _)| {
+        let name = image_name(sel.seq.frames[i].index);
+        (format!("images/{name}"), sel.seq, i)
+    }));
     let path = dir.join(super::SOURCES);
     std::fs::write(&path, sources).map_err(OutputError::writing(&path))?;
     Ok(rows.len())

@@ -27,8 +27,8 @@ pub fn frame_jpeg(seq: &Sequence, i: usize) -> Result<Vec<u8>, OutputError> {
             Ok(())
         } else {
             Err(OutputError::Mismatch(format!(
-                "frame {i}: {what} is {}x{}, the depth images (whose intrinsics the export's camera has) are {}x{}",
-                size.0, size.1, seq.size.0, seq.size.1
+                "frame {}: {what} is {}x{}, the depth images (whose intrinsics the export's camera has) are {}x{}",
+                frame.index, size.0, size.1, seq.size.0, seq.size.1
             )))
         }
     };

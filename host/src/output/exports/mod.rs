@@ -132,10 +132,13 @@ impl Selection<'_> {
     }
 }
 
-/// The name of frame `i`'s image in the COLMAP export, and in the pairs
-/// of a sequence without colour files ([`pairs::names`]).
-pub fn image_name(i: usize) -> String {
-    format!("{i:06}.jpg")
+/// The name of the image of the frame numbered `n` in its sequence (its
+/// [`FrameInfo::index`](crate::sequence::FrameInfo::index), which is its
+/// position unless the sequence was cut to the frames a device received)
+/// in the COLMAP export, and in the pairs of a sequence without colour
+/// files ([`pairs::names`]).
+pub fn image_name(n: usize) -> String {
+    format!("{n:06}.jpg")
 }
 
 /// The name of [`SOURCES`]: which sequence file each exported image is.
@@ -143,7 +146,8 @@ pub const SOURCES: &str = "sources.csv";
 
 /// `sources.csv` of an export whose images have names of its own
 /// (`images/000042.jpg`, `database/@e@n@42@.jpg`): a row per image
-/// (`image`, its path in the export), with its sequence's frame index and
+/// (`image`, its path in the export; `i`, the frame's position in `seq`),
+/// with the frame's index in its sequence ([`crate::sequence::FrameInfo::index`]) and
 /// timestamp and its `source`: the colour image file it came from, relative
 /// to the sequence's directory as its layout names it; else (a bag's colour
 /// topic, or a rendering of the depth) the frame's depth image name, as
@@ -169,8 +173,9 @@ pub fn sources_csv<'a>(images: impl IntoIterator<Item = (String, &'a Sequence, u
             (None, _) => format!("depth:{}", f.depth_name),
         };
         csv.push_str(&format!(
-            "{},{i},{:.6},{}\n",
+            "{},{},{:.6},{}\n",
             quoted(&image),
+            f.index,
             f.timestamp,
             quoted(&source)
         ));
@@ -230,7 +235,7 @@ pub fn write_all(
             // These names are no file of the user's: say so where a script
             // reading stdout does not trip over it.
             let why = match first {
-                Some(i) => format!("frame {i} of the sequence has no colour image file"),
+                Some(n) => format!("frame {n} of the sequence has no colour image file"),
                 None => "the sequence has no colour image files".into(),
             };
             crate::warning::warn(format!(

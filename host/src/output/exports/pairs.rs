@@ -28,9 +28,9 @@ pub enum Names {
     /// Every frame's colour file, relative to the sequence's root with `/`
     /// separators, by frame index.
     Colour(Vec<String>),
-    /// [`image_name`]s (`NNNNNN.jpg`): the first frame without a colour
-    /// file when others have one, `None` when none has (a ROS 2 bag, a
-    /// depth-only layout, the built-in renderer).
+    /// [`image_name`]s (`NNNNNN.jpg`): the number of the first frame
+    /// without a colour file when others have one, `None` when none has (a
+    /// ROS 2 bag, a depth-only layout, the built-in renderer).
     Index(Option<usize>),
 }
 
@@ -43,17 +43,18 @@ pub fn names(seq: &Sequence, file: &Path) -> Result<Names, OutputError> {
         return Ok(Names::Index(None));
     };
     let mut names = Vec::with_capacity(seq.frames.len());
-    for (i, frame) in seq.frames.iter().enumerate() {
+    for frame in &seq.frames {
         let Some(colour) = &frame.color_path else {
             let some = seq.frames.iter().any(|f| f.color_path.is_some());
-            return Ok(Names::Index(some.then_some(i)));
+            return Ok(Names::Index(some.then_some(frame.index)));
         };
         names.push(colour_name(root, colour).map_err(|why| {
             OutputError::Mismatch(format!(
-                "--pairs {}: frame {i}'s colour image {} {why}; hloc's pairs name an image \
+                "--pairs {}: frame {}'s colour image {} {why}; hloc's pairs name an image \
                  relative to its image_dir (here {}) and split each line at whitespace into \
                  exactly two names. Rename the colour files, or leave out --pairs",
                 file.display(),
+                frame.index,
                 colour.display(),
                 root.display()
             ))
@@ -115,7 +116,7 @@ pub fn text(sel: &Selection, names: &Names) -> Result<String, OutputError> {
     }
     let name = |i: usize| match names {
         Names::Colour(n) => n[i].clone(),
-        Names::Index(_) => image_name(i),
+        Names::Index(_) => image_name(sel.seq.frames[i].index),
     };
     let database: Vec<usize> = sel.database_rows().iter().map(|r| r.0).collect();
     let mut s = String::new();

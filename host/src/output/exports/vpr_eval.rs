@@ -23,9 +23,11 @@ pub fn is_export(dir: &Path) -> bool {
     dir.join("database").is_dir() && dir.join("queries").is_dir()
 }
 
-/// The file name of a frame at plane coordinates `[east, north]`.
-pub fn name(i: usize, [east, north]: [f64; 2]) -> String {
-    format!("@{east:.4}@{north:.4}@{i:06}@.jpg")
+/// The file name of the frame numbered `n` in its sequence
+/// ([`crate::sequence::FrameInfo::index`]) at plane coordinates `[east,
+/// north]`.
+pub fn name(n: usize, [east, north]: [f64; 2]) -> String {
+    format!("@{east:.4}@{north:.4}@{n:06}@.jpg")
 }
 
 /// `(east, north)` and the frame index of a name written by [`name`].
@@ -73,7 +75,7 @@ pub fn write(dir: &Path, sel: &Selection) -> Result<(usize, usize), OutputError>
     jobs.par_iter()
         .try_for_each(|&(seq, i, en, d)| -> Result<(), OutputError> {
             let bytes = super::image::frame_jpeg(seq, i)?;
-            let path = d.join(name(i, en));
+            let path = d.join(name(seq.frames[i].index, en));
             std::fs::write(&path, bytes).map_err(OutputError::writing(&path))
         })?;
     let sources = super::sources_csv(jobs.iter().map(|&(seq, i, en, d)| {
@@ -82,7 +84,11 @@ pub fn write(dir: &Path, sel: &Selection) -> Result<(usize, usize), OutputError>
         } else {
             "queries"
         };
-        (format!("{folder}/{}", name(i, en)), seq, i)
+        (
+            format!("{folder}/{}", name(seq.frames[i].index, en)),
+            seq,
+            i,
+        )
     }));
     let path = dir.join(super::SOURCES);
     std::fs::write(&path, sources).map_err(OutputError::writing(&path))?;
