@@ -102,7 +102,9 @@ fn run_rp2040(a: DeviceArgs) -> Result<Option<i32>, Error> {
         unique_id: a.unique_id.unwrap_or(rp2040::DEFAULT_UNIQUE_ID),
         ..Rp2040Options::default()
     };
-    rp2040::check_setup(&firmware, &options)?;
+    // Refusals (a missing firmware, a port in use, a flash file of another
+    // size) come before anything is printed or made.
+    rp2040::prepare(&firmware, &options)?;
     println!("emulated Raspberry Pi Pico (rp2040js, profile ram256k), USB CDC-ACM bridged to TCP");
     println!(
         "  flash timing {flash_timing}: {:?} per sector erase, {:?} per page program (W25Q16JV datasheet), in emulated time",

@@ -4,7 +4,7 @@
 
 use crate::board::error::DeviceError;
 use crate::board::link::{Link, TcpLink};
-use std::io::{self, Read, Write};
+use std::io::{self, Read};
 use std::net::{TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
@@ -43,56 +43,17 @@ pub const FLASH_FILE_SIZE: u64 = 16 << 20;
 /// QEMU object id of the memory backend holding the flash file.
 const FLASH_BACKEND_ID: &str = "placedb-flash";
 
+/// The QEMU board's flash file ([`super::prepare_flash_file`]).
+pub const FLASH_FILE: super::FlashFile = super::FlashFile {
+    size: FLASH_FILE_SIZE,
+    of: "the QEMU board's flash (its PSRAM)",
+};
+
 /// Creates the flash file `path` (holding [`FLASH_FILE_SIZE`] bytes of 0xFF, an
 /// erased chip) if it is missing or empty; leaves an existing one as it is.
 /// Errors if it exists with another size (QEMU would refuse it).
 pub fn prepare_flash_file(path: &Path) -> io::Result<()> {
-    match std::fs::metadata(path) {
-        Ok(meta) if meta.len() == FLASH_FILE_SIZE => return Ok(()),
-        Ok(meta) if meta.len() != 0 => {
-            return Err(io::Error::new(
-                io::ErrorKind::InvalidData,
-                format!(
-                    "flash file {} holds {} bytes, expected {FLASH_FILE_SIZE} (16 MiB)",
-                    path.display(),
-                    meta.len()
-                ),
-            ))
-        }
-        Ok(_) => {}
-        Err(e) if e.kind() == io::ErrorKind::NotFound => {}
-        Err(e) => return Err(e),
-    }
-    // Written beside the target and renamed into place, so a file cut short
-    // by a crash is never taken for a flash image.
-    let mut name = path.file_name().unwrap_or_default().to_os_string();
-    name.push(format!(".tmp{}", std::process::id()));
-    let tmp = path.with_file_name(name);
-    let written = (|| {
-        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            std::fs::create_dir_all(dir)?;
-        }
-        let mut file = std::fs::File::create(&tmp)?;
-        let erased = vec![0xFFu8; 1 << 20];
-        for _ in 0..FLASH_FILE_SIZE / (1 << 20) {
-            file.write_all(&erased)?;
-        }
-        file.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if written.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    written.map_err(|e| {
-        io::Error::new(
-            e.kind(),
-            format!(
-                "cannot create flash file {}: {}",
-                path.display(),
-                crate::error::io_words(&e)
-            ),
-        )
-    })
+    super::prepare_flash_file(path, FLASH_FILE)
 }
 
 /// `path` as a QEMU option value: commas doubled.
@@ -492,15 +453,7 @@ pub fn spawn_foreground(
     }
     // The user's port first: a port in use is refused before anything
     // (the flash file included) is made.
-    let listener = TcpListener::bind(("127.0.0.1", port)).map_err(|e| {
-        DeviceError::Io(io::Error::new(
-            e.kind(),
-            format!(
-                "cannot listen on 127.0.0.1:{port}: {}",
-                crate::error::io_words(&e)
-            ),
-        ))
-    })?;
+    let listener = super::bind_port(port)?;
     let port = listener.local_addr()?.port();
     if let Some(f) = flash {
         prepare_flash_file(f)?;

@@ -172,6 +172,29 @@ pub fn harness_command(firmware: &Path, options: &Rp2040Options) -> Command {
     command
 }
 
+/// The Pico's flash file: its 2 MiB QSPI flash, the firmware in the first
+/// MiB, the log in the second ([`super::prepare_flash_file`]).
+pub const FLASH_FILE: super::FlashFile = super::FlashFile {
+    size: 2 << 20,
+    of: "the Pico's flash",
+};
+
+/// Everything the harness needs, before it starts: what [`check_setup`]
+/// checks, the port (one in use refused), and the flash file, made erased
+/// if missing and refused if of another size ([`super::prepare_flash_file`]:
+/// the harness would only print its usage).
+pub fn prepare(firmware: &Path, options: &Rp2040Options) -> Result<(), DeviceError> {
+    check_setup(firmware, options)?;
+    if options.port != 0 {
+        // Only tried here: the harness listens on it.
+        drop(super::bind_port(options.port)?);
+    }
+    if let Some(flash) = &options.flash {
+        super::prepare_flash_file(flash, FLASH_FILE)?;
+    }
+    Ok(())
+}
+
 /// Checks what the harness needs before starting it, with a message that
 /// says how to fix each thing.
 pub fn check_setup(firmware: &Path, options: &Rp2040Options) -> io::Result<()> {
@@ -210,7 +233,10 @@ impl Rp2040 {
     /// Boots `firmware` with `options`, waits for USB enumeration and
     /// connects to the bridged port.
     pub fn start_with(firmware: &Path, options: &Rp2040Options) -> io::Result<Rp2040> {
-        check_setup(firmware, options)?;
+        prepare(firmware, options).map_err(|e| match e {
+            DeviceError::Io(e) => e,
+            other => io::Error::other(other.to_string()),
+        })?;
         let mut command = harness_command(firmware, options);
         command.stdout(Stdio::piped()).stderr(Stdio::piped());
         let mut child = command.spawn().map_err(|e| {
@@ -526,8 +552,9 @@ fn collect_lines(
 
 /// The emulated Pico of `placedb device --rp2040`, started in the
 /// foreground on `port` (0: a free port, which the harness prints): returns
-/// the harness's process. `check_setup` has refused a missing firmware,
-/// emulator or flash file before it starts. Wait for it with
+/// the harness's process. [`prepare`] has refused a missing firmware or
+/// emulator, a port in use or a flash file of another size before it
+/// starts. Wait for it with
 /// [`super::wait_in_foreground`], which stops the emulator first on Ctrl-C,
 /// SIGTERM or SIGHUP ([`super::foreground`]).
 pub fn spawn_foreground(

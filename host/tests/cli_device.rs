@@ -1,0 +1,89 @@
+//! `placedb device --qemu` and `--rp2040` as a user starts them (issue 41
+//! item 8): what they refuse before anything starts. A flash file of
+//! another size (a few bytes, the other board's, a folder) or a port in
+//! use is refused in words (the file, its size and the size expected; the
+//! port) with status 1, before anything is printed, made or changed.
+//!
+//! Needs what host/tests/board_qemu.rs and host/tests/board_rp2040.rs need
+//! (`qemu-system-arm`; Node 20, `npm ci` in boards/rp-pico/emulator and the
+//! boot ROM).
+
+mod cli_common;
+
+use cli_common::{names, placedb, stderr, TempDir};
+
+/// The boards: their flag, their profile and the size of their flash file.
+const BOARDS: [(&str, &str, u64); 2] = [
+    ("--qemu", "ram512k", 16 << 20),
+    ("--rp2040", "ram256k", 2 << 20),
+];
+
+/// `placedb device BOARD ARGS` refused before it starts: status 1,
+/// nothing on stdout, the returned stderr in words.
+fn refused(board: &str, args: &[&str]) -> String {
+    let firmware = cli_common::device::firmware(board);
+    let mut all = vec!["device", board, "--firmware", firmware.to_str().unwrap()];
+    all.extend_from_slice(args);
+    let run = placedb(&all);
+    let err = stderr(&run);
+    assert_eq!(run.status.code(), Some(1), "{board} {args:?}: {err}");
+    assert!(
+        run.stdout.is_empty(),
+        "{board} {args:?} printed before it refused: {}",
+        String::from_utf8_lossy(&run.stdout)
+    );
+    for rust in ["os error", "Kind(", "Custom {", "Error {", "Io("] {
+        assert!(!err.contains(rust), "{rust:?} in: {err}");
+    }
+    err
+}
+
+#[test]
+fn a_flash_file_of_another_size_is_refused_before_anything_starts() {
+    let tmp = TempDir::new("flash-size");
+    std::fs::create_dir(tmp.path().join("folder")).unwrap();
+    for (board, _, size) in BOARDS {
+        let (_, _, other) = BOARDS.into_iter().find(|b| b.0 != board).unwrap();
+        for (name, bytes) in [("short.flash", 1000), ("other.flash", other)] {
+            let path = tmp.arg(name);
+            std::fs::write(&path, vec![0x5A; bytes as usize]).unwrap();
+            let before = names(tmp.path());
+            let err = refused(board, &["--flash", &path]);
+            let want = format!(
+                "flash file {path} holds {bytes} bytes, not the {size} bytes ({} MiB)",
+                size >> 20
+            );
+            assert!(err.contains(&want), "{board}: no {want:?} in: {err}");
+            assert_eq!(names(tmp.path()), before, "{board}: a file was made");
+            assert_eq!(
+                std::fs::read(&path).unwrap(),
+                vec![0x5A; bytes as usize],
+                "{board} changed {path}"
+            );
+            std::fs::remove_file(&path).unwrap();
+        }
+        let folder = tmp.arg("folder");
+        let err = refused(board, &["--flash", &folder]);
+        assert!(
+            err.contains(&format!("flash file {folder} is a folder")),
+            "{err}"
+        );
+        assert!(names(&tmp.path().join("folder")).is_empty());
+    }
+}
+
+#[test]
+fn a_port_in_use_is_refused_before_the_flash_file_is_made() {
+    let tmp = TempDir::new("port-in-use");
+    let taken = std::net::TcpListener::bind(("127.0.0.1", 0)).unwrap();
+    let port = taken.local_addr().unwrap().port().to_string();
+    for (board, _, _) in BOARDS {
+        let flash = tmp.arg("new/board.flash");
+        let err = refused(board, &["--port", &port, "--flash", &flash]);
+        assert!(
+            err.contains(&format!("port {port} of 127.0.0.1 is in use")),
+            "{board}: {err}"
+        );
+        assert!(names(tmp.path()).is_empty(), "{board} made the flash file");
+    }
+}
