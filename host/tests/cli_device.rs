@@ -1,8 +1,13 @@
 //! `placedb device --qemu` and `--rp2040` as a user starts them (issue 41
-//! item 8): what they refuse before anything starts. A flash file of
-//! another size (a few bytes, the other board's, a folder) or a port in
-//! use is refused in words (the file, its size and the size expected; the
-//! port) with status 1, before anything is printed, made or changed.
+//! item 8): what they print before a program connects, and what they
+//! refuse before anything starts.
+//!
+//! - The example commands name the board's real port (the Pico's said
+//!   `tcp:127.0.0.1:PORT`), and a command given it reaches the board.
+//! - A flash file of another size (a few bytes, the other board's, a
+//!   folder) or a port in use is refused in words (the file, its size and
+//!   the size expected; the port) with status 1, before anything is
+//!   printed, made or changed.
 //!
 //! Needs what host/tests/board_qemu.rs and host/tests/board_rp2040.rs need
 //! (`qemu-system-arm`; Node 20, `npm ci` in boards/rp-pico/emulator and the
@@ -10,6 +15,7 @@
 
 mod cli_common;
 
+use cli_common::device::Device;
 use cli_common::{names, placedb, stderr, TempDir};
 
 /// The boards: their flag, their profile and the size of their flash file.
@@ -17,6 +23,36 @@ const BOARDS: [(&str, &str, u64); 2] = [
     ("--qemu", "ram512k", 16 << 20),
     ("--rp2040", "ram256k", 2 << 20),
 ];
+
+/// The example command's port reaches the board: a stream on it runs.
+fn the_example_port_reaches_the_board(board: &str, profile: &str) {
+    let device = Device::start(board, &[]);
+    let port = device.port();
+    let run = placedb(&[
+        "stream",
+        "--port",
+        &port,
+        "--profile",
+        profile,
+        "--demo",
+        "--stride",
+        "8",
+        "--max-frames",
+        "4",
+        "-q",
+    ]);
+    assert!(run.status.success(), "{board} on {port}: {}", stderr(&run));
+}
+
+#[test]
+fn the_qemu_boards_example_commands_name_its_port() {
+    the_example_port_reaches_the_board("--qemu", "ram512k");
+}
+
+#[test]
+fn the_emulated_picos_example_commands_name_its_port() {
+    the_example_port_reaches_the_board("--rp2040", "ram256k");
+}
 
 /// `placedb device BOARD ARGS` refused before it starts: status 1,
 /// nothing on stdout, the returned stderr in words.

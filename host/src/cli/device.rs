@@ -1,7 +1,7 @@
 //! `placedb device`: an emulated board (QEMU or the Pico under rp2040js) in
 //! the foreground, its port printed.
 
-use crate::board::emulator::rp2040::{self, Rp2040Options};
+use crate::board::emulator::rp2040::{self, Foreground, Rp2040Options};
 use crate::board::emulator::{qemu, wait_in_foreground};
 use crate::board::flash_timing::FlashTiming;
 use crate::board::link::usb_serial::SERIAL_DOMAIN;
@@ -90,7 +90,8 @@ fn run_qemu(a: DeviceArgs) -> Result<Option<i32>, Error> {
     Ok(wait_in_foreground(&mut child, "QEMU")?)
 }
 
-/// `placedb device --rp2040`: the emulated Pico in the foreground.
+/// `placedb device --rp2040`: the emulated Pico in the foreground, its
+/// port printed once its firmware is up.
 fn run_rp2040(a: DeviceArgs) -> Result<Option<i32>, Error> {
     let firmware = a.firmware.unwrap_or_else(rp2040::default_firmware);
     let flash_timing = a.flash_timing;
@@ -115,8 +116,16 @@ fn run_rp2040(a: DeviceArgs) -> Result<Option<i32>, Error> {
         "  flash unique ID {:016X}: USB serial number {}:{:016X}",
         options.unique_id, SERIAL_DOMAIN, options.unique_id
     );
-    println!("  e.g. placedb stream --port tcp:127.0.0.1:PORT --profile ram256k --demo --stride 8 --max-frames 30");
-    println!("       placedb export --port tcp:127.0.0.1:PORT -o out");
+    let board = rp2040::spawn_foreground(&firmware, &options)?;
+    let (mut child, port) = match board {
+        Foreground::Up(child, port) => (child, port),
+        Foreground::Stopped(signal) => return Ok(Some(signal)),
+    };
+    println!("emulated Pico up on port tcp:127.0.0.1:{port}");
+    println!(
+        "  e.g. placedb stream --port tcp:127.0.0.1:{port} --profile ram256k --demo --stride 8 --max-frames 30"
+    );
+    println!("       placedb export --port tcp:127.0.0.1:{port} -o out");
     match &a.flash {
         Some(f) => println!(
             "  flash kept in {} (2 MiB): after a restart, `placedb stream --resume` goes on with the scan",
@@ -125,6 +134,5 @@ fn run_rp2040(a: DeviceArgs) -> Result<Option<i32>, Error> {
         None => println!("  no --flash file: the board starts with an erased flash every time"),
     }
     println!("  Ctrl-C (or SIGTERM, SIGHUP) stops it, the emulator with it");
-    let mut child = rp2040::spawn_foreground(&firmware, &options)?;
     Ok(wait_in_foreground(&mut child, "the RP2040 emulator")?)
 }

@@ -14,7 +14,7 @@
 use crate::board::error::DeviceError;
 use crate::board::flash_timing::FlashTiming;
 use crate::board::link::{Link, TcpLink};
-use std::io::{self, BufRead, BufReader, Read};
+use std::io::{self, BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::{Arc, Mutex};
@@ -551,23 +551,76 @@ fn collect_lines(
 }
 
 /// The emulated Pico of `placedb device --rp2040`, started in the
-/// foreground on `port` (0: a free port, which the harness prints): returns
-/// the harness's process. [`prepare`] has refused a missing firmware or
-/// emulator, a port in use or a flash file of another size before it
-/// starts. Wait for it with
-/// [`super::wait_in_foreground`], which stops the emulator first on Ctrl-C,
-/// SIGTERM or SIGHUP ([`super::foreground`]).
+/// foreground on `options.port` (0: a free port, which the harness
+/// prints) once [`prepare`] has passed: returns the harness's process once
+/// the firmware is up (enumerated on USB), or the signal that stopped it
+/// while it booted. What the harness prints goes on to placedb's stdout as
+/// it comes. Wait for the process with [`super::wait_in_foreground`], which stops the
+/// emulator first on Ctrl-C, SIGTERM or SIGHUP ([`super::foreground`]).
 pub fn spawn_foreground(
     firmware: &Path,
     options: &Rp2040Options,
-) -> Result<std::process::Child, DeviceError> {
+) -> Result<Foreground, DeviceError> {
+    let mut command = harness_command(firmware, options);
+    command.stdout(Stdio::piped());
     // The emulator ends with placedb, whatever stops it (foreground.rs).
-    super::foreground::spawn(&mut harness_command(firmware, options)).map_err(|e| {
+    let mut child = super::foreground::spawn(&mut command).map_err(|e| {
         DeviceError::Input(format!(
             "cannot start node (Node 20 or later): {}",
             crate::error::io_words(&e)
         ))
-    })
+    })?;
+    let console = Arc::new(Mutex::new(String::new()));
+    if let Some(out) = child.stdout.take() {
+        pass_on(out, Arc::clone(&console))?;
+    }
+    let text = || console.lock().map(|c| c.clone()).unwrap_or_default();
+    let up = super::foreground::wait_until(&mut child, &mut || text().contains("usb configured"))?;
+    match up {
+        None => {}
+        Some(super::foreground::Ended::Stopped(signal)) => return Ok(Foreground::Stopped(signal)),
+        Some(super::foreground::Ended::Exited(status)) => {
+            return Err(DeviceError::Io(io::Error::other(format!(
+                "the RP2040 emulator exited ({status}) before the firmware was up"
+            ))))
+        }
+    }
+    let port = listening_port(&text()).ok_or_else(|| {
+        DeviceError::Io(io::Error::other(
+            "the RP2040 emulator named no port before the firmware was up",
+        ))
+    })?;
+    Ok(Foreground::Up(child, port))
+}
+
+/// How [`spawn_foreground`] left the emulated Pico.
+pub enum Foreground {
+    /// Up: the harness's process, to wait for, and the board's port.
+    Up(Child, u16),
+    /// Stopped by this signal while it booted.
+    Stopped(i32),
+}
+
+/// Passes the harness's lines on to placedb's stdout and into `console`.
+fn pass_on(
+    from: impl Read + Send + 'static,
+    console: Arc<Mutex<String>>,
+) -> io::Result<JoinHandle<()>> {
+    thread::Builder::new()
+        .name("placedb-rp2040-stdout".into())
+        .spawn(move || {
+            for line in BufReader::new(from).lines() {
+                let Ok(line) = line else { return };
+                let mut out = io::stdout().lock();
+                let _ = writeln!(out, "{line}");
+                let _ = out.flush();
+                drop(out);
+                if let Ok(mut c) = console.lock() {
+                    c.push_str(&line);
+                    c.push('\n');
+                }
+            }
+        })
 }
 
 #[cfg(test)]
