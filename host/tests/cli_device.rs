@@ -4,10 +4,14 @@
 //!
 //! - The example commands name the board's real port (the Pico's said
 //!   `tcp:127.0.0.1:PORT`), and a command given it reaches the board.
+//! - With `--flash FILE`, what the board restored from it at boot: no
+//!   scan, or a scan of N frames, finished or not, as the board's status
+//!   says it.
 //! - A flash file of another size (a few bytes, the other board's, a
 //!   folder) or a port in use is refused in words (the file, its size and
 //!   the size expected; the port) with status 1, before anything is
-//!   printed, made or changed.
+//!   printed, made or changed; a flash file in a folder that does not
+//!   exist yet is made, folder and all, as the docs' examples need.
 //!
 //! Needs what host/tests/board_qemu.rs and host/tests/board_rp2040.rs need
 //! (`qemu-system-arm`; Node 20, `npm ci` in boards/rp-pico/emulator and the
@@ -17,6 +21,9 @@ mod cli_common;
 
 use cli_common::device::Device;
 use cli_common::{names, placedb, stderr, TempDir};
+use placedb_host::board::client;
+use placedb_host::board::scan::held_scan;
+use std::time::Duration;
 
 /// The boards: their flag, their profile and the size of their flash file.
 const BOARDS: [(&str, &str, u64); 2] = [
@@ -52,6 +59,86 @@ fn the_qemu_boards_example_commands_name_its_port() {
 #[test]
 fn the_emulated_picos_example_commands_name_its_port() {
     the_example_port_reaches_the_board("--rp2040", "ram256k");
+}
+
+/// What `placedb device` said the board restored from `flash`, once it
+/// said it: its line about the file (the QEMU board names its port before
+/// it boots).
+fn restored_line(device: &mut Device, flash: &str) -> String {
+    device.wait_line("what the flash file held", cli_common::device::BOOT, |l| {
+        l.contains(flash) && !l.contains("flash kept in")
+    })
+}
+
+/// A board started on a new flash file says it holds no scan; restarted
+/// after an unfinished scan, and again after it finished, it says what
+/// its status says it restored.
+fn says_what_it_restored(board: &str, profile: &str) {
+    let tmp = TempDir::new("restored");
+    let flash = tmp.arg("board.flash");
+    let stream = |port: &str, more: &[&str]| {
+        let mut args = vec![
+            "stream",
+            "--port",
+            port,
+            "--profile",
+            profile,
+            "--demo",
+            "--stride",
+            "8",
+            "--window",
+            "8",
+            "--max-frames",
+            "24",
+            "-q",
+        ];
+        args.extend_from_slice(more);
+        let run = placedb(&args);
+        assert!(run.status.success(), "{board} {more:?}: {}", stderr(&run));
+    };
+    let mut device = Device::start(board, &["--flash", &flash]);
+    let said = restored_line(&mut device, &flash);
+    assert!(
+        said.contains("holds no scan: the board starts empty"),
+        "{said}"
+    );
+    stream(&device.port(), &["--no-finish"]);
+    device.stop();
+
+    for (finished, advice) in [
+        (
+            "an unfinished scan",
+            "`placedb stream --resume` goes on with it",
+        ),
+        ("a finished scan", "`placedb export` pulls it"),
+    ] {
+        let mut device = Device::start(board, &["--flash", &flash]);
+        let said = restored_line(&mut device, &flash);
+        let mut program = client::connect(&device.port()).unwrap();
+        let st = client::status(&mut program, Duration::from_secs(60)).unwrap();
+        drop(program);
+        let held = held_scan(&st).unwrap();
+        assert!(held.starts_with(finished), "{held}");
+        assert!(
+            said.contains(&format!("restored from {flash}: {held}")) && said.contains(advice),
+            "{board} said {said:?}, its status: {held}"
+        );
+        println!("{board}: {}", said.trim());
+        if finished == "an unfinished scan" {
+            stream(&device.port(), &["--resume"]);
+        }
+        device.stop();
+    }
+}
+
+#[test]
+fn the_qemu_board_says_what_it_restored_from_its_flash_file() {
+    says_what_it_restored("--qemu", "ram512k");
+}
+
+#[test]
+fn the_emulated_pico_says_what_it_restored_from_its_flash_file() {
+    says_what_it_restored("--rp2040", "ram256k");
 }
 
 /// `placedb device BOARD ARGS` refused before it starts: status 1,
@@ -121,5 +208,21 @@ fn a_port_in_use_is_refused_before_the_flash_file_is_made() {
             "{board}: {err}"
         );
         assert!(names(tmp.path()).is_empty(), "{board} made the flash file");
+    }
+}
+
+/// A flash file in a folder that does not exist yet is made, folder and
+/// all (`--flash out/pico.flash` in the docs' examples), erased, its size
+/// the board's.
+#[test]
+fn a_flash_file_in_a_new_folder_is_made() {
+    let tmp = TempDir::new("flash-new-folder");
+    for (board, _, size) in BOARDS {
+        let flash = tmp.path().join(&board[2..]).join("board.flash");
+        let mut device = Device::start(board, &["--flash", flash.to_str().unwrap()]);
+        let said = restored_line(&mut device, flash.to_str().unwrap());
+        assert!(said.contains("holds no scan"), "{said}");
+        assert_eq!(std::fs::metadata(&flash).unwrap().len(), size);
+        device.stop();
     }
 }

@@ -14,9 +14,11 @@
 //!
 //! For the board either is a power cut: its flash holds what was written.
 //!
-//! While the board boots (until [`wait_until`] finds it up), the same
-//! signals stop it.
+//! While the board boots (until [`wait_until`] finds it up) and while
+//! placedb asks it what it restored ([`Stoppable`]), the same signals
+//! stop it.
 
+use crate::board::link::Link;
 use std::io;
 use std::process::{Child, Command, ExitStatus};
 use std::time::{Duration, Instant};
@@ -101,6 +103,40 @@ pub fn stop_signal() -> Option<i32> {
     return signals::received();
     #[cfg(not(unix))]
     None
+}
+
+/// A link whose waits a stop signal cuts short (an `Interrupted` error),
+/// so that `placedb device` stays stoppable while it asks its board
+/// something at boot.
+pub struct Stoppable<L>(pub L);
+
+impl<L: Link> Link for Stoppable<L> {
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        self.0.send(bytes)
+    }
+
+    fn recv(&mut self, timeout: Duration) -> io::Result<Vec<u8>> {
+        let end = Instant::now() + timeout;
+        loop {
+            if stop_signal().is_some() {
+                return Err(io::Error::new(io::ErrorKind::Interrupted, "stopped"));
+            }
+            let left = end.saturating_duration_since(Instant::now());
+            match self.0.recv(left.min(POLL)) {
+                Err(e) if e.kind() == io::ErrorKind::TimedOut && !left.is_zero() => {}
+                Err(e) if e.kind() == io::ErrorKind::TimedOut => {
+                    return Err(io::Error::new(
+                        io::ErrorKind::TimedOut,
+                        format!(
+                            "no bytes from the board within {}",
+                            crate::error::seconds(timeout)
+                        ),
+                    ))
+                }
+                got => return got,
+            }
+        }
+    }
 }
 
 /// Kills `child` and reaps it (no signals off Unix).

@@ -18,6 +18,12 @@ use std::net::TcpListener;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+/// What `placedb device` does with its board once it is up and before any
+/// program is served, over a link of its own (it asks what the board
+/// restored): the `at_boot` of [`qemu::spawn_foreground`] and
+/// [`rp2040::spawn_foreground`].
+pub type AtBoot<'a> = &'a mut dyn FnMut(&mut dyn crate::board::link::Link);
+
 /// A board's flash held in a file: its size and the board's name, for
 /// [`prepare_flash_file`] and its messages.
 #[derive(Debug, Clone, Copy)]

@@ -4,7 +4,7 @@
 
 use crate::board::error::DeviceError;
 use crate::board::link::{Link, TcpLink};
-use std::io::{self, Read};
+use std::io::{self, Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
@@ -436,12 +436,16 @@ fn accept_within(
 /// ([`super::foreground`]). `icount` makes instruction counting exact.
 /// `announce` is called with the port once it is listening, before QEMU
 /// starts (so what it prints comes before the firmware's boot line).
+/// `at_boot`, if given, is called with the board's UART before any program
+/// is served (one connecting meanwhile waits), to ask the board what it
+/// restored; its waits end early on a stop signal.
 pub fn spawn_foreground(
     firmware: Option<PathBuf>,
     port: u16,
     icount: bool,
     flash: Option<&Path>,
     announce: &mut dyn FnMut(u16),
+    at_boot: Option<super::AtBoot<'_>>,
 ) -> Result<std::process::Child, DeviceError> {
     let firmware = firmware.unwrap_or_else(default_firmware);
     if !firmware.is_file() {
@@ -493,8 +497,58 @@ pub fn spawn_foreground(
             )));
         }
     };
+    if let Some(at_boot) = at_boot {
+        at_boot(&mut super::foreground::Stoppable(UartAtBoot(&board)));
+    }
     super::one_client::serve(listener, board)?;
     Ok(child)
+}
+
+/// The board's UART as a link while placedb alone holds it, at boot before
+/// [`super::one_client`] serves it: a read waits on the stream itself (no
+/// reader thread, which would keep reading), so the stream is handed on
+/// whole.
+struct UartAtBoot<'a>(&'a TcpStream);
+
+impl Link for UartAtBoot<'_> {
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        let mut stream = self.0;
+        stream.write_all(bytes)?;
+        stream.flush()
+    }
+
+    fn recv(&mut self, timeout: Duration) -> io::Result<Vec<u8>> {
+        let mut stream = self.0;
+        stream.set_read_timeout(Some(timeout.max(Duration::from_millis(1))))?;
+        let mut buf = vec![0u8; 4096];
+        let read = stream.read(&mut buf);
+        stream.set_read_timeout(None)?;
+        match read {
+            Ok(0) => Err(io::Error::new(
+                io::ErrorKind::UnexpectedEof,
+                "QEMU closed the board's UART",
+            )),
+            Ok(n) => {
+                buf.truncate(n);
+                Ok(buf)
+            }
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut
+                ) =>
+            {
+                Err(io::Error::new(
+                    io::ErrorKind::TimedOut,
+                    format!(
+                        "no bytes from the board within {}",
+                        crate::error::seconds(timeout)
+                    ),
+                ))
+            }
+            Err(e) => Err(e),
+        }
+    }
 }
 
 #[cfg(test)]

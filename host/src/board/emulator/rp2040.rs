@@ -17,6 +17,7 @@ use crate::board::link::{Link, TcpLink};
 use std::io::{self, BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::{self, JoinHandle};
 use std::time::{Duration, Instant};
@@ -555,11 +556,16 @@ fn collect_lines(
 /// prints) once [`prepare`] has passed: returns the harness's process once
 /// the firmware is up (enumerated on USB), or the signal that stopped it
 /// while it booted. What the harness prints goes on to placedb's stdout as
-/// it comes. Wait for the process with [`super::wait_in_foreground`], which stops the
-/// emulator first on Ctrl-C, SIGTERM or SIGHUP ([`super::foreground`]).
+/// it comes. `at_boot`, if given, is then called with a connection to the
+/// board's port, before the port is announced, to ask the board what it
+/// restored (the harness's lines on that connection are not passed on,
+/// and its waits end early on a stop signal). Wait for the process with
+/// [`super::wait_in_foreground`], which stops the emulator first on
+/// Ctrl-C, SIGTERM or SIGHUP ([`super::foreground`]).
 pub fn spawn_foreground(
     firmware: &Path,
     options: &Rp2040Options,
+    at_boot: Option<super::AtBoot<'_>>,
 ) -> Result<Foreground, DeviceError> {
     let mut command = harness_command(firmware, options);
     command.stdout(Stdio::piped());
@@ -571,8 +577,9 @@ pub fn spawn_foreground(
         ))
     })?;
     let console = Arc::new(Mutex::new(String::new()));
+    let private = Arc::new(AtomicBool::new(false));
     if let Some(out) = child.stdout.take() {
-        pass_on(out, Arc::clone(&console))?;
+        pass_on(out, Arc::clone(&console), Arc::clone(&private))?;
     }
     let text = || console.lock().map(|c| c.clone()).unwrap_or_default();
     let up = super::foreground::wait_until(&mut child, &mut || text().contains("usb configured"))?;
@@ -590,6 +597,20 @@ pub fn spawn_foreground(
             "the RP2040 emulator named no port before the firmware was up",
         ))
     })?;
+    if let Some(at_boot) = at_boot {
+        let count = |what: &str| text().matches(what).count();
+        let closed = count("client closed");
+        private.store(true, Ordering::SeqCst);
+        if let Ok(link) = TcpLink::connect(("127.0.0.1", port), Duration::from_secs(5)) {
+            at_boot(&mut super::foreground::Stoppable(link));
+            // Dropped: closed. Its "client closed" is not passed on either.
+            let end = Instant::now() + Duration::from_secs(5);
+            while count("client closed") == closed && Instant::now() < end {
+                thread::sleep(Duration::from_millis(10));
+            }
+        }
+        private.store(false, Ordering::SeqCst);
+    }
     Ok(Foreground::Up(child, port))
 }
 
@@ -601,20 +622,24 @@ pub enum Foreground {
     Stopped(i32),
 }
 
-/// Passes the harness's lines on to placedb's stdout and into `console`.
+/// Passes the harness's lines on to placedb's stdout and into `console`,
+/// but for those on a connection placedb makes itself (`private`): the
+/// harness's "client connected" and "client closed".
 fn pass_on(
     from: impl Read + Send + 'static,
     console: Arc<Mutex<String>>,
+    private: Arc<AtomicBool>,
 ) -> io::Result<JoinHandle<()>> {
     thread::Builder::new()
         .name("placedb-rp2040-stdout".into())
         .spawn(move || {
             for line in BufReader::new(from).lines() {
                 let Ok(line) = line else { return };
-                let mut out = io::stdout().lock();
-                let _ = writeln!(out, "{line}");
-                let _ = out.flush();
-                drop(out);
+                if !(private.load(Ordering::SeqCst) && line.starts_with("client ")) {
+                    let mut out = io::stdout().lock();
+                    let _ = writeln!(out, "{line}");
+                    let _ = out.flush();
+                }
                 if let Ok(mut c) = console.lock() {
                     c.push_str(&line);
                     c.push('\n');

@@ -49,6 +49,16 @@ impl<L: Link + ?Sized> Link for Box<L> {
     }
 }
 
+impl<L: Link + ?Sized> Link for &mut L {
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        (**self).send(bytes)
+    }
+
+    fn recv(&mut self, timeout: Duration) -> io::Result<Vec<u8>> {
+        (**self).recv(timeout)
+    }
+}
+
 /// Opens a link from its command-line spelling: `tcp:HOST:PORT`,
 /// `serial:PATH` (or a bare path such as `/dev/ttyACM0` or `COM3`), a
 /// board's USB serial number (`placedb.example:E6614103E7452D2F`) or the
