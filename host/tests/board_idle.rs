@@ -20,111 +20,18 @@
 //! boot ROM). Linux only (reads `/proc`).
 #![cfg(target_os = "linux")]
 
+mod cli_common;
+
+use cli_common::device::Device;
 use placedb::protocol::Phase;
 use placedb_host::board::client;
 use std::fmt;
-use std::io::{BufRead, BufReader};
-use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// Most of a host core an idle board's emulator may run on.
 const IDLE_SHARE: f64 = 0.10;
 /// How long the board is left idle for each count.
 const IDLE: Duration = Duration::from_secs(2);
-
-/// `placedb device BOARD` on a free port, what it printed so far (its
-/// emulator's output included), and its emulator; killed (with the
-/// emulator, `PR_SET_PDEATHSIG`) on drop.
-struct Device {
-    child: Child,
-    console: Arc<Mutex<String>>,
-}
-
-impl Device {
-    fn start(board: &str, firmware: PathBuf) -> Device {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_placedb"))
-            .args(["device", board, "--port", "0", "--firmware"])
-            .arg(firmware)
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .spawn()
-            .expect("start placedb device");
-        let console = Arc::new(Mutex::new(String::new()));
-        let out = child.stdout.take().unwrap();
-        let into = Arc::clone(&console);
-        std::thread::spawn(move || {
-            for line in BufReader::new(out).lines() {
-                let Ok(line) = line else { return };
-                let mut c = into.lock().unwrap();
-                c.push_str(&line);
-                c.push('\n');
-            }
-        });
-        Device { child, console }
-    }
-
-    fn console(&self) -> String {
-        self.console.lock().unwrap().clone()
-    }
-
-    /// Waits until the console holds `needle`.
-    fn wait_for(&mut self, needle: &str, timeout: Duration) {
-        let end = Instant::now() + timeout;
-        while !self.console().contains(needle) {
-            if let Some(status) = self.child.try_wait().unwrap() {
-                panic!("placedb device exited ({status}):\n{}", self.console());
-            }
-            assert!(
-                Instant::now() < end,
-                "no {needle:?} within {timeout:?}:\n{}",
-                self.console()
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    }
-
-    /// The board's port: the first `tcp:127.0.0.1:PORT` with a number.
-    fn port(&self) -> String {
-        let console = self.console();
-        console
-            .split("tcp:127.0.0.1:")
-            .skip(1)
-            .find_map(|rest| {
-                let digits: String = rest.chars().take_while(char::is_ascii_digit).collect();
-                (!digits.is_empty()).then(|| format!("tcp:127.0.0.1:{digits}"))
-            })
-            .unwrap_or_else(|| panic!("no port in:\n{console}"))
-    }
-
-    /// The pid of placedb's child named `comm` (its emulator).
-    fn emulator(&self, comm: &str) -> u32 {
-        let parent = self.child.id();
-        std::fs::read_dir("/proc")
-            .unwrap()
-            .filter_map(|e| e.ok()?.file_name().to_str()?.parse::<u32>().ok())
-            .find(|&pid| {
-                let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
-                    return false;
-                };
-                // "pid (comm) state ppid ...": comm may hold spaces.
-                let (Some(open), Some(close)) = (stat.find('('), stat.rfind(')')) else {
-                    return false;
-                };
-                let ppid = stat[close + 1..].split_whitespace().nth(1);
-                &stat[open + 1..close] == comm && ppid == Some(&parent.to_string())
-            })
-            .unwrap_or_else(|| panic!("placedb device has no child {comm}"))
-    }
-}
-
-impl Drop for Device {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
 
 /// What a process's threads took of the CPU, from `/proc`, at one moment.
 #[derive(Clone, Copy)]
@@ -209,8 +116,8 @@ fn idle_use(pid: u32) -> Use {
 /// `placedb device BOARD`, once it printed `ready`: idle alone, then with a
 /// program connected that asked for the status, it runs on less than
 /// [`IDLE_SHARE`] of a core, and answers after each wait.
-fn an_idle_board_sleeps(board: &str, firmware: PathBuf, comm: &str, ready: &str) {
-    let mut device = Device::start(board, firmware);
+fn an_idle_board_sleeps(board: &str, comm: &str, ready: &str) {
+    let mut device = Device::start(board, &[]);
     device.wait_for(ready, Duration::from_secs(120));
     let pid = device.emulator(comm);
     // What the boot left to do (the Pico erases its log's next sector
@@ -245,7 +152,6 @@ fn an_idle_board_sleeps(board: &str, firmware: PathBuf, comm: &str, ready: &str)
 fn an_idle_qemu_board_sleeps() {
     an_idle_board_sleeps(
         "--qemu",
-        placedb_host::testing::qemu_firmware(),
         "qemu-system-arm",
         // The firmware's line after its restore: its loop runs.
         "restored",
@@ -254,10 +160,5 @@ fn an_idle_qemu_board_sleeps() {
 
 #[test]
 fn an_idle_emulated_pico_sleeps() {
-    an_idle_board_sleeps(
-        "--rp2040",
-        placedb_host::testing::rp2040_firmware(),
-        "node",
-        "usb configured",
-    );
+    an_idle_board_sleeps("--rp2040", "node", "usb configured");
 }

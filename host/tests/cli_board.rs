@@ -1,74 +1,49 @@
 //! The command line against a board that outlives each command: `placedb
 //! device --qemu` (the emulated Cortex-M4F) holds the scan between a
-//! `placedb stream` and a `placedb export`, as a real board does.
+//! `placedb stream` and a `placedb export`, as a real board does; a stream
+//! stopped by Ctrl-C, or killed outright mid-frame, goes on with
+//! `--resume`, on the QEMU board and on the emulated Pico (`placedb device
+//! --rp2040`).
 //!
 //! Needs `qemu-system-arm` and the QEMU firmware (built first, as in
-//! host/tests/board_qemu.rs, unless `PLACEDB_QEMU_FIRMWARE` names one).
+//! host/tests/board_qemu.rs, unless `PLACEDB_QEMU_FIRMWARE` names one); the
+//! Pico's cases what host/tests/board_rp2040.rs needs (Node 20, `npm ci` in
+//! boards/rp-pico/emulator, the boot ROM).
 
 mod cli_common;
 
+use cli_common::device::Device;
 use cli_common::{placedb, seven_scenes_copy, stderr, TempDir};
-use std::io::{BufRead, BufReader};
-use std::net::TcpStream;
-use std::process::{Child, ChildStdout, Command, Stdio};
-use std::time::{Duration, Instant};
+use placedb::protocol::Phase;
+use placedb_host::board::client;
+use std::process::{Child, Command, Output, Stdio};
+use std::time::Duration;
 
-/// `placedb device --qemu` on a free port, stopped (with QEMU) on drop.
+/// `placedb device --qemu` (or `--rp2040`) on a free port ([`Device`]),
+/// stopped (with its emulator) on drop, and its port.
 struct Board {
-    child: Child,
-    /// Kept open: placedb prints to it while it runs.
-    _stdout: BufReader<ChildStdout>,
+    _device: Device,
     port: String,
 }
 
 impl Board {
     fn start() -> Board {
-        Board::start_with(&[])
+        Board::on("--qemu", &[])
     }
 
     /// A board whose flash is the file `flash` (kept across restarts).
     fn start_on(flash: &std::path::Path) -> Board {
-        Board::start_with(&["--flash", flash.to_str().unwrap()])
+        Board::on("--qemu", &["--flash", flash.to_str().unwrap()])
     }
 
-    fn start_with(args: &[&str]) -> Board {
-        let firmware = placedb_host::testing::qemu_firmware();
-        let mut child = Command::new(env!("CARGO_BIN_EXE_placedb"))
-            .args(["device", "--qemu", "--port", "0", "--firmware"])
-            .arg(firmware)
-            .args(args)
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .spawn()
-            .expect("start placedb device");
-        let mut stdout = BufReader::new(child.stdout.take().unwrap());
-        let mut line = String::new();
-        stdout.read_line(&mut line).unwrap();
-        let port = line
-            .split_whitespace()
-            .find(|w| w.starts_with("tcp:"))
-            .unwrap_or_else(|| panic!("no port in {line:?}"))
-            .to_string();
-        // QEMU listens a moment after placedb names the port.
-        let addr = port.trim_start_matches("tcp:").to_string();
-        let end = Instant::now() + Duration::from_secs(30);
-        while TcpStream::connect(&addr).is_err() {
-            assert!(Instant::now() < end, "the board never listened on {addr}");
-            std::thread::sleep(Duration::from_millis(50));
-        }
+    /// `placedb device BOARD ARGS`.
+    fn on(board: &str, args: &[&str]) -> Board {
+        let device = Device::start(board, args);
+        let port = device.port();
         Board {
-            child,
-            _stdout: stdout,
+            _device: device,
             port,
         }
-    }
-}
-
-impl Drop for Board {
-    fn drop(&mut self) {
-        // SIGKILL: the kernel kills QEMU after placedb (PR_SET_PDEATHSIG).
-        let _ = self.child.kill();
-        let _ = self.child.wait();
     }
 }
 
@@ -464,31 +439,66 @@ fn export_pairs_name_the_sequences_colour_files() {
     }
 }
 
-/// Ctrl-C during `stream` stops it between frames with status 130 and a
-/// word on how to go on; the board has no frame open, and `--resume` goes
-/// on to the whole scan.
-#[test]
-fn ctrl_c_stops_a_stream_cleanly_and_resume_goes_on() {
-    let tmp = TempDir::new("ctrl-c");
-    let dir = tmp.path().join("seq");
-    seven_scenes_copy(&dir, 40, true);
-    let seq = tmp.arg("seq");
-    let board = Board::start();
-    let args = ["stream", &seq, "--port", &board.port, "--stride", "8", "-q"];
-    let child = Command::new(env!("CARGO_BIN_EXE_placedb"))
+/// `placedb stream SEQ --port P ARGS` started, not waited for.
+fn stream_child(args: &[&str]) -> Child {
+    Command::new(env!("CARGO_BIN_EXE_placedb"))
+        .arg("stream")
         .args(args)
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
-        .unwrap();
-    // The emulated board takes a few frames a second: some are sent by now.
-    std::thread::sleep(Duration::from_secs(4));
-    let killed = Command::new("kill")
-        .args(["-INT", &child.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(killed.success());
-    let run = child.wait_with_output().unwrap();
+        .unwrap()
+}
+
+/// `signal` to `child` once it has streamed a while (`after`), and how it
+/// ended.
+fn signalled_after(child: Child, after: Duration, signal: libc::c_int) -> Output {
+    std::thread::sleep(after);
+    let pid = libc::pid_t::try_from(child.id()).unwrap();
+    // SAFETY: kill(2) on our own child, not reaped yet.
+    assert_eq!(unsafe { libc::kill(pid, signal) }, 0);
+    child.wait_with_output().unwrap()
+}
+
+/// The phase of the board on `port`, asked as another program would.
+fn phase(port: &str) -> Phase {
+    let mut program = client::connect(port).unwrap();
+    // What a killed program left of a message is dropped first.
+    program.resync().unwrap();
+    client::status(&mut program, Duration::from_secs(60))
+        .unwrap()
+        .phase
+}
+
+/// The database and labels `placedb export` pulls from `port` into `out`.
+fn exported(port: &str, out: &str) -> (String, String) {
+    let run = placedb(&["export", "--port", port, "-q", "-o", out]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let read = |f: &str| std::fs::read_to_string(format!("{out}/{f}")).unwrap();
+    (read("database.csv"), read("labels.csv"))
+}
+
+/// Ctrl-C during `stream` to `board` (`frames` frames of 7-Scenes at
+/// stride 8, the signal `after` that long) stops it between frames with
+/// status 130 and a word on how to go on; the board has no frame open, and
+/// `--resume` goes on to the whole scan.
+fn ctrl_c_stops_a_stream_cleanly(board: &str, profile: &str, frames: usize, after: Duration) {
+    let tmp = TempDir::new("ctrl-c");
+    let dir = tmp.path().join("seq");
+    seven_scenes_copy(&dir, frames, true);
+    let seq = tmp.arg("seq");
+    let board = Board::on(board, &[]);
+    let args = [
+        &seq,
+        "--port",
+        &board.port,
+        "--profile",
+        profile,
+        "--stride",
+        "8",
+        "-q",
+    ];
+    let run = signalled_after(stream_child(&args), after, libc::SIGINT);
     let err = stderr(&run);
     assert_eq!(run.status.code(), Some(130), "{err}");
     assert!(
@@ -497,15 +507,107 @@ fn ctrl_c_stops_a_stream_cleanly_and_resume_goes_on() {
             && err.contains("--resume"),
         "{err}"
     );
-    let mut resume = args.to_vec();
+    assert_eq!(phase(&board.port), Phase::Ready, "a frame was left open");
+    let mut resume = vec!["stream"];
+    resume.extend_from_slice(&args);
     resume.push("--resume");
     let run = placedb(&resume);
     assert!(run.status.success(), "{}", stderr(&run));
-    let out = tmp.arg("out");
-    let run = placedb(&["export", "--port", &board.port, "-q", "-o", &out]);
+    let (_, labels) = exported(&board.port, &tmp.arg("out"));
+    assert_eq!(labels.lines().count(), 1 + frames, "{labels}");
+}
+
+/// On the QEMU board, which takes a few frames a second: some are sent by
+/// 4 s.
+#[test]
+fn ctrl_c_stops_a_stream_cleanly_and_resume_goes_on() {
+    ctrl_c_stops_a_stream_cleanly("--qemu", "ram512k", 40, Duration::from_secs(4));
+}
+
+/// On the emulated Pico, which takes about 13 of these frames a second.
+#[test]
+fn ctrl_c_stops_a_stream_to_the_emulated_pico_cleanly_and_resume_goes_on() {
+    ctrl_c_stops_a_stream_cleanly("--rp2040", "ram256k", 200, Duration::from_secs(3));
+}
+
+/// A `stream` to `board` killed outright (SIGKILL, `after` it started)
+/// leaves the board with a frame open (it is killed again, resumed, until
+/// it does: a kill may fall between two frames); `stream --resume` drops
+/// that frame (FrameAbort), sends it again and goes on: the export is the
+/// host replay's, `placedb select --solver online` on the same sequence.
+fn a_stream_killed_mid_frame_is_resumed(
+    board: &str,
+    profile: &str,
+    frames: usize,
+    after: Duration,
+) {
+    let tmp = TempDir::new("killed");
+    let dir = tmp.path().join("seq");
+    seven_scenes_copy(&dir, frames, true);
+    let seq = tmp.arg("seq");
+    let board = Board::on(board, &[]);
+    let args = [
+        &seq,
+        "--port",
+        &board.port,
+        "--profile",
+        profile,
+        "--stride",
+        "8",
+        "-q",
+    ];
+    let mut resume = args.to_vec();
+    resume.push("--resume");
+    let mut kills = 0;
+    loop {
+        let run = signalled_after(
+            stream_child(if kills == 0 { &args } else { &resume }),
+            after,
+            libc::SIGKILL,
+        );
+        assert_eq!(run.status.code(), None, "{}", stderr(&run));
+        kills += 1;
+        if phase(&board.port) == Phase::InFrame {
+            break;
+        }
+        assert!(kills < 5, "{kills} kills left no frame open");
+    }
+    let mut again = vec!["stream"];
+    again.extend_from_slice(&resume);
+    let run = placedb(&again);
     assert!(run.status.success(), "{}", stderr(&run));
-    let labels = std::fs::read_to_string(format!("{out}/labels.csv")).unwrap();
-    assert_eq!(labels.lines().count(), 1 + 40, "{labels}");
+    let got = exported(&board.port, &tmp.arg("out"));
+    let host = tmp.arg("host");
+    let run = placedb(&[
+        "select",
+        &seq,
+        "--solver",
+        "online",
+        "--profile",
+        profile,
+        "--stride",
+        "8",
+        "-q",
+        "-o",
+        &host,
+    ]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let read = |f: &str| std::fs::read_to_string(format!("{host}/{f}")).unwrap();
+    assert!(
+        got == (read("database.csv"), read("labels.csv")),
+        "the resumed scan differs from the host replay"
+    );
+    println!("{kills} kills, the last mid-frame: resumed to the host replay's export");
+}
+
+#[test]
+fn a_stream_killed_mid_frame_is_resumed_on_the_qemu_board() {
+    a_stream_killed_mid_frame_is_resumed("--qemu", "ram512k", 100, Duration::from_secs(4));
+}
+
+#[test]
+fn a_stream_killed_mid_frame_is_resumed_on_the_emulated_pico() {
+    a_stream_killed_mid_frame_is_resumed("--rp2040", "ram256k", 300, Duration::from_secs(3));
 }
 
 /// One program at a time (issue 41): while a program has the board's port

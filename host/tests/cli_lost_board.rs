@@ -1,8 +1,11 @@
-//! A board that goes away mid-stream (reset, unplugged: its connection
-//! reset) is named, and `placedb stream` says how to go on: restart it and
-//! run the same command again with `--resume`. The board is the core's
-//! device in this test's process behind a loopback TCP port that drops the
-//! connection after the first frames.
+//! A board that is not there (nothing listens on its TCP port, no such
+//! serial port) is named by every command, with what to do: start the
+//! emulated board, or check the cable and the port's name. A board that
+//! goes away mid-stream (reset, unplugged: its connection reset) is named,
+//! and `placedb stream` says how to go on: restart it and run the same
+//! command again with `--resume`. The board is the core's device in this
+//! test's process behind a loopback TCP port that drops the connection
+//! after the first frames.
 
 mod cli_common;
 
@@ -72,4 +75,42 @@ fn a_board_lost_mid_stream_says_to_go_on_with_resume() {
         "{err}"
     );
     assert!(!err.contains("os error"), "{err}");
+}
+
+/// `stream` and `export` to a port where no board is: the refusal names
+/// the port and says what to do, in words (no Rust type, no "os error"),
+/// before anything is written.
+#[test]
+fn a_board_that_is_not_there_is_named_with_what_to_do() {
+    // A port nothing listens on: bound, then closed.
+    let free = TcpListener::bind(("127.0.0.1", 0)).unwrap();
+    let tcp = format!("tcp:127.0.0.1:{}", free.local_addr().unwrap().port());
+    drop(free);
+    let out = std::env::temp_dir().join(format!("placedb-no-board-{}", std::process::id()));
+    let out = out.to_str().unwrap();
+    let serial = "/dev/ttyACM9-placedb-none";
+    for (port, says) in [
+        (
+            tcp.as_str(),
+            ["nothing listens on", "placedb device --qemu"],
+        ),
+        (serial, ["there is no serial port", "ls /dev/serial/by-id"]),
+    ] {
+        for args in [
+            vec!["stream", "--demo", "--port", port, "-q"],
+            vec!["export", "--port", port, "-o", out, "-q"],
+        ] {
+            let run = placedb(&args);
+            let err = stderr(&run);
+            assert_eq!(run.status.code(), Some(1), "{args:?}: {err}");
+            assert!(err.contains(port), "{args:?}: the port is not named: {err}");
+            for want in says {
+                assert!(err.contains(want), "{args:?}: no {want:?} in: {err}");
+            }
+            for rust in ["os error", "Kind(", "Custom {", "Error {", "Io("] {
+                assert!(!err.contains(rust), "{args:?}: {rust:?} in: {err}");
+            }
+            assert!(!std::path::Path::new(out).exists(), "{args:?} wrote {out}");
+        }
+    }
 }

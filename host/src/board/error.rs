@@ -8,7 +8,7 @@ use std::io;
 #[derive(Debug, thiserror::Error)]
 pub enum DeviceError {
     /// The link failed or timed out.
-    #[error("link: {}", crate::error::io_words(.0))]
+    #[error("{}", link_words(.0))]
     Io(#[from] io::Error),
     /// The device refused a message with a typed error.
     #[error("the device refused {what} (seq {seq}): {kind}")]
@@ -41,6 +41,19 @@ pub enum DeviceError {
         /// The next frame (global index) it would have sent.
         next: u32,
     },
+}
+
+/// A link's error in words: one made with a message says what happened
+/// and where (a port that does not open names it and what to do); a bare
+/// one from the operating system ("no answer in time") is said to be the
+/// link's.
+fn link_words(e: &io::Error) -> String {
+    let words = crate::error::io_words(e);
+    if e.get_ref().is_some() {
+        words
+    } else {
+        format!("link: {words}")
+    }
 }
 
 impl DeviceError {

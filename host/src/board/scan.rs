@@ -123,7 +123,7 @@ impl Default for StreamOptions {
 /// What a board that `st` describes holds, in words ("a finished scan of
 /// 40 frames, 3 database frames"), when it holds a scan that a new one
 /// would replace: frames seen, or finished; `None` for an empty board.
-fn held_scan(st: &Status) -> Option<String> {
+pub fn held_scan(st: &Status) -> Option<String> {
     if st.frames_seen == 0 && st.phase != Phase::Finished {
         return None;
     }

@@ -1,14 +1,21 @@
 //! `placedb device`: an emulated board (QEMU or the Pico under rp2040js) in
-//! the foreground, its port printed.
+//! the foreground, its port printed, and what it restored from its flash
+//! file at boot (asked over its port before any program is served).
 
-use crate::board::emulator::rp2040::{self, Rp2040Options};
-use crate::board::emulator::{qemu, wait_in_foreground};
+use crate::board::client::{self, flash_warnings, Client};
+use crate::board::emulator::rp2040::{self, Foreground, Rp2040Options};
+use crate::board::emulator::{qemu, wait_in_foreground, AtBoot};
+use crate::board::error::DeviceError;
 use crate::board::flash_timing::FlashTiming;
 use crate::board::link::usb_serial::SERIAL_DOMAIN;
+use crate::board::link::Link;
+use crate::board::scan::held_scan;
 use crate::cli::params;
 use crate::error::CommandError as Error;
+use crate::warning;
 use clap::Args;
-use std::path::PathBuf;
+use placedb::protocol::{Phase, Status};
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 /// `placedb device`: one of the two boards, named by its flag.
@@ -63,9 +70,52 @@ pub fn run(a: DeviceArgs) -> Result<(), Error> {
     Ok(())
 }
 
+/// How long the board may take to say what it restored at boot (its
+/// restore of a full log included).
+const RESTORED_WAIT: Duration = Duration::from_secs(60);
+
+/// What the board on `link` restored from its flash file at boot: its
+/// status, asked once it is up and before any program is served.
+fn ask_restored(link: &mut dyn Link) -> Result<Status, DeviceError> {
+    client::status(&mut Client::new(link), RESTORED_WAIT)
+}
+
+/// Says what the board restored from `flash` at boot, or why it could not
+/// be asked (nothing when a signal stopped the asking: placedb is ending).
+fn say_restored(flash: &Path, restored: Option<Result<Status, DeviceError>>) {
+    match restored {
+        Some(Ok(st)) => {
+            match held_scan(&st) {
+                Some(scan) if st.phase == Phase::Finished => println!(
+                    "  restored from {}: {scan}; `placedb export` pulls it, \
+                     `placedb stream --extend` adds a session",
+                    flash.display()
+                ),
+                Some(scan) => println!(
+                    "  restored from {}: {scan}; `placedb stream --resume` goes on with it",
+                    flash.display()
+                ),
+                None => println!(
+                    "  {} holds no scan: the board starts empty",
+                    flash.display()
+                ),
+            }
+            warning::warn_all(&flash_warnings(&st));
+        }
+        Some(Err(DeviceError::Io(e))) if e.kind() == std::io::ErrorKind::Interrupted => {}
+        Some(Err(e)) => warning::warn(format!(
+            "the board did not say what it restored from {}: {e}",
+            flash.display()
+        )),
+        None => {}
+    }
+}
+
 /// `placedb device --qemu`: QEMU in the foreground, its port printed.
 fn run_qemu(a: DeviceArgs) -> Result<Option<i32>, Error> {
     let flash = a.flash.clone();
+    let mut restored = None;
+    let mut ask = |link: &mut dyn Link| restored = Some(ask_restored(link));
     let mut child = qemu::spawn_foreground(
         a.firmware,
         a.port,
@@ -86,11 +136,16 @@ fn run_qemu(a: DeviceArgs) -> Result<Option<i32>, Error> {
             }
             println!("  Ctrl-C (or SIGTERM, SIGHUP) stops it, QEMU with it");
         },
+        a.flash.is_some().then_some(&mut ask as AtBoot),
     )?;
+    if let Some(f) = &a.flash {
+        say_restored(f, restored);
+    }
     Ok(wait_in_foreground(&mut child, "QEMU")?)
 }
 
-/// `placedb device --rp2040`: the emulated Pico in the foreground.
+/// `placedb device --rp2040`: the emulated Pico in the foreground, its
+/// port printed once its firmware is up.
 fn run_rp2040(a: DeviceArgs) -> Result<Option<i32>, Error> {
     let firmware = a.firmware.unwrap_or_else(rp2040::default_firmware);
     let flash_timing = a.flash_timing;
@@ -102,7 +157,9 @@ fn run_rp2040(a: DeviceArgs) -> Result<Option<i32>, Error> {
         unique_id: a.unique_id.unwrap_or(rp2040::DEFAULT_UNIQUE_ID),
         ..Rp2040Options::default()
     };
-    rp2040::check_setup(&firmware, &options)?;
+    // Refusals (a missing firmware, a port in use, a flash file of another
+    // size) come before anything is printed or made.
+    rp2040::prepare(&firmware, &options)?;
     println!("emulated Raspberry Pi Pico (rp2040js, profile ram256k), USB CDC-ACM bridged to TCP");
     println!(
         "  flash timing {flash_timing}: {:?} per sector erase, {:?} per page program (W25Q16JV datasheet), in emulated time",
@@ -113,16 +170,32 @@ fn run_rp2040(a: DeviceArgs) -> Result<Option<i32>, Error> {
         "  flash unique ID {:016X}: USB serial number {}:{:016X}",
         options.unique_id, SERIAL_DOMAIN, options.unique_id
     );
-    println!("  e.g. placedb stream --port tcp:127.0.0.1:PORT --profile ram256k --demo --stride 8 --max-frames 30");
-    println!("       placedb export --port tcp:127.0.0.1:PORT -o out");
+    let mut restored = None;
+    let mut ask = |link: &mut dyn Link| restored = Some(ask_restored(link));
+    let board = rp2040::spawn_foreground(
+        &firmware,
+        &options,
+        a.flash.is_some().then_some(&mut ask as AtBoot),
+    )?;
+    let (mut child, port) = match board {
+        Foreground::Up(child, port) => (child, port),
+        Foreground::Stopped(signal) => return Ok(Some(signal)),
+    };
+    println!("emulated Pico up on port tcp:127.0.0.1:{port}");
+    println!(
+        "  e.g. placedb stream --port tcp:127.0.0.1:{port} --profile ram256k --demo --stride 8 --max-frames 30"
+    );
+    println!("       placedb export --port tcp:127.0.0.1:{port} -o out");
     match &a.flash {
-        Some(f) => println!(
-            "  flash kept in {} (2 MiB): after a restart, `placedb stream --resume` goes on with the scan",
-            f.display()
-        ),
+        Some(f) => {
+            println!(
+                "  flash kept in {} (2 MiB): after a restart, `placedb stream --resume` goes on with the scan",
+                f.display()
+            );
+            say_restored(f, restored);
+        }
         None => println!("  no --flash file: the board starts with an erased flash every time"),
     }
     println!("  Ctrl-C (or SIGTERM, SIGHUP) stops it, the emulator with it");
-    let mut child = rp2040::spawn_foreground(&firmware, &options)?;
     Ok(wait_in_foreground(&mut child, "the RP2040 emulator")?)
 }

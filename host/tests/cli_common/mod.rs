@@ -1,8 +1,11 @@
 //! What the command-line tests share: running the real `placedb` binary,
-//! a temporary directory removed on drop, and a copy of the first frames of
-//! the 7-Scenes sample to run on (the sample itself is never written).
+//! a temporary directory removed on drop, a copy of the first frames of
+//! the 7-Scenes sample to run on (the sample itself is never written), and
+//! `placedb device` as a user runs it ([`device`]).
 
 #![allow(dead_code)]
+
+pub mod device;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

@@ -13,7 +13,12 @@
 //!   any other way (SIGKILL, a crash): `PR_SET_PDEATHSIG`, set by [`spawn`].
 //!
 //! For the board either is a power cut: its flash holds what was written.
+//!
+//! While the board boots (until [`wait_until`] finds it up) and while
+//! placedb asks it what it restored ([`Stoppable`]), the same signals
+//! stop it.
 
+use crate::board::link::Link;
 use std::io;
 use std::process::{Child, Command, ExitStatus};
 use std::time::{Duration, Instant};
@@ -65,24 +70,80 @@ pub fn spawn(command: &mut Command) -> io::Result<Child> {
 /// Waits until `child` exits, or until this process receives SIGTERM,
 /// SIGINT or SIGHUP: then stops the child (SIGTERM, SIGKILL after
 /// [`GRACE`]) and returns once it is gone.
-#[cfg(unix)]
 pub fn wait(child: &mut Child) -> io::Result<Ended> {
     loop {
-        if let Some(signal) = signals::received() {
+        if let Some(ended) = wait_until(child, &mut || false)? {
+            return Ok(ended);
+        }
+    }
+}
+
+/// Waits as [`wait`] does, but only until `ready()` says so: `None` then,
+/// with the child still running; how it ended otherwise.
+pub fn wait_until(child: &mut Child, ready: &mut dyn FnMut() -> bool) -> io::Result<Option<Ended>> {
+    loop {
+        if let Some(signal) = stop_signal() {
             stop(child)?;
-            return Ok(Ended::Stopped(signal));
+            return Ok(Some(Ended::Stopped(signal)));
         }
         if let Some(status) = child.try_wait()? {
-            return Ok(Ended::Exited(status));
+            return Ok(Some(Ended::Exited(status)));
+        }
+        if ready() {
+            return Ok(None);
         }
         std::thread::sleep(POLL);
     }
 }
 
-/// Waits until `child` exits (no signals caught off Unix).
+/// The stop signal (SIGTERM, SIGINT, SIGHUP) received since [`spawn`], if
+/// any (never off Unix, where none is caught).
+pub fn stop_signal() -> Option<i32> {
+    #[cfg(unix)]
+    return signals::received();
+    #[cfg(not(unix))]
+    None
+}
+
+/// A link whose waits a stop signal cuts short (an `Interrupted` error),
+/// so that `placedb device` stays stoppable while it asks its board
+/// something at boot.
+pub struct Stoppable<L>(pub L);
+
+impl<L: Link> Link for Stoppable<L> {
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        self.0.send(bytes)
+    }
+
+    fn recv(&mut self, timeout: Duration) -> io::Result<Vec<u8>> {
+        let end = Instant::now() + timeout;
+        loop {
+            if stop_signal().is_some() {
+                return Err(io::Error::new(io::ErrorKind::Interrupted, "stopped"));
+            }
+            let left = end.saturating_duration_since(Instant::now());
+            match self.0.recv(left.min(POLL)) {
+                Err(e) if e.kind() == io::ErrorKind::TimedOut && !left.is_zero() => {}
+                Err(e) if e.kind() == io::ErrorKind::TimedOut => {
+                    return Err(io::Error::new(
+                        io::ErrorKind::TimedOut,
+                        format!(
+                            "no bytes from the board within {}",
+                            crate::error::seconds(timeout)
+                        ),
+                    ))
+                }
+                got => return got,
+            }
+        }
+    }
+}
+
+/// Kills `child` and reaps it (no signals off Unix).
 #[cfg(not(unix))]
-pub fn wait(child: &mut Child) -> io::Result<Ended> {
-    child.wait().map(Ended::Exited)
+fn stop(child: &mut Child) -> io::Result<ExitStatus> {
+    child.kill()?;
+    child.wait()
 }
 
 /// SIGTERM to `child`, SIGKILL if it has not exited after [`GRACE`]; reaps it.

@@ -43,56 +43,17 @@ pub const FLASH_FILE_SIZE: u64 = 16 << 20;
 /// QEMU object id of the memory backend holding the flash file.
 const FLASH_BACKEND_ID: &str = "placedb-flash";
 
+/// The QEMU board's flash file ([`super::prepare_flash_file`]).
+pub const FLASH_FILE: super::FlashFile = super::FlashFile {
+    size: FLASH_FILE_SIZE,
+    of: "the QEMU board's flash (its PSRAM)",
+};
+
 /// Creates the flash file `path` (holding [`FLASH_FILE_SIZE`] bytes of 0xFF, an
 /// erased chip) if it is missing or empty; leaves an existing one as it is.
 /// Errors if it exists with another size (QEMU would refuse it).
 pub fn prepare_flash_file(path: &Path) -> io::Result<()> {
-    match std::fs::metadata(path) {
-        Ok(meta) if meta.len() == FLASH_FILE_SIZE => return Ok(()),
-        Ok(meta) if meta.len() != 0 => {
-            return Err(io::Error::new(
-                io::ErrorKind::InvalidData,
-                format!(
-                    "flash file {} holds {} bytes, expected {FLASH_FILE_SIZE} (16 MiB)",
-                    path.display(),
-                    meta.len()
-                ),
-            ))
-        }
-        Ok(_) => {}
-        Err(e) if e.kind() == io::ErrorKind::NotFound => {}
-        Err(e) => return Err(e),
-    }
-    // Written beside the target and renamed into place, so a file cut short
-    // by a crash is never taken for a flash image.
-    let mut name = path.file_name().unwrap_or_default().to_os_string();
-    name.push(format!(".tmp{}", std::process::id()));
-    let tmp = path.with_file_name(name);
-    let written = (|| {
-        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            std::fs::create_dir_all(dir)?;
-        }
-        let mut file = std::fs::File::create(&tmp)?;
-        let erased = vec![0xFFu8; 1 << 20];
-        for _ in 0..FLASH_FILE_SIZE / (1 << 20) {
-            file.write_all(&erased)?;
-        }
-        file.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if written.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    written.map_err(|e| {
-        io::Error::new(
-            e.kind(),
-            format!(
-                "cannot create flash file {}: {}",
-                path.display(),
-                crate::error::io_words(&e)
-            ),
-        )
-    })
+    super::prepare_flash_file(path, FLASH_FILE)
 }
 
 /// `path` as a QEMU option value: commas doubled.
@@ -475,12 +436,16 @@ fn accept_within(
 /// ([`super::foreground`]). `icount` makes instruction counting exact.
 /// `announce` is called with the port once it is listening, before QEMU
 /// starts (so what it prints comes before the firmware's boot line).
+/// `at_boot`, if given, is called with the board's UART before any program
+/// is served (one connecting meanwhile waits), to ask the board what it
+/// restored; its waits end early on a stop signal.
 pub fn spawn_foreground(
     firmware: Option<PathBuf>,
     port: u16,
     icount: bool,
     flash: Option<&Path>,
     announce: &mut dyn FnMut(u16),
+    at_boot: Option<super::AtBoot<'_>>,
 ) -> Result<std::process::Child, DeviceError> {
     let firmware = firmware.unwrap_or_else(default_firmware);
     if !firmware.is_file() {
@@ -492,15 +457,7 @@ pub fn spawn_foreground(
     }
     // The user's port first: a port in use is refused before anything
     // (the flash file included) is made.
-    let listener = TcpListener::bind(("127.0.0.1", port)).map_err(|e| {
-        DeviceError::Io(io::Error::new(
-            e.kind(),
-            format!(
-                "cannot listen on 127.0.0.1:{port}: {}",
-                crate::error::io_words(&e)
-            ),
-        ))
-    })?;
+    let listener = super::bind_port(port)?;
     let port = listener.local_addr()?.port();
     if let Some(f) = flash {
         prepare_flash_file(f)?;
@@ -540,8 +497,58 @@ pub fn spawn_foreground(
             )));
         }
     };
+    if let Some(at_boot) = at_boot {
+        at_boot(&mut super::foreground::Stoppable(UartAtBoot(&board)));
+    }
     super::one_client::serve(listener, board)?;
     Ok(child)
+}
+
+/// The board's UART as a link while placedb alone holds it, at boot before
+/// [`super::one_client`] serves it: a read waits on the stream itself (no
+/// reader thread, which would keep reading), so the stream is handed on
+/// whole.
+struct UartAtBoot<'a>(&'a TcpStream);
+
+impl Link for UartAtBoot<'_> {
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        let mut stream = self.0;
+        stream.write_all(bytes)?;
+        stream.flush()
+    }
+
+    fn recv(&mut self, timeout: Duration) -> io::Result<Vec<u8>> {
+        let mut stream = self.0;
+        stream.set_read_timeout(Some(timeout.max(Duration::from_millis(1))))?;
+        let mut buf = vec![0u8; 4096];
+        let read = stream.read(&mut buf);
+        stream.set_read_timeout(None)?;
+        match read {
+            Ok(0) => Err(io::Error::new(
+                io::ErrorKind::UnexpectedEof,
+                "QEMU closed the board's UART",
+            )),
+            Ok(n) => {
+                buf.truncate(n);
+                Ok(buf)
+            }
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut
+                ) =>
+            {
+                Err(io::Error::new(
+                    io::ErrorKind::TimedOut,
+                    format!(
+                        "no bytes from the board within {}",
+                        crate::error::seconds(timeout)
+                    ),
+                ))
+            }
+            Err(e) => Err(e),
+        }
+    }
 }
 
 #[cfg(test)]

@@ -14,9 +14,10 @@
 use crate::board::error::DeviceError;
 use crate::board::flash_timing::FlashTiming;
 use crate::board::link::{Link, TcpLink};
-use std::io::{self, BufRead, BufReader, Read};
+use std::io::{self, BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::{self, JoinHandle};
 use std::time::{Duration, Instant};
@@ -172,6 +173,29 @@ pub fn harness_command(firmware: &Path, options: &Rp2040Options) -> Command {
     command
 }
 
+/// The Pico's flash file: its 2 MiB QSPI flash, the firmware in the first
+/// MiB, the log in the second ([`super::prepare_flash_file`]).
+pub const FLASH_FILE: super::FlashFile = super::FlashFile {
+    size: 2 << 20,
+    of: "the Pico's flash",
+};
+
+/// Everything the harness needs, before it starts: what [`check_setup`]
+/// checks, the port (one in use refused), and the flash file, made erased
+/// if missing and refused if of another size ([`super::prepare_flash_file`]:
+/// the harness would only print its usage).
+pub fn prepare(firmware: &Path, options: &Rp2040Options) -> Result<(), DeviceError> {
+    check_setup(firmware, options)?;
+    if options.port != 0 {
+        // Only tried here: the harness listens on it.
+        drop(super::bind_port(options.port)?);
+    }
+    if let Some(flash) = &options.flash {
+        super::prepare_flash_file(flash, FLASH_FILE)?;
+    }
+    Ok(())
+}
+
 /// Checks what the harness needs before starting it, with a message that
 /// says how to fix each thing.
 pub fn check_setup(firmware: &Path, options: &Rp2040Options) -> io::Result<()> {
@@ -210,7 +234,10 @@ impl Rp2040 {
     /// Boots `firmware` with `options`, waits for USB enumeration and
     /// connects to the bridged port.
     pub fn start_with(firmware: &Path, options: &Rp2040Options) -> io::Result<Rp2040> {
-        check_setup(firmware, options)?;
+        prepare(firmware, options).map_err(|e| match e {
+            DeviceError::Io(e) => e,
+            other => io::Error::other(other.to_string()),
+        })?;
         let mut command = harness_command(firmware, options);
         command.stdout(Stdio::piped()).stderr(Stdio::piped());
         let mut child = command.spawn().map_err(|e| {
@@ -525,22 +552,100 @@ fn collect_lines(
 }
 
 /// The emulated Pico of `placedb device --rp2040`, started in the
-/// foreground on `port` (0: a free port, which the harness prints): returns
-/// the harness's process. `check_setup` has refused a missing firmware,
-/// emulator or flash file before it starts. Wait for it with
-/// [`super::wait_in_foreground`], which stops the emulator first on Ctrl-C,
-/// SIGTERM or SIGHUP ([`super::foreground`]).
+/// foreground on `options.port` (0: a free port, which the harness
+/// prints) once [`prepare`] has passed: returns the harness's process once
+/// the firmware is up (enumerated on USB), or the signal that stopped it
+/// while it booted. What the harness prints goes on to placedb's stdout as
+/// it comes. `at_boot`, if given, is then called with a connection to the
+/// board's port, before the port is announced, to ask the board what it
+/// restored (the harness's lines on that connection are not passed on,
+/// and its waits end early on a stop signal). Wait for the process with
+/// [`super::wait_in_foreground`], which stops the emulator first on
+/// Ctrl-C, SIGTERM or SIGHUP ([`super::foreground`]).
 pub fn spawn_foreground(
     firmware: &Path,
     options: &Rp2040Options,
-) -> Result<std::process::Child, DeviceError> {
+    at_boot: Option<super::AtBoot<'_>>,
+) -> Result<Foreground, DeviceError> {
+    let mut command = harness_command(firmware, options);
+    command.stdout(Stdio::piped());
     // The emulator ends with placedb, whatever stops it (foreground.rs).
-    super::foreground::spawn(&mut harness_command(firmware, options)).map_err(|e| {
+    let mut child = super::foreground::spawn(&mut command).map_err(|e| {
         DeviceError::Input(format!(
             "cannot start node (Node 20 or later): {}",
             crate::error::io_words(&e)
         ))
-    })
+    })?;
+    let console = Arc::new(Mutex::new(String::new()));
+    let private = Arc::new(AtomicBool::new(false));
+    if let Some(out) = child.stdout.take() {
+        pass_on(out, Arc::clone(&console), Arc::clone(&private))?;
+    }
+    let text = || console.lock().map(|c| c.clone()).unwrap_or_default();
+    let up = super::foreground::wait_until(&mut child, &mut || text().contains("usb configured"))?;
+    match up {
+        None => {}
+        Some(super::foreground::Ended::Stopped(signal)) => return Ok(Foreground::Stopped(signal)),
+        Some(super::foreground::Ended::Exited(status)) => {
+            return Err(DeviceError::Io(io::Error::other(format!(
+                "the RP2040 emulator exited ({status}) before the firmware was up"
+            ))))
+        }
+    }
+    let port = listening_port(&text()).ok_or_else(|| {
+        DeviceError::Io(io::Error::other(
+            "the RP2040 emulator named no port before the firmware was up",
+        ))
+    })?;
+    if let Some(at_boot) = at_boot {
+        let count = |what: &str| text().matches(what).count();
+        let closed = count("client closed");
+        private.store(true, Ordering::SeqCst);
+        if let Ok(link) = TcpLink::connect(("127.0.0.1", port), Duration::from_secs(5)) {
+            at_boot(&mut super::foreground::Stoppable(link));
+            // Dropped: closed. Its "client closed" is not passed on either.
+            let end = Instant::now() + Duration::from_secs(5);
+            while count("client closed") == closed && Instant::now() < end {
+                thread::sleep(Duration::from_millis(10));
+            }
+        }
+        private.store(false, Ordering::SeqCst);
+    }
+    Ok(Foreground::Up(child, port))
+}
+
+/// How [`spawn_foreground`] left the emulated Pico.
+pub enum Foreground {
+    /// Up: the harness's process, to wait for, and the board's port.
+    Up(Child, u16),
+    /// Stopped by this signal while it booted.
+    Stopped(i32),
+}
+
+/// Passes the harness's lines on to placedb's stdout and into `console`,
+/// but for those on a connection placedb makes itself (`private`): the
+/// harness's "client connected" and "client closed".
+fn pass_on(
+    from: impl Read + Send + 'static,
+    console: Arc<Mutex<String>>,
+    private: Arc<AtomicBool>,
+) -> io::Result<JoinHandle<()>> {
+    thread::Builder::new()
+        .name("placedb-rp2040-stdout".into())
+        .spawn(move || {
+            for line in BufReader::new(from).lines() {
+                let Ok(line) = line else { return };
+                if !(private.load(Ordering::SeqCst) && line.starts_with("client ")) {
+                    let mut out = io::stdout().lock();
+                    let _ = writeln!(out, "{line}");
+                    let _ = out.flush();
+                }
+                if let Ok(mut c) = console.lock() {
+                    c.push_str(&line);
+                    c.push('\n');
+                }
+            }
+        })
 }
 
 #[cfg(test)]

@@ -49,14 +49,27 @@ impl<L: Link + ?Sized> Link for Box<L> {
     }
 }
 
+impl<L: Link + ?Sized> Link for &mut L {
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        (**self).send(bytes)
+    }
+
+    fn recv(&mut self, timeout: Duration) -> io::Result<Vec<u8>> {
+        (**self).recv(timeout)
+    }
+}
+
 /// Opens a link from its command-line spelling: `tcp:HOST:PORT`,
 /// `serial:PATH` (or a bare path such as `/dev/ttyACM0` or `COM3`), a
 /// board's USB serial number (`placedb.example:E6614103E7452D2F`) or the
 /// end of its hex ID (`2D2F`), or `local:PROFILE` (`local:ram512k`: the
-/// core's device in-process).
+/// core's device in-process). The one place every command and the library
+/// open a board's port, so a board that is not there is said once, in
+/// words that name the port and say what to do ([`TcpLink::open`],
+/// [`SerialLink::open`]); the error keeps its kind.
 pub fn open(spec: &str, timeout: Duration) -> io::Result<Box<dyn Link>> {
     if let Some(addr) = spec.strip_prefix("tcp:") {
-        return Ok(Box::new(TcpLink::connect(addr, timeout)?));
+        return Ok(Box::new(TcpLink::open(addr, timeout)?));
     }
     if let Some(profile) = spec.strip_prefix("local:") {
         return Ok(Box::new(LocalLink::start(profile)?));

@@ -31,6 +31,43 @@ impl TcpLink {
         Err(last)
     }
 
+    /// Connects to the board at `--port tcp:ADDR` within `timeout`, as
+    /// [`TcpLink::connect`] does, with a failure said in words that name the
+    /// port and say what to do (see [`super::open`]).
+    pub fn open(addr: &str, timeout: Duration) -> io::Result<TcpLink> {
+        let port = format!("tcp:{addr}");
+        let addrs: Vec<SocketAddr> = match addr.to_socket_addrs() {
+            Ok(addrs) => addrs.collect(),
+            Err(e) => {
+                return Err(io::Error::new(
+                    e.kind(),
+                    format!(
+                        "cannot find the board's address in {port} ({}): give it as \
+                         tcp:HOST:PORT, e.g. tcp:127.0.0.1:4321",
+                        crate::error::io_words(&e)
+                    ),
+                ))
+            }
+        };
+        TcpLink::connect(&addrs[..], timeout).map_err(|e| {
+            let why = match e.kind() {
+                io::ErrorKind::ConnectionRefused => format!("nothing listens on {port}"),
+                io::ErrorKind::TimedOut => format!(
+                    "{port} did not answer within {}",
+                    crate::error::seconds(timeout)
+                ),
+                _ => format!("cannot connect to {port}: {}", crate::error::io_words(&e)),
+            };
+            io::Error::new(
+                e.kind(),
+                format!(
+                    "{why}: is the board running, on that port? `placedb device --qemu` \
+                     (or --rp2040) starts an emulated one and prints its port"
+                ),
+            )
+        })
+    }
+
     /// Wraps a connected stream.
     pub fn from_stream(stream: TcpStream) -> io::Result<TcpLink> {
         stream.set_nodelay(true)?;
