@@ -4,9 +4,9 @@
 //! refused naming the frame.
 
 use super::check_camera;
+use super::sevenscenes::matrix_pose;
 use crate::error::ReadError;
 use crate::sequence::{CameraModel, Clock, DepthImage, DepthSource, Format, FrameInfo, Sequence};
-use nalgebra::{Matrix3, UnitQuaternion};
 use std::path::PathBuf;
 
 /// Frames in memory: `depth` holds every image, row after row, image
@@ -104,20 +104,7 @@ pub fn sequence(a: Arrays) -> Result<Sequence, ReadError> {
     }
     let mut frames = Vec::with_capacity(n);
     for (i, m) in a.poses.iter().enumerate() {
-        if m[3] != [0.0, 0.0, 0.0, 1.0] {
-            return Err(refused(
-                i,
-                format!(
-                    "the last row of a 4x4 pose must be 0 0 0 1, found {:?}",
-                    m[3]
-                ),
-            ));
-        }
-        let r: [[f64; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| m[r][c]));
-        let t = [m[0][3], m[1][3], m[2][3]];
-        placedb::Pose::from_matrix(r.map(|row| row.map(|c| c as f32)), t.map(|c| c as f32))
-            .map_err(|reason| refused(i, format!("bad pose: {reason}")))?;
-        let q = UnitQuaternion::from_matrix(&Matrix3::from_fn(|i, j| r[i][j]));
+        let (t, rotation) = matrix_pose(m).map_err(|e| refused(i, e))?;
         let timestamp = match &a.timestamps {
             Some(t) if t[i].is_finite() => t[i],
             Some(t) => return Err(refused(i, format!("timestamp {} is not finite", t[i]))),
@@ -127,7 +114,7 @@ pub fn sequence(a: Arrays) -> Result<Sequence, ReadError> {
             index: i,
             timestamp,
             translation: t,
-            rotation: [q.i, q.j, q.k, q.w],
+            rotation,
             depth_name: format!("frame {i}"),
             color_path: None,
         });

@@ -51,27 +51,48 @@ pub(crate) fn parse_pose_text(
     content: &str,
 ) -> Result<([f64; 3], [f64; 4]), ReadError> {
     let rows = text::square_rows(path, content, 4, "pose")?;
-    let m = |r: usize, c: usize| rows[r].1[c];
-    let first_line = rows[0].0;
-    let r: [[f64; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| m(i, j)));
-    let t = [m(0, 3), m(1, 3), m(2, 3)];
-    placedb::Pose::from_matrix(r.map(|row| row.map(|c| c as f32)), t.map(|c| c as f32)).map_err(
-        |reason| ReadError::Pose {
+    let m: [[f64; 4]; 4] = std::array::from_fn(|r| std::array::from_fn(|c| rows[r].1[c]));
+    matrix_pose(&m).map_err(|e| match e {
+        MatrixPoseError::Pose(reason) => ReadError::Pose {
             path: path.to_path_buf(),
-            line: first_line,
+            line: rows[0].0,
             reason,
         },
-    )?;
-    let last = &rows[3];
-    if last.1 != [0.0, 0.0, 0.0, 1.0] {
-        return Err(text::parse_error(
-            path,
-            last.0,
-            format!(
-                "the last row of a 4x4 pose must be 0 0 0 1, found {:?}",
-                last.1
+        e @ MatrixPoseError::LastRow(_) => text::parse_error(path, rows[3].0, e.to_string()),
+    })
+}
+
+/// Why a 4x4 camera-to-world matrix is not a pose.
+#[derive(Debug)]
+pub(crate) enum MatrixPoseError {
+    /// Its rotation or translation, as the core checks a pose.
+    Pose(placedb::CameraError),
+    /// Its last row is not `0 0 0 1`.
+    LastRow([f64; 4]),
+}
+
+impl std::fmt::Display for MatrixPoseError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            MatrixPoseError::Pose(reason) => write!(f, "bad pose: {reason}"),
+            MatrixPoseError::LastRow(row) => write!(
+                f,
+                "the last row of a 4x4 pose must be 0 0 0 1, found {row:?}"
             ),
-        ));
+        }
+    }
+}
+
+/// A 4x4 camera-to-world matrix as a translation and a unit quaternion
+/// `[qx, qy, qz, qw]`, checked as the core checks a pose (a 7-Scenes or
+/// ScanNet pose file, frames handed over as arrays).
+pub(crate) fn matrix_pose(m: &[[f64; 4]; 4]) -> Result<([f64; 3], [f64; 4]), MatrixPoseError> {
+    let r: [[f64; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| m[i][j]));
+    let t = [m[0][3], m[1][3], m[2][3]];
+    placedb::Pose::from_matrix(r.map(|row| row.map(|c| c as f32)), t.map(|c| c as f32))
+        .map_err(MatrixPoseError::Pose)?;
+    if m[3] != [0.0, 0.0, 0.0, 1.0] {
+        return Err(MatrixPoseError::LastRow(m[3]));
     }
     let q = UnitQuaternion::from_matrix(&Matrix3::from_fn(|i, j| r[i][j]));
     Ok((t, [q.i, q.j, q.k, q.w]))
