@@ -470,12 +470,15 @@ class Device:
         profile: Optional[str] = None,
     ) -> dict:
         """Starts a scan with this camera and these settings (``select``'s,
-        checked with the same words). Returns the device's status before it."""
+        checked with the same words); with ``profile``, the device must run
+        that capacity profile (so its results are ``select(profile=...)``'s).
+        Returns the device's status before it."""
         _check(mu=mu, window=window, depth_scale=depth_scale, depth_range=depth_range, stride=stride, voxel=voxel, profile=profile)
         k = _intrinsics(intrinsics)
         status = self._native.configure(
             k, int(width), int(height), float(depth_scale), tuple(float(v) for v in depth_range),
             int(stride), float(voxel), float(mu), int(window), float(_native.SKETCH_MARGIN),
+            profile,
         )
         self._scale = float(depth_scale)
         return json.loads(status)
@@ -549,7 +552,7 @@ class Selector:
         self._device = Device(f"local:{profile}")
         self._device.configure(
             intrinsics, width, height, mu=mu, window=window, depth_scale=depth_scale,
-            depth_range=depth_range, stride=stride, voxel=voxel,
+            depth_range=depth_range, stride=stride, voxel=voxel, profile=profile,
         )
         self._depth_scale = float(depth_scale)
 

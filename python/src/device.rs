@@ -9,7 +9,7 @@ use numpy::{PyReadonlyArray2, PyUntypedArrayMethods};
 use placedb::protocol::DecisionKind;
 use placedb::{DepthRange, Intrinsics, Pose, ScanConfig, SelectorConfig, VoxelGrid};
 use placedb_host::board::link::Link;
-use placedb_host::board::scan::StreamOptions;
+use placedb_host::board::scan::{device_config, StreamOptions};
 use placedb_host::board::session::{DepthFrame, Session};
 use pyo3::prelude::*;
 use std::path::PathBuf;
@@ -154,9 +154,10 @@ impl Device {
     }
 
     /// Starts a scan (refused, naming what it holds, when the device holds
-    /// one and the device was not opened with new_scan=True).
+    /// one and the device was not opened with new_scan=True); with
+    /// `profile`, refused unless the device runs that profile.
     #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (intrinsics, width, height, depth_scale, depth_range, stride, voxel, mu, window, sketch_margin))]
+    #[pyo3(signature = (intrinsics, width, height, depth_scale, depth_range, stride, voxel, mu, window, sketch_margin, profile=None))]
     fn configure(
         &self,
         py: Python<'_>,
@@ -170,6 +171,7 @@ impl Device {
         mu: f32,
         window: u16,
         sketch_margin: f32,
+        profile: Option<String>,
     ) -> PyResult<String> {
         let (fx, fy, cx, cy) = intrinsics;
         let k = Intrinsics {
@@ -197,7 +199,14 @@ impl Device {
             window,
             sketch_margin,
         };
-        let status = released(py, || self.session().configure(&scan, &sel).map_err(failed))?;
+        // With a profile, the device must run it (as `stream --profile`),
+        // so that its results are `select --profile`'s.
+        let status = released(py, || {
+            let cfg = device_config(&scan, &sel).map_err(failed)?;
+            self.session()
+                .start(&cfg, profile.as_deref())
+                .map_err(failed)
+        })?;
         *self.camera.lock().unwrap_or_else(|p| p.into_inner()) = Some(k);
         serde_json::to_string(&status).map_err(|e| Failure::value(e.to_string()).into())
     }

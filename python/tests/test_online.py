@@ -95,6 +95,16 @@ def test_a_device_on_the_local_port_is_the_client_library(seven_scenes, tmp_path
         db.write(tmp_path / "out2", colmap=tmp_path / "colmap")
 
 
+def test_a_device_of_another_profile_is_refused_then_the_right_one_goes_on(seven_scenes):
+    seq = placedb.read_sequence(seven_scenes, max_frames=2)
+    dev = placedb.Device("local:ram256k")
+    with pytest.raises(Exception, match="ram512k"):
+        dev.configure(seq.intrinsics, seq.width, seq.height, profile="ram512k")
+    dev.configure(seq.intrinsics, seq.width, seq.height, window=8, profile="ram256k")
+    dev.push(seq.depth(0), seq.poses[0], seq.timestamps[0])
+    assert dev.finish()["frames_seen"] == 1
+
+
 def test_a_port_that_is_not_there_is_an_os_error():
     with pytest.raises(OSError, match="no-such-tty"):
         placedb.Device("/dev/no-such-tty")
