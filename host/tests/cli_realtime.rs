@@ -254,3 +254,29 @@ fn a_dataset_replays_at_its_sequences_rate() {
         }
     }
 }
+
+/// The reference layout without a timestamp column (the sample
+/// `vprdb-test-db`) numbers its frames: 30 Hz by position.
+#[test]
+fn the_reference_layout_without_timestamps_replays_at_30_hz() {
+    let tmp = TempDir::new("rt-vprdb");
+    let sample = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../shared/data/vprdb-test-db"
+    );
+    let (out, took) = placedb_within(
+        &realtime_args(sample, &[], &tmp.arg("out")),
+        Duration::from_secs(60),
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(0), "{}{stdout}", stderr(&out));
+    assert!(
+        stdout.contains(
+            "5 frames replayed at 30.0 frames/s (the layout's camera rate, 30 Hz: its frames \
+             are numbered, not stamped)"
+        ),
+        "{stdout}"
+    );
+    assert!(took < Duration::from_secs(20), "took {took:?}");
+    check_numbering(&stdout, 5);
+}
