@@ -386,14 +386,7 @@ fn export_pairs_name_the_sequences_colour_files() {
     let dir = tmp.path().join("seq");
     let frames = 20;
     seven_scenes_copy(&dir, frames, true);
-    for i in 0..frames {
-        let name = format!("frame-{i:06}.color.jpg");
-        std::fs::copy(
-            std::path::Path::new(cli_common::SEVEN_SCENES).join(&name),
-            dir.join(&name),
-        )
-        .unwrap();
-    }
+    seven_scenes_colour(&dir, 0..frames);
     let seq = tmp.arg("seq");
     let board = Board::start();
     // Stride 8 keeps the emulated board's scan short.
@@ -842,4 +835,213 @@ fn a_realtime_scan_is_numbered_by_the_sequence_and_export_sequence_takes_it() {
     );
     assert!(err.contains(&want), "{want:?} not in: {err}");
     assert!(!tmp.path().join("out3").exists());
+}
+
+/// Copies the colour images of the sample's frames `frames` into `dir`
+/// (beside the depth and poses of [`seven_scenes_copy`]).
+fn seven_scenes_colour(dir: &std::path::Path, frames: impl IntoIterator<Item = usize>) {
+    for i in frames {
+        let name = format!("frame-{i:06}.color.jpg");
+        std::fs::copy(
+            std::path::Path::new(cli_common::SEVEN_SCENES).join(&name),
+            dir.join(&name),
+        )
+        .unwrap();
+    }
+}
+
+/// The device path beside the host path for every export flag, on a part
+/// of a sequence: a board that scanned the first 16 of its 24 frames
+/// (every tenth frame of the sample, so that places differ),
+/// exported with `--sequence` naming all 24 (the streamed frames are its
+/// first), writes byte for byte what `select --solver online --max-frames
+/// 16` with the same settings writes: `database.csv`, `labels.csv`, the
+/// dataset (`--dataset`), the COLMAP model, the VPR-evaluation layout
+/// (its queries the non-database frames, and with `--test` a test
+/// sequence's frames) and the pairs. The same export again onto the same
+/// targets replaces them with the same bytes.
+#[test]
+fn every_export_of_a_part_of_the_sequence_is_selects() {
+    let tmp = TempDir::new("every-export");
+    let (dir, test_dir) = (tmp.path().join("seq"), tmp.path().join("test"));
+    let (frames, streamed) = ((0..240).step_by(10), 16);
+    cli_common::seven_scenes_frames(&dir, frames.clone(), true);
+    seven_scenes_colour(&dir, frames);
+    seven_scenes_copy(&test_dir, 6, true);
+    seven_scenes_colour(&test_dir, 0..6);
+    let (seq, test) = (tmp.arg("seq"), tmp.arg("test"));
+    let board = Board::start();
+    // 6 database frames of 16; stride 16 keeps the emulated UART's share
+    // short.
+    let same = [
+        "--stride", "16", "--mu", "0.7", "--voxel", "0.2", "--window", "8", "-q",
+    ];
+    let n = streamed.to_string();
+    let mut args = vec!["stream", &seq, "--port", &board.port, "--max-frames", &n];
+    args.extend(same);
+    let run = placedb(&args);
+    assert!(run.status.success(), "{}", stderr(&run));
+    // Each side's outputs: the database directory, then one per flag.
+    let outputs = |side: &str, with_test: bool| -> Vec<String> {
+        let t = if with_test { "-test" } else { "" };
+        ["out", "ds", "colmap", "vpr", "pairs.txt"]
+            .iter()
+            .map(|o| tmp.arg(&format!("{side}{t}-{o}")))
+            .collect()
+    };
+    let flags = |o: &[String], with_test: bool| -> Vec<String> {
+        let mut v: Vec<String> = ["-o", "--dataset", "--colmap", "--vpr-eval", "--pairs"]
+            .iter()
+            .zip(o)
+            .flat_map(|(f, p)| [f.to_string(), p.clone()])
+            .collect();
+        if with_test {
+            v.extend(["--test".to_string(), test.clone()]);
+        }
+        v
+    };
+    let read = |p: &str| -> cli_common::Tree {
+        let path = std::path::Path::new(p);
+        if path.is_dir() {
+            cli_common::tree(path)
+        } else {
+            std::iter::once((String::new(), std::fs::read(path).unwrap())).collect()
+        }
+    };
+    for with_test in [false, true] {
+        let host = outputs("host", with_test);
+        let mut args: Vec<String> = ["select", &seq, "--solver", "online", "--max-frames", &n]
+            .iter()
+            .chain(&same)
+            .map(|s| s.to_string())
+            .collect();
+        args.extend(flags(&host, with_test));
+        let run = placedb(&args);
+        assert!(run.status.success(), "{}", stderr(&run));
+        let device = outputs("device", with_test);
+        let mut args: Vec<String> = ["export", "--port", &board.port, "-q", "--sequence", &seq]
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        args.extend(flags(&device, with_test));
+        let mut previous = None;
+        // The same export twice: the second replaces the first's outputs.
+        for _ in 0..2 {
+            let run = placedb(&args);
+            assert!(run.status.success(), "{}", stderr(&run));
+            let now: Vec<cli_common::Tree> = device[1..].iter().map(|d| read(d)).collect();
+            if let Some(before) = previous.replace(now.clone()) {
+                assert!(before == now, "the same export again wrote other bytes");
+            }
+        }
+        for table in ["database.csv", "labels.csv"] {
+            let read = |d: &str| std::fs::read_to_string(format!("{d}/{table}")).unwrap();
+            assert_eq!(read(&device[0]), read(&host[0]), "{table}");
+        }
+        let db = std::fs::read_to_string(format!("{}/database.csv", host[0])).unwrap();
+        assert!(
+            db.lines().count() > 2,
+            "one database frame proves little: {db}"
+        );
+        for (d, h) in device[1..].iter().zip(&host[1..]) {
+            let (dt, ht) = (read(d), read(h));
+            assert!(!ht.is_empty() && ht.values().all(|b| !b.is_empty()), "{h}");
+            let differ: Vec<&String> = ht
+                .keys()
+                .chain(dt.keys())
+                .filter(|k| dt.get(*k) != ht.get(*k))
+                .collect();
+            assert!(
+                differ.is_empty(),
+                "{d} differs from select's {h} (with --test: {with_test}): {differ:?}"
+            );
+        }
+    }
+}
+
+/// The same place twice on a board: `stream SEQ --extend` of the very
+/// sequence the board's finished scan came from adds no database frame,
+/// nor does a later session of a part of it; after each session the
+/// board's tables are those of `select --extend --solver online`, and the
+/// later sessions' frames are all covered by first-session frames. Then
+/// `export --sequence` of that scan of three sessions is refused in words,
+/// writing nothing, as `select --extend` refuses the exports (it said "the
+/// device scanned 39 frames, the sequence has 16: not the streamed
+/// sequence?").
+#[test]
+fn the_same_place_streamed_again_adds_no_database_frame_on_the_board() {
+    let tmp = TempDir::new("again");
+    // Every tenth frame: places apart, so that some frames are covered.
+    let (dir, part_dir) = (tmp.path().join("seq"), tmp.path().join("part"));
+    cli_common::seven_scenes_frames(&dir, (0..160).step_by(10), true);
+    cli_common::seven_scenes_frames(&part_dir, (30..100).step_by(10), true);
+    let (seq, part) = (tmp.arg("seq"), tmp.arg("part"));
+    let board = Board::start();
+    // 10 database frames of 16 at mu 0.8; stride 16 keeps the emulated
+    // UART's share short.
+    let same = [
+        "--stride", "16", "--mu", "0.8", "--voxel", "0.3", "--window", "8", "-q",
+    ];
+    let mut previous: Option<String> = None;
+    for (session, s) in [&seq, &seq, &part].into_iter().enumerate() {
+        let host = tmp.arg(&format!("host-{session}"));
+        let mut args = vec!["select", s.as_str(), "--solver", "online", "-o", &host];
+        args.extend(same);
+        if let Some(p) = &previous {
+            args.extend(["--extend", p.as_str()]);
+        }
+        let run = placedb(&args);
+        assert!(run.status.success(), "{}", stderr(&run));
+        let mut args = vec!["stream", s.as_str(), "--port", &board.port];
+        args.extend(same);
+        if session > 0 {
+            args.push("--extend");
+        }
+        let run = placedb(&args);
+        assert!(run.status.success(), "{}", stderr(&run));
+        let out = tmp.arg(&format!("device-{session}"));
+        let (database, labels) = exported(&board.port, &out);
+        let read = |f: &str| std::fs::read_to_string(format!("{host}/{f}")).unwrap();
+        assert_eq!(database, read("database.csv"), "session {session}");
+        assert_eq!(labels, read("labels.csv"), "session {session}");
+        let rows = csv_rows(&tmp.path().join(format!("device-{session}/database.csv")));
+        assert!(
+            rows.len() > 2 && rows.len() < 16,
+            "all or few frames taken: nothing to tell: {database}"
+        );
+        if session > 0 {
+            // index,timestamp,tx,ty,tz,qx,qy,qz,qw,session,session_index
+            let added: Vec<&Vec<String>> = rows.iter().filter(|r| r[9] != "0").collect();
+            assert!(added.is_empty(), "session {session} added {added:?}");
+            // index,timestamp,class_index,session,session_index,class_session
+            let labels = csv_rows(&tmp.path().join(format!("device-{session}/labels.csv")));
+            assert!(labels.iter().any(|r| r[3] == session.to_string()));
+            for row in labels.iter().filter(|r| r[3] != "0") {
+                assert_eq!(row[5], "0", "{row:?}: not covered by the first session");
+            }
+        }
+        previous = Some(host);
+    }
+    let (out, pairs) = (tmp.arg("out"), tmp.arg("pairs.txt"));
+    let run = placedb(&[
+        "export",
+        "--port",
+        &board.port,
+        "-q",
+        "-o",
+        &out,
+        "--sequence",
+        &seq,
+        "--pairs",
+        &pairs,
+    ]);
+    let err = stderr(&run);
+    assert_eq!(run.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains(
+            "the device's scan holds 3 sessions (stream --extend; they begin at frames 0, 16, 32)"
+        ) && err.contains("does not combine with sessions yet"),
+        "{err}"
+    );
+    assert!(!tmp.path().join("out").exists() && !tmp.path().join("pairs.txt").exists());
 }

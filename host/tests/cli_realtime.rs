@@ -199,3 +199,84 @@ fn a_rate_out_of_range_exits_2_with_the_range_before_any_work() {
         assert!(!tmp.path().join("out").exists());
     }
 }
+
+/// The dataset `select --dataset` writes is a layout the tool reads (the
+/// reference layout) and replays at its source's rate: a 7-Scenes scan's
+/// (frames numbered, not stamped) at the camera's 30 Hz by position, its
+/// `database/` too, whose numbering has gaps (the dataset stamped each
+/// frame with its number, so the replay took the numbers as seconds: 0.1
+/// frames/s for this sequence of every tenth frame, idling 10 s on each
+/// gap); a TUM scan's (stamped) at its stamps.
+#[test]
+fn a_dataset_replays_at_its_sequences_rate() {
+    let tmp = TempDir::new("rt-dataset");
+    let seq = tmp.path().join("seq");
+    cli_common::seven_scenes_frames(&seq, (0..60).step_by(10), true);
+    let tum = tmp.arg("tum");
+    let made = placedb(&[
+        "synth", &tum, "--frames", "4", "--width", "64", "--height", "48",
+    ]);
+    assert!(made.status.success(), "{}", stderr(&made));
+    for (source, want) in [
+        (
+            seq.to_string_lossy().into_owned(),
+            "replayed at 30.0 frames/s (the layout's camera rate, 30 Hz: its frames are \
+             numbered, not stamped)",
+        ),
+        (tum, "replayed at 30.0 frames/s (the recorded timestamps)"),
+    ] {
+        let ds = tmp.arg("ds");
+        let run = placedb(&[
+            "select",
+            &source,
+            "--stride",
+            "8",
+            "--mu",
+            "0.8",
+            "--voxel",
+            "0.2",
+            "-q",
+            "-o",
+            &tmp.arg("sel"),
+            "--dataset",
+            &ds,
+        ]);
+        assert!(run.status.success(), "{}", stderr(&run));
+        for dir in [ds.clone(), format!("{ds}/database")] {
+            let (out, took) = placedb_within(
+                &realtime_args(&dir, &[], &tmp.arg("out")),
+                Duration::from_secs(30),
+            );
+            let stdout = String::from_utf8_lossy(&out.stdout);
+            assert_eq!(out.status.code(), Some(0), "{}{stdout}", stderr(&out));
+            assert!(stdout.contains(want), "{dir}: want {want:?} in {stdout}");
+            assert!(took < Duration::from_secs(20), "{dir}: took {took:?}");
+        }
+    }
+}
+
+/// The reference layout without a timestamp column (the sample
+/// `vprdb-test-db`) numbers its frames: 30 Hz by position.
+#[test]
+fn the_reference_layout_without_timestamps_replays_at_30_hz() {
+    let tmp = TempDir::new("rt-vprdb");
+    let sample = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../shared/data/vprdb-test-db"
+    );
+    let (out, took) = placedb_within(
+        &realtime_args(sample, &[], &tmp.arg("out")),
+        Duration::from_secs(60),
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(0), "{}{stdout}", stderr(&out));
+    assert!(
+        stdout.contains(
+            "5 frames replayed at 30.0 frames/s (the layout's camera rate, 30 Hz: its frames \
+             are numbered, not stamped)"
+        ),
+        "{stdout}"
+    );
+    assert!(took < Duration::from_secs(20), "took {took:?}");
+    check_numbering(&stdout, 5);
+}

@@ -589,3 +589,71 @@ fn pairs_without_colour_or_with_unwritable_names() {
     assert!(!out.exists() && !pairs.exists(), "something was written");
     std::fs::remove_dir_all(&root).ok();
 }
+
+/// What exports.md says is refused, before anything is written: a colour
+/// image of another size than the depth images (the COLMAP camera is the
+/// depth camera's), named with its frame and file, for `--colmap` and
+/// `--vpr-eval`; a `--vpr-eval` path holding `@`, which the tool splits
+/// names at.
+#[test]
+fn a_colour_image_of_another_size_or_an_at_in_the_vpr_eval_path_is_refused() {
+    let root = temp("refused");
+    let seq = root.join("seq");
+    std::fs::create_dir_all(&seq).unwrap();
+    for i in 0..6 {
+        for kind in ["depth.png", "pose.txt", "color.jpg"] {
+            let name = format!("frame-{i:06}.{kind}");
+            std::fs::copy(Path::new(SEVEN_SCENES).join(&name), seq.join(&name)).unwrap();
+        }
+    }
+    std::fs::copy(
+        Path::new(SEVEN_SCENES).join("camera-intrinsics.txt"),
+        seq.join("camera-intrinsics.txt"),
+    )
+    .unwrap();
+    // Frame 0: in-order takes it, so both exports write its image.
+    let small = seq.join("frame-000000.color.jpg");
+    jpeg_encoder::Encoder::new_file(&small, 90)
+        .unwrap()
+        .encode(
+            &[128; 320 * 240 * 3],
+            320,
+            240,
+            jpeg_encoder::ColorType::Rgb,
+        )
+        .unwrap();
+    let run = |flag: &str, target: &Path| {
+        placedb(&[
+            "select",
+            seq.to_str().unwrap(),
+            "--stride",
+            "16",
+            "--solver",
+            "in-order",
+            "-q",
+            "-o",
+            root.join("out").to_str().unwrap(),
+            flag,
+            target.to_str().unwrap(),
+        ])
+    };
+    for (flag, target) in [("--colmap", "colmap"), ("--vpr-eval", "vpr")] {
+        let out = run(flag, &root.join(target));
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{flag}: {err}");
+        let want = format!(
+            "frame 0: colour image {} is 320x240, the depth images",
+            small.display()
+        );
+        assert!(err.contains(&want), "{flag}: {want:?} not in {err}");
+        assert!(!root.join(target).exists() && !root.join("out").exists());
+    }
+    std::fs::remove_file(&small).unwrap();
+    let at = root.join("a@b");
+    let out = run("--vpr-eval", &at);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("the directory's path must hold none"), "{err}");
+    assert!(!at.exists() && !root.join("out").exists());
+    std::fs::remove_dir_all(&root).ok();
+}

@@ -8,6 +8,7 @@
 //!   color/NNNNNN.{png,jpg}  every labelled frame's colour image (when the sequence has colour)
 //!   depth/NNNNNN.png        its depth, 16-bit PNG in millimetres (0 = no measurement)
 //!   poses.txt               "timestamp tx ty tz qx qy qz qw" per frame, camera to world
+//!                           (no timestamp when the sequence numbers its frames)
 //!   intrinsics.txt          3x3 K
 //!   classes.csv             name,index,timestamp,class_index,in_database
 //!   database/               the database frames alone, same layout (its classes.csv: its frames)
@@ -20,13 +21,20 @@
 //! reference layout (`--format vprdb`). A frame's class is the index of the
 //! database frame that covers it (itself for a database frame), as in
 //! `labels.csv`.
+//! A sequence that numbers its frames instead of stamping them (7-Scenes,
+//! ScanNet: [`Clock::FrameNumbers`]) gets no timestamp column in
+//! `poses.txt`: a frame number read back as seconds made `stream
+//! --realtime` of the dataset replay at 1 frame/s and idle on every gap in
+//! the numbering; without it the layout reads back as numbered, replayed
+//! at the camera's rate by position. `classes.csv` keeps the frames'
+//! numbers.
 //! Colour files are copied as they are; colour held in the sequence itself
 //! (a ROS 2 bag's colour topic) is written as PNG. When some frames have no
 //! colour, `color/` is left out (the layout needs one per depth image).
 
 use crate::error::OutputError;
 use crate::picture::png::Samples;
-use crate::sequence::Sequence;
+use crate::sequence::{Clock, Sequence};
 use rayon::prelude::*;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -186,7 +194,10 @@ pub fn write(dir: &Path, seq: &Sequence, labels: &[usize]) -> Result<DatasetSumm
             let f = &seq.frames[i];
             let [tx, ty, tz] = f.translation;
             let [qx, qy, qz, qw] = f.rotation;
-            let _ = writeln!(s, "{:.6} {tx} {ty} {tz} {qx} {qy} {qz} {qw}", f.timestamp);
+            if let Clock::Seconds = seq.clock {
+                let _ = write!(s, "{:.6} ", f.timestamp);
+            }
+            let _ = writeln!(s, "{tx} {ty} {tz} {qx} {qy} {qz} {qw}");
         }
         s
     };

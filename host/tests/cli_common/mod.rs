@@ -63,6 +63,12 @@ impl Drop for TempDir {
 /// Copies the first `frames` frames of the 7-Scenes sample (depth, pose and
 /// the intrinsics file when `intrinsics`) into `dir`.
 pub fn seven_scenes_copy(dir: &Path, frames: usize, intrinsics: bool) {
+    seven_scenes_frames(dir, 0..frames, intrinsics);
+}
+
+/// Copies the sample's frames `frames` (depth and pose, keeping their
+/// numbers, and the intrinsics file when `intrinsics`) into `dir`.
+pub fn seven_scenes_frames(dir: &Path, frames: impl IntoIterator<Item = usize>, intrinsics: bool) {
     let src = Path::new(SEVEN_SCENES);
     assert!(
         src.is_dir(),
@@ -70,7 +76,7 @@ pub fn seven_scenes_copy(dir: &Path, frames: usize, intrinsics: bool) {
         src.display()
     );
     std::fs::create_dir_all(dir).unwrap();
-    for i in 0..frames {
+    for i in frames {
         for kind in ["depth.png", "pose.txt"] {
             let name = format!("frame-{i:06}.{kind}");
             std::fs::copy(src.join(&name), dir.join(&name)).unwrap();
@@ -85,8 +91,11 @@ pub fn seven_scenes_copy(dir: &Path, frames: usize, intrinsics: bool) {
     }
 }
 
+/// Files by relative path, with their bytes.
+pub type Tree = BTreeMap<String, Vec<u8>>;
+
 /// Every file under `dir`, by relative path, with its bytes.
-pub fn tree(dir: &Path) -> BTreeMap<String, Vec<u8>> {
+pub fn tree(dir: &Path) -> Tree {
     fn walk(root: &Path, at: &Path, out: &mut BTreeMap<String, Vec<u8>>) {
         for e in std::fs::read_dir(at).unwrap() {
             let path = e.unwrap().path();

@@ -88,6 +88,21 @@ fn received_frames(seq: &Sequence, timestamps: &[f64]) -> Result<Vec<usize>, Str
 /// the outputs name it by), with the scan's camera. Refused, naming what
 /// differs, when `export` is not a scan of `seq`.
 pub fn streamed_frames(seq: Sequence, export: &Export) -> Result<Sequence, OutputError> {
+    let firsts = export.sessions();
+    if firsts.len() > 1 {
+        // As `select --extend` refuses the exports: one sequence is one
+        // session (the tables, the dataset and the exports would have to
+        // name the frames of several).
+        let at: Vec<String> = firsts.iter().map(u32::to_string).collect();
+        return Err(OutputError::Mismatch(format!(
+            "--sequence {}: the device's scan holds {} sessions (stream --extend; they begin at \
+             frames {}): --sequence, and so --dataset, --colmap, --vpr-eval and --pairs, does \
+             not combine with sessions yet, as select --extend does not; export without them",
+            seq.name,
+            firsts.len(),
+            at.join(", ")
+        )));
+    }
     let (timestamps, _) = export.labels();
     let not_it = |what: String| {
         OutputError::Mismatch(format!(
