@@ -178,6 +178,13 @@ fn export_uses_the_scans_own_mu_and_refuses_another() {
         "{err}"
     );
     assert!(!tmp.path().join("out").exists() && !tmp.path().join("pairs.txt").exists());
+    // Nor beside them: a refusal keeps no records for --from.
+    let left: Vec<_> = std::fs::read_dir(tmp.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .filter(|name| name != "seq")
+        .collect();
+    assert!(left.is_empty(), "a refused export left {left:?}");
     let run = export(&out, &pairs, None);
     assert!(run.status.success(), "{}", stderr(&run));
     let by_default = std::fs::read_to_string(&pairs).unwrap();

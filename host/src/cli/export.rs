@@ -163,33 +163,16 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
         }
         e => e,
     })?;
-    let (seq, measuring) = match seq {
-        Some(seq) => {
-            if let Some(dir) = &a.dataset {
-                if export.labels().1.is_empty() {
-                    // Nothing is written (the export and its dataset appear
-                    // together): an empty dataset would read as a made one.
-                    return Err(format!(
-                        "--dataset {}: the device's export has no labelled frame (its scan \
-                         decided none yet): no dataset written, nor {}. Finish the scan first \
-                         (placedb stream {} --port {} --resume, with the options it was \
-                         streamed with), or export without --dataset",
-                        dir.display(),
-                        a.out.display(),
-                        a.sequence.as_deref().unwrap_or(Path::new("SEQ")).display(),
-                        a.port
-                    )
-                    .into());
-                }
-            }
-            let seq = measure::streamed_frames(seq, &export)?;
-            // The tables name the device's frames as the exports do: by
-            // their numbers in the sequence.
-            export.sequence_frames = Some(seq.frames.iter().map(|f| f.index).collect());
-            let measuring = measure::measure(&seq, &export, &a.streamed, a.quiet)?;
-            (Some(seq), measuring)
+    // A refusal of what was pulled (the scan is not of this sequence, a
+    // setting contradicts the scan's) is no interrupted export: there is
+    // nothing for --from to go on with, so its records go too, as a refused
+    // run leaves nothing (docs/FORMATS.md).
+    let (seq, measuring) = match streamed(&a, seq, &mut export) {
+        Ok(found) => found,
+        Err(e) => {
+            let _ = export::finished(&a.out);
+            return Err(e);
         }
-        None => (None, None),
     };
     // The export, its dataset and exports appear together, or none does.
     let (dataset, exported) = replace::together(|outputs| {
@@ -229,6 +212,45 @@ pub fn run(a: ExportArgs) -> Result<(), Error> {
         println!("{line}");
     }
     Ok(())
+}
+
+/// The frames of `seq` the device's scan `export` received, measured for
+/// the exports, after the checks that refuse them (an empty dataset, a
+/// sequence that is not the scan's, settings that contradict its own);
+/// `(None, None)` without --sequence.
+fn streamed(
+    a: &ExportArgs,
+    seq: Option<Sequence>,
+    export: &mut Export,
+) -> Result<(Option<Sequence>, Option<Measuring>), Error> {
+    match seq {
+        Some(seq) => {
+            if let Some(dir) = &a.dataset {
+                if export.labels().1.is_empty() {
+                    // Nothing is written (the export and its dataset appear
+                    // together): an empty dataset would read as a made one.
+                    return Err(format!(
+                        "--dataset {}: the device's export has no labelled frame (its scan \
+                         decided none yet): no dataset written, nor {}. Finish the scan first \
+                         (placedb stream {} --port {} --resume, with the options it was \
+                         streamed with), or export without --dataset",
+                        dir.display(),
+                        a.out.display(),
+                        a.sequence.as_deref().unwrap_or(Path::new("SEQ")).display(),
+                        a.port
+                    )
+                    .into());
+                }
+            }
+            let seq = measure::streamed_frames(seq, export)?;
+            // The tables name the device's frames as the exports do: by
+            // their numbers in the sequence.
+            export.sequence_frames = Some(seq.frames.iter().map(|f| f.index).collect());
+            let measuring = measure::measure(&seq, export, &a.streamed, a.quiet)?;
+            Ok((Some(seq), measuring))
+        }
+        None => Ok((None, None)),
+    }
 }
 
 /// The line saying which frames of `seq` (cut to the device's by
