@@ -162,8 +162,21 @@ pub fn scan(
     }
 }
 
+/// What one reading of a bag keeps between the messages it reads back:
+/// the ROS 1 chunks it decompressed last ([`ros1_storage::Chunks`]). Made
+/// with the reading and dropped with it.
+#[derive(Default)]
+pub struct Kept {
+    ros1_chunks: ros1_storage::Chunks,
+}
+
 /// Reads back the message at `at` in file `path`.
 pub fn fetch(path: &Path, at: Location) -> Result<Vec<u8>, BagError> {
+    fetch_kept(path, at, &Kept::default())
+}
+
+/// [`fetch`] for a reading that keeps `kept` between its messages.
+pub fn fetch_kept(path: &Path, at: Location, kept: &Kept) -> Result<Vec<u8>, BagError> {
     match at.place {
         Place::Mcap {
             offset,
@@ -175,7 +188,7 @@ pub fn fetch(path: &Path, at: Location) -> Result<Vec<u8>, BagError> {
             offset,
             len,
             in_chunk,
-        } => ros1_storage::fetch(path, offset, len, in_chunk),
+        } => ros1_storage::fetch(path, at.file, offset, len, in_chunk, &kept.ros1_chunks),
     }
 }
 

@@ -686,6 +686,7 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions, format: Format) -> Result<Se
             color: colors,
             depth_scale: opts.depth_scale.unwrap_or(DEPTH_SCALE),
             topic: depth_topic,
+            kept: bag::Kept::default(),
         }),
     })
 }
@@ -849,12 +850,14 @@ struct BagSource {
     color: Vec<Option<ImageRef>>,
     depth_scale: f64,
     topic: String,
+    /// What reading the frames keeps between them (chunks decompressed).
+    kept: bag::Kept,
 }
 
 impl BagSource {
     fn message(&self, r: &ImageRef) -> Result<Vec<u8>, ReadError> {
         let file = &self.files[r.at.file];
-        bag::fetch(file, r.at).map_err(layout)
+        bag::fetch_kept(file, r.at, &self.kept).map_err(layout)
     }
 }
 

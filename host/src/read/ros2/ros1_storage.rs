@@ -12,7 +12,8 @@
 //! walks the file once, one chunk at a time, and hands every message to the
 //! visitor with its [`Place::Ros1`] (the top-level record and, inside a
 //! chunk, the message record's offset in the decompressed data); [`fetch`]
-//! reads one back. A channel's schema is the ROS 2 name of the type
+//! reads one back, a chunk decompressed once for the messages read from it
+//! in turn ([`Chunks`]). A channel's schema is the ROS 2 name of the type
 //! (`sensor_msgs/Image` is `sensor_msgs/msg/Image`; `tf/tfMessage`, the
 //! same layout, is `tf2_msgs/msg/TFMessage`) and its encoding `ros1`, so
 //! the reader takes ROS 1 and ROS 2 messages down one path.
@@ -24,11 +25,12 @@
 //! inside a chunk: a chunk cut short is an error naming the byte.
 
 use super::bag::{err, BagError, Channel, Location, Message, Place};
-use std::borrow::Cow;
-use std::collections::HashMap;
+use rayon::prelude::*;
+use std::collections::{HashMap, VecDeque};
 use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::Path;
+use std::sync::{Arc, Mutex, PoisonError};
 
 /// The first bytes of a ROS 1 bag of format 2.0.
 pub const MAGIC: &[u8; 13] = b"#ROSBAG V2.0\n";
@@ -169,29 +171,37 @@ fn inner_records<'a>(
 /// bz2 stream has no such bound, its output is capped by `size` alone.
 const LZ4_MOST_PER_BYTE: u64 = 255;
 
-/// A chunk's data, decompressed: exactly `size` bytes, else an error.
-fn decompress<'a>(compression: &[u8], size: u32, data: &'a [u8]) -> Result<Cow<'a, [u8]>, String> {
+/// A chunk's data, decompressed: exactly `size` bytes, else an error;
+/// `data` itself when it is not compressed, else `out`'s (its room reused:
+/// fresh memory costs a page fault a 4 KiB, as much as decompressing).
+fn decompress<'a>(
+    compression: &[u8],
+    size: u32,
+    data: &'a [u8],
+    out: &'a mut Vec<u8>,
+) -> Result<&'a [u8], String> {
     let size = u64::from(size);
     let claims = |got: usize| {
         format!("it claims {size} bytes uncompressed, its data gives {got} (a damaged chunk)")
     };
-    let read_capped = |mut r: Box<dyn Read + '_>| -> Result<Vec<u8>, String> {
+    let read_capped = |mut r: Box<dyn Read + '_>, out: &mut Vec<u8>| -> Result<(), String> {
         // Grows with what really comes out, never past size + 1 bytes; a
         // size up to a few depth images is reserved at once, sparing the
         // copies of growing into it.
-        let mut out = Vec::with_capacity(size.min(RESERVE_AT_ONCE) as usize);
+        out.clear();
+        out.reserve(size.min(RESERVE_AT_ONCE) as usize);
         r.by_ref()
             .take(size + 1)
-            .read_to_end(&mut out)
+            .read_to_end(out)
             .map_err(|e| format!("its data does not decompress: {e}"))?;
-        Ok(out)
+        Ok(())
     };
-    let out = match compression {
+    match compression {
         b"none" => {
             if data.len() as u64 != size {
                 return Err(claims(data.len()));
             }
-            return Ok(Cow::Borrowed(data));
+            return Ok(data);
         }
         b"lz4" => {
             if size > (data.len() as u64).saturating_mul(LZ4_MOST_PER_BYTE) + 64 {
@@ -203,9 +213,9 @@ fn decompress<'a>(compression: &[u8], size: u32, data: &'a [u8]) -> Result<Cow<'
             }
             let decoder = lz4::Decoder::new(data)
                 .map_err(|e| format!("its lz4 data does not decompress: {e}"))?;
-            read_capped(Box::new(decoder))?
+            read_capped(Box::new(decoder), out)?
         }
-        b"bz2" => read_capped(Box::new(bzip2::read::BzDecoder::new(data)))?,
+        b"bz2" => read_capped(Box::new(bzip2::read::BzDecoder::new(data)), out)?,
         other => {
             return Err(format!(
                 "compression `{}` is not supported (none, bz2 or lz4)",
@@ -216,7 +226,8 @@ fn decompress<'a>(compression: &[u8], size: u32, data: &'a [u8]) -> Result<Cow<'
     if out.len() as u64 != size {
         return Err(claims(out.len()));
     }
-    Ok(Cow::Owned(out))
+    let out: &'a Vec<u8> = out;
+    Ok(out)
 }
 
 /// Most bytes a decompression reserves before it sees its output: 16 MiB,
@@ -224,8 +235,13 @@ fn decompress<'a>(compression: &[u8], size: u32, data: &'a [u8]) -> Result<Cow<'
 const RESERVE_AT_ONCE: u64 = 16 << 20;
 
 /// Decompresses the chunk record whose header is `fields` and data `data`.
-fn chunk_data<'a>(fields: &Fields<'_>, data: &'a [u8]) -> Result<Cow<'a, [u8]>, String> {
-    decompress(fields.need("compression")?, fields.u32("size")?, data)
+/// (`out` as [`decompress`] takes it).
+fn chunk_data<'a>(
+    fields: &Fields<'_>,
+    data: &'a [u8],
+    out: &'a mut Vec<u8>,
+) -> Result<&'a [u8], String> {
+    decompress(fields.need("compression")?, fields.u32("size")?, data, out)
 }
 
 /// The ROS 2 name of a ROS 1 message type: `pkg/Name` is `pkg/msg/Name`;
@@ -337,138 +353,345 @@ fn check_magic(path: &Path, r: &mut impl Read) -> Result<(), BagError> {
     Ok(())
 }
 
+/// A chunk record read but not yet walked: its place, header and data.
+struct Pending {
+    pos: u64,
+    record_len: u64,
+    header: Vec<u8>,
+    data: Vec<u8>,
+}
+
+/// Most chunk records [`scan`] reads ahead to decompress together, and
+/// most bytes they may claim uncompressed together (a chunk claiming more
+/// is decompressed alone).
+const READ_AHEAD_CHUNKS: usize = 8;
+const READ_AHEAD_BYTES: u64 = 64 << 20;
+
 /// Walks every message of file `index` (`path`), in file order. Returns
 /// how many bytes at its end were cut short (a recording that stopped
 /// mid-write), 0 for a whole file.
+///
+/// Chunks are read a few at a time and decompressed in parallel, then
+/// walked in order: what the visitor sees, and the first error, are as if
+/// they were read one by one.
 pub fn scan(
     index: usize,
     path: &Path,
     visit: &mut dyn FnMut(Message<'_>) -> Result<(), BagError>,
 ) -> Result<u64, BagError> {
-    let io = |e: std::io::Error| err(path, e.to_string());
-    let file = File::open(path).map_err(io)?;
-    let size = file.metadata().map_err(io)?.len();
-    let mut r = BufReader::with_capacity(1 << 16, file);
-    check_magic(path, &mut r)?;
-    let mut connections = Connections::default();
-    let mut pos = MAGIC.len() as u64;
-    let mut data = Vec::new();
-    loop {
-        let head = match record_head(&mut r, pos, size).map_err(|e| err(path, e))? {
-            Head::End => return Ok(0),
-            Head::Cut => return Ok(size - pos),
-            Head::Record(head) => head,
-        };
-        let at_record = |e: String| err(path, format!("record at byte {pos}: {e}"));
-        let fields = Fields::parse(&head.header).map_err(at_record)?;
-        let opcode = fields.op().map_err(at_record)?;
-        let data_at = pos + 8 + head.header.len() as u64;
-        let end = data_at + u64::from(head.data_len);
-        if end > size {
-            if opcode == op::CHUNK {
-                return Err(err(
-                    path,
-                    format!(
-                        "the chunk at byte {pos} is cut short: its data runs to byte {end}, \
-                         the file ends at byte {size} (a truncated bag)"
-                    ),
-                ));
+    let mut walk = Walk {
+        index,
+        path,
+        connections: Connections::default(),
+        pending: Vec::new(),
+        spare: Vec::new(),
+        outs: Vec::new(),
+        visit,
+    };
+    let cut = walk.records();
+    // What was read before the end, a cut or an error is walked first.
+    walk.walk_pending()?;
+    cut
+}
+
+/// A walk of one file's records.
+struct Walk<'v, 'p> {
+    index: usize,
+    path: &'p Path,
+    connections: Connections,
+    /// Chunks read, not yet walked, in file order.
+    pending: Vec<Pending>,
+    /// Data buffers of chunks walked, to read the next ones into.
+    spare: Vec<Vec<u8>>,
+    /// Buffers to decompress the pending chunks into, reused.
+    outs: Vec<Vec<u8>>,
+    visit: &'v mut dyn FnMut(Message<'_>) -> Result<(), BagError>,
+}
+
+impl Walk<'_, '_> {
+    /// Reads the file's records, walking them in turn; [`Self::pending`]
+    /// holds chunks still to walk when it returns.
+    fn records(&mut self) -> Result<u64, BagError> {
+        let path = self.path;
+        let io = |e: std::io::Error| err(path, e.to_string());
+        let file = File::open(path).map_err(io)?;
+        let size = file.metadata().map_err(io)?.len();
+        let mut r = BufReader::with_capacity(1 << 16, file);
+        check_magic(path, &mut r)?;
+        let mut pos = MAGIC.len() as u64;
+        let mut data = Vec::new();
+        let mut claimed = 0u64;
+        loop {
+            let head = match record_head(&mut r, pos, size).map_err(|e| err(path, e))? {
+                Head::End => return Ok(0),
+                Head::Cut => return Ok(size - pos),
+                Head::Record(head) => head,
+            };
+            let at_record = |e: String| err(path, format!("record at byte {pos}: {e}"));
+            let fields = Fields::parse(&head.header).map_err(at_record)?;
+            let opcode = fields.op().map_err(at_record)?;
+            let data_at = pos + 8 + head.header.len() as u64;
+            let end = data_at + u64::from(head.data_len);
+            if end > size {
+                if opcode == op::CHUNK {
+                    return Err(err(
+                        path,
+                        format!(
+                            "the chunk at byte {pos} is cut short: its data runs to byte {end}, \
+                             the file ends at byte {size} (a truncated bag)"
+                        ),
+                    ));
+                }
+                // The recording stopped mid-record: keep what came before.
+                return Ok(size - pos);
             }
-            // The recording stopped mid-record: keep what came before.
-            return Ok(size - pos);
-        }
-        let record_len = end - pos;
-        if ![op::CHUNK, op::CONNECTION, op::MESSAGE].contains(&opcode) {
-            r.seek_relative(i64::from(head.data_len)).map_err(io)?;
-            pos = end;
-            continue;
-        }
-        data.resize(head.data_len as usize, 0);
-        r.read_exact(&mut data).map_err(io)?;
-        let place = |in_chunk| Location {
-            file: index,
-            place: Place::Ros1 {
-                offset: pos,
-                len: record_len,
-                in_chunk,
-            },
-        };
-        match opcode {
-            op::CONNECTION => connections.note(&fields, &data).map_err(at_record)?,
-            op::MESSAGE => {
-                let channel = connections.of(&fields).map_err(at_record)?;
+            let record_len = end - pos;
+            if ![op::CHUNK, op::CONNECTION, op::MESSAGE].contains(&opcode) {
+                r.seek_relative(i64::from(head.data_len)).map_err(io)?;
+                pos = end;
+                continue;
+            }
+            if opcode == op::CHUNK {
+                let claims = fields.u32("size").map_or(0, u64::from);
+                if !self.pending.is_empty()
+                    && (self.pending.len() == READ_AHEAD_CHUNKS
+                        || claimed + claims > READ_AHEAD_BYTES)
+                {
+                    self.walk_pending()?;
+                    claimed = 0;
+                }
+                let mut data = self.spare.pop().unwrap_or_default();
+                data.resize(head.data_len as usize, 0);
+                r.read_exact(&mut data).map_err(io)?;
+                claimed += claims;
+                self.pending.push(Pending {
+                    pos,
+                    record_len,
+                    header: head.header,
+                    data,
+                });
+                pos = end;
+                continue;
+            }
+            self.walk_pending()?;
+            claimed = 0;
+            data.resize(head.data_len as usize, 0);
+            r.read_exact(&mut data).map_err(io)?;
+            if opcode == op::CONNECTION {
+                self.connections.note(&fields, &data).map_err(at_record)?;
+            } else {
+                let channel = self.connections.of(&fields).map_err(at_record)?;
                 let log_time = fields.time().map_err(at_record)?;
-                visit(Message {
+                let at = self.place(pos, record_len, None);
+                (self.visit)(Message {
                     channel,
                     log_time,
                     data: &data,
-                    at: place(None),
+                    at,
                 })?;
             }
-            _ => {
-                let at_chunk = |e: String| err(path, format!("chunk at byte {pos}: {e}"));
-                let chunk = chunk_data(&fields, &data).map_err(at_chunk)?;
-                let mut visit_err = None;
-                inner_records(&chunk, &mut |rec| {
-                    let inner_op = rec.fields.op()?;
-                    if inner_op == op::CONNECTION {
-                        return connections.note(&rec.fields, rec.data);
-                    }
-                    if inner_op != op::MESSAGE {
-                        return Ok(());
-                    }
-                    let channel = connections.of(&rec.fields)?;
-                    let log_time = rec.fields.time()?;
-                    // In-chunk offsets fit: a chunk's `size` is a u32.
-                    let in_chunk = u32::try_from(rec.offset).unwrap_or(u32::MAX);
-                    visit(Message {
-                        channel,
-                        log_time,
-                        data: rec.data,
-                        at: place(Some(in_chunk)),
-                    })
-                    .map_err(|e| {
-                        visit_err = Some(e);
-                        String::new()
-                    })
-                })
-                // The visitor's own error passes through as it is.
-                .map_err(|e| visit_err.take().unwrap_or_else(|| at_chunk(e)))?;
+            pos = end;
+        }
+    }
+
+    fn place(&self, offset: u64, len: u64, in_chunk: Option<u32>) -> Location {
+        Location {
+            file: self.index,
+            place: Place::Ros1 {
+                offset,
+                len,
+                in_chunk,
+            },
+        }
+    }
+
+    /// Decompresses the pending chunks in parallel and walks them in order.
+    fn walk_pending(&mut self) -> Result<(), BagError> {
+        let pending = std::mem::take(&mut self.pending);
+        let mut outs = std::mem::take(&mut self.outs);
+        outs.resize_with(outs.len().max(pending.len()), Vec::new);
+        let chunks: Vec<Result<&[u8], String>> = pending
+            .par_iter()
+            .zip(outs.par_iter_mut())
+            .map(|(c, out)| {
+                Fields::parse(&c.header).and_then(|fields| chunk_data(&fields, &c.data, out))
+            })
+            .collect();
+        let mut walked = Ok(());
+        for (c, chunk) in pending.iter().zip(chunks) {
+            walked = self.walk_chunk(c, chunk);
+            if walked.is_err() {
+                break;
             }
         }
-        pos = end;
+        self.spare
+            .extend(pending.into_iter().map(|c| c.data).take(READ_AHEAD_CHUNKS));
+        self.outs = outs;
+        walked
+    }
+
+    /// Hands on the messages of chunk `c` (its data decompressed: `chunk`).
+    fn walk_chunk(&mut self, c: &Pending, chunk: Result<&[u8], String>) -> Result<(), BagError> {
+        let path = self.path;
+        let at_chunk = |e: String| err(path, format!("chunk at byte {}: {e}", c.pos));
+        let chunk = chunk.map_err(at_chunk)?;
+        let mut visit_err = None;
+        let index = self.index;
+        let (connections, visit) = (&mut self.connections, &mut self.visit);
+        inner_records(chunk, &mut |rec| {
+            let inner_op = rec.fields.op()?;
+            if inner_op == op::CONNECTION {
+                return connections.note(&rec.fields, rec.data);
+            }
+            if inner_op != op::MESSAGE {
+                return Ok(());
+            }
+            let channel = connections.of(&rec.fields)?;
+            let log_time = rec.fields.time()?;
+            // In-chunk offsets fit: a chunk's `size` is a u32.
+            let in_chunk = u32::try_from(rec.offset).unwrap_or(u32::MAX);
+            visit(Message {
+                channel,
+                log_time,
+                data: rec.data,
+                at: Location {
+                    file: index,
+                    place: Place::Ros1 {
+                        offset: c.pos,
+                        len: c.record_len,
+                        in_chunk: Some(in_chunk),
+                    },
+                },
+            })
+            .map_err(|e| {
+                visit_err = Some(e);
+                String::new()
+            })
+        })
+        // The visitor's own error passes through as it is.
+        .map_err(|e| visit_err.take().unwrap_or_else(|| at_chunk(e)))
+    }
+}
+
+/// The chunks a reading of a bag decompressed last, so that its frames,
+/// read in order, decompress a chunk once rather than once a message (a
+/// chunk holds several). Each reading owns its own, dropped with it: a file
+/// rewritten in place is read afresh by the next reading (a cache shared
+/// by every reading, by path and offset, served the chunk of the file as
+/// it was).
+#[derive(Default)]
+pub struct Chunks(Mutex<Kept>);
+
+/// What [`Chunks`] holds: the chunks, the last used first, and a buffer
+/// of one dropped, to decompress the next into.
+#[derive(Default)]
+struct Kept {
+    chunks: VecDeque<Chunk>,
+    spare: Option<Vec<u8>>,
+}
+
+/// A chunk's data decompressed: of file `file` of the bag, at byte `offset`.
+struct Chunk {
+    file: usize,
+    offset: u64,
+    data: Arc<Vec<u8>>,
+}
+
+/// How many chunks [`Chunks`] keeps: every thread reading frames (each
+/// reads a run of frames in order) keeps its own.
+const CHUNKS_KEPT: usize = 8;
+
+/// How many bytes of chunks [`Chunks`] keeps at most, besides the last.
+const CHUNK_BYTES_KEPT: usize = 64 << 20;
+
+impl Chunks {
+    fn kept(&self) -> std::sync::MutexGuard<'_, Kept> {
+        // A thread that panicked holding it left a whole list behind.
+        self.0.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The chunk at byte `offset` of file `file`, if kept.
+    fn get(&self, file: usize, offset: u64) -> Option<Arc<Vec<u8>>> {
+        let mut kept = self.kept();
+        let chunks = &mut kept.chunks;
+        let at = chunks
+            .iter()
+            .position(|c| c.file == file && c.offset == offset)?;
+        let chunk = chunks.remove(at)?;
+        let data = Arc::clone(&chunk.data);
+        chunks.push_front(chunk);
+        Some(data)
+    }
+
+    /// A buffer to decompress a chunk into (one dropped, or a new one).
+    fn buffer(&self) -> Vec<u8> {
+        self.kept().spare.take().unwrap_or_default()
+    }
+
+    /// Keeps a chunk just decompressed, dropping the longest unused.
+    fn keep(&self, file: usize, offset: u64, data: Arc<Vec<u8>>) {
+        let mut kept = self.kept();
+        let Kept { chunks, spare } = &mut *kept;
+        if chunks.iter().any(|c| c.file == file && c.offset == offset) {
+            return;
+        }
+        chunks.push_front(Chunk { file, offset, data });
+        let mut bytes: usize = chunks.iter().map(|c| c.data.len()).sum();
+        while chunks.len() > CHUNKS_KEPT || (chunks.len() > 1 && bytes > CHUNK_BYTES_KEPT) {
+            if let Some(old) = chunks.pop_back() {
+                bytes -= old.data.len();
+                // Its room, unless a thread still reads it.
+                if let Ok(buffer) = Arc::try_unwrap(old.data) {
+                    *spare = Some(buffer);
+                }
+            }
+        }
     }
 }
 
 /// Reads back the message of the top-level record of `len` bytes at byte
 /// `offset` of file `path` (`in_chunk`: the message record's offset in that
-/// chunk's decompressed data).
+/// chunk's decompressed data). A chunk is looked for in `chunks` (under
+/// `file`, the file's index in its bag) before it is read, and kept there.
 pub fn fetch(
     path: &Path,
+    file: usize,
     offset: u64,
     len: u64,
     in_chunk: Option<u32>,
+    chunks: &Chunks,
 ) -> Result<Vec<u8>, BagError> {
     let at_record = |e: String| err(path, format!("record at byte {offset}: {e}"));
+    if let Some(k) = in_chunk {
+        if let Some(chunk) = chunks.get(file, offset) {
+            return message_in_chunk(&chunk, k).map_err(at_record);
+        }
+    }
     let io = |e: std::io::Error| err(path, e.to_string());
-    let mut file = File::open(path).map_err(io)?;
-    let size = file.metadata().map_err(io)?.len();
+    let mut handle = File::open(path).map_err(io)?;
+    let size = handle.metadata().map_err(io)?.len();
     if len < 8 || offset.checked_add(len).is_none_or(|end| end > size) {
         return Err(err(
             path,
             format!("no record of {len} bytes at byte {offset} (the file has {size})"),
         ));
     }
-    file.seek(SeekFrom::Start(offset)).map_err(io)?;
+    handle.seek(SeekFrom::Start(offset)).map_err(io)?;
     let mut record = vec![0u8; len as usize];
-    file.read_exact(&mut record).map_err(io)?;
+    handle.read_exact(&mut record).map_err(io)?;
     let (top, _) = inner_record(&record, 0).map_err(at_record)?;
     let op = top.fields.op().map_err(at_record)?;
     match (op, in_chunk) {
         (op::MESSAGE, None) => Ok(top.data.to_vec()),
         (op::CHUNK, Some(k)) => {
-            let chunk = chunk_data(&top.fields, top.data).map_err(at_record)?;
-            message_in_chunk(&chunk, k).map_err(at_record)
+            let mut out = chunks.buffer();
+            let chunk = chunk_data(&top.fields, top.data, &mut out).map_err(at_record)?;
+            let message = message_in_chunk(chunk, k).map_err(at_record)?;
+            // An uncompressed chunk is its record's data: kept as a copy.
+            let uncompressed = top.fields.get("compression") == Some(&b"none"[..]);
+            let copy = uncompressed.then(|| chunk.to_vec());
+            chunks.keep(file, offset, Arc::new(copy.unwrap_or(out)));
+            Ok(message)
         }
         _ => Err(at_record("not the message record expected".into())),
     }
@@ -680,6 +903,65 @@ mod tests {
             }
             std::fs::remove_file(&path).unwrap();
         }
+    }
+
+    /// A bag of one lz4 chunk holding two messages, `a` and `b`.
+    fn two_in_a_chunk(a: &[u8], b: &[u8]) -> Vec<u8> {
+        let inner = [
+            connection(0, "/depth", "sensor_msgs/Image"),
+            message(0, 1, a),
+            message(0, 2, b),
+        ]
+        .concat();
+        bag(&chunk("lz4", &inner))
+    }
+
+    #[test]
+    fn a_reading_decompresses_a_chunk_once_and_the_next_reading_sees_the_file_anew() {
+        let path = temp_bag("rewritten", &two_in_a_chunk(b"old-1", b"old-2"));
+        let (seen, _) = walk(&path).unwrap();
+        let place = |i: usize| match seen[i].5.place {
+            Place::Ros1 {
+                offset,
+                len,
+                in_chunk,
+            } => (offset, len, in_chunk),
+            other => panic!("{other:?}"),
+        };
+        let ((o1, l1, k1), (o2, l2, k2)) = (place(0), place(1));
+        assert_eq!(o1, o2, "both messages in the one chunk");
+        let first = Chunks::default();
+        assert_eq!(fetch(&path, 0, o1, l1, k1, &first).unwrap(), b"old-1");
+        // Rewritten in place, the same layout: the reading that has the
+        // chunk reads it from what it kept, a new reading from the file.
+        std::fs::write(&path, two_in_a_chunk(b"new-1", b"new-2")).unwrap();
+        assert_eq!(fetch(&path, 0, o2, l2, k2, &first).unwrap(), b"old-2");
+        let second = Chunks::default();
+        assert_eq!(fetch(&path, 0, o2, l2, k2, &second).unwrap(), b"new-2");
+        assert_eq!(fetch(&path, 0, o1, l1, k1, &second).unwrap(), b"new-1");
+        // Kept by file and offset: the same offset in another file is read.
+        assert_eq!(fetch(&path, 1, o1, l1, k1, &first).unwrap(), b"new-1");
+        assert_eq!(
+            super::super::bag::fetch(&path, seen[0].5).unwrap(),
+            b"new-1"
+        );
+        std::fs::remove_file(&path).unwrap();
+    }
+
+    #[test]
+    fn kept_chunks_are_bounded_in_number() {
+        let chunks = Chunks::default();
+        for offset in 0..20u64 {
+            chunks.keep(0, offset, Arc::new(vec![0; 10]));
+        }
+        assert_eq!(chunks.kept().chunks.len(), CHUNKS_KEPT);
+        assert!(chunks.get(0, 19).is_some() && chunks.get(0, 0).is_none());
+        chunks.keep(0, 100, Arc::new(vec![0; CHUNK_BYTES_KEPT]));
+        assert_eq!(
+            chunks.kept().chunks.len(),
+            1,
+            "the last is kept, whatever its size"
+        );
     }
 
     #[test]
