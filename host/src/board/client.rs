@@ -9,7 +9,7 @@ use crate::board::resend::ResendTimer;
 use placedb::profile::{Capacities, PROFILES};
 use placedb::protocol::{
     encode, CapacitySlot, DeviceMessage, FrameDecoder, HostFrame, HostMessage, ProtocolError, Push,
-    Status, MAX_FRAME_LEN,
+    ResetCause, Status, MAX_FRAME_LEN,
 };
 use std::collections::HashMap;
 use std::io;
@@ -423,6 +423,23 @@ pub fn flash_warnings(st: &Status) -> Vec<String> {
         );
     }
     out
+}
+
+/// Why the board last started, in words, when it restarted by itself (its
+/// watchdog, or a panic and where): `None` after a power-on.
+pub fn restart_words(st: &Status) -> Option<String> {
+    match st.last_reset {
+        ResetCause::PowerOn => None,
+        ResetCause::Watchdog => Some(
+            "the board restarted after its watchdog fired (its firmware hung); it restored \
+             its scan from flash"
+                .to_string(),
+        ),
+        ResetCause::Panic(place) => Some(format!(
+            "the board restarted after a panic at {place}; it restored its scan from flash \
+             (report the place with the firmware's version)"
+        )),
+    }
 }
 
 /// The profile whose capacities the device reports, if any.
