@@ -485,6 +485,12 @@ function newChip() {
   const watchdog = chip.peripherals[0x40058];
   watchdog.onWatchdogTrigger = () => {
     resetPending = watchdog.reason;
+    // Stopped: rp2040js 1.4.1 reschedules a fired countdown's alarm 0 ns
+    // ahead (its decrementing timer reads 0 then), so the clock would fire
+    // it again and again, forever, within one tick. The chip is reset
+    // before it could count again anyway.
+    watchdog.alarm.enable = false;
+    watchdog.timer.enable = false;
   };
   return chip;
 }
@@ -1371,9 +1377,9 @@ function chipReset() {
   latency.pending.clear();
   attachUsb();
   if (client) {
+    // Its close handler says "client closed".
     const gone = client;
     client = null;
-    log('client closed');
     gone.destroy();
   }
 }
