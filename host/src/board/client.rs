@@ -16,6 +16,10 @@ use std::io;
 use std::time::{Duration, Instant};
 
 /// One thing received from a device.
+// A Status (protocol 8's last_reset holds a panic's file name) makes a
+// message 264 bytes: a Received lives for one reply on its way to a match,
+// and boxing every reply would cost an allocation each.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq)]
 pub enum Received {
     /// A decoded message (every variant but `Log`, which is [`Received::Log`]).
