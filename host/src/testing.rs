@@ -76,6 +76,12 @@ pub fn rp2040_firmware() -> PathBuf {
     rp2040::built_firmware().unwrap_or_else(|e| panic!("{e}"))
 }
 
+/// The Pico's fault-injection firmware, built first (see
+/// [`rp2040::built_fault_firmware`]); panics saying why it is missing.
+pub fn rp2040_fault_firmware() -> PathBuf {
+    rp2040::built_fault_firmware().unwrap_or_else(|e| panic!("{e}"))
+}
+
 /// `database.csv` and `labels.csv` of `placedb select --solver online
 /// --profile PROFILE`: the host replay of the core with the same profile
 /// and configuration, which a device's export must equal byte for byte.

@@ -89,6 +89,13 @@ fn scan_with_many_erases(timing: FlashTiming, bus_resets: &[u32]) -> String {
         0,
         "the firmware erased while the host enumerated: {console}"
     );
+    // No legitimate wait starves the watchdog, at the flash's maximum
+    // erase and program times too, bus resets included.
+    assert_eq!(
+        exit_field(&console, "stats", "watchdog_resets"),
+        0,
+        "the watchdog reset the board: {console}"
+    );
     assert!(
         erases >= MIN_ERASES,
         "{erases} sectors erased, fewer than the {MIN_ERASES} the test is for: {console}"

@@ -15,6 +15,18 @@
 #[path = "../../boards/rp-pico/src/link.rs"]
 mod link;
 
+/// The firmware's watchdog, as `link.rs` sees it: here it counts the
+/// feeds, so that a test sees a wait for the host feed it.
+mod watchdog {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    pub static FEEDS: AtomicUsize = AtomicUsize::new(0);
+
+    pub fn feed() {
+        FEEDS.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
 use link::{Link, FLUSH_POLLS, RX_HEADROOM, SHORT_PACKET_INTERVAL, TX_QUEUE_LEN};
 use placedb::protocol::MAX_REPLY_LEN;
 use std::collections::VecDeque;
@@ -654,7 +666,11 @@ fn reply_queue_backpressure() {
         w.start_reading_after = Some(w.polls + 100);
         w.polls
     };
+    let feeds = watchdog::FEEDS.load(std::sync::atomic::Ordering::Relaxed);
     link.send(&mut usb, &frame(16));
+    // The wait fed the firmware's watchdog: a host that reads slowly is
+    // no hang.
+    assert!(watchdog::FEEDS.load(std::sync::atomic::Ordering::Relaxed) > feeds);
     {
         let w = wire.lock().unwrap();
         assert!(w.reading);

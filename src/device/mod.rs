@@ -94,7 +94,8 @@ pub use restore::RestoreFailure;
 use crate::persist::{Cursor, Journal, Log, NoJournal};
 use crate::protocol::{
     degradation, Capacity, CapacitySlot, Config, FrameCost, FrameDecoder, Held, HostFrame, Phase,
-    Push, Status, CAPACITY_SLOTS, MAX_FRAME_LEN, MAX_REPLY_LEN, MAX_ROW_VALUES, MAX_SESSIONS,
+    Push, ResetCause, Status, CAPACITY_SLOTS, MAX_FRAME_LEN, MAX_REPLY_LEN, MAX_ROW_VALUES,
+    MAX_SESSIONS,
 };
 use crate::select::{FrameDecision, Selector};
 
@@ -189,6 +190,9 @@ struct Core<
     sessions: heapless::Vec<u32, MAX_SESSIONS>,
     /// Where the last LogRead found its record (before it).
     log_cursor: Cursor,
+    /// Why the board last started (the board says, [`Device::set_last_reset`]);
+    /// kept by a Reset.
+    last_reset: ResetCause,
 }
 
 /// Most decisions one selection step makes: a full window and the Pending
@@ -264,6 +268,7 @@ impl<
                 tail_dropped: false,
                 sessions: heapless::Vec::new(),
                 log_cursor: Cursor::START,
+                last_reset: ResetCause::PowerOn,
             },
         }
     }
@@ -409,6 +414,13 @@ impl<
     pub fn set_clock(&mut self, ticks: fn() -> u64, hz: u32) {
         self.core.clock = Some(ticks);
         self.core.cost.clock_hz = hz;
+    }
+
+    /// Why the board last started, for [`Status::last_reset`] (the board
+    /// reads it at boot; [`ResetCause::PowerOn`] until it is set). A Reset
+    /// keeps it: it is the board's, not the scan's.
+    pub fn set_last_reset(&mut self, cause: ResetCause) {
+        self.core.last_reset = cause;
     }
 
     /// Drops received input that no message ended yet (a partial frame):
@@ -657,6 +669,7 @@ impl<
             stored_records: self.stored,
             sessions: to_u32(self.sessions.len()),
             session_first: self.sessions.last().copied().unwrap_or(0),
+            last_reset: self.last_reset,
         }
     }
 }

@@ -701,6 +701,93 @@ pub struct Status {
     pub sessions: u32,
     /// The first frame index of the latest session (0 for the first).
     pub session_first: u32,
+    /// Why the board last started (protocol 8): a power-on, its watchdog
+    /// (the firmware hung), or a panic and where. The board's, not the
+    /// scan's: a Reset keeps it, the next boot replaces it.
+    pub last_reset: ResetCause,
+}
+
+/// Why a board last started ([`Status::last_reset`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ResetCause {
+    /// Nothing the firmware recorded: a power-on, the reset pin or a debug
+    /// probe; also every board that keeps no record (the QEMU board, the
+    /// host's simulated devices).
+    PowerOn,
+    /// The watchdog reset the board: the firmware stopped feeding it (it
+    /// hung, or spent longer than the watchdog's timeout in one place).
+    Watchdog,
+    /// The firmware panicked at this place of its source, recorded it, and
+    /// reset the board (through its watchdog).
+    Panic(PanicPlace),
+}
+
+/// Most bytes of [`PanicPlace::file`]: the end of the source path, enough
+/// for a file and its folders (`src/select/window.rs`).
+pub const PANIC_FILE_LEN: usize = 32;
+
+/// Where a firmware panicked: its source file (the path's last
+/// [`PANIC_FILE_LEN`] bytes at most, cut after a `/`), line and column.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PanicPlace {
+    /// Bytes of [`Self::file`] in use.
+    pub file_len: u8,
+    /// The source path's end, UTF-8 (`file_len` bytes, the rest zero).
+    pub file: [u8; PANIC_FILE_LEN],
+    /// Line, from 1 (0: not known).
+    pub line: u32,
+    /// Column, from 1 (0: not known).
+    pub column: u32,
+}
+
+impl PanicPlace {
+    /// The place in `file` (its end kept, cut after a `/` when it is
+    /// longer than [`PANIC_FILE_LEN`] bytes), `line` and `column`.
+    pub fn new(file: &str, line: u32, column: u32) -> PanicPlace {
+        let bytes = file.as_bytes();
+        let mut start = bytes.len().saturating_sub(PANIC_FILE_LEN);
+        if start > 0 {
+            // Cut after a '/' (whole folder names), else at a character
+            // boundary (a longer file name alone keeps its end).
+            let tail = bytes.get(start..).unwrap_or_default();
+            match tail.iter().position(|&b| b == b'/') {
+                Some(slash) if slash + 1 < tail.len() => start += slash + 1,
+                _ => {
+                    while start < bytes.len() && !file.is_char_boundary(start) {
+                        start += 1;
+                    }
+                }
+            }
+        }
+        let kept = bytes.get(start..).unwrap_or_default();
+        let mut place = PanicPlace {
+            file_len: 0,
+            file: [0; PANIC_FILE_LEN],
+            line,
+            column,
+        };
+        for (to, from) in place.file.iter_mut().zip(kept) {
+            *to = *from;
+            place.file_len += 1;
+        }
+        place
+    }
+
+    /// The source path's end ("" if it is not UTF-8).
+    pub fn file(&self) -> &str {
+        let bytes = self
+            .file
+            .get(..usize::from(self.file_len))
+            .unwrap_or_default();
+        core::str::from_utf8(bytes).unwrap_or_default()
+    }
+}
+
+impl core::fmt::Display for PanicPlace {
+    /// `file:line:column`, as a compiler names a place.
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "{}:{}:{}", self.file(), self.line, self.column)
+    }
 }
 
 impl Status {
@@ -732,6 +819,7 @@ impl Status {
             stored_records: 0,
             sessions: 0,
             session_first: 0,
+            last_reset: ResetCause::PowerOn,
         }
     }
 

@@ -89,9 +89,9 @@ pub use framing::{
 };
 pub use messages::{
     degradation, Capacity, CapacitySlot, Config, DecisionKind, DepthRows, DeviceMessage, ErrorKind,
-    ExportRecord, ExportUnreadable, FrameCost, HostFrame, HostMessage, LogBytes, Phase,
-    ProtocolError, RecordKind, Status, UnknownErrorKind, CAPACITY_SLOTS, DEPTH_ROWS_OVERHEAD,
-    LOG_CHUNK, MAX_ROW_VALUES, MAX_SESSIONS,
+    ExportRecord, ExportUnreadable, FrameCost, HostFrame, HostMessage, LogBytes, PanicPlace, Phase,
+    ProtocolError, RecordKind, ResetCause, Status, UnknownErrorKind, CAPACITY_SLOTS,
+    DEPTH_ROWS_OVERHEAD, LOG_CHUNK, MAX_ROW_VALUES, MAX_SESSIONS, PANIC_FILE_LEN,
 };
 
 /// Version of this wire protocol; a device refuses a [`HostMessage::Hello`] whose
@@ -119,11 +119,13 @@ pub use messages::{
 ///   `DeviceMessage::ExportUnreadable` (the record, frame and log position
 ///   an export cannot read back) replaces `Error` with
 ///   `ErrorKind::ExportUnreadable`.
-pub const PROTOCOL_VERSION: u16 = 7;
+/// - 8: `Status::last_reset`, why the board last started (`ResetCause`:
+///   power-on, its watchdog, or a panic and its `PanicPlace`).
+pub const PROTOCOL_VERSION: u16 = 8;
 
 /// Largest encoded frame (delimiter included) of any [`DeviceMessage`] but a
 /// [`DeviceMessage::Log`]: a device's transmit buffer. Longer logs are dropped.
-pub const MAX_REPLY_LEN: usize = 272;
+pub const MAX_REPLY_LEN: usize = 320;
 
 /// How many strided rows of `width_sent` depth values fit in one
 /// [`HostMessage::DepthRows`] frame of at most [`MAX_FRAME_LEN`] bytes, whatever

@@ -127,6 +127,7 @@ fn device_messages() -> Vec<DeviceMessage<'static>> {
         sessions: 2,
         session_first: 100,
         degradation: degradation::POOL_FULL | degradation::LABELS_FULL,
+        last_reset: ResetCause::Panic(PanicPlace::new("src/main.rs", 412, 9)),
         ..Status::new(9, Phase::InFrame)
     };
     if let Some(c) = status.capacity_mut(CapacitySlot::Database) {
@@ -621,6 +622,11 @@ fn the_largest_replies_fit_the_reply_buffer() {
         stored_records: u32::MAX,
         sessions: u32::MAX,
         session_first: u32::MAX,
+        last_reset: ResetCause::Panic(PanicPlace {
+            line: u32::MAX,
+            column: u32::MAX,
+            ..PanicPlace::new(&"x".repeat(PANIC_FILE_LEN), 0, 0)
+        }),
         ..Status::new(u32::MAX, Phase::Finished)
     };
     let record = ExportRecord {
@@ -1229,4 +1235,23 @@ fn copying_and_in_place_receive_mix_on_one_stream() {
         assert_eq!(got, expected, "paths {paths:#b}");
         assert!(!decoder.is_mid_frame());
     }
+}
+
+/// A panic's place keeps the end of its source path, cut after a `/` when
+/// it is longer than the status has room for, and names itself as a
+/// compiler does.
+#[test]
+fn a_panic_place_keeps_the_end_of_its_path() {
+    let short = PanicPlace::new("src/main.rs", 412, 9);
+    assert_eq!(short.file(), "src/main.rs");
+    assert_eq!(format!("{short}"), "src/main.rs:412:9");
+    let long = PanicPlace::new("/home/someone/work/placedb/src/select/window.rs", 7, 1);
+    assert_eq!(long.file(), "placedb/src/select/window.rs");
+    let name = "a_file_name_longer_than_the_room_is.rs";
+    let one = PanicPlace::new(name, 1, 1);
+    assert_eq!(one.file(), &name[name.len() - PANIC_FILE_LEN..]);
+    // A cut never splits a character.
+    let wide = PanicPlace::new(&"é".repeat(PANIC_FILE_LEN), 1, 1);
+    assert!(wide.file().chars().all(|c| c == 'é') && !wide.file().is_empty());
+    assert_eq!(PanicPlace::new("", 0, 0).file(), "");
 }

@@ -19,6 +19,11 @@
 //   "bus reset after frame N"          --bus-reset-after-frames (below)
 //   "usb: REQUEST not done within ..." a control transfer the firmware was
 //                                      too late for (below)
+//   "chip reset by the watchdog: ..."  the watchdog reset the chip: its
+//                                      countdown ran out (a hang) or the
+//                                      firmware forced it (its panic
+//                                      handler); see Watchdog below
+//   "client refused: the board is restarting"   (no port until enumerated)
 //   "stats cycles=N ..."               on exit (SIGTERM, SIGINT, deadline)
 //   "latency frames=N ..."             on exit: frame answer latencies (below)
 //   "stack peak_bytes=P room_bytes=R"  on exit: the stack's high-water mark
@@ -38,6 +43,25 @@
 // command answers, 16 hex digits, first byte sent first; default
 // E6614103E7452D2F), which the firmware makes its USB serial number: two
 // emulated boards with different IDs differ as two real ones do.
+// Watchdog: rp2040js models the RP2040's watchdog (its countdown, REASON,
+// the scratch registers); this harness does what its reset does. When it
+// fires, the chip is rebuilt between two instructions: the flash contents,
+// the watchdog's scratch registers and REASON are kept (a watchdog reset
+// does not reset the watchdog: a panic's record reaches the next boot
+// there), the rest comes out of reset and the boot ROM boots the firmware
+// again. The board leaves the bus: the TCP client is disconnected (as a
+// program loses a serial port whose device went away), connections are
+// refused until the firmware has enumerated again, and then the same port
+// serves it, as udev's by-id name of a re-enumerated board is the same.
+// The stats line counts the resets (watchdog_resets). While the firmware
+// sleeps and only its own alarms are set (the watchdog's countdown, the
+// timer's alarms it wakes on to feed it), emulated time stands still until
+// the host does something (see Idle below), so an idle board is not reset.
+// PICO_FAULT=panic:N or hang:N: the plan of the fault-injection firmware
+// (boards/rp-pico/src/fault.rs: a panic, or a loop that never feeds the
+// watchdog, in the frame after its N-th), put in the watchdog's SCRATCH7 at
+// power-on only (the firmware takes it at boot).
+//
 // The TCP client is a program with the serial port open, and the host
 // says so as Linux's cdc-acm driver does: SET_CONTROL_LINE_STATE with DTR
 // and RTS up when a client connects (after enumeration, with them up if a
@@ -298,17 +322,15 @@ const log = (line) => {
   }
 };
 
-const mcu = new RP2040();
-// rp2040js logs to the console and throws on errors by default: keep warnings
-// quiet, turn errors into a failed run with the message.
-mcu.logger = {
-  debug() {},
-  info() {},
-  warn() {},
-  error(component, message) {
-    fatal(`rp2040js ${component}: ${message} (pc ${hex(mcu.core.PC)})`);
-  },
-};
+/** The chip: rebuilt by a watchdog reset ([chipReset]), so always read
+ * through this binding. */
+let mcu = null;
+/** Emulated time and cycles of the chips before the current one (a
+ * watchdog reset starts a new chip at time 0): the run's totals. */
+let nanosBefore = 0;
+let cyclesBefore = 0;
+/** Emulated nanoseconds since the harness started, across chip resets. */
+const now = () => nanosBefore + mcu.clock.nanos;
 
 /** VREG_AND_CHIP_RESET, which rp2040js leaves unimplemented (its reads give
  * 0xFFFFFFFF, and the boot ROM takes a set PSM_RESTART_FLAG in CHIP_RESET for
@@ -326,11 +348,6 @@ class VregAndChipReset extends BasePeripheral {
     else if (offset < 8) this.regs[offset >> 2] = value;
   }
 }
-mcu.peripherals[0x40064] = new VregAndChipReset(mcu, 'VREG_AND_CHIP_RESET_BASE');
-// BOOTSEL not pressed: the QSPI chip select reads high (the boot ROM samples
-// it to choose between flash boot and USB mass-storage boot). rp2040js's
-// QSPI pads come up with their input disabled, so the pin is pinned high.
-Object.defineProperty(mcu.qspi[1], 'inputValue', { get: () => true });
 
 /** The QSPI flash chip behind the SSI, as far as the boot ROM and boot2
  * talk to it in serial mode (rp2040js's SSI answers every read with 0, so the
@@ -379,8 +396,8 @@ const spi = {
     }
   },
 };
-{
-  const ssi = mcu.peripherals[0x18000];
+function patchSsi(chip) {
+  const ssi = chip.peripherals[0x18000];
   const [read, write] = [ssi.readUint32.bind(ssi), ssi.writeUint32.bind(ssi)];
   ssi.readUint32 = (offset) => {
     switch (offset) {
@@ -429,7 +446,6 @@ class IoQspi extends BasePeripheral {
     if (offset === 0x0c && (outover === 3 || (outover === 2 && ((before >> 8) & 3) !== 2))) spi.end();
   }
 }
-mcu.peripherals[0x40018] = new IoQspi(mcu, 'IO_QSPI_BASE');
 
 let bootrom;
 try {
@@ -438,7 +454,59 @@ try {
   usage(`cannot read the boot ROM ${opts.bootrom}: ${e.message}`);
 }
 if (bootrom.length !== 16384) usage(`boot ROM ${opts.bootrom} is ${bootrom.length} bytes, expected 16384`);
-mcu.loadBootrom(new Uint32Array(bootrom.buffer.slice(bootrom.byteOffset, bootrom.byteOffset + 16384)));
+const bootromWords = new Uint32Array(bootrom.buffer.slice(bootrom.byteOffset, bootrom.byteOffset + 16384));
+
+/** A chip as it comes out of reset, the boot ROM loaded, its flash erased
+ * (the caller fills it): rp2040js with this harness's models. */
+function newChip() {
+  const chip = new RP2040();
+  // rp2040js logs to the console and throws on errors by default: keep
+  // warnings quiet, turn errors into a failed run with the message.
+  chip.logger = {
+    debug() {},
+    info() {},
+    warn() {},
+    error(component, message) {
+      fatal(`rp2040js ${component}: ${message} (pc ${hex(chip.core.PC)})`);
+    },
+  };
+  chip.peripherals[0x40064] = new VregAndChipReset(chip, 'VREG_AND_CHIP_RESET_BASE');
+  // BOOTSEL not pressed: the QSPI chip select reads high (the boot ROM
+  // samples it to choose between flash boot and USB mass-storage boot).
+  // rp2040js's QSPI pads come up with their input disabled, so the pin is
+  // pinned high.
+  Object.defineProperty(chip.qspi[1], 'inputValue', { get: () => true });
+  patchSsi(chip);
+  chip.peripherals[0x40018] = new IoQspi(chip, 'IO_QSPI_BASE');
+  chip.loadBootrom(bootromWords);
+  // The watchdog: what it resets is the whole chip here (the firmware
+  // selects everything but the oscillators, PSM.WDSEL), between two
+  // instructions (see the run loop).
+  const watchdog = chip.peripherals[0x40058];
+  watchdog.onWatchdogTrigger = () => {
+    resetPending = watchdog.reason;
+    // Stopped: rp2040js 1.4.1 reschedules a fired countdown's alarm 0 ns
+    // ahead (its decrementing timer reads 0 then), so the clock would fire
+    // it again and again, forever, within one tick. The chip is reset
+    // before it could count again anyway.
+    watchdog.alarm.enable = false;
+    watchdog.timer.enable = false;
+  };
+  return chip;
+}
+/** REASON of a watchdog that fired (1 its countdown, 2 forced by the
+ * firmware), until the run loop resets the chip; 0: none. */
+let resetPending = 0;
+mcu = newChip();
+
+// PICO_FAULT=panic:N or hang:N (tests): the fault-injection firmware's plan
+// (boards/rp-pico/src/fault.rs), in the watchdog's SCRATCH7 at power-on
+// only; the firmware takes it at boot.
+if (process.env.PICO_FAULT) {
+  const m = /^(panic|hang):(\d+)$/.exec(process.env.PICO_FAULT);
+  if (!m || Number(m[2]) > 0xffff) usage('PICO_FAULT takes panic:N or hang:N (a frame number below 65536)');
+  mcu.peripherals[0x40058].scratchData[7] = (0xfa000000 | ((m[1] === 'panic' ? 1 : 2) << 16) | Number(m[2])) >>> 0;
+}
 
 let flashFd = null;
 if (opts.flash) {
@@ -524,6 +592,7 @@ const stats = {
   busResets: 0, // --bus-reset-after-frames resets done
   hostResets: 0, // control transfers the firmware was too late for
   erasesWhileEnumerating: 0, // sectors erased between a bus reset and configured
+  watchdogResets: 0, // chip resets by the watchdog (its countdown, or forced)
 };
 
 const inRam = (a) => a >= 0x20000000 && a < 0x20042000;
@@ -673,8 +742,8 @@ const latency = {
     const seq = varint(body, 0);
     const kind = seq && varint(body, seq[1]);
     if (!kind) return;
-    const now = mcu.clock.nanos;
-    if (kind[0] === HOST_DEPTH_ROWS) this.lastRows = now;
+    const t = now();
+    if (kind[0] === HOST_DEPTH_ROWS) this.lastRows = t;
     else if (kind[0] === HOST_FRAME_END && this.lastRows !== null && !this.pending.has(seq[0])) {
       this.pending.set(seq[0], { rows: this.lastRows, erases: this.erases });
     }
@@ -689,7 +758,7 @@ const latency = {
     const p = seq && this.pending.get(seq[0]);
     if (!p) return;
     this.pending.delete(seq[0]);
-    this.samples.push((mcu.clock.nanos - p.rows) / 1000);
+    this.samples.push((now() - p.rows) / 1000);
     if (this.erases > p.erases) this.waited++;
   },
   line() {
@@ -725,7 +794,8 @@ const deviceFrames = frameSplitter((body) => latency.deviceFrame(body));
 
 // ---------------------------------------------------------------- USB host
 
-const usb = mcu.usbCtrl;
+/** The chip's USB controller (the current chip's: [attachUsb]). */
+let usb = null;
 const host = {
   configured: false,
   control: null, // the control transfer in progress
@@ -744,6 +814,7 @@ const host = {
   heldIn: null, // a bulk IN packet armed while no client is connected
   gap: false, // the next control transfer is scheduled (nextControl)
   dtrUp: false, // the connected client's DTR is up: its bytes go to the device
+  absent: false, // reset by its watchdog, not enumerated again yet: no port
 };
 
 /** How long a host waits (see the header), in emulated nanoseconds. */
@@ -753,11 +824,10 @@ const SET_ADDRESS_RECOVERY_NS = 2e6;
 const RETRY_GAP_NS = 100e6;
 /** Failed transfers in a row before the host gives up on the device. */
 const ENUMERATION_TRIES = 4;
-const controlDeadline = mcu.clock.createAlarm(() => {
-  const c = host.control;
-  if (c) hostGivesUp(`${c.name} not done within ${CONTROL_TIMEOUT_NS / 1e6} ms of its SETUP`);
-});
-const enumerateAfterReset = mcu.clock.createAlarm(() => enumerate());
+// The host's timers, on the current chip's clock ([attachUsb]).
+let controlDeadline = null;
+let enumerateAfterReset = null;
+let nextControl = null;
 
 /** The host resets the bus and enumerates `after` ns later: no bulk OUT
  * until the port is configured again. */
@@ -781,7 +851,7 @@ function resetBus(after = RESET_TO_ENUMERATION_NS) {
 /** A transfer the firmware was too late for: the host resets the port. */
 function hostGivesUp(what) {
   stats.hostResets++;
-  log(`usb: ${what}, at ${(mcu.clock.nanos / 1e6).toFixed(1)} ms: the host resets the port (device descriptor read/64, error -71)`);
+  log(`usb: ${what}, at ${(now() / 1e6).toFixed(1)} ms: the host resets the port (device descriptor read/64, error -71)`);
   if (++host.lateInARow >= ENUMERATION_TRIES) {
     fatal(`usb: ${ENUMERATION_TRIES} control transfers in a row failed: the host gives up (unable to enumerate USB device)`);
     return;
@@ -789,12 +859,6 @@ function hostGivesUp(what) {
   resetBus(RETRY_GAP_NS + RESET_TO_ENUMERATION_NS);
 }
 
-// The address the firmware wrote to the controller (ADDR_ENDP), and when.
-const usbWrite = usb.writeUint32.bind(usb);
-usb.writeUint32 = (offset, value) => {
-  if (offset === 0) host.address = value & 0x7f;
-  usbWrite(offset, value);
-};
 
 function setup(bmRequestType, bRequest, wValue, wIndex, wLength, data = null, name = '') {
   const s = new Uint8Array(8);
@@ -828,7 +892,6 @@ function startNextControl() {
  * status stage (delivered after rp2040js's 10 us read delay) reaches the
  * firmware before the next SETUP does, as on a real bus. */
 const CONTROL_GAP_NS = 100000;
-const nextControl = mcu.clock.createAlarm(() => startNextControl());
 
 function controlDone(c) {
   const bytes = Buffer.concat(c.received.map((b) => Buffer.from(b)));
@@ -888,6 +951,7 @@ function enumerate() {
       onDone: () => {
         host.configured = true;
         host.enumerating = false;
+        host.absent = false;
         host.dtrUp = clientOpen();
         if (host.dtrUp) releaseIn();
         host.lateInARow = 0;
@@ -897,7 +961,7 @@ function enumerate() {
         const baud = lc.length === 7 ? lc.readUInt32LE(0) : 0;
         log(
           `usb configured ${vidpid} serial ${host.descriptors.serial ?? '?'} ep0 ${d[7] ?? '?'} B, bulk in ${host.bulkIn} out ${host.bulkOut}, ` +
-            `line coding ${baud} baud, at ${(mcu.clock.nanos / 1e6).toFixed(1)} ms`,
+            `line coding ${baud} baud, at ${(now() / 1e6).toFixed(1)} ms`,
         );
         feedOut();
       },
@@ -936,14 +1000,8 @@ function releaseIn() {
 }
 
 const BUF_CTRL_AVAILABLE = 1 << 10;
-const dpramUpdated = usb.DPRAMUpdated.bind(usb);
-usb.DPRAMUpdated = (offset, value) => {
-  if (host.bulkIn > 0 && offset === 0x80 + host.bulkIn * 8 && value & BUF_CTRL_AVAILABLE && !clientOpen()) {
-    host.heldIn = { offset, value };
-    return;
-  }
-  dpramUpdated(offset, value);
-};
+/** The controller's own DPRAMUpdated ([attachUsb]). */
+let dpramUpdated = null;
 
 function parseConfiguration(d) {
   for (let i = 0; i + 2 <= d.length && d[i] >= 2; i += d[i]) {
@@ -955,20 +1013,8 @@ function parseConfiguration(d) {
   if (host.bulkIn < 0 || host.bulkOut < 0) fatal('no bulk IN and OUT endpoints in the configuration descriptor');
 }
 
-if (process.env.PICO_DEBUG) {
-  const dpram = usb.DPRAMUpdated.bind(usb);
-  usb.DPRAMUpdated = (offset, value) => {
-    if (offset >= 0x80 && offset < 0x100) debug(`bufctrl ${offset.toString(16)} = ${(value >>> 0).toString(16)}`);
-    dpram(offset, value);
-  };
-}
-usb.onUSBEnabled = () => {
-  debug('usb enabled');
-  resetBus();
-};
-usb.onResetReceived = () => debug('bus reset seen by the firmware');
 
-usb.onEndpointWrite = (ep, buffer) => {
+const onEndpointWrite = (ep, buffer) => {
   debug(`IN ep${ep} ${buffer.length} B ${ep === 0 ? Buffer.from(buffer).toString('hex') : ''}`);
   if (ep === 0) {
     const c = host.control;
@@ -1002,7 +1048,7 @@ usb.onEndpointWrite = (ep, buffer) => {
   }
 };
 
-usb.onEndpointRead = (ep, size) => {
+const onEndpointRead = (ep, size) => {
   debug(`OUT ep${ep} armed ${size} B`);
   if (ep === 0) {
     host.ep0OutArmed = true;
@@ -1054,6 +1100,48 @@ function feedOut() {
   if (client && client.isPaused() && host.rxBytes < 64 * 1024) client.resume();
 }
 
+/** The USB host on the current chip's controller: at power-on, and again
+ * on the new chip after a watchdog reset (the host's timers run on the
+ * chip's clock). */
+function attachUsb() {
+  usb = mcu.usbCtrl;
+  controlDeadline = mcu.clock.createAlarm(() => {
+    const c = host.control;
+    if (c) hostGivesUp(`${c.name} not done within ${CONTROL_TIMEOUT_NS / 1e6} ms of its SETUP`);
+  });
+  enumerateAfterReset = mcu.clock.createAlarm(() => enumerate());
+  nextControl = mcu.clock.createAlarm(() => startNextControl());
+  // The address the firmware wrote to the controller (ADDR_ENDP), and when.
+  const usbWrite = usb.writeUint32.bind(usb);
+  usb.writeUint32 = (offset, value) => {
+    if (offset === 0) host.address = value & 0x7f;
+    usbWrite(offset, value);
+  };
+  dpramUpdated = usb.DPRAMUpdated.bind(usb);
+  usb.DPRAMUpdated = (offset, value) => {
+    if (host.bulkIn > 0 && offset === 0x80 + host.bulkIn * 8 && value & BUF_CTRL_AVAILABLE && !clientOpen()) {
+      host.heldIn = { offset, value };
+      return;
+    }
+    dpramUpdated(offset, value);
+  };
+  if (process.env.PICO_DEBUG) {
+    const dpram = usb.DPRAMUpdated.bind(usb);
+    usb.DPRAMUpdated = (offset, value) => {
+      if (offset >= 0x80 && offset < 0x100) debug(`bufctrl ${offset.toString(16)} = ${(value >>> 0).toString(16)}`);
+      dpram(offset, value);
+    };
+  }
+  usb.onUSBEnabled = () => {
+    debug('usb enabled');
+    resetBus();
+  };
+  usb.onResetReceived = () => debug('bus reset seen by the firmware');
+  usb.onEndpointWrite = onEndpointWrite;
+  usb.onEndpointRead = onEndpointRead;
+}
+attachUsb();
+
 // ---------------------------------------------------------------- TCP bridge
 
 let client = null;
@@ -1062,6 +1150,15 @@ let client = null;
 const SECOND_CLIENT_WAIT_MS = 300;
 
 const server = net.createServer({ noDelay: true }, (socket) => {
+  // A board restarting (its watchdog reset it) has no port until it has
+  // enumerated again: as opening a serial port that is not there, the
+  // connection ends at once.
+  if (host.absent) {
+    log('client refused: the board is restarting');
+    socket.on('error', () => {});
+    socket.destroy();
+    return;
+  }
   // One program at a time, as a real port opened exclusively: a
   // connection while another is open is closed at once, unsaid (the host
   // reports it in words), after a short wait for the other's end.
@@ -1164,6 +1261,7 @@ function run() {
   const { core, clock } = mcu;
   let waitForHost = false;
   for (let i = 0; i < CHUNK && !stopped; i++) {
+    if (resetPending) break;
     if (core.waiting) {
       // An interrupt raised before the wfi ends it too (on silicon it
       // returns at once; rp2040js wakes the core only when one is raised
@@ -1174,11 +1272,12 @@ function run() {
         core.interruptsUpdated = true;
         continue;
       }
-      if (!clock.nextAlarm) {
+      if (!hostAlarmPending()) {
         waitForHost = true;
         break;
       }
       clock.tick(Math.max(clock.nanosToNextAlarm, 0));
+      if (resetPending) break;
       continue;
     }
     const pc = core.PC;
@@ -1189,8 +1288,16 @@ function run() {
     const cycles = core.executeInstruction();
     if (profile) profile.add(pc, cycles);
     clock.tick(cycles * NANOS_PER_CYCLE);
+    // The watchdog fired during that instruction (a write forcing it) or
+    // that clock step (its countdown): the chip is a new one from here.
+    if (resetPending) break;
   }
   if (stopped) return;
+  if (resetPending) {
+    chipReset();
+    setImmediate(run);
+    return;
+  }
   // Back-pressure: a TCP client that does not read stops the board.
   const blocked = client && client.writableLength > 1024 * 1024;
   if (waitForHost) {
@@ -1202,6 +1309,78 @@ function run() {
     }, 10);
   } else {
     setImmediate(run);
+  }
+}
+
+/** Whether an alarm other than the firmware's own idle ones is set: the
+ * watchdog's countdown and the timer's alarms (an idle firmware wakes to
+ * feed its watchdog) do not keep emulated time going while the firmware
+ * waits for the host (see Idle above: time stands still then, so the
+ * watchdog does not count either); any other alarm (the USB host's steps,
+ * the controller's delays) does. */
+function hostAlarmPending() {
+  const idle = new Set([mcu.peripherals[0x40058].alarm.clockAlarm, ...mcu.peripherals[0x40054].alarms.map((a) => a.clockAlarm)]);
+  for (let a = mcu.clock.nextAlarm; a; a = a.next) {
+    if (!idle.has(a)) return true;
+  }
+  return false;
+}
+
+/** The watchdog reset the chip (REASON in resetPending: its countdown ran
+ * out, or the firmware forced it, as its panic handler does). A new chip
+ * comes out of reset as the firmware selected (PSM.WDSEL: everything but
+ * the oscillators): the same flash contents, the watchdog's scratch
+ * registers and REASON kept (the watchdog is not reset by its own reset,
+ * which is how a panic's record reaches the next boot), everything else
+ * as at power-on; it boots from the boot ROM again. The board leaves the
+ * bus as a real one does: the program that had its port open loses its
+ * connection, and until the firmware has enumerated again the port is
+ * absent (a connection is refused at once); then it is back on the same
+ * port. */
+function chipReset() {
+  const reason = resetPending;
+  resetPending = 0;
+  stats.watchdogResets++;
+  const old = mcu;
+  const oldWatchdog = old.peripherals[0x40058];
+  log(
+    `chip reset by the watchdog: ${reason & 2 ? 'forced by the firmware (its panic handler)' : 'its countdown ran out (the firmware stopped feeding it: a hang)'}` +
+      `, at ${(now() / 1e6).toFixed(1)} ms (pc ${hex(old.core.PC)})`,
+  );
+  nanosBefore += old.clock.nanos;
+  cyclesBefore += old.core.cycles;
+  mcu = newChip();
+  mcu.flash.set(old.flash.subarray(0, FLASH_SIZE), 0);
+  const watchdog = mcu.peripherals[0x40058];
+  watchdog.scratchData.set(oldWatchdog.scratchData);
+  watchdog.reason = reason;
+  // The USB host: the device is gone from the bus, its port with it.
+  host.configured = false;
+  host.enumerating = false;
+  host.control = null;
+  host.queue = [];
+  host.ep0OutArmed = false;
+  host.bulkIn = -1;
+  host.bulkOut = -1;
+  host.outArmed = 0;
+  host.descriptors = {};
+  host.lateInARow = 0;
+  host.address = null;
+  host.awaitingAddress = false;
+  host.heldIn = null;
+  host.gap = false;
+  host.dtrUp = false;
+  host.rx = [];
+  host.rxBytes = 0;
+  host.absent = true;
+  latency.lastRows = null;
+  latency.pending.clear();
+  attachUsb();
+  if (client) {
+    // Its close handler says "client closed".
+    const gone = client;
+    client = null;
+    gone.destroy();
   }
 }
 
@@ -1222,14 +1401,15 @@ function finish(code = 0) {
   if (stopped) return;
   stopped = true;
   if (parked !== null && parked !== WAITING_FOR_HOST) clearTimeout(parked);
-  const cycles = mcu.core.cycles;
+  const cycles = cyclesBefore + mcu.core.cycles;
   process.stdout.write(
-    `stats pc=${hex(mcu.core.PC)} cycles=${cycles} emulated_ms=${(mcu.clock.nanos / 1e6).toFixed(1)} ` +
+    `stats pc=${hex(mcu.core.PC)} cycles=${cycles} emulated_ms=${(now() / 1e6).toFixed(1)} ` +
       `wall_ms=${Date.now() - started} rom_flash_calls=${stats.romFlashCalls} ` +
       `sectors_erased=${stats.erases} pages_programmed=${stats.programs} ` +
       `flash_busy_ms=${(stats.flashBusyNs / 1e6).toFixed(1)} ` +
       `bus_resets=${stats.busResets} usb_host_resets=${stats.hostResets} ` +
       `erases_while_enumerating=${stats.erasesWhileEnumerating} ` +
+      `watchdog_resets=${stats.watchdogResets} ` +
       `usb_bytes_in=${stats.bytesIn} usb_bytes_out=${stats.bytesOut}\n`,
   );
   process.stdout.write(latency.line() + '\n');

@@ -70,6 +70,8 @@ impl ReadNorFlash for PicoFlash {
 
     fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
         check_read(self, offset, bytes.len())?;
+        // Restoring a long log at boot reads it all: progress, not a hang.
+        crate::watchdog::feed();
         let src = (XIP_BASE + REGION_OFFSET as usize + offset as usize) as *const u8;
         // SAFETY: check_read keeps src..src+len inside the mapped, always
         // readable XIP window of the region, which no Rust object occupies
@@ -90,6 +92,9 @@ impl NorFlash for PicoFlash {
     fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
         check_erase(self, from, to)?;
         for sector in (from..to).step_by(Self::ERASE_SIZE) {
+            // Each erase stalls the chip up to 400 ms: a full timeout for
+            // each (the read-back below feeds it again).
+            crate::watchdog::feed();
             rom_op(REGION_OFFSET + sector, None);
             // Read back: a sector that is not all 0xFF now did not erase
             // (protect bits left set, a worn sector, the supply too low).
@@ -112,6 +117,7 @@ impl NorFlash for PicoFlash {
             let n = rest.len().min(PAGE - skip);
             let mut buf = [0xFF_u8; PAGE];
             buf[skip..skip + n].copy_from_slice(&rest[..n]);
+            crate::watchdog::feed();
             rom_op(REGION_OFFSET + page as u32, Some(&buf));
             // Read back: bytes that are not what was programmed did not take.
             let mut got = [0u8; PAGE];

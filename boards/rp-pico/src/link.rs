@@ -283,6 +283,7 @@ impl<'a, B: UsbBus> Link<'a, B> {
             if self.tx.is_empty() && self.full_run == 0 {
                 return true;
             }
+            crate::watchdog::feed();
             self.poll(usb);
         }
         false
@@ -322,6 +323,9 @@ impl<'a, B: UsbBus> Link<'a, B> {
             if rest.is_empty() {
                 break;
             }
+            // Waiting for a host that reads slowly (back-pressure) is no
+            // hang: DTR falling, or the host reading, ends it.
+            crate::watchdog::feed();
             self.poll(usb);
         }
         self.drain(usb);

@@ -29,6 +29,11 @@
 //! answer has left, before the next frame is read), and the append that
 //! opens it only writes.
 //!
+//! A hang or a panic restarts the board ([`watchdog`]): the watchdog is
+//! fed each turn of the loop, while a reply waits for a slow host and at
+//! every flash operation; a panic records its place for the next boot,
+//! which reports it (`Status::last_reset`) and restores the scan.
+//!
 //! USB first: an erase while the host enumerates makes the device miss its
 //! new address (usb-device applies SET_ADDRESS at its next poll; the host
 //! then reports "device descriptor read/64, error -71" and resets the
@@ -40,8 +45,11 @@
 #![no_std]
 #![no_main]
 
+#[cfg(feature = "fault-injection")]
+mod fault;
 mod flash;
 mod link;
+mod watchdog;
 
 use core::cell::RefCell;
 use core::sync::atomic::{AtomicBool, Ordering};
@@ -121,6 +129,11 @@ fn ticks() -> u64 {
 
 #[hal::entry]
 fn main() -> ! {
+    // Before anything else: why the board started (a panic's record in
+    // the watchdog's scratch registers, cleared as it is read).
+    let last_reset = watchdog::take_last_reset();
+    #[cfg(feature = "fault-injection")]
+    fault::take_plan();
     let Some(mut pac) = pac::Peripherals::take() else {
         halt()
     };
@@ -136,12 +149,18 @@ fn main() -> ! {
     ) else {
         halt()
     };
+    // Started once its tick runs (set up with the clocks): from here on a
+    // hang resets the board. Restoring the scan is covered: every flash
+    // read feeds it.
+    watchdog::start(&mut watchdog);
     // Kept alive (not read through: `ticks` reads the registers) so the
     // timer is owned by this firmware for as long as it runs.
     let _timer = hal::Timer::new(pac.TIMER, &mut pac.RESETS, &clocks);
     TIMER_RUNNING.store(true, Ordering::Release);
     critical_section::with(|cs| {
-        DEVICE.borrow_ref_mut(cs).set_clock(ticks, TIMER_HZ);
+        let mut device = DEVICE.borrow_ref_mut(cs);
+        device.set_clock(ticks, TIMER_HZ);
+        device.set_last_reset(last_reset);
     });
 
     // SAFETY: this firmware never starts core 1 and uses no DMA, so nothing
@@ -188,6 +207,7 @@ fn main() -> ! {
     let mut quiet = UsbQuiet { control_at: 0 };
     let mut idle = false;
     loop {
+        watchdog::feed();
         link.drain(&usb);
         // After the replies have gone to the controller: a turn that found
         // nothing to do waits for USB's next event.
@@ -254,6 +274,8 @@ fn main() -> ! {
                     if ended && device.phase() != Phase::InFrame {
                         erase_between_frames(&mut link, &mut usb, &mut log, &mut quiet);
                     }
+                    #[cfg(feature = "fault-injection")]
+                    fault::after_message(&device);
                     // USB first: a bus reset (a re-enumeration) stops the
                     // held frames' work until the device is configured
                     // again, so that no frame's computing keeps the
@@ -276,6 +298,8 @@ fn main() -> ! {
                         if ended && device.phase() != Phase::InFrame {
                             erase_between_frames(&mut link, &mut usb, &mut log, &mut quiet);
                         }
+                        #[cfg(feature = "fault-injection")]
+                        fault::after_message(&device);
                     }
                 }
             }
@@ -287,7 +311,9 @@ fn main() -> ! {
 
 /// Sleeps (`wfi`) until the USB controller raises its interrupt, at once if
 /// it has raised it already: an event the loop has not serviced yet (it
-/// looks at the controller first thing after).
+/// looks at the controller first thing after); or until the timer's alarm
+/// 0, set [`watchdog::IDLE_WAKE_US`] ahead, so that an idle board wakes to
+/// feed its watchdog (the loop's next turn does).
 ///
 /// The interrupt is unmasked only for the `wfi`, with PRIMASK set, and
 /// masked again before PRIMASK is cleared, so on silicon it only ends the
@@ -306,12 +332,34 @@ fn sleep_until_usb() {
         if raised {
             return;
         }
+        // SAFETY: the timer's alarm 0 and its interrupt enable, which
+        // nothing else in this firmware uses (`ticks` only reads the
+        // counter); writing ALARM0 arms it.
+        let timer = unsafe { &*pac::TIMER::PTR };
+        let wake = timer
+            .timerawl()
+            .read()
+            .bits()
+            .wrapping_add(watchdog::IDLE_WAKE_US);
+        timer.intr().write(|w| w.alarm_0().clear_bit_by_one());
+        timer.inte().modify(|_, w| w.alarm_0().set_bit());
+        timer.alarm0().write(|w| unsafe { w.bits(wake) });
+        NVIC::unpend(pac::Interrupt::TIMER_IRQ_0);
         // SAFETY: unmasked with PRIMASK set and masked again before the
         // critical section ends: no critical section is broken, and no
         // handler runs on silicon (see `USBCTRL_IRQ` for the emulator).
-        unsafe { NVIC::unmask(pac::Interrupt::USBCTRL_IRQ) };
+        unsafe {
+            NVIC::unmask(pac::Interrupt::USBCTRL_IRQ);
+            NVIC::unmask(pac::Interrupt::TIMER_IRQ_0);
+        }
         cortex_m::asm::wfi();
         NVIC::mask(pac::Interrupt::USBCTRL_IRQ);
+        NVIC::mask(pac::Interrupt::TIMER_IRQ_0);
+        // Disarmed (if USB ended the sleep first) and cleared: the next
+        // sleep sets it again.
+        timer.armed().write(|w| unsafe { w.bits(1) });
+        timer.intr().write(|w| w.alarm_0().clear_bit_by_one());
+        timer.inte().modify(|_, w| w.alarm_0().clear_bit());
     });
 }
 
@@ -322,6 +370,14 @@ fn sleep_until_usb() {
 #[interrupt]
 fn USBCTRL_IRQ() {
     NVIC::mask(pac::Interrupt::USBCTRL_IRQ);
+}
+
+/// The timer's alarm 0, which only ends [`sleep_until_usb`]'s `wfi` (an
+/// idle board's wake to feed its watchdog): masks itself, as
+/// [`USBCTRL_IRQ`] does, and for the same reason.
+#[interrupt]
+fn TIMER_IRQ_0() {
+    NVIC::mask(pac::Interrupt::TIMER_IRQ_0);
 }
 
 /// What [`read_packet`] read.
@@ -443,13 +499,18 @@ fn erase_ahead(log: &mut Log<LogFlash>) {
     let _ = log.flash().erase_ahead(next);
 }
 
+/// Stops: a board that cannot start. Once the watchdog runs, it restarts
+/// the board (which tries again) after [`watchdog::TIMEOUT_US`].
 fn halt() -> ! {
     loop {
         cortex_m::asm::wfi();
     }
 }
 
+/// A panic restarts the board, its place recorded for the next boot
+/// ([`watchdog::panic_reset`]), which restores the scan from flash.
 #[panic_handler]
-fn panic(_info: &core::panic::PanicInfo) -> ! {
-    halt()
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    cortex_m::interrupt::disable();
+    watchdog::panic_reset(info.location())
 }

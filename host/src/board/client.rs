@@ -9,13 +9,17 @@ use crate::board::resend::ResendTimer;
 use placedb::profile::{Capacities, PROFILES};
 use placedb::protocol::{
     encode, CapacitySlot, DeviceMessage, FrameDecoder, HostFrame, HostMessage, ProtocolError, Push,
-    Status, MAX_FRAME_LEN,
+    ResetCause, Status, MAX_FRAME_LEN,
 };
 use std::collections::HashMap;
 use std::io;
 use std::time::{Duration, Instant};
 
 /// One thing received from a device.
+// A Status (protocol 8's last_reset holds a panic's file name) makes a
+// message 264 bytes: a Received lives for one reply on its way to a match,
+// and boxing every reply would cost an allocation each.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq)]
 pub enum Received {
     /// A decoded message (every variant but `Log`, which is [`Received::Log`]).
@@ -423,6 +427,23 @@ pub fn flash_warnings(st: &Status) -> Vec<String> {
         );
     }
     out
+}
+
+/// Why the board last started, in words, when it restarted by itself (its
+/// watchdog, or a panic and where): `None` after a power-on.
+pub fn restart_words(st: &Status) -> Option<String> {
+    match st.last_reset {
+        ResetCause::PowerOn => None,
+        ResetCause::Watchdog => Some(
+            "the board restarted after its watchdog fired (its firmware hung); it restored \
+             its scan from flash"
+                .to_string(),
+        ),
+        ResetCause::Panic(place) => Some(format!(
+            "the board restarted after a panic at {place}; it restored its scan from flash \
+             (report the place with the firmware's version)"
+        )),
+    }
 }
 
 /// The profile whose capacities the device reports, if any.

@@ -100,6 +100,9 @@ fn say_restored(flash: &Path, restored: Option<Result<Status, DeviceError>>) {
                     flash.display()
                 ),
             }
+            if let Some(restart) = client::restart_words(&st) {
+                println!("  {restart}");
+            }
             warning::warn_all(&flash_warnings(&st));
         }
         Some(Err(DeviceError::Io(e))) if e.kind() == std::io::ErrorKind::Interrupted => {}

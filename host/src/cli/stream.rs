@@ -276,6 +276,9 @@ pub fn stream_cmd(
             clock_words(st.cost.clock_hz)
         );
     }
+    if let Some(restart) = client::restart_words(st) {
+        println!("  {restart}");
+    }
     for warning in client::flash_warnings(st) {
         println!("  WARNING: {warning}");
     }

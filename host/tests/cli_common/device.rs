@@ -33,10 +33,34 @@ pub struct Device {
 impl Device {
     /// Starts it and returns at once.
     pub fn spawn(board: &str, args: &[&str]) -> Device {
+        Device::spawn_with(board, &firmware(board), &[], args)
+    }
+
+    /// Starts it with `firmware`, its emulator with the environment `env`
+    /// too (the harness's `PICO_FAULT`), and waits until it names its port.
+    pub fn start_with(
+        board: &str,
+        firmware: &std::path::Path,
+        env: &[(&str, &str)],
+        args: &[&str],
+    ) -> Device {
+        let mut device = Device::spawn_with(board, firmware, env, args);
+        device.wait_for("placedb stream --port ", BOOT);
+        device
+    }
+
+    /// [`Device::spawn`] with `firmware` and `env`.
+    pub fn spawn_with(
+        board: &str,
+        firmware: &std::path::Path,
+        env: &[(&str, &str)],
+        args: &[&str],
+    ) -> Device {
         let mut child = Command::new(env!("CARGO_BIN_EXE_placedb"))
             .args(["device", board, "--port", "0", "--firmware"])
-            .arg(firmware(board))
+            .arg(firmware)
             .args(args)
+            .envs(env.iter().copied())
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .spawn()

@@ -133,14 +133,31 @@ pub fn bind_port(port: u16) -> Result<TcpListener, DeviceError> {
 /// `build`) and returns `elf` if it exists; `how` says how to build it by
 /// hand in the error.
 pub fn build_board(board: &str, elf: PathBuf, build: bool, how: &str) -> Result<PathBuf, String> {
+    build_board_with(board, &["--release"], elf, build, how)
+}
+
+/// [`build_board`] with `cargo build ARGS` (a profile, features).
+pub fn build_board_with(
+    board: &str,
+    args: &[&str],
+    elf: PathBuf,
+    build: bool,
+    how: &str,
+) -> Result<PathBuf, String> {
     if build {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../boards")
             .join(board);
         let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
         let out = Command::new(cargo)
-            .args(["build", "--release"])
+            .arg("build")
+            .args(args)
             .current_dir(&dir)
+            // The board's own target folder, where `elf` is looked for,
+            // whatever CARGO_TARGET_DIR the caller runs with (a test run
+            // with one set built the firmware elsewhere, and took a stale
+            // or missing ELF for it).
+            .env("CARGO_TARGET_DIR", dir.join("target"))
             .output()
             .map_err(|e| {
                 format!(

@@ -71,6 +71,33 @@ pub fn built_firmware() -> Result<PathBuf, String> {
         .clone()
 }
 
+/// The fault-injection firmware (`boards/rp-pico`'s feature
+/// `fault-injection`, profile `fault-injection`: a hang or a panic at the
+/// frame the harness's `PICO_FAULT` plans), for the tests of the watchdog
+/// and the panic handler; built (or brought up to date) first, once per
+/// process. Never the firmware of a release.
+pub fn built_fault_firmware() -> Result<PathBuf, String> {
+    static BUILT: std::sync::OnceLock<Result<PathBuf, String>> = std::sync::OnceLock::new();
+    BUILT
+        .get_or_init(|| {
+            super::build_board_with(
+                "rp-pico",
+                &[
+                    "--profile",
+                    "fault-injection",
+                    "--features",
+                    "fault-injection",
+                ],
+                Path::new(env!("CARGO_MANIFEST_DIR")).join(
+                    "../boards/rp-pico/target/thumbv6m-none-eabi/fault-injection/placedb-rp-pico",
+                ),
+                true,
+                "cd boards/rp-pico && cargo build --profile fault-injection --features fault-injection",
+            )
+        })
+        .clone()
+}
+
 /// How to run the emulated Pico.
 #[derive(Debug, Clone)]
 pub struct Rp2040Options {
