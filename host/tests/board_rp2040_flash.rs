@@ -96,6 +96,16 @@ fn scan_with_many_erases(timing: FlashTiming, bus_resets: &[u32]) -> String {
         0,
         "the watchdog reset the board: {console}"
     );
+    // The stack's guard is on and nothing deep reached it.
+    assert!(
+        console.contains("mpu guard 0x"),
+        "no stack guard: {console}"
+    );
+    assert_eq!(
+        exit_field(&console, "stats", "guard_faults"),
+        0,
+        "the stack reached its guard: {console}"
+    );
     assert!(
         erases >= MIN_ERASES,
         "{erases} sectors erased, fewer than the {MIN_ERASES} the test is for: {console}"

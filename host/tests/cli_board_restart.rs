@@ -3,7 +3,8 @@
 //! fault-injection firmware (boards/rp-pico/src/fault.rs; its harness
 //! plans the fault with `PICO_FAULT`). The panic handler records its place
 //! and resets the chip through the watchdog; a hang stops feeding the
-//! watchdog, which resets it. Either way the board leaves the bus (the
+//! watchdog, which resets it; a stack overflow meets the MPU guard under
+//! the stack (the core locks up and the watchdog resets it). Either way the board leaves the bus (the
 //! stream loses it), boots again, restores its scan from flash, says why
 //! it restarted (`Status::last_reset`), and `placedb stream --resume` goes
 //! on to the export `placedb select --solver online` gives.
@@ -140,6 +141,21 @@ fn a_panic_mid_scan_restarts_the_pico_which_says_where_and_resume_goes_on() {
         "chip reset by the watchdog: forced by the firmware",
         |cause| matches!(cause, ResetCause::Panic(p) if p.file().ends_with("src/fault.rs") && p.line > 0),
         "the board restarted after a panic at src/fault.rs:",
+    );
+}
+
+/// A stack overflow mid-scan (recursion, 512 bytes a call): the first
+/// write into the MPU guard under the stack faults (the harness models the
+/// region the firmware programs; on silicon a HardFault, then lockup) and
+/// the watchdog resets the board, instead of the stack overwriting the
+/// statics.
+#[test]
+fn a_stack_overflow_mid_scan_meets_the_guard_and_resume_goes_on() {
+    a_fault_mid_scan_restarts_the_board(
+        &format!("overflow:{FAULT_AT}"),
+        "stack overflow: a write to 0x",
+        |cause| *cause == ResetCause::Watchdog,
+        "the board restarted after its watchdog fired",
     );
 }
 

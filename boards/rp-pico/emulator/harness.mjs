@@ -24,6 +24,8 @@
 //                                      firmware forced it (its panic
 //                                      handler); see Watchdog below
 //   "client refused: the board is restarting"   (no port until enumerated)
+//   "mpu guard 0xLO..0xHI"             the firmware turned its stack's guard on
+//   "stack overflow: ..."              a write into that guard (see MPU below)
 //   "stats cycles=N ..."               on exit (SIGTERM, SIGINT, deadline)
 //   "latency frames=N ..."             on exit: frame answer latencies (below)
 //   "stack peak_bytes=P room_bytes=R"  on exit: the stack's high-water mark
@@ -57,10 +59,19 @@
 // sleeps and only its own alarms are set (the watchdog's countdown, the
 // timer's alarms it wakes on to feed it), emulated time stands still until
 // the host does something (see Idle below), so an idle board is not reset.
-// PICO_FAULT=panic:N or hang:N: the plan of the fault-injection firmware
-// (boards/rp-pico/src/fault.rs: a panic, or a loop that never feeds the
-// watchdog, in the frame after its N-th), put in the watchdog's SCRATCH7 at
-// power-on only (the firmware takes it at boot).
+// PICO_FAULT=panic:N, hang:N or overflow:N: the plan of the fault-injection
+// firmware (boards/rp-pico/src/fault.rs: a panic, a loop that never feeds
+// the watchdog, or recursion that overflows the stack, in the frame after
+// its N-th), put in the watchdog's SCRATCH7 at power-on only (the firmware
+// takes it at boot).
+// MPU: rp2040js has none; this harness models the one region the firmware
+// programs (boards/rp-pico/src/stack_guard.rs: no access, under the stack).
+// A write into it is what faults on silicon: a HardFault whose exception
+// frame, pushed into the guard, faults again, so the core locks up and the
+// watchdog resets the chip when its countdown runs out. Here the chip is
+// reset at once, as by the watchdog's countdown (REASON.TIMER), after
+// "stack overflow: a write to 0x... in the MPU guard ... (pc 0x...)": the
+// three seconds of lockup are not emulated.
 //
 // The TCP client is a program with the serial port open, and the host
 // says so as Linux's cdc-acm driver does: SET_CONTROL_LINE_STATE with DTR
@@ -482,6 +493,7 @@ function newChip() {
   // The watchdog: what it resets is the whole chip here (the firmware
   // selects everything but the oscillators, PSM.WDSEL), between two
   // instructions (see the run loop).
+  modelMpuGuard(chip);
   const watchdog = chip.peripherals[0x40058];
   watchdog.onWatchdogTrigger = () => {
     resetPending = watchdog.reason;
@@ -494,6 +506,62 @@ function newChip() {
   };
   return chip;
 }
+/** The ARMv6-M MPU's registers (TYPE at 0xe000ed90), as far as the
+ * firmware's stack guard needs them: region 0's base and attributes, and
+ * CTRL. A core write into an enabled no-access region is a stack overflow
+ * (see MPU above). Every write of the core goes through the chip's
+ * writeUint8/16/32, which this wraps. */
+/** The top of the stack's guard (0: none): the stack's room ends there. */
+let guardTop = 0;
+const MPU_CTRL = 0xe000ed94;
+const MPU_RNR = 0xe000ed98;
+const MPU_RBAR = 0xe000ed9c;
+const MPU_RASR = 0xe000eda0;
+function modelMpuGuard(chip) {
+  const mpu = { ctrl: 0, rnr: 0, rbar: 0, rasr: 0, lo: 0, hi: 0 };
+  const update = () => {
+    const on = mpu.ctrl & 1 && mpu.rnr === 0 && mpu.rasr & 1;
+    // SIZE (bits 1..5): 2^(SIZE+1) bytes; AP (bits 24..26) 0: no access.
+    const noAccess = ((mpu.rasr >>> 24) & 7) === 0;
+    const [lo, hi] = on && noAccess ? [mpu.rbar & ~0xff, (mpu.rbar & ~0xff) + 2 ** (((mpu.rasr >>> 1) & 0x1f) + 1)] : [0, 0];
+    if (lo !== mpu.lo || hi !== mpu.hi) {
+      [mpu.lo, mpu.hi] = [lo, hi];
+      guardTop = hi;
+      if (hi > lo) log(`mpu guard ${hex(lo)}..${hex(hi)}`);
+    }
+  };
+  for (const [name, width] of [
+    ['writeUint32', 4],
+    ['writeUint16', 2],
+    ['writeUint8', 1],
+  ]) {
+    const write = chip[name].bind(chip);
+    chip[name] = (address, value) => {
+      address >>>= 0;
+      if (address < mpu.hi && address + width > mpu.lo) {
+        if (!resetPending) {
+          log(
+            `stack overflow: a write to ${hex(address)} in the MPU guard ${hex(mpu.lo)}..${hex(mpu.hi)} ` +
+              `(pc ${hex(chip.core.PC)}): on silicon a HardFault, then lockup until the watchdog resets the chip`,
+          );
+          stats.guardFaults++;
+          resetPending = 1;
+        }
+        return;
+      }
+      if (width === 4 && address >= MPU_CTRL && address <= MPU_RASR) {
+        if (address === MPU_CTRL) mpu.ctrl = value >>> 0;
+        else if (address === MPU_RNR) mpu.rnr = value & 0xff;
+        else if (address === MPU_RBAR) mpu.rbar = value >>> 0;
+        else mpu.rasr = value >>> 0;
+        update();
+        return;
+      }
+      write(address, value);
+    };
+  }
+}
+
 /** REASON of a watchdog that fired (1 its countdown, 2 forced by the
  * firmware), until the run loop resets the chip; 0: none. */
 let resetPending = 0;
@@ -503,9 +571,10 @@ mcu = newChip();
 // (boards/rp-pico/src/fault.rs), in the watchdog's SCRATCH7 at power-on
 // only; the firmware takes it at boot.
 if (process.env.PICO_FAULT) {
-  const m = /^(panic|hang):(\d+)$/.exec(process.env.PICO_FAULT);
-  if (!m || Number(m[2]) > 0xffff) usage('PICO_FAULT takes panic:N or hang:N (a frame number below 65536)');
-  mcu.peripherals[0x40058].scratchData[7] = (0xfa000000 | ((m[1] === 'panic' ? 1 : 2) << 16) | Number(m[2])) >>> 0;
+  const m = /^(panic|hang|overflow):(\d+)$/.exec(process.env.PICO_FAULT);
+  if (!m || Number(m[2]) > 0xffff) usage('PICO_FAULT takes panic:N, hang:N or overflow:N (a frame number below 65536)');
+  const kind = { panic: 1, hang: 2, overflow: 3 }[m[1]];
+  mcu.peripherals[0x40058].scratchData[7] = (0xfa000000 | (kind << 16) | Number(m[2])) >>> 0;
 }
 
 let flashFd = null;
@@ -593,6 +662,7 @@ const stats = {
   hostResets: 0, // control transfers the firmware was too late for
   erasesWhileEnumerating: 0, // sectors erased between a bus reset and configured
   watchdogResets: 0, // chip resets by the watchdog (its countdown, or forced)
+  guardFaults: 0, // writes into the stack's MPU guard (each resets the chip)
 };
 
 const inRam = (a) => a >= 0x20000000 && a < 0x20042000;
@@ -1388,13 +1458,14 @@ function chipReset() {
  * (cortex-m-rt's `paint-stack`: 0xCCCCCCCC from `_stack_end` to the initial
  * stack pointer), so the lowest word no longer painted is as deep as it
  * went. "stack peak_bytes=P room_bytes=R": P deepest use, R the stack's
- * whole room (from the statics' end to the top of RAM). */
+ * whole room (from the top of its MPU guard, or the statics' end without
+ * one, to the top of RAM). */
 function stackLine() {
   const flash = new DataView(mcu.flash.buffer, mcu.flash.byteOffset);
   const top = flash.getUint32(0x100, true); // the vector table's initial SP
   let low = stackFloor;
   while (low < top && mcu.readUint32(low) === 0xcccccccc) low += 4;
-  return `stack peak_bytes=${top - low} room_bytes=${top - stackFloor}`;
+  return `stack peak_bytes=${top - low} room_bytes=${top - Math.max(stackFloor, guardTop)}`;
 }
 
 function finish(code = 0) {
@@ -1410,6 +1481,7 @@ function finish(code = 0) {
       `bus_resets=${stats.busResets} usb_host_resets=${stats.hostResets} ` +
       `erases_while_enumerating=${stats.erasesWhileEnumerating} ` +
       `watchdog_resets=${stats.watchdogResets} ` +
+      `guard_faults=${stats.guardFaults} ` +
       `usb_bytes_in=${stats.bytesIn} usb_bytes_out=${stats.bytesOut}\n`,
   );
   process.stdout.write(latency.line() + '\n');

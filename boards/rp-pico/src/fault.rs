@@ -1,11 +1,12 @@
 //! Fault injection, for the tests only (cargo feature `fault-injection`,
 //! built by the tests with `--profile fault-injection`; the release build
-//! has none of it): a hang or a panic at a chosen frame of the scan, so
-//! that the tests see the watchdog and the panic handler restart the board
-//! mid-scan (host/tests/cli_board_restart.rs).
+//! has none of it): a hang, a panic or a stack overflow at a chosen frame
+//! of the scan, so that the tests see the watchdog, the panic handler and
+//! the stack's guard restart the board mid-scan
+//! (host/tests/cli_board_restart.rs).
 //!
 //! The plan comes in the watchdog's SCRATCH7 at power-on, where the
-//! emulator's harness puts it (its `PICO_FAULT=panic:N` or `hang:N`), and
+//! emulator's harness puts it (its `PICO_FAULT=panic:N`, `hang:N` or `overflow:N`), and
 //! is taken (read and cleared) at boot: a watchdog reset keeps the scratch
 //! registers, so the restarted board, whose scan is restored past frame N,
 //! must not fault again. SCRATCH7, not 0-3: those carry the panic record;
@@ -21,6 +22,7 @@ use rp2040_hal::pac;
 const PLAN: u32 = 0xFA00_0000;
 const KIND_PANIC: u32 = 1;
 const KIND_HANG: u32 = 2;
+const KIND_OVERFLOW: u32 = 3;
 
 /// The plan taken at boot (0: none): kind in bits 16..24, frame below.
 static TAKEN: AtomicU32 = AtomicU32::new(0);
@@ -57,6 +59,23 @@ pub fn after_message(device: &Device256K) {
             // comes), and never feeding the watchdog.
             cortex_m::asm::nop();
         },
+        KIND_OVERFLOW => {
+            let _ = deeper(0);
+        }
         _ => {}
     }
+}
+
+/// Recursion that takes 512 bytes of stack a call until the stack meets
+/// its guard (stack_guard.rs); the depth bound is never reached (256 KiB
+/// of RAM hold fewer than 512 such calls).
+#[inline(never)]
+fn deeper(depth: u32) -> u32 {
+    let mut frame = [0u8; 512];
+    frame[0] = depth as u8;
+    core::hint::black_box(&mut frame);
+    if depth > 1024 {
+        return 0;
+    }
+    deeper(depth + 1).wrapping_add(u32::from(frame[511]))
 }

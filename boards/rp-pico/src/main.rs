@@ -49,6 +49,7 @@
 mod fault;
 mod flash;
 mod link;
+mod stack_guard;
 mod watchdog;
 
 use core::cell::RefCell;
@@ -134,6 +135,9 @@ fn main() -> ! {
     let last_reset = watchdog::take_last_reset();
     #[cfg(feature = "fault-injection")]
     fault::take_plan();
+    // Before the stack is deep: an overflow faults at the guard instead of
+    // overwriting the statics.
+    stack_guard::enable();
     let Some(mut pac) = pac::Peripherals::take() else {
         halt()
     };

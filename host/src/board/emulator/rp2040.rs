@@ -500,7 +500,8 @@ pub fn stack_reserve() -> u64 {
 
 /// How far below [`stack_reserve`] the stack's peak must stay on the paths
 /// the tests run: paths they do not run (rarer errors, other inputs) may go
-/// deeper, and an overflow runs into the statics with no guard.
+/// deeper, and an overflow meets the MPU guard under the stack, which
+/// restarts the board (boards/rp-pico/src/stack_guard.rs).
 pub const STACK_MARGIN: u64 = 8 * 1024;
 
 /// The [`StackUse`] a stopped harness printed, checked: an error in words
