@@ -12,7 +12,7 @@
 
 mod cli_common;
 
-use cli_common::device::Device;
+use cli_common::device::{exported, host_replay, Device};
 use cli_common::{placedb, seven_scenes_copy, stderr, TempDir};
 use placedb::protocol::Phase;
 use placedb_host::board::client;
@@ -470,14 +470,6 @@ fn phase(port: &str) -> Phase {
         .phase
 }
 
-/// The database and labels `placedb export` pulls from `port` into `out`.
-fn exported(port: &str, out: &str) -> (String, String) {
-    let run = placedb(&["export", "--port", port, "-q", "-o", out]);
-    assert!(run.status.success(), "{}", stderr(&run));
-    let read = |f: &str| std::fs::read_to_string(format!("{out}/{f}")).unwrap();
-    (read("database.csv"), read("labels.csv"))
-}
-
 /// Ctrl-C during `stream` to `board` (`frames` frames of 7-Scenes at
 /// stride 8, the signal `after` that long) stops it between frames with
 /// status 130 and a word on how to go on; the board has no frame open, and
@@ -577,24 +569,8 @@ fn a_stream_killed_mid_frame_is_resumed(
     let run = placedb(&again);
     assert!(run.status.success(), "{}", stderr(&run));
     let got = exported(&board.port, &tmp.arg("out"));
-    let host = tmp.arg("host");
-    let run = placedb(&[
-        "select",
-        &seq,
-        "--solver",
-        "online",
-        "--profile",
-        profile,
-        "--stride",
-        "8",
-        "-q",
-        "-o",
-        &host,
-    ]);
-    assert!(run.status.success(), "{}", stderr(&run));
-    let read = |f: &str| std::fs::read_to_string(format!("{host}/{f}")).unwrap();
     assert!(
-        got == (read("database.csv"), read("labels.csv")),
+        got == host_replay(&seq, profile, &tmp.arg("host")),
         "the resumed scan differs from the host replay"
     );
     println!("{kills} kills, the last mid-frame: resumed to the host replay's export");

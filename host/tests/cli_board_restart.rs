@@ -15,7 +15,7 @@
 
 mod cli_common;
 
-use cli_common::device::{Device, BOOT};
+use cli_common::device::{exported, host_replay, Device, BOOT};
 use cli_common::{placedb, seven_scenes_copy, stderr, TempDir};
 use placedb::protocol::ResetCause;
 use placedb_host::board::client;
@@ -86,31 +86,16 @@ fn a_fault_mid_scan_restarts_the_board(
     let out = String::from_utf8_lossy(&run.stdout).into_owned();
     assert!(run.status.success(), "{}", stderr(&run));
     assert!(out.contains(words), "{words:?} not in: {out}");
-    let got = tmp.arg("out");
-    let run = placedb(&["export", "--port", &port, "-q", "-o", &got]);
-    assert!(run.status.success(), "{}", stderr(&run));
-    let host = tmp.arg("host");
-    let run = placedb(&[
-        "select",
-        &seq,
-        "--solver",
-        "online",
-        "--profile",
-        "ram256k",
-        "--stride",
-        "8",
-        "-q",
-        "-o",
-        &host,
-    ]);
-    assert!(run.status.success(), "{}", stderr(&run));
-    for f in ["database.csv", "labels.csv"] {
-        let read = |d: &str| std::fs::read_to_string(format!("{d}/{f}")).unwrap();
-        assert!(
-            read(&got) == read(&host),
-            "{f} of the resumed scan differs from the host replay's"
-        );
-    }
+    let (database, labels) = exported(&port, &tmp.arg("out"));
+    let (host_database, host_labels) = host_replay(&seq, "ram256k", &tmp.arg("host"));
+    assert!(
+        database == host_database,
+        "database.csv of the resumed scan differs from the host replay's"
+    );
+    assert!(
+        labels == host_labels,
+        "labels.csv of the resumed scan differs from the host replay's"
+    );
     let (_, console) = device.stop();
     let resets = console
         .lines()

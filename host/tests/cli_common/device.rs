@@ -195,3 +195,37 @@ impl Drop for Device {
         let _ = self.child.wait();
     }
 }
+
+/// `database.csv` and `labels.csv` of `placedb export --port PORT -o OUT`.
+pub fn exported(port: &str, out: &str) -> (String, String) {
+    let run = super::placedb(&["export", "--port", port, "-q", "-o", out]);
+    assert!(run.status.success(), "{}", super::stderr(&run));
+    tables(out)
+}
+
+/// `database.csv` and `labels.csv` of `placedb select SEQ --solver online
+/// --profile PROFILE --stride 8 -o OUT`: the host replay a board's export
+/// of a scan of SEQ at stride 8 must equal.
+pub fn host_replay(seq: &str, profile: &str, out: &str) -> (String, String) {
+    let run = super::placedb(&[
+        "select",
+        seq,
+        "--solver",
+        "online",
+        "--profile",
+        profile,
+        "--stride",
+        "8",
+        "-q",
+        "-o",
+        out,
+    ]);
+    assert!(run.status.success(), "{}", super::stderr(&run));
+    tables(out)
+}
+
+/// `database.csv` and `labels.csv` of the output directory `out`.
+fn tables(out: &str) -> (String, String) {
+    let read = |f: &str| std::fs::read_to_string(format!("{out}/{f}")).unwrap();
+    (read("database.csv"), read("labels.csv"))
+}
