@@ -8,7 +8,9 @@
 use super::{mcap_storage, ros1_storage, sqlite_storage};
 use std::fmt;
 use std::io::Read;
+use std::ops::{Deref, Range};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// Where a message is, to read it again.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -170,20 +172,39 @@ pub struct Kept {
     ros1_chunks: ros1_storage::Chunks,
 }
 
+/// A message's bytes read back: its own, or where they lie in a chunk a
+/// reading keeps (not copied out: a depth image is hundreds of kilobytes).
+pub enum MessageBytes {
+    Own(Vec<u8>),
+    InChunk(Arc<Vec<u8>>, Range<usize>),
+}
+
+impl Deref for MessageBytes {
+    type Target = [u8];
+
+    fn deref(&self) -> &[u8] {
+        match self {
+            MessageBytes::Own(bytes) => bytes,
+            MessageBytes::InChunk(chunk, range) => &chunk[range.clone()],
+        }
+    }
+}
+
 /// Reads back the message at `at` in file `path`.
 pub fn fetch(path: &Path, at: Location) -> Result<Vec<u8>, BagError> {
-    fetch_kept(path, at, &Kept::default())
+    fetch_kept(path, at, &Kept::default()).map(|bytes| bytes.to_vec())
 }
 
 /// [`fetch`] for a reading that keeps `kept` between its messages.
-pub fn fetch_kept(path: &Path, at: Location, kept: &Kept) -> Result<Vec<u8>, BagError> {
+pub fn fetch_kept(path: &Path, at: Location, kept: &Kept) -> Result<MessageBytes, BagError> {
+    let own = |bytes: Result<Vec<u8>, BagError>| bytes.map(MessageBytes::Own);
     match at.place {
         Place::Mcap {
             offset,
             len,
             in_chunk,
-        } => mcap_storage::fetch(path, offset, len, in_chunk),
-        Place::Row(id) => sqlite_storage::fetch(path, id),
+        } => own(mcap_storage::fetch(path, offset, len, in_chunk)),
+        Place::Row(id) => own(sqlite_storage::fetch(path, id)),
         Place::Ros1 {
             offset,
             len,

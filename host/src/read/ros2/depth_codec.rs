@@ -17,7 +17,7 @@
 //! Every length and count in the payload is checked before it is used: a
 //! damaged message is an error in words, never a panic or a huge allocation.
 
-use super::metres_to_units;
+use super::{metres_to_units, rvl};
 use crate::error::ReadError;
 use std::path::Path;
 
@@ -33,11 +33,6 @@ pub enum DepthCodec {
 
 /// Bytes of the `ConfigHeader` before a compressedDepth image.
 const CONFIG_HEADER: usize = 12;
-
-/// Most pixels a compressed depth image may claim: four times a 4K frame.
-/// RVL codes a run of zeros in a few bytes, so without a bound a damaged
-/// count could ask for gigabytes.
-const MOST_PIXELS: usize = 1 << 25;
 
 /// The codec of a CompressedImage `format`, or why it is not depth.
 pub fn codec(format: &str) -> Result<DepthCodec, String> {
@@ -108,7 +103,7 @@ fn split_header(data: &[u8]) -> Result<(&[u8], [f32; 2]), String> {
 pub fn size(codec: DepthCodec, data: &[u8]) -> Result<(u16, u16), String> {
     let image = match codec {
         DepthCodec::CompressedDepth { rvl: true, .. } => {
-            return rvl_size(split_header(data)?.0).map(|(w, h, _)| (w, h))
+            return rvl::size(split_header(data)?.0).map(|(w, h, _)| (w, h))
         }
         DepthCodec::CompressedDepth { .. } => split_header(data)?.0,
         DepthCodec::Png => data,
@@ -117,206 +112,54 @@ pub fn size(codec: DepthCodec, data: &[u8]) -> Result<(u16, u16), String> {
 }
 
 /// Decodes `data` to depth units at `depth_scale` per metre (`16UC1` data
-/// as stored; inverse depth converted as a `32FC1` Image is).
-pub fn decode(
+/// as stored; inverse depth converted as a `32FC1` Image is) into
+/// `values`, a row after another; returns its width and height.
+pub fn decode_into(
     codec: DepthCodec,
     data: &[u8],
     depth_scale: f64,
-) -> Result<(u16, u16, Vec<u16>), String> {
-    let (image, params, inverse, rvl) = match codec {
+    values: &mut Vec<u16>,
+) -> Result<(u16, u16), String> {
+    let (image, params, inverse, is_rvl) = match codec {
         DepthCodec::CompressedDepth { inverse, rvl } => {
             let (image, params) = split_header(data)?;
             (image, params, inverse, rvl)
         }
         DepthCodec::Png => (data, [0.0; 2], false, false),
     };
-    let (width, height, mut values) = if rvl {
-        let (w, h, stream) = rvl_size(image)?;
-        (w, h, rvl_decode(stream, usize::from(w) * usize::from(h))?)
+    let (width, height) = if is_rvl {
+        let (w, h, stream) = rvl::size(image)?;
+        rvl::decode_into(stream, usize::from(w) * usize::from(h), values)?;
+        (w, h)
     } else {
-        let mut values = Vec::new();
-        let (w, h) = crate::read::png::decode_bytes(Path::new(""), image, false, &mut values)
-            .map_err(png_reason)?;
-        (w, h, values)
+        crate::read::png::decode_bytes(Path::new(""), image, false, values).map_err(png_reason)?
     };
     if inverse {
         let [a, b] = params;
-        for v in &mut values {
+        for v in values.iter_mut() {
             *v = match *v {
                 0 => 0,
                 q => metres_to_units(a / (f32::from(q) - b), depth_scale),
             };
         }
     }
-    Ok((width, height, values))
+    Ok((width, height))
 }
 
-/// An RVL payload's columns and rows, and the stream after them.
-fn rvl_size(payload: &[u8]) -> Result<(u16, u16, &[u8]), String> {
-    let word = |i: usize| {
-        payload
-            .get(i..i + 4)
-            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-            .ok_or_else(|| {
-                format!(
-                    "RVL payload of {} bytes ends inside its size",
-                    payload.len()
-                )
-            })
-    };
-    let (cols, rows) = (word(0)?, word(4)?);
-    let side = |v: u32| u16::try_from(v).ok().filter(|&s| s > 0);
-    match (side(cols), side(rows)) {
-        (Some(w), Some(h)) if usize::from(w) * usize::from(h) <= MOST_PIXELS => {
-            Ok((w, h, &payload[8..]))
-        }
-        _ => Err(format!(
-            "RVL image claims {cols}x{rows} pixels (sides 1..=65535, at most {MOST_PIXELS} pixels)"
-        )),
-    }
-}
-
-/// Reads the variable-length values of an RVL stream: 32-bit little-endian
-/// words, each read from its top nibble down; a value is 3 bits a nibble,
-/// lowest first, the 4th bit set while more follow.
-struct Values<'a> {
-    words: std::slice::ChunksExact<'a, u8>,
-    /// Unread nibbles of the current word, in its top bits.
-    word: u32,
-    left: u32,
-}
-
-impl Values<'_> {
-    /// The next value; `None` at the stream's end, or for one longer than
-    /// 32 bits (damage; the caller says the stream ended too early).
-    #[inline]
-    fn next(&mut self) -> Option<u32> {
-        let (mut value, mut shift) = (0u32, 0u32);
-        loop {
-            if self.left == 0 {
-                let b = self.words.next()?;
-                self.word = u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
-                self.left = 8;
-            }
-            let nibble = self.word >> 28;
-            self.word <<= 4;
-            self.left -= 1;
-            value |= (nibble & 7) << shift;
-            if nibble & 8 == 0 {
-                return Some(value);
-            }
-            shift += 3;
-            if shift > 30 {
-                return None;
-            }
-        }
-    }
-}
-
-/// Decodes `pixels` values from an RVL stream: runs of zeros and of
-/// non-zero values, each non-zero value a zigzag delta from the previous
-/// non-zero one.
-fn rvl_decode(stream: &[u8], pixels: usize) -> Result<Vec<u16>, String> {
-    let mut values = Values {
-        words: stream.chunks_exact(4),
-        word: 0,
-        left: 0,
-    };
-    let short = |done: usize| format!("RVL stream ends after {done} of {pixels} pixels");
-    let mut out = vec![0u16; pixels];
-    let (mut at, mut previous) = (0usize, 0u16);
-    while at < pixels {
-        let zeros = values.next().ok_or_else(|| short(at))? as usize;
-        if zeros > pixels - at {
-            return Err(format!(
-                "RVL run of {zeros} zeros after {at} pixels overflows the {pixels}-pixel image"
-            ));
-        }
-        at += zeros;
-        if at == pixels {
-            break;
-        }
-        let run = values.next().ok_or_else(|| short(at))? as usize;
-        if run > pixels - at {
-            return Err(format!(
-                "RVL run of {run} values after {at} pixels overflows the {pixels}-pixel image"
-            ));
-        }
-        for slot in &mut out[at..at + run] {
-            let zigzag = values.next().ok_or_else(|| short(at))?;
-            let delta = (zigzag >> 1) as i32 ^ -((zigzag & 1) as i32);
-            // The codec's arithmetic: an int stored as unsigned short.
-            previous = (i32::from(previous).wrapping_add(delta)) as u16;
-            *slot = previous;
-        }
-        at += run;
-    }
-    Ok(out)
+/// [`decode_into`] a new buffer: width, height and values.
+pub fn decode(
+    codec: DepthCodec,
+    data: &[u8],
+    depth_scale: f64,
+) -> Result<(u16, u16, Vec<u16>), String> {
+    let mut values = Vec::new();
+    let (w, h) = decode_into(codec, data, depth_scale, &mut values)?;
+    Ok((w, h, values))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// RVL as the codec's `CompressRVL` writes it.
-    fn rvl_encode(values: &[u16]) -> Vec<u8> {
-        let mut nibbles: Vec<u32> = Vec::new();
-        let vle = |mut v: u32, out: &mut Vec<u32>| loop {
-            let nib = v & 7;
-            v >>= 3;
-            out.push(if v > 0 { nib | 8 } else { nib });
-            if v == 0 {
-                break;
-            }
-        };
-        let (mut i, mut previous) = (0usize, 0i32);
-        while i < values.len() {
-            let zeros = values[i..].iter().take_while(|&&v| v == 0).count();
-            vle(zeros as u32, &mut nibbles);
-            i += zeros;
-            let run = values[i..].iter().take_while(|&&v| v != 0).count();
-            vle(run as u32, &mut nibbles);
-            for &v in &values[i..i + run] {
-                let delta = i32::from(v) - previous;
-                vle(((delta << 1) ^ (delta >> 31)) as u32, &mut nibbles);
-                previous = i32::from(v);
-            }
-            i += run;
-        }
-        let mut out = Vec::new();
-        for chunk in nibbles.chunks(8) {
-            let mut word = 0u32;
-            for (k, n) in chunk.iter().enumerate() {
-                word |= n << (4 * (7 - k));
-            }
-            out.extend_from_slice(&word.to_le_bytes());
-        }
-        out
-    }
-
-    #[test]
-    fn rvl_reads_the_codecs_worked_example_and_round_trips() {
-        // [0, 0, 5, 7, 0]: nibbles 2,2,A,1,4,1,0,0 in one word.
-        assert_eq!(rvl_encode(&[0, 0, 5, 7, 0]), [0x00, 0x41, 0xa1, 0x22]);
-        assert_eq!(
-            rvl_decode(&[0x00, 0x41, 0xa1, 0x22], 5).unwrap(),
-            [0, 0, 5, 7, 0]
-        );
-        let values: Vec<u16> = (0..3000u32)
-            .map(|i| {
-                if i % 7 < 2 {
-                    0
-                } else {
-                    (i * 37 % 65535) as u16 + 1
-                }
-            })
-            .chain([65535, 1, 65535, 0])
-            .collect();
-        assert_eq!(
-            rvl_decode(&rvl_encode(&values), values.len()).unwrap(),
-            values
-        );
-    }
 
     #[test]
     fn damaged_payloads_are_errors_in_words() {
@@ -340,7 +183,7 @@ mod tests {
             .unwrap_err()
             .contains("overflows"));
         let mut cut = header(&[2, 0, 0, 0, 2, 0, 0, 0]);
-        cut.extend_from_slice(&rvl_encode(&[0, 5])[..]);
+        cut.extend_from_slice(&rvl::tests::encode(&[0, 5])[..]);
         assert!(decode(rvl, &cut, 1000.0)
             .unwrap_err()
             .contains("ends after 2 of 4"));

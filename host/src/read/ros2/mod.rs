@@ -36,12 +36,14 @@ pub mod bag;
 pub mod cdr;
 pub mod color_codec;
 pub mod depth_codec;
+mod lz4_frame;
 mod mcap_storage;
 pub mod msgs;
 mod pose_source;
 pub mod ros1_msgs;
 #[doc(hidden)]
 pub mod ros1_storage;
+mod rvl;
 mod sqlite_storage;
 pub mod tf_tree;
 pub mod wire;
@@ -855,7 +857,7 @@ struct BagSource {
 }
 
 impl BagSource {
-    fn message(&self, r: &ImageRef) -> Result<Vec<u8>, ReadError> {
+    fn message(&self, r: &ImageRef) -> Result<bag::MessageBytes, ReadError> {
         let file = &self.files[r.at.file];
         bag::fetch_kept(file, r.at, &self.kept).map_err(layout)
     }
@@ -863,6 +865,15 @@ impl BagSource {
 
 impl DepthSource for BagSource {
     fn depth(&self, i: usize) -> Result<DepthImage, ReadError> {
+        let mut image = DepthImage {
+            width: 0,
+            height: 0,
+            data: Vec::new(),
+        };
+        self.depth_into(i, &mut image).map(|()| image)
+    }
+
+    fn depth_into(&self, i: usize, image: &mut DepthImage) -> Result<(), ReadError> {
         let r = self.depth.get(i).ok_or_else(|| {
             text::layout(
                 &self.files[0],
@@ -879,16 +890,15 @@ impl DepthSource for BagSource {
         if r.compressed.is_some() {
             let img = r.wire.compressed_image(&bytes).map_err(&at)?;
             let codec = depth_codec::codec(&img.format).map_err(&at)?;
-            let (width, height, data) =
-                depth_codec::decode(codec, img.data, self.depth_scale).map_err(at)?;
-            return Ok(DepthImage {
-                width,
-                height,
-                data,
-            });
+            (image.width, image.height) = (0, 0);
+            let (width, height) =
+                depth_codec::decode_into(codec, img.data, self.depth_scale, &mut image.data)
+                    .map_err(at)?;
+            (image.width, image.height) = (width, height);
+            return Ok(());
         }
         let img = r.wire.image(&bytes).map_err(&at)?;
-        decode_depth(&img, self.depth_scale).map_err(at)
+        decode_depth_into(&img, self.depth_scale, image).map_err(at)
     }
 
     fn color(&self, i: usize) -> Result<Option<Image>, ReadError> {
@@ -948,23 +958,46 @@ fn sides(img: &msgs::Image<'_>) -> Result<(u16, u16), String> {
 /// A depth Image as `u16` at `depth_scale` units per metre: `16UC1` as
 /// stored, `32FC1` metres scaled (invalid or out-of-range values become 0).
 pub fn decode_depth(img: &msgs::Image<'_>, depth_scale: f64) -> Result<DepthImage, String> {
+    let mut out = DepthImage {
+        width: 0,
+        height: 0,
+        data: Vec::new(),
+    };
+    decode_depth_into(img, depth_scale, &mut out).map(|()| out)
+}
+
+/// [`decode_depth`] into `out`, reusing its buffer (on an error `out`
+/// holds no image).
+pub fn decode_depth_into(
+    img: &msgs::Image<'_>,
+    depth_scale: f64,
+    out: &mut DepthImage,
+) -> Result<(), String> {
+    out.width = 0;
+    out.height = 0;
+    out.data.clear();
     let (width, height) = sides(img)?;
-    let big = img.is_bigendian;
-    let mut data = Vec::with_capacity(usize::from(width) * usize::from(height));
-    match img.encoding.as_str() {
-        "16UC1" => {
+    let data = &mut out.data;
+    data.reserve(usize::from(width) * usize::from(height));
+    // One loop per byte order, so that each is a plain copy or swap.
+    match (img.encoding.as_str(), img.is_bigendian) {
+        ("16UC1", false) => {
             for row in rows(img, 2)? {
-                data.extend(row.chunks_exact(2).map(|b| {
-                    let b = [b[0], b[1]];
-                    if big {
-                        u16::from_be_bytes(b)
-                    } else {
-                        u16::from_le_bytes(b)
-                    }
-                }));
+                data.extend(
+                    row.chunks_exact(2)
+                        .map(|b| u16::from_le_bytes([b[0], b[1]])),
+                );
             }
         }
-        "32FC1" => {
+        ("16UC1", true) => {
+            for row in rows(img, 2)? {
+                data.extend(
+                    row.chunks_exact(2)
+                        .map(|b| u16::from_be_bytes([b[0], b[1]])),
+                );
+            }
+        }
+        ("32FC1", big) => {
             for row in rows(img, 4)? {
                 data.extend(row.chunks_exact(4).map(|b| {
                     let b = [b[0], b[1], b[2], b[3]];
@@ -977,17 +1010,15 @@ pub fn decode_depth(img: &msgs::Image<'_>, depth_scale: f64) -> Result<DepthImag
                 }));
             }
         }
-        other => {
+        (other, _) => {
             return Err(format!(
                 "encoding `{other}` is not a depth encoding (16UC1 or 32FC1)"
             ))
         }
     }
-    Ok(DepthImage {
-        width,
-        height,
-        data,
-    })
+    out.width = width;
+    out.height = height;
+    Ok(())
 }
 
 /// Metres as `u16` depth units at `depth_scale` per metre, rounded; NaN,

@@ -24,11 +24,13 @@
 //! ask for gigabytes). A file cut at its end is read up to the cut, except
 //! inside a chunk: a chunk cut short is an error naming the byte.
 
-use super::bag::{err, BagError, Channel, Location, Message, Place};
+use super::bag::{err, BagError, Channel, Location, Message, MessageBytes, Place};
+use super::lz4_frame;
 use rayon::prelude::*;
 use std::collections::{HashMap, VecDeque};
 use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
+use std::ops::Range;
 use std::path::Path;
 use std::sync::{Arc, Mutex, PoisonError};
 
@@ -172,8 +174,9 @@ fn inner_records<'a>(
 const LZ4_MOST_PER_BYTE: u64 = 255;
 
 /// A chunk's data, decompressed: exactly `size` bytes, else an error;
-/// `data` itself when it is not compressed, else `out`'s (its room reused:
-/// fresh memory costs a page fault a 4 KiB, as much as decompressing).
+/// `data` itself when it is not compressed, else `out`'s (its room reused
+/// without zeroing: fresh memory costs a page fault a 4 KiB, and zeroing
+/// it as much again).
 fn decompress<'a>(
     compression: &[u8],
     size: u32,
@@ -183,18 +186,6 @@ fn decompress<'a>(
     let size = u64::from(size);
     let claims = |got: usize| {
         format!("it claims {size} bytes uncompressed, its data gives {got} (a damaged chunk)")
-    };
-    let read_capped = |mut r: Box<dyn Read + '_>, out: &mut Vec<u8>| -> Result<(), String> {
-        // Grows with what really comes out, never past size + 1 bytes; a
-        // size up to a few depth images is reserved at once, sparing the
-        // copies of growing into it.
-        out.clear();
-        out.reserve(size.min(RESERVE_AT_ONCE) as usize);
-        r.by_ref()
-            .take(size + 1)
-            .read_to_end(out)
-            .map_err(|e| format!("its data does not decompress: {e}"))?;
-        Ok(())
     };
     match compression {
         b"none" => {
@@ -211,11 +202,11 @@ fn decompress<'a>(
                     data.len()
                 ));
             }
-            let decoder = lz4::Decoder::new(data)
+            lz4_frame::decompress_into(data, size as usize, out)
                 .map_err(|e| format!("its lz4 data does not decompress: {e}"))?;
-            read_capped(Box::new(decoder), out)?
         }
-        b"bz2" => read_capped(Box::new(bzip2::read::BzDecoder::new(data)), out)?,
+        b"bz2" => read_at_most(bzip2::read::BzDecoder::new(data), size, out)
+            .map_err(|e| format!("its data does not decompress: {e}"))?,
         other => {
             return Err(format!(
                 "compression `{}` is not supported (none, bz2 or lz4)",
@@ -228,6 +219,32 @@ fn decompress<'a>(
     }
     let out: &'a Vec<u8> = out;
     Ok(out)
+}
+
+/// Reads what `r` gives into `out`, up to `size` bytes and one more (so a
+/// chunk claiming too little shows), into the room `out` already has
+/// where it can (new room is zeroed before it is read into). Room beyond
+/// [`RESERVE_AT_ONCE`] grows with what really comes out: a bz2 stream's
+/// output has no bound but `size`, which a damaged header sets.
+fn read_at_most(mut r: impl Read, size: u64, out: &mut Vec<u8>) -> std::io::Result<()> {
+    let most = usize::try_from(size.saturating_add(1)).unwrap_or(usize::MAX);
+    let mut filled = 0usize;
+    while filled < most {
+        if filled == out.len() {
+            // Double, from the reserve; never past `most`.
+            let grown = out.len().max(RESERVE_AT_ONCE as usize / 2) * 2;
+            out.resize(grown.min(most), 0);
+        }
+        let end = out.len().min(most);
+        match r.read(&mut out[filled..end]) {
+            Ok(0) => break,
+            Ok(n) => filled += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    out.truncate(filled);
+    Ok(())
 }
 
 /// Most bytes a decompression reserves before it sees its output: 16 MiB,
@@ -660,11 +677,12 @@ pub fn fetch(
     len: u64,
     in_chunk: Option<u32>,
     chunks: &Chunks,
-) -> Result<Vec<u8>, BagError> {
+) -> Result<MessageBytes, BagError> {
     let at_record = |e: String| err(path, format!("record at byte {offset}: {e}"));
     if let Some(k) = in_chunk {
         if let Some(chunk) = chunks.get(file, offset) {
-            return message_in_chunk(&chunk, k).map_err(at_record);
+            let range = message_in_chunk(&chunk, k).map_err(at_record)?;
+            return Ok(MessageBytes::InChunk(chunk, range));
         }
     }
     let io = |e: std::io::Error| err(path, e.to_string());
@@ -682,27 +700,33 @@ pub fn fetch(
     let (top, _) = inner_record(&record, 0).map_err(at_record)?;
     let op = top.fields.op().map_err(at_record)?;
     match (op, in_chunk) {
-        (op::MESSAGE, None) => Ok(top.data.to_vec()),
+        (op::MESSAGE, None) => Ok(MessageBytes::Own(top.data.to_vec())),
         (op::CHUNK, Some(k)) => {
             let mut out = chunks.buffer();
             let chunk = chunk_data(&top.fields, top.data, &mut out).map_err(at_record)?;
-            let message = message_in_chunk(chunk, k).map_err(at_record)?;
+            let range = message_in_chunk(chunk, k).map_err(at_record)?;
             // An uncompressed chunk is its record's data: kept as a copy.
             let uncompressed = top.fields.get("compression") == Some(&b"none"[..]);
             let copy = uncompressed.then(|| chunk.to_vec());
-            chunks.keep(file, offset, Arc::new(copy.unwrap_or(out)));
-            Ok(message)
+            let chunk = Arc::new(copy.unwrap_or(out));
+            chunks.keep(file, offset, Arc::clone(&chunk));
+            Ok(MessageBytes::InChunk(chunk, range))
         }
         _ => Err(at_record("not the message record expected".into())),
     }
 }
 
-/// The message record at byte `k` of a decompressed `chunk`.
-fn message_in_chunk(chunk: &[u8], k: u32) -> Result<Vec<u8>, String> {
+/// Where the data of the message record at byte `k` of a decompressed
+/// `chunk` lies in it.
+fn message_in_chunk(chunk: &[u8], k: u32) -> Result<Range<usize>, String> {
     let rest = chunk.get(k as usize..).unwrap_or(&[]);
-    let (msg, _) = inner_record(rest, k as usize)?;
+    let (msg, after) = inner_record(rest, k as usize)?;
     match msg.fields.op()? {
-        op::MESSAGE => Ok(msg.data.to_vec()),
+        op::MESSAGE => {
+            // The data ends where the rest after the record begins.
+            let end = chunk.len() - after.len();
+            Ok(end - msg.data.len()..end)
+        }
         _ => Err(format!("no message record at byte {k} of the chunk")),
     }
 }
@@ -931,16 +955,16 @@ mod tests {
         let ((o1, l1, k1), (o2, l2, k2)) = (place(0), place(1));
         assert_eq!(o1, o2, "both messages in the one chunk");
         let first = Chunks::default();
-        assert_eq!(fetch(&path, 0, o1, l1, k1, &first).unwrap(), b"old-1");
+        assert_eq!(&fetch(&path, 0, o1, l1, k1, &first).unwrap()[..], b"old-1");
         // Rewritten in place, the same layout: the reading that has the
         // chunk reads it from what it kept, a new reading from the file.
         std::fs::write(&path, two_in_a_chunk(b"new-1", b"new-2")).unwrap();
-        assert_eq!(fetch(&path, 0, o2, l2, k2, &first).unwrap(), b"old-2");
+        assert_eq!(&fetch(&path, 0, o2, l2, k2, &first).unwrap()[..], b"old-2");
         let second = Chunks::default();
-        assert_eq!(fetch(&path, 0, o2, l2, k2, &second).unwrap(), b"new-2");
-        assert_eq!(fetch(&path, 0, o1, l1, k1, &second).unwrap(), b"new-1");
+        assert_eq!(&fetch(&path, 0, o2, l2, k2, &second).unwrap()[..], b"new-2");
+        assert_eq!(&fetch(&path, 0, o1, l1, k1, &second).unwrap()[..], b"new-1");
         // Kept by file and offset: the same offset in another file is read.
-        assert_eq!(fetch(&path, 1, o1, l1, k1, &first).unwrap(), b"new-1");
+        assert_eq!(&fetch(&path, 1, o1, l1, k1, &first).unwrap()[..], b"new-1");
         assert_eq!(
             super::super::bag::fetch(&path, seen[0].5).unwrap(),
             b"new-1"
