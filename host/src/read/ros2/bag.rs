@@ -5,7 +5,7 @@
 //! bags (`.bag`, format 2.0) by [`super::ros1_storage`]; the file's own
 //! first bytes say which.
 
-use super::{mcap_storage, ros1_storage, sqlite_storage};
+use super::{kept_chunks, mcap_storage, ros1_storage, sqlite_storage};
 use std::fmt;
 use std::io::Read;
 use std::ops::{Deref, Range};
@@ -165,11 +165,11 @@ pub fn scan(
 }
 
 /// What one reading of a bag keeps between the messages it reads back:
-/// the ROS 1 chunks it decompressed last ([`ros1_storage::Chunks`]). Made
+/// the chunks it decompressed last ([`kept_chunks::Chunks`]). Made
 /// with the reading and dropped with it.
 #[derive(Default)]
 pub struct Kept {
-    ros1_chunks: ros1_storage::Chunks,
+    chunks: kept_chunks::Chunks,
 }
 
 /// A message's bytes read back: its own, or where they lie in a chunk a
@@ -203,13 +203,13 @@ pub fn fetch_kept(path: &Path, at: Location, kept: &Kept) -> Result<MessageBytes
             offset,
             len,
             in_chunk,
-        } => own(mcap_storage::fetch(path, offset, len, in_chunk)),
+        } => mcap_storage::fetch(path, at.file, offset, len, in_chunk, &kept.chunks),
         Place::Row(id) => own(sqlite_storage::fetch(path, id)),
         Place::Ros1 {
             offset,
             len,
             in_chunk,
-        } => ros1_storage::fetch(path, at.file, offset, len, in_chunk, &kept.ros1_chunks),
+        } => ros1_storage::fetch(path, at.file, offset, len, in_chunk, &kept.chunks),
     }
 }
 

@@ -10,11 +10,12 @@
 //! room for the whole output, the library decodes in place: no copy.
 //!
 //! The library checks every frame field, the blocks' bounds and, where the
-//! frame carries them, its checksums.
+//! frame carries them and the caller has no check of its own, its
+//! checksums.
 
 use lz4::liblz4::{
-    LZ4FDecompressionContext, LZ4F_createDecompressionContext, LZ4F_decompress,
-    LZ4F_freeDecompressionContext, LZ4F_getErrorName, LZ4F_isError, LZ4F_VERSION,
+    LZ4FDecompressOptions, LZ4FDecompressionContext, LZ4F_createDecompressionContext,
+    LZ4F_decompress, LZ4F_freeDecompressionContext, LZ4F_getErrorName, LZ4F_isError, LZ4F_VERSION,
 };
 use std::ffi::CStr;
 
@@ -53,14 +54,37 @@ fn checked(code: usize) -> Result<usize, String> {
     }
 }
 
+/// Whether the frames' own checksums (xxHash-32 of each block and of the
+/// content, where a frame has them) are verified.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Checksums {
+    Verify,
+    /// The caller checks the output another way (an MCAP chunk's CRC):
+    /// verifying both cost a third of reading an lz4 MCAP bag.
+    Skip,
+}
+
 /// Decompresses the LZ4 frames of `data` (one, or several one after the
 /// other) into `out`: exactly `size` bytes, else an error in words.
 /// `out`'s room is reused without being zeroed where it is already there
 /// (every byte is written before it is read).
-pub fn decompress_into(data: &[u8], size: usize, out: &mut Vec<u8>) -> Result<(), String> {
+pub fn decompress_into(
+    data: &[u8],
+    size: usize,
+    out: &mut Vec<u8>,
+    checksums: Checksums,
+) -> Result<(), String> {
     out.truncate(size);
     out.resize(size, 0);
     let ctx = Context::new()?;
+    // The library's options: `stableDst` (0: none promised), then
+    // `skipChecksums` (lz4frame.h, the bundled lz4 1.10), then two fields
+    // that must be zero.
+    let skip = u32::from(checksums == Checksums::Skip);
+    let options = LZ4FDecompressOptions {
+        stable_dst: 0,
+        reserved: [skip, 0, 0],
+    };
     let (mut read, mut written) = (0usize, 0usize);
     loop {
         let (src, dst) = (&data[read..], &mut out[written..]);
@@ -75,7 +99,7 @@ pub fn decompress_into(data: &[u8], size: usize, out: &mut Vec<u8>) -> Result<()
                 &mut dst_len,
                 src.as_ptr(),
                 &mut src_len,
-                std::ptr::null(),
+                &options,
             )
         })?;
         read += src_len.min(src.len());
@@ -157,13 +181,13 @@ mod tests {
                     for block in [lz4::BlockSize::Max64KB, lz4::BlockSize::Max4MB] {
                         let frame = encode(&data, linked, checksums, block);
                         let mut out = vec![9; 3];
-                        decompress_into(&frame, data.len(), &mut out).unwrap();
+                        decompress_into(&frame, data.len(), &mut out, Checksums::Verify).unwrap();
                         assert!(out == data, "{n} bytes, linked {linked}");
                         // Two frames one after the other, into room left
                         // from a longer chunk.
                         let two = [&frame[..], &frame].concat();
                         out.resize(5 * data.len() + 7, 3);
-                        decompress_into(&two, 2 * data.len(), &mut out).unwrap();
+                        decompress_into(&two, 2 * data.len(), &mut out, Checksums::Verify).unwrap();
                         assert!(out == [&data[..], &data].concat(), "{n} bytes twice");
                     }
                 }
@@ -190,7 +214,14 @@ mod tests {
                 }
             }
             let mut out = Vec::new();
-            let ours = decompress_into(&frame, data.len(), &mut out);
+            let ours = decompress_into(&frame, data.len(), &mut out, Checksums::Verify);
+            // Skipped, the checksums make no other difference.
+            let mut unchecked = Vec::new();
+            if decompress_into(&frame, data.len(), &mut unchecked, Checksums::Skip).is_ok()
+                && ours.is_ok()
+            {
+                assert!(unchecked == out, "case {case}: skipping the checksums");
+            }
             if let Err(e) = &ours {
                 assert!(!e.is_empty() && !e.contains("ERROR"), "case {case}: {e}");
             }
@@ -208,21 +239,38 @@ mod tests {
         }
         let mut out = Vec::new();
         let whole = &frames[0];
-        assert!(decompress_into(whole, data.len() - 1, &mut out)
-            .unwrap_err()
-            .contains("more bytes than the chunk claims"));
-        assert!(decompress_into(whole, data.len() + 1, &mut out)
-            .unwrap_err()
-            .contains(&format!(
-                "holds {} bytes, not {}",
-                data.len(),
-                data.len() + 1
-            )));
-        assert!(decompress_into(b"BZh91AY&SY", 5, &mut out).is_err());
-        assert!(decompress_into(&[], 0, &mut out).is_err());
+        assert!(
+            decompress_into(whole, data.len() - 1, &mut out, Checksums::Verify)
+                .unwrap_err()
+                .contains("more bytes than the chunk claims")
+        );
+        assert!(
+            decompress_into(whole, data.len() + 1, &mut out, Checksums::Verify)
+                .unwrap_err()
+                .contains(&format!(
+                    "holds {} bytes, not {}",
+                    data.len(),
+                    data.len() + 1
+                ))
+        );
+        assert!(decompress_into(b"BZh91AY&SY", 5, &mut out, Checksums::Verify).is_err());
+        assert!(decompress_into(&[], 0, &mut out, Checksums::Verify).is_err());
+        // A damaged content checksum: refused when verified; skipped (the
+        // caller checks the bytes itself), the data comes out whole.
+        let mut bad_sum = whole.clone();
+        *bad_sum.last_mut().unwrap() ^= 1;
+        assert!(
+            decompress_into(&bad_sum, data.len(), &mut out, Checksums::Verify)
+                .unwrap_err()
+                .contains("hecksum")
+        );
+        decompress_into(&bad_sum, data.len(), &mut out, Checksums::Skip).unwrap();
+        assert!(out == data);
         let cut = &whole[..whole.len() / 2];
-        assert!(decompress_into(cut, data.len(), &mut out)
-            .unwrap_err()
-            .contains("ends inside a frame"));
+        assert!(
+            decompress_into(cut, data.len(), &mut out, Checksums::Verify)
+                .unwrap_err()
+                .contains("ends inside a frame")
+        );
     }
 }

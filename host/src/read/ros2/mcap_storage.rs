@@ -1,5 +1,5 @@
 //! The MCAP files of a rosbag2 recording, read with the `mcap` crate's record
-//! parser and chunk reader (which decompresses zstd and lz4 chunks).
+//! parser; zstd and lz4 chunks are decompressed here ([`chunk_data`]).
 //!
 //! A bag can hold gigabytes of depth, so nothing is kept whole: [`scan`] walks
 //! the top-level records once (reading one chunk at a time) and hands every
@@ -8,12 +8,16 @@
 //! reads one message back on demand. This works on indexed and unindexed files
 //! alike (a recording cut short has no summary).
 
-use super::bag::{err, BagError, Channel, Location, Message, Place};
+use super::bag::{err, BagError, Channel, Location, Message, MessageBytes, Place};
+use super::kept_chunks::Chunks;
+use super::lz4_frame;
 use mcap::records::{op, Record};
 use std::collections::HashMap;
 use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
+use std::ops::Range;
 use std::path::Path;
+use std::sync::Arc;
 
 /// Channels and schemas seen so far (by id, per file).
 #[derive(Default)]
@@ -90,6 +94,7 @@ pub fn scan(
     let mut channels = Channels::default();
     let mut pos = 8u64;
     let mut body = Vec::new();
+    let mut decompressed = Vec::new();
     loop {
         let Some((opcode, len)) = record_head(&mut r).map_err(io)? else {
             return Ok(0);
@@ -124,7 +129,8 @@ pub fn scan(
             Record::Chunk { header, data } => {
                 let mut ordinal = 0u32;
                 let bound = check_chunk(path, offset, &header, &data)?;
-                chunk_records(path, offset, &body, bound, &mut |inner| {
+                let records = chunk_data(path, offset, &header, &data, &mut decompressed)?;
+                chunk_records(path, offset, records, bound, &mut |inner| {
                     if let Record::Message { header, data } = &inner {
                         let at = Location {
                             file: index,
@@ -205,97 +211,142 @@ fn check_chunk(
     Ok(usize::try_from(most.max(n)).unwrap_or(usize::MAX))
 }
 
-/// Hands the records of a chunk (`body`, the chunk record's body at
-/// `offset`) to `visit`, decompressed, CRC-checked, every record at most
-/// `bound` bytes: the reader reserves a record's claimed length before
-/// decompressing it, so a damaged length inside the chunk must be capped
-/// too (`mcap::read::ChunkReader` has no such cap).
+/// A chunk's records, decompressed and checked against the chunk's CRC
+/// (when it has one): `data` itself when it is not compressed, else
+/// `out`'s, its room reused without zeroing (the lz4 and zstd libraries
+/// decode into it in one call; the `mcap` crate's chunk reader copied the
+/// chunk in and out of buffers of its own, and decompressed it again for
+/// every message read back).
+fn chunk_data<'a>(
+    path: &Path,
+    offset: u64,
+    header: &mcap::records::ChunkHeader,
+    data: &'a [u8],
+    out: &'a mut Vec<u8>,
+) -> Result<&'a [u8], BagError> {
+    let at = |e: String| err(path, format!("chunk at byte {offset}: {e}"));
+    // Within what its data can hold ([`check_chunk`]), so within memory.
+    let size = usize::try_from(header.uncompressed_size).unwrap_or(usize::MAX);
+    let claims = |got: usize| {
+        at(format!(
+            "it claims {size} bytes uncompressed, its data gives {got}"
+        ))
+    };
+    let records: &[u8] = match header.compression.as_str() {
+        "" => data,
+        "zstd" => {
+            out.truncate(size);
+            out.resize(size, 0);
+            let got = zstd::bulk::decompress_to_buffer(data, out).map_err(|e| {
+                at(format!(
+                    "its zstd data does not decompress to {size} bytes: {e}"
+                ))
+            })?;
+            if got != size {
+                return Err(claims(got));
+            }
+            out
+        }
+        "lz4" => {
+            // The chunk's CRC, when it has one, checks the same bytes.
+            let checksums = match header.uncompressed_crc {
+                0 => lz4_frame::Checksums::Verify,
+                _ => lz4_frame::Checksums::Skip,
+            };
+            lz4_frame::decompress_into(data, size, out, checksums)
+                .map_err(|e| at(format!("its lz4 data does not decompress: {e}")))?;
+            out
+        }
+        other => {
+            return Err(at(format!(
+                "compression `{other}` is not supported (zstd, lz4 or none)"
+            )))
+        }
+    };
+    if header.uncompressed_crc != 0 && crc32fast::hash(records) != header.uncompressed_crc {
+        return Err(at("its data does not match its CRC (damaged)".into()));
+    }
+    Ok(records)
+}
+
+/// Hands the records of a chunk (`records`, decompressed, of the chunk
+/// record at `offset`) to `visit`, each a slice of `records`, at most
+/// `bound` bytes (a damaged length inside the chunk is refused, not
+/// reserved).
 fn chunk_records(
     path: &Path,
     offset: u64,
-    body: &[u8],
+    records: &[u8],
     bound: usize,
     visit: &mut dyn FnMut(Record<'_>) -> Result<(), BagError>,
 ) -> Result<(), BagError> {
-    use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
-    let bad = |e: mcap::McapError| err(path, format!("chunk at byte {offset}: {e}"));
-    // An uncompressed chunk (what rosbag2 writes by default) is walked in
-    // place: its records are slices of `body`, where the chunk reader would
-    // copy the chunk twice (depth messages are hundreds of kilobytes).
-    if let Record::Chunk { header, data } = mcap::parse_record(op::CHUNK, body).map_err(bad)? {
-        if header.compression.is_empty() {
-            return plain_chunk_records(path, offset, header.uncompressed_crc, &data, bound, visit);
-        }
-    }
-    let mut reader = LinearReader::new_with_options(
-        LinearReaderOptions::default()
-            .with_skip_start_magic(true)
-            .with_skip_end_magic(true)
-            .with_validate_chunk_crcs(true)
-            .with_record_length_limit(bound),
-    );
-    // The chunk as a record of its own, as the file holds it.
-    let mut framed = Vec::with_capacity(9 + body.len());
-    framed.push(op::CHUNK);
-    framed.extend_from_slice(&(body.len() as u64).to_le_bytes());
-    framed.extend_from_slice(body);
-    let mut rest = framed.as_slice();
-    while let Some(event) = reader.next_event() {
-        match event.map_err(bad)? {
-            LinearReadEvent::ReadRequest(need) => {
-                let n = need.min(rest.len());
-                reader.insert(n).copy_from_slice(&rest[..n]);
-                reader.notify_read(n);
-                rest = &rest[n..];
-            }
-            LinearReadEvent::Record { data, opcode } => {
-                visit(mcap::parse_record(opcode, data).map_err(bad)?)?
-            }
-        }
+    let mut at = 0;
+    while at < records.len() {
+        let body = record_at(path, offset, records, at, bound)?;
+        let record = mcap::parse_record(records[at], &records[body.clone()])
+            .map_err(|e| err(path, format!("chunk at byte {offset}: {e}")))?;
+        visit(record)?;
+        at = body.end;
     }
     Ok(())
 }
 
-/// [`chunk_records`] of an uncompressed chunk's `data`: CRC-checked (when
-/// the chunk has a CRC), each record a slice of `data`, at most `bound`
-/// bytes.
-fn plain_chunk_records(
+/// Where the body of the record at byte `at` of a chunk's `records` lies,
+/// checked to end within them and to be at most `bound` bytes.
+fn record_at(
     path: &Path,
     offset: u64,
-    crc: u32,
-    data: &[u8],
+    records: &[u8],
+    at: usize,
     bound: usize,
-    visit: &mut dyn FnMut(Record<'_>) -> Result<(), BagError>,
-) -> Result<(), BagError> {
-    if crc != 0 && crc32fast::hash(data) != crc {
-        return Err(err(
-            path,
-            format!("chunk at byte {offset}: its data does not match its CRC (damaged)"),
-        ));
+) -> Result<Range<usize>, BagError> {
+    let rest = &records[at..];
+    let len = rest
+        .get(1..9)
+        .and_then(|l| <[u8; 8]>::try_from(l).ok())
+        .map(u64::from_le_bytes)
+        .and_then(|l| usize::try_from(l).ok())
+        .filter(|&l| l <= rest.len() - 9 && l <= bound)
+        .ok_or_else(|| {
+            err(
+                path,
+                format!(
+                    "chunk at byte {offset}: a record at byte {at} of its data runs past its end"
+                ),
+            )
+        })?;
+    Ok(at + 9..at + 9 + len)
+}
+
+/// Where the data of message `k` (its ordinal among the chunk's messages)
+/// lies in a chunk's decompressed `records`.
+fn message_in_chunk(
+    path: &Path,
+    offset: u64,
+    records: &[u8],
+    k: u32,
+) -> Result<Range<usize>, BagError> {
+    // A message record's body: channel id (2 bytes), sequence (4), log
+    // time (8), publish time (8), then the data.
+    const MESSAGE_HEADER: usize = 22;
+    let (mut at, mut n) = (0usize, 0u32);
+    while at < records.len() {
+        let body = record_at(path, offset, records, at, usize::MAX)?;
+        if records[at] == op::MESSAGE {
+            if n == k {
+                if body.len() < MESSAGE_HEADER {
+                    break;
+                }
+                return Ok(body.start + MESSAGE_HEADER..body.end);
+            }
+            n += 1;
+        }
+        at = body.end;
     }
-    let mut rest = data;
-    while !rest.is_empty() {
-        let at = data.len() - rest.len();
-        let len = rest
-            .get(1..9)
-            .and_then(|l| <[u8; 8]>::try_from(l).ok())
-            .map(u64::from_le_bytes)
-            .and_then(|l| usize::try_from(l).ok())
-            .filter(|&l| l <= rest.len() - 9 && l <= bound)
-            .ok_or_else(|| {
-                err(
-                    path,
-                    format!(
-                        "chunk at byte {offset}: a record at byte {at} of its data runs past its end"
-                    ),
-                )
-            })?;
-        let record = mcap::parse_record(rest[0], &rest[9..9 + len])
-            .map_err(|e| err(path, format!("chunk at byte {offset}: {e}")))?;
-        visit(record)?;
-        rest = &rest[9 + len..];
-    }
-    Ok(())
+    Err(err(
+        path,
+        format!("chunk at byte {offset} has no message {k}"),
+    ))
 }
 
 fn deliver(
@@ -324,18 +375,28 @@ fn deliver(
 }
 
 /// Reads back the message whose top-level record's body is `len` bytes at
-/// `offset` of file `path` (`in_chunk`: its ordinal in that chunk).
+/// `offset` of file `path` (`in_chunk`: its ordinal in that chunk). A chunk
+/// is looked for in `chunks` (under `file`, the file's index in its bag)
+/// before it is read, and kept there.
 pub fn fetch(
     path: &Path,
+    file: usize,
     offset: u64,
     len: u64,
     in_chunk: Option<u32>,
-) -> Result<Vec<u8>, BagError> {
+    chunks: &Chunks,
+) -> Result<MessageBytes, BagError> {
+    if let Some(k) = in_chunk {
+        if let Some(chunk) = chunks.get(file, offset) {
+            let range = message_in_chunk(path, offset, &chunk, k)?;
+            return Ok(MessageBytes::InChunk(chunk, range));
+        }
+    }
     let io = |e: std::io::Error| err(path, e.to_string());
-    let mut file = File::open(path).map_err(io)?;
-    file.seek(SeekFrom::Start(offset)).map_err(io)?;
+    let mut file_handle = File::open(path).map_err(io)?;
+    file_handle.seek(SeekFrom::Start(offset)).map_err(io)?;
     let mut body = vec![0u8; len as usize];
-    file.read_exact(&mut body).map_err(io)?;
+    file_handle.read_exact(&mut body).map_err(io)?;
     let op = if in_chunk.is_some() {
         op::CHUNK
     } else {
@@ -343,21 +404,157 @@ pub fn fetch(
     };
     let bad = |e: mcap::McapError| err(path, format!("record at byte {offset}: {e}"));
     match (mcap::parse_record(op, &body).map_err(bad)?, in_chunk) {
-        (Record::Message { data, .. }, None) => Ok(data.into_owned()),
+        (Record::Message { data, .. }, None) => Ok(MessageBytes::Own(data.into_owned())),
         (Record::Chunk { header, data }, Some(k)) => {
             let bound = check_chunk(path, offset, &header, &data)?;
-            let (mut n, mut found) = (0, None);
-            chunk_records(path, offset, &body, bound, &mut |inner| {
-                if let Record::Message { data, .. } = inner {
-                    if n == k && found.is_none() {
-                        found = Some(data.into_owned());
-                    }
-                    n += 1;
-                }
-                Ok(())
-            })?;
-            found.ok_or_else(|| err(path, format!("chunk at byte {offset} has no message {k}")))
+            let mut out = chunks.buffer();
+            let records = chunk_data(path, offset, &header, &data, &mut out)?;
+            // Every record checked once, before the chunk is kept.
+            chunk_records(path, offset, records, bound, &mut |_| Ok(()))?;
+            let range = message_in_chunk(path, offset, records, k)?;
+            // An uncompressed chunk is the record's data: kept as a copy.
+            let kept = if header.compression.is_empty() {
+                records.to_vec()
+            } else {
+                out
+            };
+            let kept = Arc::new(kept);
+            chunks.keep(file, offset, Arc::clone(&kept));
+            Ok(MessageBytes::InChunk(kept, range))
         }
         _ => Err(err(path, format!("no message record at byte {offset}"))),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::SplitMix64;
+    use std::collections::BTreeMap;
+
+    /// `messages` on one channel, written by the `mcap` crate's writer with
+    /// `compression`, in chunks of about 200 kB (several messages each).
+    fn write(path: &Path, compression: Option<mcap::Compression>, messages: &[Vec<u8>]) {
+        let out = std::io::BufWriter::new(File::create(path).unwrap());
+        let mut w = mcap::WriteOptions::new()
+            .compression(compression)
+            .chunk_size(Some(200_000))
+            .create(out)
+            .unwrap();
+        let channel = w.add_channel(0, "/t", "cdr", &BTreeMap::new()).unwrap();
+        for (i, m) in messages.iter().enumerate() {
+            let header = mcap::records::MessageHeader {
+                channel_id: channel,
+                sequence: i as u32,
+                log_time: i as u64,
+                publish_time: i as u64,
+            };
+            w.write_to_known_channel(&header, m).unwrap();
+        }
+        w.finish().unwrap();
+    }
+
+    /// Messages of every size up to 100 kB, depth-like bytes (smooth with
+    /// noise) so that they compress.
+    fn messages(rng: &mut SplitMix64) -> Vec<Vec<u8>> {
+        (0..40)
+            .map(|i| {
+                let n = if i % 7 == 0 {
+                    rng.below(30)
+                } else {
+                    rng.below(100_000)
+                } as usize;
+                let mut v = 0u8;
+                (0..n)
+                    .map(|_| {
+                        v = v.wrapping_add(rng.below(3) as u8);
+                        v
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// Every message a walk of `path` hands on, and where.
+    fn walk(path: &Path) -> Result<Vec<(Vec<u8>, Place)>, BagError> {
+        let mut seen = Vec::new();
+        scan(0, path, &mut |m| {
+            seen.push((m.data.to_vec(), m.at.place));
+            Ok(())
+        })?;
+        Ok(seen)
+    }
+
+    fn read_back(path: &Path, place: Place, chunks: &Chunks) -> Result<Vec<u8>, BagError> {
+        let Place::Mcap {
+            offset,
+            len,
+            in_chunk,
+        } = place
+        else {
+            panic!("{place}")
+        };
+        fetch(path, 0, offset, len, in_chunk, chunks).map(|bytes| bytes.to_vec())
+    }
+
+    #[test]
+    fn zstd_lz4_and_plain_chunks_walk_and_read_back_every_message() {
+        let mut rng = SplitMix64::new(38);
+        let messages = messages(&mut rng);
+        let dir = std::env::temp_dir().join(format!("placedb-mcap-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for compression in [
+            None,
+            Some(mcap::Compression::Zstd),
+            Some(mcap::Compression::Lz4),
+        ] {
+            let path = dir.join(format!("{compression:?}.mcap"));
+            write(&path, compression, &messages);
+            let seen = walk(&path).unwrap();
+            let walked: Vec<_> = seen.iter().map(|(data, _)| data.clone()).collect();
+            assert!(walked == messages, "{compression:?}: walked");
+            let chunked = seen
+                .iter()
+                .filter(|(_, p)| matches!(p, Place::Mcap { in_chunk: Some(k), .. } if *k > 0))
+                .count();
+            assert!(chunked > 10, "{compression:?}: several messages a chunk");
+            // One reading, in order (a chunk decompressed, then kept), and
+            // backwards (each chunk read again once it was dropped).
+            let chunks = Chunks::default();
+            for (data, place) in seen.iter().chain(seen.iter().rev()) {
+                assert!(&read_back(&path, *place, &chunks).unwrap() == data);
+            }
+            let at = Location {
+                file: 0,
+                place: seen[5].1,
+            };
+            assert!(super::super::bag::fetch(&path, at).unwrap() == seen[5].0);
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_damaged_compressed_chunk_is_an_error_naming_it() {
+        let mut rng = SplitMix64::new(39);
+        let messages = messages(&mut rng);
+        let dir = std::env::temp_dir().join(format!("placedb-mcap-bad-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for compression in [mcap::Compression::Zstd, mcap::Compression::Lz4] {
+            let path = dir.join(format!("{compression:?}.mcap"));
+            write(&path, Some(compression), &messages);
+            let seen = walk(&path).unwrap();
+            let Place::Mcap { offset, len, .. } = seen[20].1 else {
+                panic!()
+            };
+            // A byte in the middle of the chunk's compressed data.
+            let mut bytes = std::fs::read(&path).unwrap();
+            bytes[(offset + len / 2) as usize] ^= 0x10;
+            std::fs::write(&path, &bytes).unwrap();
+            let e = walk(&path).unwrap_err();
+            assert!(e.1.contains(&format!("chunk at byte {offset}")), "{}", e.1);
+            let e = read_back(&path, seen[20].1, &Chunks::default()).unwrap_err();
+            assert!(e.1.contains(&format!("chunk at byte {offset}")), "{}", e.1);
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

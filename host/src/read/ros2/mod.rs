@@ -36,6 +36,7 @@ pub mod bag;
 pub mod cdr;
 pub mod color_codec;
 pub mod depth_codec;
+mod kept_chunks;
 mod lz4_frame;
 mod mcap_storage;
 pub mod msgs;

@@ -13,7 +13,7 @@
 //! visitor with its [`Place::Ros1`] (the top-level record and, inside a
 //! chunk, the message record's offset in the decompressed data); [`fetch`]
 //! reads one back, a chunk decompressed once for the messages read from it
-//! in turn ([`Chunks`]). A channel's schema is the ROS 2 name of the type
+//! in turn ([`Chunks`], kept by the reading). A channel's schema is the ROS 2 name of the type
 //! (`sensor_msgs/Image` is `sensor_msgs/msg/Image`; `tf/tfMessage`, the
 //! same layout, is `tf2_msgs/msg/TFMessage`) and its encoding `ros1`, so
 //! the reader takes ROS 1 and ROS 2 messages down one path.
@@ -25,14 +25,15 @@
 //! inside a chunk: a chunk cut short is an error naming the byte.
 
 use super::bag::{err, BagError, Channel, Location, Message, MessageBytes, Place};
+use super::kept_chunks::Chunks;
 use super::lz4_frame;
 use rayon::prelude::*;
-use std::collections::{HashMap, VecDeque};
+use std::collections::HashMap;
 use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::ops::Range;
 use std::path::Path;
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::Arc;
 
 /// The first bytes of a ROS 1 bag of format 2.0.
 pub const MAGIC: &[u8; 13] = b"#ROSBAG V2.0\n";
@@ -202,7 +203,7 @@ fn decompress<'a>(
                     data.len()
                 ));
             }
-            lz4_frame::decompress_into(data, size as usize, out)
+            lz4_frame::decompress_into(data, size as usize, out, lz4_frame::Checksums::Verify)
                 .map_err(|e| format!("its lz4 data does not decompress: {e}"))?;
         }
         b"bz2" => read_at_most(bzip2::read::BzDecoder::new(data), size, out)
@@ -590,82 +591,6 @@ impl Walk<'_, '_> {
     }
 }
 
-/// The chunks a reading of a bag decompressed last, so that its frames,
-/// read in order, decompress a chunk once rather than once a message (a
-/// chunk holds several). Each reading owns its own, dropped with it: a file
-/// rewritten in place is read afresh by the next reading (a cache shared
-/// by every reading, by path and offset, served the chunk of the file as
-/// it was).
-#[derive(Default)]
-pub struct Chunks(Mutex<Kept>);
-
-/// What [`Chunks`] holds: the chunks, the last used first, and a buffer
-/// of one dropped, to decompress the next into.
-#[derive(Default)]
-struct Kept {
-    chunks: VecDeque<Chunk>,
-    spare: Option<Vec<u8>>,
-}
-
-/// A chunk's data decompressed: of file `file` of the bag, at byte `offset`.
-struct Chunk {
-    file: usize,
-    offset: u64,
-    data: Arc<Vec<u8>>,
-}
-
-/// How many chunks [`Chunks`] keeps: every thread reading frames (each
-/// reads a run of frames in order) keeps its own.
-const CHUNKS_KEPT: usize = 8;
-
-/// How many bytes of chunks [`Chunks`] keeps at most, besides the last.
-const CHUNK_BYTES_KEPT: usize = 64 << 20;
-
-impl Chunks {
-    fn kept(&self) -> std::sync::MutexGuard<'_, Kept> {
-        // A thread that panicked holding it left a whole list behind.
-        self.0.lock().unwrap_or_else(PoisonError::into_inner)
-    }
-
-    /// The chunk at byte `offset` of file `file`, if kept.
-    fn get(&self, file: usize, offset: u64) -> Option<Arc<Vec<u8>>> {
-        let mut kept = self.kept();
-        let chunks = &mut kept.chunks;
-        let at = chunks
-            .iter()
-            .position(|c| c.file == file && c.offset == offset)?;
-        let chunk = chunks.remove(at)?;
-        let data = Arc::clone(&chunk.data);
-        chunks.push_front(chunk);
-        Some(data)
-    }
-
-    /// A buffer to decompress a chunk into (one dropped, or a new one).
-    fn buffer(&self) -> Vec<u8> {
-        self.kept().spare.take().unwrap_or_default()
-    }
-
-    /// Keeps a chunk just decompressed, dropping the longest unused.
-    fn keep(&self, file: usize, offset: u64, data: Arc<Vec<u8>>) {
-        let mut kept = self.kept();
-        let Kept { chunks, spare } = &mut *kept;
-        if chunks.iter().any(|c| c.file == file && c.offset == offset) {
-            return;
-        }
-        chunks.push_front(Chunk { file, offset, data });
-        let mut bytes: usize = chunks.iter().map(|c| c.data.len()).sum();
-        while chunks.len() > CHUNKS_KEPT || (chunks.len() > 1 && bytes > CHUNK_BYTES_KEPT) {
-            if let Some(old) = chunks.pop_back() {
-                bytes -= old.data.len();
-                // Its room, unless a thread still reads it.
-                if let Ok(buffer) = Arc::try_unwrap(old.data) {
-                    *spare = Some(buffer);
-                }
-            }
-        }
-    }
-}
-
 /// Reads back the message of the top-level record of `len` bytes at byte
 /// `offset` of file `path` (`in_chunk`: the message record's offset in that
 /// chunk's decompressed data). A chunk is looked for in `chunks` (under
@@ -970,22 +895,6 @@ mod tests {
             b"new-1"
         );
         std::fs::remove_file(&path).unwrap();
-    }
-
-    #[test]
-    fn kept_chunks_are_bounded_in_number() {
-        let chunks = Chunks::default();
-        for offset in 0..20u64 {
-            chunks.keep(0, offset, Arc::new(vec![0; 10]));
-        }
-        assert_eq!(chunks.kept().chunks.len(), CHUNKS_KEPT);
-        assert!(chunks.get(0, 19).is_some() && chunks.get(0, 0).is_none());
-        chunks.keep(0, 100, Arc::new(vec![0; CHUNK_BYTES_KEPT]));
-        assert_eq!(
-            chunks.kept().chunks.len(),
-            1,
-            "the last is kept, whatever its size"
-        );
     }
 
     #[test]
