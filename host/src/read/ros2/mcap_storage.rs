@@ -12,6 +12,7 @@ use super::bag::{err, BagError, Channel, Location, Message, MessageBytes, Place}
 use super::kept_chunks::Chunks;
 use super::lz4_frame;
 use mcap::records::{op, Record};
+use rayon::prelude::*;
 use std::collections::HashMap;
 use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
@@ -73,85 +74,202 @@ fn record_head(r: &mut impl Read) -> std::io::Result<Option<(u8, u64)>> {
     Ok(Some((head[0], len)))
 }
 
+/// A chunk record read but not yet walked: its place and its body.
+struct Pending {
+    offset: u64,
+    len: u64,
+    body: Vec<u8>,
+}
+
+/// Most chunk records [`scan`] reads ahead to decompress together, and
+/// most bytes they may claim uncompressed together (a chunk claiming more
+/// is decompressed alone).
+const READ_AHEAD_CHUNKS: usize = 8;
+const READ_AHEAD_BYTES: u64 = 64 << 20;
+
 /// Walks every message of file `index` (`path`), in file order. Returns
 /// how many bytes at its end were cut short (a recording that stopped
 /// mid-write), 0 for a whole file.
+///
+/// Chunks are read a few at a time and decompressed in parallel, then
+/// walked in order: what the visitor sees, and the first error, are as if
+/// they were read one by one.
 pub fn scan(
     index: usize,
     path: &Path,
     visit: &mut dyn FnMut(Message<'_>) -> Result<(), BagError>,
 ) -> Result<u64, BagError> {
-    let io = |e: std::io::Error| err(path, e.to_string());
-    let file = File::open(path).map_err(io)?;
-    let size = file.metadata().map_err(io)?.len();
-    let mut r = BufReader::with_capacity(1 << 16, file);
-    let mut magic = [0u8; 8];
-    r.read_exact(&mut magic)
-        .map_err(|_| err(path, "too short for an MCAP file"))?;
-    if magic != mcap::MAGIC {
-        return Err(err(path, "not an MCAP file (bad magic)"));
-    }
-    let mut channels = Channels::default();
-    let mut pos = 8u64;
-    let mut body = Vec::new();
-    let mut decompressed = Vec::new();
-    loop {
-        let Some((opcode, len)) = record_head(&mut r).map_err(io)? else {
-            return Ok(0);
-        };
-        let offset = pos + 9;
-        if len > size.saturating_sub(offset) {
-            // The recording stopped mid-record: keep what came before.
-            return Ok(size - pos);
+    let mut walk = Walk {
+        index,
+        path,
+        channels: Channels::default(),
+        pending: Vec::new(),
+        claimed: 0,
+        spare: Vec::new(),
+        outs: Vec::new(),
+        visit,
+    };
+    let cut = walk.records();
+    // What was read before the end, a cut or an error is walked first.
+    walk.walk_pending()?;
+    cut
+}
+
+/// A walk of one file's records.
+struct Walk<'v, 'p> {
+    index: usize,
+    path: &'p Path,
+    channels: Channels,
+    /// Chunks read, not yet walked, in file order, and the bytes they
+    /// claim uncompressed.
+    pending: Vec<Pending>,
+    claimed: u64,
+    /// Bodies of chunks walked, to read the next ones into.
+    spare: Vec<Vec<u8>>,
+    /// Buffers to decompress the pending chunks into, reused.
+    outs: Vec<Vec<u8>>,
+    visit: &'v mut dyn FnMut(Message<'_>) -> Result<(), BagError>,
+}
+
+impl Walk<'_, '_> {
+    /// Reads the file's records, walking them in turn; [`Self::pending`]
+    /// holds chunks still to walk when it returns.
+    fn records(&mut self) -> Result<u64, BagError> {
+        let path = self.path;
+        let io = |e: std::io::Error| err(path, e.to_string());
+        let file = File::open(path).map_err(io)?;
+        let size = file.metadata().map_err(io)?.len();
+        let mut r = BufReader::with_capacity(1 << 16, file);
+        let mut magic = [0u8; 8];
+        r.read_exact(&mut magic)
+            .map_err(|_| err(path, "too short for an MCAP file"))?;
+        if magic != mcap::MAGIC {
+            return Err(err(path, "not an MCAP file (bad magic)"));
         }
-        pos = offset + len;
-        match opcode {
-            op::DATA_END | op::FOOTER => return Ok(0),
-            op::SCHEMA | op::CHANNEL | op::MESSAGE | op::CHUNK => {}
-            _ => {
-                r.seek_relative(len as i64).map_err(io)?;
+        let mut pos = 8u64;
+        let mut body = Vec::new();
+        loop {
+            let Some((opcode, len)) = record_head(&mut r).map_err(io)? else {
+                return Ok(0);
+            };
+            let offset = pos + 9;
+            if len > size.saturating_sub(offset) {
+                // The recording stopped mid-record: keep what came before.
+                return Ok(size - pos);
+            }
+            pos = offset + len;
+            match opcode {
+                op::DATA_END | op::FOOTER => return Ok(0),
+                op::SCHEMA | op::CHANNEL | op::MESSAGE | op::CHUNK => {}
+                _ => {
+                    r.seek_relative(len as i64).map_err(io)?;
+                    continue;
+                }
+            }
+            if opcode == op::CHUNK {
+                let mut chunk = self.spare.pop().unwrap_or_default();
+                chunk.resize(len as usize, 0);
+                r.read_exact(&mut chunk).map_err(io)?;
+                // The chunk's `uncompressed_size`, after its two times.
+                let claims = chunk
+                    .get(16..24)
+                    .and_then(|b| <[u8; 8]>::try_from(b).ok())
+                    .map_or(0, u64::from_le_bytes);
+                if !self.pending.is_empty()
+                    && (self.pending.len() == READ_AHEAD_CHUNKS
+                        || self.claimed.saturating_add(claims) > READ_AHEAD_BYTES)
+                {
+                    self.walk_pending()?;
+                }
+                self.claimed = self.claimed.saturating_add(claims);
+                self.pending.push(Pending {
+                    offset,
+                    len,
+                    body: chunk,
+                });
                 continue;
             }
-        }
-        body.resize(len as usize, 0);
-        r.read_exact(&mut body).map_err(io)?;
-        let record = mcap::parse_record(opcode, &body)
-            .map_err(|e| err(path, format!("record at byte {offset}: {e}")))?;
-        let at = Location {
-            file: index,
-            place: Place::Mcap {
-                offset,
-                len,
-                in_chunk: None,
-            },
-        };
-        match record {
-            Record::Chunk { header, data } => {
-                let mut ordinal = 0u32;
-                let bound = check_chunk(path, offset, &header, &data)?;
-                let records = chunk_data(path, offset, &header, &data, &mut decompressed)?;
-                chunk_records(path, offset, records, bound, &mut |inner| {
-                    if let Record::Message { header, data } = &inner {
-                        let at = Location {
-                            file: index,
-                            place: Place::Mcap {
-                                offset,
-                                len,
-                                in_chunk: Some(ordinal),
-                            },
-                        };
-                        ordinal += 1;
-                        deliver(path, &channels, header, data, at, visit)
-                    } else {
-                        channels.note(path, &inner)
-                    }
-                })?;
+            self.walk_pending()?;
+            body.resize(len as usize, 0);
+            r.read_exact(&mut body).map_err(io)?;
+            let record = mcap::parse_record(opcode, &body)
+                .map_err(|e| err(path, format!("record at byte {offset}: {e}")))?;
+            let at = Location {
+                file: self.index,
+                place: Place::Mcap {
+                    offset,
+                    len,
+                    in_chunk: None,
+                },
+            };
+            match record {
+                Record::Message { header, data } => {
+                    deliver(path, &self.channels, &header, &data, at, self.visit)?
+                }
+                other => self.channels.note(path, &other)?,
             }
-            Record::Message { header, data } => {
-                deliver(path, &channels, &header, &data, at, visit)?
-            }
-            other => channels.note(path, &other)?,
         }
+    }
+
+    /// Decompresses the pending chunks in parallel and walks them in order.
+    fn walk_pending(&mut self) -> Result<(), BagError> {
+        let pending = std::mem::take(&mut self.pending);
+        self.claimed = 0;
+        let mut outs = std::mem::take(&mut self.outs);
+        outs.resize_with(outs.len().max(pending.len()), Vec::new);
+        let path = self.path;
+        let chunks: Vec<Result<(usize, &[u8]), BagError>> = pending
+            .par_iter()
+            .zip(outs.par_iter_mut())
+            .map(|(c, out)| {
+                let bad =
+                    |e: mcap::McapError| err(path, format!("record at byte {}: {e}", c.offset));
+                let Record::Chunk { header, data } =
+                    mcap::parse_record(op::CHUNK, &c.body).map_err(bad)?
+                else {
+                    return Err(err(path, format!("no chunk record at byte {}", c.offset)));
+                };
+                let bound = check_chunk(path, c.offset, &header, &data)?;
+                // The records end the chunk's body: borrowed from it
+                // rather than from the parsed record.
+                let data = &c.body[c.body.len() - data.len()..];
+                Ok((bound, chunk_data(path, c.offset, &header, data, out)?))
+            })
+            .collect();
+        let mut walked = Ok(());
+        for (c, chunk) in pending.iter().zip(chunks) {
+            walked = chunk.and_then(|(bound, records)| self.walk_chunk(c, bound, records));
+            if walked.is_err() {
+                break;
+            }
+        }
+        self.spare
+            .extend(pending.into_iter().map(|c| c.body).take(READ_AHEAD_CHUNKS));
+        self.outs = outs;
+        walked
+    }
+
+    /// Hands on the messages of chunk `c` (its records decompressed).
+    fn walk_chunk(&mut self, c: &Pending, bound: usize, records: &[u8]) -> Result<(), BagError> {
+        let (path, index) = (self.path, self.index);
+        let (channels, visit) = (&mut self.channels, &mut self.visit);
+        let mut ordinal = 0u32;
+        chunk_records(path, c.offset, records, bound, &mut |inner| {
+            if let Record::Message { header, data } = &inner {
+                let at = Location {
+                    file: index,
+                    place: Place::Mcap {
+                        offset: c.offset,
+                        len: c.len,
+                        in_chunk: Some(ordinal),
+                    },
+                };
+                ordinal += 1;
+                deliver(path, channels, header, data, at, *visit)
+            } else {
+                channels.note(path, &inner)
+            }
+        })
     }
 }
 
