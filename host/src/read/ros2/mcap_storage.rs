@@ -11,8 +11,8 @@
 use super::bag::{err, BagError, Channel, Location, Message, MessageBytes, Place};
 use super::kept_chunks::Chunks;
 use super::lz4_frame;
+use super::read_ahead::ReadAhead;
 use mcap::records::{op, Record};
-use rayon::prelude::*;
 use std::collections::HashMap;
 use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
@@ -81,12 +81,6 @@ struct Pending {
     body: Vec<u8>,
 }
 
-/// Most chunk records [`scan`] reads ahead to decompress together, and
-/// most bytes they may claim uncompressed together (a chunk claiming more
-/// is decompressed alone).
-const READ_AHEAD_CHUNKS: usize = 8;
-const READ_AHEAD_BYTES: u64 = 64 << 20;
-
 /// Walks every message of file `index` (`path`), in file order. Returns
 /// how many bytes at its end were cut short (a recording that stopped
 /// mid-write), 0 for a whole file.
@@ -103,10 +97,7 @@ pub fn scan(
         index,
         path,
         channels: Channels::default(),
-        pending: Vec::new(),
-        claimed: 0,
-        spare: Vec::new(),
-        outs: Vec::new(),
+        ahead: ReadAhead::default(),
         visit,
     };
     let cut = walk.records();
@@ -120,19 +111,13 @@ struct Walk<'v, 'p> {
     index: usize,
     path: &'p Path,
     channels: Channels,
-    /// Chunks read, not yet walked, in file order, and the bytes they
-    /// claim uncompressed.
-    pending: Vec<Pending>,
-    claimed: u64,
-    /// Bodies of chunks walked, to read the next ones into.
-    spare: Vec<Vec<u8>>,
-    /// Buffers to decompress the pending chunks into, reused.
-    outs: Vec<Vec<u8>>,
+    /// Chunks read, not yet walked.
+    ahead: ReadAhead<Pending>,
     visit: &'v mut dyn FnMut(Message<'_>) -> Result<(), BagError>,
 }
 
 impl Walk<'_, '_> {
-    /// Reads the file's records, walking them in turn; [`Self::pending`]
+    /// Reads the file's records, walking them in turn; [`Self::ahead`]
     /// holds chunks still to walk when it returns.
     fn records(&mut self) -> Result<u64, BagError> {
         let path = self.path;
@@ -167,7 +152,7 @@ impl Walk<'_, '_> {
                 }
             }
             if opcode == op::CHUNK {
-                let mut chunk = self.spare.pop().unwrap_or_default();
+                let mut chunk = self.ahead.buffer();
                 chunk.resize(len as usize, 0);
                 r.read_exact(&mut chunk).map_err(io)?;
                 // The chunk's `uncompressed_size`, after its two times.
@@ -175,18 +160,15 @@ impl Walk<'_, '_> {
                     .get(16..24)
                     .and_then(|b| <[u8; 8]>::try_from(b).ok())
                     .map_or(0, u64::from_le_bytes);
-                if !self.pending.is_empty()
-                    && (self.pending.len() == READ_AHEAD_CHUNKS
-                        || self.claimed.saturating_add(claims) > READ_AHEAD_BYTES)
-                {
+                if self.ahead.is_full_for(claims) {
                     self.walk_pending()?;
                 }
-                self.claimed = self.claimed.saturating_add(claims);
-                self.pending.push(Pending {
+                let chunk = Pending {
                     offset,
                     len,
                     body: chunk,
-                });
+                };
+                self.ahead.push(chunk, claims);
                 continue;
             }
             self.walk_pending()?;
@@ -213,15 +195,16 @@ impl Walk<'_, '_> {
 
     /// Decompresses the pending chunks in parallel and walks them in order.
     fn walk_pending(&mut self) -> Result<(), BagError> {
-        let pending = std::mem::take(&mut self.pending);
-        self.claimed = 0;
-        let mut outs = std::mem::take(&mut self.outs);
-        outs.resize_with(outs.len().max(pending.len()), Vec::new);
-        let path = self.path;
-        let chunks: Vec<Result<(usize, &[u8]), BagError>> = pending
-            .par_iter()
-            .zip(outs.par_iter_mut())
-            .map(|(c, out)| {
+        let Walk {
+            index,
+            path,
+            channels,
+            ahead,
+            visit,
+        } = self;
+        let (index, path) = (*index, *path);
+        ahead.walk(
+            |c, out| {
                 let bad =
                     |e: mcap::McapError| err(path, format!("record at byte {}: {e}", c.offset));
                 let Record::Chunk { header, data } =
@@ -233,44 +216,43 @@ impl Walk<'_, '_> {
                 // The records end the chunk's body: borrowed from it
                 // rather than from the parsed record.
                 let data = &c.body[c.body.len() - data.len()..];
-                Ok((bound, chunk_data(path, c.offset, &header, data, out)?))
-            })
-            .collect();
-        let mut walked = Ok(());
-        for (c, chunk) in pending.iter().zip(chunks) {
-            walked = chunk.and_then(|(bound, records)| self.walk_chunk(c, bound, records));
-            if walked.is_err() {
-                break;
-            }
-        }
-        self.spare
-            .extend(pending.into_iter().map(|c| c.body).take(READ_AHEAD_CHUNKS));
-        self.outs = outs;
-        walked
+                Ok((chunk_data(path, c.offset, &header, data, out)?, bound))
+            },
+            |c, records, bound| walk_chunk(path, index, channels, &mut **visit, c, bound, records),
+            |c| c.body,
+        )
     }
+}
 
-    /// Hands on the messages of chunk `c` (its records decompressed).
-    fn walk_chunk(&mut self, c: &Pending, bound: usize, records: &[u8]) -> Result<(), BagError> {
-        let (path, index) = (self.path, self.index);
-        let (channels, visit) = (&mut self.channels, &mut self.visit);
-        let mut ordinal = 0u32;
-        chunk_records(path, c.offset, records, bound, &mut |inner| {
-            if let Record::Message { header, data } = &inner {
-                let at = Location {
-                    file: index,
-                    place: Place::Mcap {
-                        offset: c.offset,
-                        len: c.len,
-                        in_chunk: Some(ordinal),
-                    },
-                };
-                ordinal += 1;
-                deliver(path, channels, header, data, at, *visit)
-            } else {
-                channels.note(path, &inner)
-            }
-        })
-    }
+/// Hands on the messages of chunk `c` of file `index` (`path`; its
+/// records decompressed, each at most `bound` bytes) to `visit`, noting
+/// its schemas and channels.
+fn walk_chunk(
+    path: &Path,
+    index: usize,
+    channels: &mut Channels,
+    visit: &mut dyn FnMut(Message<'_>) -> Result<(), BagError>,
+    c: &Pending,
+    bound: usize,
+    records: &[u8],
+) -> Result<(), BagError> {
+    let mut ordinal = 0u32;
+    chunk_records(path, c.offset, records, bound, &mut |inner| {
+        if let Record::Message { header, data } = &inner {
+            let at = Location {
+                file: index,
+                place: Place::Mcap {
+                    offset: c.offset,
+                    len: c.len,
+                    in_chunk: Some(ordinal),
+                },
+            };
+            ordinal += 1;
+            deliver(path, channels, header, data, at, visit)
+        } else {
+            channels.note(path, &inner)
+        }
+    })
 }
 
 /// Refuses a chunk whose claimed uncompressed size its data cannot hold:

@@ -41,6 +41,7 @@ mod lz4_frame;
 mod mcap_storage;
 pub mod msgs;
 mod pose_source;
+mod read_ahead;
 pub mod ros1_msgs;
 #[doc(hidden)]
 pub mod ros1_storage;

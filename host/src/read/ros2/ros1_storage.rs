@@ -27,7 +27,7 @@
 use super::bag::{err, BagError, Channel, Location, Message, MessageBytes, Place};
 use super::kept_chunks::Chunks;
 use super::lz4_frame;
-use rayon::prelude::*;
+use super::read_ahead::ReadAhead;
 use std::collections::HashMap;
 use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
@@ -379,12 +379,6 @@ struct Pending {
     data: Vec<u8>,
 }
 
-/// Most chunk records [`scan`] reads ahead to decompress together, and
-/// most bytes they may claim uncompressed together (a chunk claiming more
-/// is decompressed alone).
-const READ_AHEAD_CHUNKS: usize = 8;
-const READ_AHEAD_BYTES: u64 = 64 << 20;
-
 /// Walks every message of file `index` (`path`), in file order. Returns
 /// how many bytes at its end were cut short (a recording that stopped
 /// mid-write), 0 for a whole file.
@@ -401,9 +395,7 @@ pub fn scan(
         index,
         path,
         connections: Connections::default(),
-        pending: Vec::new(),
-        spare: Vec::new(),
-        outs: Vec::new(),
+        ahead: ReadAhead::default(),
         visit,
     };
     let cut = walk.records();
@@ -417,17 +409,13 @@ struct Walk<'v, 'p> {
     index: usize,
     path: &'p Path,
     connections: Connections,
-    /// Chunks read, not yet walked, in file order.
-    pending: Vec<Pending>,
-    /// Data buffers of chunks walked, to read the next ones into.
-    spare: Vec<Vec<u8>>,
-    /// Buffers to decompress the pending chunks into, reused.
-    outs: Vec<Vec<u8>>,
+    /// Chunks read, not yet walked.
+    ahead: ReadAhead<Pending>,
     visit: &'v mut dyn FnMut(Message<'_>) -> Result<(), BagError>,
 }
 
 impl Walk<'_, '_> {
-    /// Reads the file's records, walking them in turn; [`Self::pending`]
+    /// Reads the file's records, walking them in turn; [`Self::ahead`]
     /// holds chunks still to walk when it returns.
     fn records(&mut self) -> Result<u64, BagError> {
         let path = self.path;
@@ -438,7 +426,6 @@ impl Walk<'_, '_> {
         check_magic(path, &mut r)?;
         let mut pos = MAGIC.len() as u64;
         let mut data = Vec::new();
-        let mut claimed = 0u64;
         loop {
             let head = match record_head(&mut r, pos, size).map_err(|e| err(path, e))? {
                 Head::End => return Ok(0),
@@ -471,28 +458,23 @@ impl Walk<'_, '_> {
             }
             if opcode == op::CHUNK {
                 let claims = fields.u32("size").map_or(0, u64::from);
-                if !self.pending.is_empty()
-                    && (self.pending.len() == READ_AHEAD_CHUNKS
-                        || claimed + claims > READ_AHEAD_BYTES)
-                {
+                if self.ahead.is_full_for(claims) {
                     self.walk_pending()?;
-                    claimed = 0;
                 }
-                let mut data = self.spare.pop().unwrap_or_default();
+                let mut data = self.ahead.buffer();
                 data.resize(head.data_len as usize, 0);
                 r.read_exact(&mut data).map_err(io)?;
-                claimed += claims;
-                self.pending.push(Pending {
+                let chunk = Pending {
                     pos,
                     record_len,
                     header: head.header,
                     data,
-                });
+                };
+                self.ahead.push(chunk, claims);
                 pos = end;
                 continue;
             }
             self.walk_pending()?;
-            claimed = 0;
             data.resize(head.data_len as usize, 0);
             r.read_exact(&mut data).map_err(io)?;
             if opcode == op::CONNECTION {
@@ -525,70 +507,70 @@ impl Walk<'_, '_> {
 
     /// Decompresses the pending chunks in parallel and walks them in order.
     fn walk_pending(&mut self) -> Result<(), BagError> {
-        let pending = std::mem::take(&mut self.pending);
-        let mut outs = std::mem::take(&mut self.outs);
-        outs.resize_with(outs.len().max(pending.len()), Vec::new);
-        let chunks: Vec<Result<&[u8], String>> = pending
-            .par_iter()
-            .zip(outs.par_iter_mut())
-            .map(|(c, out)| {
-                Fields::parse(&c.header).and_then(|fields| chunk_data(&fields, &c.data, out))
-            })
-            .collect();
-        let mut walked = Ok(());
-        for (c, chunk) in pending.iter().zip(chunks) {
-            walked = self.walk_chunk(c, chunk);
-            if walked.is_err() {
-                break;
-            }
-        }
-        self.spare
-            .extend(pending.into_iter().map(|c| c.data).take(READ_AHEAD_CHUNKS));
-        self.outs = outs;
-        walked
+        let Walk {
+            index,
+            path,
+            connections,
+            ahead,
+            visit,
+        } = self;
+        let (index, path) = (*index, *path);
+        ahead.walk(
+            |c, out| {
+                let at_chunk = |e: String| err(path, format!("chunk at byte {}: {e}", c.pos));
+                let fields = Fields::parse(&c.header).map_err(at_chunk)?;
+                Ok((chunk_data(&fields, &c.data, out).map_err(at_chunk)?, ()))
+            },
+            |c, chunk, ()| walk_chunk(path, index, connections, &mut **visit, c, chunk),
+            |c| c.data,
+        )
     }
+}
 
-    /// Hands on the messages of chunk `c` (its data decompressed: `chunk`).
-    fn walk_chunk(&mut self, c: &Pending, chunk: Result<&[u8], String>) -> Result<(), BagError> {
-        let path = self.path;
-        let at_chunk = |e: String| err(path, format!("chunk at byte {}: {e}", c.pos));
-        let chunk = chunk.map_err(at_chunk)?;
-        let mut visit_err = None;
-        let index = self.index;
-        let (connections, visit) = (&mut self.connections, &mut self.visit);
-        inner_records(chunk, &mut |rec| {
-            let inner_op = rec.fields.op()?;
-            if inner_op == op::CONNECTION {
-                return connections.note(&rec.fields, rec.data);
-            }
-            if inner_op != op::MESSAGE {
-                return Ok(());
-            }
-            let channel = connections.of(&rec.fields)?;
-            let log_time = rec.fields.time()?;
-            // In-chunk offsets fit: a chunk's `size` is a u32.
-            let in_chunk = u32::try_from(rec.offset).unwrap_or(u32::MAX);
-            visit(Message {
-                channel,
-                log_time,
-                data: rec.data,
-                at: Location {
-                    file: index,
-                    place: Place::Ros1 {
-                        offset: c.pos,
-                        len: c.record_len,
-                        in_chunk: Some(in_chunk),
-                    },
+/// Hands on the messages of chunk `c` (its data decompressed: `chunk`) of
+/// file `index` (`path`) to `visit`, noting its connections.
+fn walk_chunk(
+    path: &Path,
+    index: usize,
+    connections: &mut Connections,
+    visit: &mut dyn FnMut(Message<'_>) -> Result<(), BagError>,
+    c: &Pending,
+    chunk: &[u8],
+) -> Result<(), BagError> {
+    let at_chunk = |e: String| err(path, format!("chunk at byte {}: {e}", c.pos));
+    let mut visit_err = None;
+    inner_records(chunk, &mut |rec| {
+        let inner_op = rec.fields.op()?;
+        if inner_op == op::CONNECTION {
+            return connections.note(&rec.fields, rec.data);
+        }
+        if inner_op != op::MESSAGE {
+            return Ok(());
+        }
+        let channel = connections.of(&rec.fields)?;
+        let log_time = rec.fields.time()?;
+        // In-chunk offsets fit: a chunk's `size` is a u32.
+        let in_chunk = u32::try_from(rec.offset).unwrap_or(u32::MAX);
+        visit(Message {
+            channel,
+            log_time,
+            data: rec.data,
+            at: Location {
+                file: index,
+                place: Place::Ros1 {
+                    offset: c.pos,
+                    len: c.record_len,
+                    in_chunk: Some(in_chunk),
                 },
-            })
-            .map_err(|e| {
-                visit_err = Some(e);
-                String::new()
-            })
+            },
         })
-        // The visitor's own error passes through as it is.
-        .map_err(|e| visit_err.take().unwrap_or_else(|| at_chunk(e)))
-    }
+        .map_err(|e| {
+            visit_err = Some(e);
+            String::new()
+        })
+    })
+    // The visitor's own error passes through as it is.
+    .map_err(|e| visit_err.take().unwrap_or_else(|| at_chunk(e)))
 }
 
 /// Reads back the message of the top-level record of `len` bytes at byte
