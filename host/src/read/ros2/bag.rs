@@ -165,7 +165,7 @@ pub fn scan(
 }
 
 /// What one reading of a bag keeps between the messages it reads back:
-/// the chunks it decompressed last ([`kept_chunks::Chunks`]). Made
+/// the chunks it decompressed last (`kept_chunks::Chunks`). Made
 /// with the reading and dropped with it.
 #[derive(Default)]
 pub struct Kept {

@@ -9,14 +9,15 @@
 //! index records (0x04 index data, 0x06 chunk info), which are not needed.
 //!
 //! As for MCAP ([`super::mcap_storage`]), nothing is kept whole: [`scan`]
-//! walks the file once, one chunk at a time, and hands every message to the
-//! visitor with its [`Place::Ros1`] (the top-level record and, inside a
+//! walks the file once, a few chunks at a time (`read_ahead`), and hands
+//! every message to the visitor with its [`Place::Ros1`] (the top-level record and, inside a
 //! chunk, the message record's offset in the decompressed data); [`fetch`]
 //! reads one back, a chunk decompressed once for the messages read from it
-//! in turn ([`Chunks`], kept by the reading). A channel's schema is the ROS 2 name of the type
-//! (`sensor_msgs/Image` is `sensor_msgs/msg/Image`; `tf/tfMessage`, the
-//! same layout, is `tf2_msgs/msg/TFMessage`) and its encoding `ros1`, so
-//! the reader takes ROS 1 and ROS 2 messages down one path.
+//! in turn (`kept_chunks::Chunks`, kept by the reading). A channel's
+//! schema is the ROS 2 name of the type (`sensor_msgs/Image` is
+//! `sensor_msgs/msg/Image`; `tf/tfMessage`, the same layout, is
+//! `tf2_msgs/msg/TFMessage`) and its encoding `ros1`, so the reader takes
+//! ROS 1 and ROS 2 messages down one path.
 //!
 //! Every length is checked against what holds it before it is used; a
 //! chunk's data is decompressed only as far as its header's `size`, into a
