@@ -2,11 +2,12 @@
 //! parser; zstd and lz4 chunks are decompressed here ([`chunk_data`]).
 //!
 //! A bag can hold gigabytes of depth, so nothing is kept whole: [`scan`] walks
-//! the top-level records once (reading one chunk at a time) and hands every
-//! message to a visitor with its [`Place`] — the top-level record's offset and
-//! length and, for a message inside a chunk, its ordinal there — and [`fetch`]
-//! reads one message back on demand. This works on indexed and unindexed files
-//! alike (a recording cut short has no summary).
+//! the top-level records once (a few chunks at a time, `read_ahead`) and hands
+//! every message to a visitor with its [`Place`] — the top-level record's
+//! offset and length and, for a message inside a chunk, its ordinal there —
+//! and [`fetch`] reads one message back on demand, a chunk decompressed once
+//! for the messages read from it in turn (kept by the reading). This works on
+//! indexed and unindexed files alike (a recording cut short has no summary).
 
 use super::bag::{err, BagError, Channel, Location, Message, MessageBytes, Place};
 use super::kept_chunks::Chunks;
