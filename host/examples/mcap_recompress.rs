@@ -9,9 +9,9 @@
 //! ```
 //!
 //! Every message is copied with its channel, schema, sequence and times,
-//! through the `mcap` crate's writer (chunks of its default size).
+//! through the `mcap` crate's writer (chunks of its default size), by
+//! `placedb_host::testing::mcap_recompress`, which the tests use too.
 
-use std::collections::BTreeMap;
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
@@ -29,7 +29,7 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    match recompress(input, output, compression) {
+    match placedb_host::testing::mcap_recompress(input.as_ref(), output.as_ref(), compression) {
         Ok(n) => {
             println!("wrote {output}: {n} messages");
             ExitCode::SUCCESS
@@ -39,51 +39,4 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
-}
-
-fn recompress(
-    input: &str,
-    output: &str,
-    compression: Option<mcap::Compression>,
-) -> Result<usize, Box<dyn std::error::Error>> {
-    let bytes = std::fs::read(input)?;
-    let out = std::io::BufWriter::new(std::fs::File::create(output)?);
-    let mut writer = mcap::WriteOptions::new()
-        .compression(compression)
-        .profile("ros2")
-        .create(out)?;
-    // Channels by their id in the input: the id each has in the output.
-    let mut channels = BTreeMap::new();
-    let mut n = 0;
-    for message in mcap::MessageStream::new(&bytes)? {
-        let message = message?;
-        let channel = &message.channel;
-        let id = match channels.get(&channel.id) {
-            Some(&id) => id,
-            None => {
-                let schema = match &channel.schema {
-                    Some(s) => writer.add_schema(&s.name, &s.encoding, &s.data)?,
-                    None => 0,
-                };
-                let id = writer.add_channel(
-                    schema,
-                    &channel.topic,
-                    &channel.message_encoding,
-                    &channel.metadata,
-                )?;
-                channels.insert(channel.id, id);
-                id
-            }
-        };
-        let header = mcap::records::MessageHeader {
-            channel_id: id,
-            sequence: message.sequence,
-            log_time: message.log_time,
-            publish_time: message.publish_time,
-        };
-        writer.write_to_known_channel(&header, &message.data)?;
-        n += 1;
-    }
-    writer.finish()?;
-    Ok(n)
 }

@@ -1,9 +1,10 @@
 //! What the tests share (`tests/`, `host/tests/` and the unit tests), in one
 //! place: the recorded samples in `../shared/data`, the synthetic office cut
 //! short, the stride and selector of the device tests, the emulators'
-//! firmware built first, and the two CSVs of the host replay that a device's
-//! export must equal. Behind the `testing` feature (as the core's
-//! `sim-flash`): no command uses it.
+//! firmware built first, the two CSVs of the host replay that a device's
+//! export must equal, and an MCAP file rewritten with compressed chunks.
+//! Behind the `testing` feature (as the core's `sim-flash`): no command uses
+//! it.
 
 use crate::board::emulator::{qemu, rp2040};
 use crate::board::scan::scan_config;
@@ -96,4 +97,56 @@ pub fn replay_csv(
         replay::replay(seq, profile, scan, sel, 8, None).unwrap_or_else(|e| panic!("replay: {e}"));
     let timestamps: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
     output::run_csv(&run.database, &timestamps, &run.labels)
+}
+
+/// Rewrites the MCAP file `input` as `output` with its chunks compressed by
+/// `compression` (`None`: plain), as a rosbag2 storage preset (`zstd_fast`,
+/// `zstd_small`) records them, through the `mcap` crate's writer: every
+/// message with its channel, schema, sequence and times. Returns how many
+/// messages it wrote.
+pub fn mcap_recompress(
+    input: &std::path::Path,
+    output: &std::path::Path,
+    compression: Option<mcap::Compression>,
+) -> Result<usize, Box<dyn std::error::Error>> {
+    let bytes = std::fs::read(input)?;
+    let out = std::io::BufWriter::new(std::fs::File::create(output)?);
+    let mut writer = mcap::WriteOptions::new()
+        .compression(compression)
+        .profile("ros2")
+        .create(out)?;
+    // Channels by their id in the input: the id each has in the output.
+    let mut channels = std::collections::BTreeMap::new();
+    let mut n = 0;
+    for message in mcap::MessageStream::new(&bytes)? {
+        let message = message?;
+        let channel = &message.channel;
+        let id = match channels.get(&channel.id) {
+            Some(&id) => id,
+            None => {
+                let schema = match &channel.schema {
+                    Some(s) => writer.add_schema(&s.name, &s.encoding, &s.data)?,
+                    None => 0,
+                };
+                let id = writer.add_channel(
+                    schema,
+                    &channel.topic,
+                    &channel.message_encoding,
+                    &channel.metadata,
+                )?;
+                channels.insert(channel.id, id);
+                id
+            }
+        };
+        let header = mcap::records::MessageHeader {
+            channel_id: id,
+            sequence: message.sequence,
+            log_time: message.log_time,
+            publish_time: message.publish_time,
+        };
+        writer.write_to_known_channel(&header, &message.data)?;
+        n += 1;
+    }
+    writer.finish()?;
+    Ok(n)
 }

@@ -119,6 +119,58 @@ fn ros2_bags_in_sqlite3_split_sqlite3_and_mcap_read_as_the_7scenes_frames() {
     );
 }
 
+/// An MCAP bag whose chunks are compressed (zstd, as rosbag2's `zstd_fast`
+/// and `zstd_small` storage presets record, or lz4) reads as the same bag
+/// with plain chunks: the same frames and depth, and the command writes
+/// the same database and labels.
+#[test]
+fn mcap_chunks_compressed_as_rosbag2_presets_write_them_read_as_plain_ones() {
+    let s7 = sevenscenes();
+    let dir = TempDir::new("rec-mcap-chunks");
+    let out = write_recordings(dir.path(), &s7, &["ros2-mcap"]);
+    let plain = out.join("ros2-mcap");
+    let metadata = std::fs::read_to_string(plain.join("metadata.yaml")).unwrap();
+    let select = |bag: &Path, to: &str| {
+        let bag = bag.to_string_lossy().into_owned();
+        let run = placedb(&["select", &bag, "-q", "-o", &dir.arg(to)]);
+        assert!(run.status.success(), "{to}: {}", stderr(&run));
+    };
+    select(&plain, "plain");
+    for (name, compression) in [
+        ("zstd", mcap::Compression::Zstd),
+        ("lz4", mcap::Compression::Lz4),
+    ] {
+        let bag = dir.path().join(format!("ros2-mcap-{name}"));
+        std::fs::create_dir_all(&bag).unwrap();
+        let file = format!("ros2-mcap-{name}.mcap");
+        let written = placedb_host::testing::mcap_recompress(
+            &plain.join("ros2-mcap.mcap"),
+            &bag.join(&file),
+            Some(compression),
+        )
+        .unwrap();
+        assert!(written > 2 * FRAMES, "{name}: {written} messages");
+        std::fs::write(
+            bag.join("metadata.yaml"),
+            metadata.replace("ros2-mcap.mcap", &file),
+        )
+        .unwrap();
+        let seq = open(&bag, Ros2Options::default(), PoseInterpolation::Linear);
+        assert_same_frames(name, &seq, &s7);
+        for i in 0..FRAMES {
+            assert_eq!(seq.depth(i).unwrap(), s7.depth(i).unwrap(), "{name} {i}");
+        }
+        select(&bag, name);
+        for csv in ["database.csv", "labels.csv"] {
+            assert_eq!(
+                std::fs::read(dir.path().join(name).join(csv)).unwrap(),
+                std::fs::read(dir.path().join("plain").join(csv)).unwrap(),
+                "{name}: {csv}"
+            );
+        }
+    }
+}
+
 #[test]
 fn compressed_depth_as_image_transport_writes_it() {
     let s7 = sevenscenes();
