@@ -60,14 +60,20 @@ impl Chunks {
         self.kept().spare.take().unwrap_or_default()
     }
 
-    /// Keeps a chunk just decompressed, dropping the longest unused.
-    pub fn keep(&self, file: usize, offset: u64, data: Arc<Vec<u8>>) {
+    /// Keeps a chunk just decompressed, dropping the longest unused, and
+    /// hands it back shared, to lend its messages from.
+    pub fn keep(&self, file: usize, offset: u64, data: Vec<u8>) -> Arc<Vec<u8>> {
+        let data = Arc::new(data);
         let mut kept = self.kept();
         let Kept { chunks, spare } = &mut *kept;
         if chunks.iter().any(|c| c.file == file && c.offset == offset) {
-            return;
+            return data;
         }
-        chunks.push_front(Chunk { file, offset, data });
+        chunks.push_front(Chunk {
+            file,
+            offset,
+            data: Arc::clone(&data),
+        });
         let mut bytes: usize = chunks.iter().map(|c| c.data.len()).sum();
         while chunks.len() > CHUNKS_KEPT || (chunks.len() > 1 && bytes > CHUNK_BYTES_KEPT) {
             if let Some(old) = chunks.pop_back() {
@@ -78,6 +84,7 @@ impl Chunks {
                 }
             }
         }
+        data
     }
 }
 
@@ -89,11 +96,11 @@ mod tests {
     fn kept_chunks_are_bounded_in_number() {
         let chunks = Chunks::default();
         for offset in 0..20u64 {
-            chunks.keep(0, offset, Arc::new(vec![0; 10]));
+            chunks.keep(0, offset, vec![0; 10]);
         }
         assert_eq!(chunks.kept().chunks.len(), CHUNKS_KEPT);
         assert!(chunks.get(0, 19).is_some() && chunks.get(0, 0).is_none());
-        chunks.keep(0, 100, Arc::new(vec![0; CHUNK_BYTES_KEPT]));
+        chunks.keep(0, 100, vec![0; CHUNK_BYTES_KEPT]);
         assert_eq!(
             chunks.kept().chunks.len(),
             1,

@@ -19,7 +19,6 @@ use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::ops::Range;
 use std::path::Path;
-use std::sync::Arc;
 
 /// Channels and schemas seen so far (by id, per file).
 #[derive(Default)]
@@ -519,9 +518,10 @@ pub fn fetch(
             } else {
                 out
             };
-            let kept = Arc::new(kept);
-            chunks.keep(file, offset, Arc::clone(&kept));
-            Ok(MessageBytes::InChunk(kept, range))
+            Ok(MessageBytes::InChunk(
+                chunks.keep(file, offset, kept),
+                range,
+            ))
         }
         _ => Err(err(path, format!("no message record at byte {offset}"))),
     }

@@ -867,11 +867,7 @@ impl BagSource {
 
 impl DepthSource for BagSource {
     fn depth(&self, i: usize) -> Result<DepthImage, ReadError> {
-        let mut image = DepthImage {
-            width: 0,
-            height: 0,
-            data: Vec::new(),
-        };
+        let mut image = DepthImage::default();
         self.depth_into(i, &mut image).map(|()| image)
     }
 
@@ -960,11 +956,7 @@ fn sides(img: &msgs::Image<'_>) -> Result<(u16, u16), String> {
 /// A depth Image as `u16` at `depth_scale` units per metre: `16UC1` as
 /// stored, `32FC1` metres scaled (invalid or out-of-range values become 0).
 pub fn decode_depth(img: &msgs::Image<'_>, depth_scale: f64) -> Result<DepthImage, String> {
-    let mut out = DepthImage {
-        width: 0,
-        height: 0,
-        data: Vec::new(),
-    };
+    let mut out = DepthImage::default();
     decode_depth_into(img, depth_scale, &mut out).map(|()| out)
 }
 

@@ -10,8 +10,9 @@
 //!
 //! As for MCAP ([`super::mcap_storage`]), nothing is kept whole: [`scan`]
 //! walks the file once, a few chunks at a time (`read_ahead`), and hands
-//! every message to the visitor with its [`Place::Ros1`] (the top-level record and, inside a
-//! chunk, the message record's offset in the decompressed data); [`fetch`]
+//! every message to the visitor with its [`Place::Ros1`] (the top-level
+//! record and, inside a chunk, the message record's offset in the
+//! decompressed data); [`fetch`]
 //! reads one back, a chunk decompressed once for the messages read from it
 //! in turn (`kept_chunks::Chunks`, kept by the reading). A channel's
 //! schema is the ROS 2 name of the type (`sensor_msgs/Image` is
@@ -34,7 +35,6 @@ use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::ops::Range;
 use std::path::Path;
-use std::sync::Arc;
 
 /// The first bytes of a ROS 1 bag of format 2.0.
 pub const MAGIC: &[u8; 13] = b"#ROSBAG V2.0\n";
@@ -615,10 +615,11 @@ pub fn fetch(
             let range = message_in_chunk(chunk, k).map_err(at_record)?;
             // An uncompressed chunk is its record's data: kept as a copy.
             let uncompressed = top.fields.get("compression") == Some(&b"none"[..]);
-            let copy = uncompressed.then(|| chunk.to_vec());
-            let chunk = Arc::new(copy.unwrap_or(out));
-            chunks.keep(file, offset, Arc::clone(&chunk));
-            Ok(MessageBytes::InChunk(chunk, range))
+            let kept = if uncompressed { chunk.to_vec() } else { out };
+            Ok(MessageBytes::InChunk(
+                chunks.keep(file, offset, kept),
+                range,
+            ))
         }
         _ => Err(at_record("not the message record expected".into())),
     }
