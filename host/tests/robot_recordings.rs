@@ -136,6 +136,14 @@ fn mcap_chunks_compressed_as_rosbag2_presets_write_them_read_as_plain_ones() {
         assert!(run.status.success(), "{to}: {}", stderr(&run));
     };
     select(&plain, "plain");
+    // `bench --walk-only`, the bench's one pass over a bag: its messages
+    // and their bytes.
+    let walk = |bag: &Path| -> serde_json::Value {
+        let run = placedb(&["bench", "--walk-only", &bag.to_string_lossy()]);
+        assert!(run.status.success(), "{}", stderr(&run));
+        serde_json::from_slice(&run.stdout).unwrap()
+    };
+    let plain_walk = walk(&plain);
     for (name, compression) in [
         ("zstd", mcap::Compression::Zstd),
         ("lz4", mcap::Compression::Lz4),
@@ -155,6 +163,12 @@ fn mcap_chunks_compressed_as_rosbag2_presets_write_them_read_as_plain_ones() {
             metadata.replace("ros2-mcap.mcap", &file),
         )
         .unwrap();
+        // The walk meets every message the writer wrote, decompressed to
+        // the plain bag's bytes.
+        let walked = walk(&bag);
+        assert_eq!(walked["messages"], written as u64, "{name}");
+        assert_eq!(walked["messages"], plain_walk["messages"], "{name}");
+        assert_eq!(walked["bytes"], plain_walk["bytes"], "{name}");
         let seq = open(&bag, Ros2Options::default(), PoseInterpolation::Linear);
         assert_same_frames(name, &seq, &s7);
         for i in 0..FRAMES {

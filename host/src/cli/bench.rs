@@ -138,6 +138,10 @@ pub struct BenchArgs {
     /// image of this sequence, as select would, and exit.
     #[arg(long, hide = true)]
     decode_only: Option<PathBuf>,
+    /// Internal (a child of the timing table): only walk this recording
+    /// once (every chunk decompressed, no message decoded), and exit.
+    #[arg(long, hide = true)]
+    walk_only: Option<PathBuf>,
 }
 
 /// Runs `placedb bench`: the timing table, or one of the instruction counts.
@@ -172,6 +176,9 @@ pub fn run(a: BenchArgs) -> Result<(), Error> {
     }
     if let Some(path) = &a.decode_only {
         return timing::decode_only(path);
+    }
+    if let Some(path) = &a.walk_only {
+        return timing::walk_only(path);
     }
     timing::table(&opts)
 }

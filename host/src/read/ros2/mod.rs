@@ -695,6 +695,31 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions, format: Format) -> Result<Se
     })
 }
 
+/// What one pass over a recording's files met: its messages and their
+/// bytes.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Walked {
+    pub messages: u64,
+    pub bytes: u64,
+}
+
+/// One pass over the recording at `path` (a ROS 2 bag or a ROS 1 bag):
+/// every chunk decompressed once and every message met in file order, none
+/// decoded. What any reading of the recording pays at least: `placedb
+/// bench` prints it beside the reading's own cost.
+pub fn walk(path: &Path) -> Result<Walked, ReadError> {
+    let mut walked = Walked::default();
+    for (i, file) in bag_files(path)?.iter().enumerate() {
+        bag::scan(i, file, &mut |m| {
+            walked.messages += 1;
+            walked.bytes += m.data.len() as u64;
+            Ok(())
+        })
+        .map_err(layout)?;
+    }
+    Ok(walked)
+}
+
 /// The depth topic, its images in stamp order and their size.
 type DepthFrames = (String, Vec<ImageRef>, (u16, u16));
 
