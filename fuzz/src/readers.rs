@@ -93,7 +93,7 @@ pub fn ros1(data: &[u8]) {
 /// byte for byte from its place.
 fn container_walk(path: &Path) {
     let mut seen = Vec::new();
-    match bag::scan(0, path, &mut |m| {
+    match bag::scan(0, path, &|_| None, &mut |m| {
         if seen.len() < 64 {
             seen.push((m.at, m.data.to_vec()));
         }

@@ -79,11 +79,22 @@ pub struct Message<'a> {
     pub channel: &'a Channel,
     /// Log time, nanoseconds.
     pub log_time: u64,
-    /// The serialized message.
+    /// The serialized message, or its first bytes when the walk asked only
+    /// for those ([`Heads`]) and the storage reads a message at a time
+    /// (sqlite3): then shorter than [`Message::len`].
     pub data: &'a [u8],
+    /// The whole message's length in bytes.
+    pub len: usize,
     /// Where to find it again.
     pub at: Location,
 }
+
+/// How much of a channel's messages a walk needs: `None` all of each,
+/// `Some(n)` its first `n` bytes (an image's fields, not its pixels; 0 for
+/// a channel the walk only counts). A storage that reads a message at a
+/// time (sqlite3: a row) reads only that much; one whose messages lie in
+/// chunks it decompresses anyway (MCAP, ROS 1) hands over the whole message.
+pub type Heads<'a> = &'a dyn Fn(&Channel) -> Option<usize>;
 
 /// What went wrong, for [`super`] to turn into a `ReadError` naming the file.
 pub type BagError = (PathBuf, String);
@@ -149,16 +160,17 @@ pub fn is_ros1(path: &Path) -> Result<bool, BagError> {
     Ok(matches!(by_magic(path)?, Some(Storage::Ros1)))
 }
 
-/// Walks every message of file `index` (`path`), in file order. Returns
-/// how many bytes at its end were cut short (a recording that stopped
-/// mid-write), 0 for a whole file.
+/// Walks every message of file `index` (`path`), in file order, `heads`
+/// saying how much of each it needs. Returns how many bytes at its end were
+/// cut short (a recording that stopped mid-write), 0 for a whole file.
 pub fn scan(
     index: usize,
     path: &Path,
+    heads: Heads<'_>,
     visit: &mut dyn FnMut(Message<'_>) -> Result<(), BagError>,
 ) -> Result<u64, BagError> {
     match storage(path)? {
-        Storage::Sqlite => sqlite_storage::scan(index, path, visit).map(|()| 0),
+        Storage::Sqlite => sqlite_storage::scan(index, path, heads, visit).map(|()| 0),
         Storage::Ros1 => ros1_storage::scan(index, path, visit),
         Storage::Mcap => mcap_storage::scan(index, path, visit),
     }
@@ -228,7 +240,7 @@ mod tests {
         ] {
             let path = dir.join(name);
             std::fs::write(&path, b"garbage, not a bag at all").unwrap();
-            let e = scan(0, &path, &mut |_| Ok(())).unwrap_err();
+            let e = scan(0, &path, &|_| None, &mut |_| Ok(())).unwrap_err();
             assert!(e.1.contains(says), "{name}: {}", e.1);
         }
         std::fs::remove_dir_all(&dir).unwrap();

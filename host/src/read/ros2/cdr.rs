@@ -22,9 +22,12 @@ impl fmt::Display for CdrError {
     }
 }
 
-/// A cursor over one CDR-encoded message.
+/// A cursor over one CDR-encoded message, or over its first bytes.
 pub struct Reader<'a> {
     body: &'a [u8],
+    /// The whole body's length: more than `body`'s when only a head is at
+    /// hand ([`Reader::head`]).
+    whole: usize,
     pos: usize,
     little: bool,
 }
@@ -32,6 +35,14 @@ pub struct Reader<'a> {
 impl<'a> Reader<'a> {
     /// Reads the encapsulation header: plain CDR, either byte order.
     pub fn new(bytes: &'a [u8]) -> Result<Self, CdrError> {
+        Self::head(bytes, bytes.len())
+    }
+
+    /// [`Reader::new`] over the first bytes of a message of `len` bytes:
+    /// every field must lie in them but a trailing `uint8[]`
+    /// ([`Reader::bytes`]), which is checked against the whole message and
+    /// handed over as far as it is at hand.
+    pub fn head(bytes: &'a [u8], len: usize) -> Result<Self, CdrError> {
         let Some((head, body)) = bytes.split_first_chunk::<4>() else {
             return Err(CdrError(format!(
                 "{} bytes: too short for the 4-byte CDR encapsulation header",
@@ -50,6 +61,7 @@ impl<'a> Reader<'a> {
         };
         Ok(Reader {
             body,
+            whole: len.saturating_sub(4).max(body.len()),
             pos: 0,
             little,
         })
@@ -118,7 +130,7 @@ impl<'a> Reader<'a> {
     /// least `min_size` bytes), so a corrupt count cannot ask for gigabytes.
     pub fn count(&mut self, min_size: usize) -> Result<usize, CdrError> {
         let n = self.u32()? as usize;
-        let left = self.body.len() - self.pos;
+        let left = self.whole.saturating_sub(self.pos);
         if n.saturating_mul(min_size.max(1)) > left {
             return Err(CdrError(format!(
                 "sequence of {n} elements, only {left} bytes left"
@@ -141,10 +153,13 @@ impl<'a> Reader<'a> {
         String::from_utf8(text.to_vec()).map_err(|_| CdrError("string is not UTF-8".into()))
     }
 
-    /// A `sequence<uint8>`, borrowed.
+    /// A `sequence<uint8>`, borrowed: whole, or as much of it as a head
+    /// holds.
     pub fn bytes(&mut self) -> Result<&'a [u8], CdrError> {
         let n = self.count(1)?;
-        self.take(n, "uint8[]")
+        let at_hand = self.body.get(self.pos..).unwrap_or_default();
+        self.pos += n;
+        Ok(&at_hand[..n.min(at_hand.len())])
     }
 
     /// A `sequence<float64>`.

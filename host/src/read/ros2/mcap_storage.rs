@@ -470,6 +470,7 @@ fn deliver(
         channel,
         log_time: header.log_time,
         data,
+        len: data.len(),
         at,
     })
 }

@@ -251,6 +251,12 @@ struct Topics {
     tf: BTreeMap<String, Vec<tf_tree::Link>>,
 }
 
+/// The first bytes of an image message the walk reads where its storage
+/// reads a message at a time: the header, the size and encoding (or
+/// format) and a depth payload's own header, with room for a frame id of a
+/// few hundred characters.
+const IMAGE_HEAD: usize = 512;
+
 fn secs(ns: u64) -> f64 {
     ns as f64 * 1e-9
 }
@@ -297,9 +303,22 @@ impl Topics {
             )));
         };
         let undecodable = |e: String| bad(format!("{schema} does not decode: {e}"));
+        // An image's first bytes ([`IMAGE_HEAD`]) may be all the storage
+        // read; when they do not hold what is read here (a long frame id,
+        // a payload cut before its size), or do not decode, the whole
+        // message is read, so what it says is what the whole one says.
+        let cut = m.data.len() < m.len;
+        let whole: Vec<u8>;
         match schema.as_str() {
             msgs::IMAGE => {
-                let img = wire.image(m.data).map_err(undecodable)?;
+                let img = match wire.image_head(m.data, m.len) {
+                    Ok(img) => img,
+                    Err(e) if !cut => return Err(undecodable(e)),
+                    Err(_) => {
+                        whole = bag::fetch(path, m.at)?;
+                        wire.image(&whole).map_err(undecodable)?
+                    }
+                };
                 self.images
                     .entry(topic.clone())
                     .or_default()
@@ -315,7 +334,19 @@ impl Topics {
                     });
             }
             msgs::COMPRESSED_IMAGE => {
-                let img = wire.compressed_image(m.data).map_err(undecodable)?;
+                // A depth payload's size is read from its first bytes.
+                let size_at_hand = |img: &msgs::CompressedImage<'_>| {
+                    depth_codec::codec(&img.format)
+                        .map_or(true, |c| depth_codec::size(c, img.data).is_ok())
+                };
+                let img = match wire.compressed_image_head(m.data, m.len) {
+                    Ok(img) if !cut || size_at_hand(&img) => img,
+                    Err(e) if !cut => return Err(undecodable(e)),
+                    _ => {
+                        whole = bag::fetch(path, m.at)?;
+                        wire.compressed_image(&whole).map_err(undecodable)?
+                    }
+                };
                 let codec = depth_codec::codec(&img.format);
                 // A depth payload's size is in its first bytes; a damaged
                 // one is refused if its topic is the depth topic.
@@ -382,6 +413,17 @@ impl Topics {
             }
         }
         Ok(())
+    }
+
+    /// How much of a channel's messages [`Topics::visit`] needs: an
+    /// image's fields ([`IMAGE_HEAD`] bytes, more read when they do not
+    /// hold them), all of the other kinds it reads, none of the rest.
+    fn heads(channel: &Channel) -> Option<usize> {
+        match channel.schema.as_str() {
+            msgs::IMAGE | msgs::COMPRESSED_IMAGE => Some(IMAGE_HEAD),
+            msgs::CAMERA_INFO | msgs::POSE_STAMPED | msgs::ODOMETRY | msgs::TF_MESSAGE => None,
+            _ => Some(0),
+        }
     }
 
     fn of_kind(&self, kinds: &[&str]) -> Vec<&str> {
@@ -516,7 +558,8 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions, format: Format) -> Result<Se
     let files = bag_files(path)?;
     let mut topics = Topics::default();
     for (i, file) in files.iter().enumerate() {
-        let cut = bag::scan(i, file, &mut |m| topics.visit(file, m)).map_err(layout)?;
+        let cut =
+            bag::scan(i, file, &Topics::heads, &mut |m| topics.visit(file, m)).map_err(layout)?;
         if cut > 0 {
             warn(format!(
                 "{}: the last {cut} bytes are an incomplete record (recording cut short): ignored",
@@ -704,13 +747,14 @@ pub struct Walked {
 }
 
 /// One pass over the recording at `path` (a ROS 2 bag or a ROS 1 bag):
-/// every chunk decompressed once and every message met in file order, none
-/// decoded. What any reading of the recording pays at least: `placedb
-/// bench` prints it beside the reading's own cost.
+/// every chunk decompressed once and every message met in file order (of
+/// each as much as a reading needs), none decoded. What any reading of the
+/// recording pays at least: `placedb bench` prints it beside the reading's
+/// own cost.
 pub fn walk(path: &Path) -> Result<Walked, ReadError> {
     let mut walked = Walked::default();
     for (i, file) in bag_files(path)?.iter().enumerate() {
-        bag::scan(i, file, &mut |m| {
+        bag::scan(i, file, &Topics::heads, &mut |m| {
             walked.messages += 1;
             walked.bytes += m.data.len() as u64;
             Ok(())
@@ -1078,6 +1122,121 @@ pub fn decode_color(img: &msgs::Image<'_>) -> Result<Image, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An sqlite3 bag file (as rosbag2 lays it out) of `rows`, each a topic
+    /// (name, schema) and a serialized message.
+    fn sqlite_bag(path: &Path, rows: &[((&str, &str), Vec<u8>)]) {
+        let _ = std::fs::remove_file(path);
+        let db = rusqlite::Connection::open(path).unwrap();
+        db.execute_batch(
+            "CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL, \
+             serialization_format TEXT NOT NULL, offered_qos_profiles TEXT NOT NULL);
+             CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL, \
+             timestamp INTEGER NOT NULL, data BLOB NOT NULL);",
+        )
+        .unwrap();
+        let mut topics: Vec<(&str, &str)> = Vec::new();
+        for (t, ((name, schema), data)) in rows.iter().enumerate() {
+            if !topics.contains(&(name, schema)) {
+                topics.push((name, schema));
+                db.execute(
+                    "INSERT INTO topics VALUES (?1, ?2, ?3, 'cdr', '')",
+                    rusqlite::params![topics.len() as i64, name, schema],
+                )
+                .unwrap();
+            }
+            let topic = topics.iter().position(|n| *n == (*name, *schema)).unwrap() as i64 + 1;
+            db.execute(
+                "INSERT INTO messages(topic_id, timestamp, data) VALUES (?1, ?2, ?3)",
+                rusqlite::params![topic, 1_000 + t as i64, data],
+            )
+            .unwrap();
+        }
+    }
+
+    /// What the walk of the bag at `path` found of its images (or its
+    /// error), reading of each message what `heads` asks for, and how many
+    /// messages it was handed only the head of.
+    fn walk_images(path: &Path, heads: bag::Heads<'_>) -> (Result<String, String>, usize) {
+        let (mut topics, mut cut) = (Topics::default(), 0);
+        let walked = bag::scan(0, path, heads, &mut |m| {
+            cut += usize::from(m.data.len() < m.len);
+            topics.visit(path, m)
+        });
+        let found = walked
+            .map(|_| format!("{:?}", topics.images))
+            .map_err(|e| e.1);
+        (found, cut)
+    }
+
+    #[test]
+    fn an_sqlite_walk_of_images_heads_finds_what_whole_messages_say() {
+        let path = std::env::temp_dir().join(format!("placedb-heads-{}.db3", std::process::id()));
+        let long = "camera_depth_optical_frame/".repeat(30); // beyond IMAGE_HEAD
+        let pixels: Vec<u8> = (0..64 * 48 * 2).map(|i| (i * 7) as u8).collect();
+        let image = |frame: &str, data: &[u8]| {
+            msgs::encode_image(&msgs::Image {
+                header: msgs::Header {
+                    stamp: 2.5,
+                    frame_id: frame.into(),
+                },
+                height: 48,
+                width: 64,
+                encoding: "16UC1".into(),
+                is_bigendian: false,
+                step: 128,
+                data,
+            })
+        };
+        // compressedDepth RVL: the ConfigHeader, columns and rows, words.
+        let mut rvl = vec![0u8; 12];
+        rvl.extend(64u32.to_le_bytes());
+        rvl.extend(48u32.to_le_bytes());
+        rvl.extend(rvl::tests::encode(&[1000; 64 * 48]));
+        let compressed = |frame: &str, data: &[u8]| {
+            msgs::encode_compressed_image(&msgs::CompressedImage {
+                header: msgs::Header {
+                    stamp: 3.5,
+                    frame_id: frame.into(),
+                },
+                format: "16UC1; compressedDepth rvl".into(),
+                data,
+            })
+        };
+        let depth = ("/depth", msgs::IMAGE);
+        let packed = ("/depth/compressedDepth", msgs::COMPRESSED_IMAGE);
+        let cloud = ("/points", "sensor_msgs/msg/PointCloud2");
+        let mut rows = vec![
+            (depth, image("cam", &pixels)),
+            (depth, image(&long, &pixels)),
+            (packed, compressed("cam", &rvl)),
+            (packed, compressed(&long, &rvl)),
+            (cloud, vec![7; 5000]),
+        ];
+        // Frame ids that put the head's end inside the payload's header.
+        for n in (440..=500).step_by(4) {
+            rows.push((packed, compressed(&"f".repeat(n), &rvl)));
+        }
+        sqlite_bag(&path, &rows);
+        let (whole, none_cut) = walk_images(&path, &|_| None);
+        let (heads, cut) = walk_images(&path, &Topics::heads);
+        assert!(whole.as_ref().is_ok_and(|w| w.contains(&long)), "{whole:?}");
+        assert_eq!(heads, whole);
+        // Every image and the point cloud were handed over as heads.
+        assert_eq!((none_cut, cut), (0, rows.len()));
+        // Damage past the head is found as reading the whole message finds
+        // it: a pixel count beyond the message, a payload cut inside its
+        // header (behind a long frame id).
+        let mut short = image("cam", &pixels);
+        short.truncate(short.len() - 1);
+        for (topic, bad) in [(depth, short), (packed, compressed(&long, &rvl[..14]))] {
+            sqlite_bag(&path, &[(topic, bad)]);
+            let (whole, _) = walk_images(&path, &|_| None);
+            let (heads, _) = walk_images(&path, &Topics::heads);
+            assert_eq!(heads, whole);
+        }
+        std::fs::remove_file(&path).unwrap();
+    }
 
     fn image<'a>(
         encoding: &str,

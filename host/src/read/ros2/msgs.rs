@@ -118,7 +118,13 @@ fn pose(r: &mut Reader<'_>) -> Result<PoseMsg, CdrError> {
 
 /// Decodes an Image.
 pub fn image(bytes: &[u8]) -> Result<Image<'_>, CdrError> {
-    let mut r = Reader::new(bytes)?;
+    image_head(bytes, bytes.len())
+}
+
+/// Decodes an Image from the first bytes of its `len`: `data` is the part
+/// of the pixels they hold ([`Reader::head`]).
+pub fn image_head(bytes: &[u8], len: usize) -> Result<Image<'_>, CdrError> {
+    let mut r = Reader::head(bytes, len)?;
     Ok(Image {
         header: header(&mut r)?,
         height: r.u32()?,
@@ -132,7 +138,13 @@ pub fn image(bytes: &[u8]) -> Result<Image<'_>, CdrError> {
 
 /// Decodes a CompressedImage.
 pub fn compressed_image(bytes: &[u8]) -> Result<CompressedImage<'_>, CdrError> {
-    let mut r = Reader::new(bytes)?;
+    compressed_image_head(bytes, bytes.len())
+}
+
+/// Decodes a CompressedImage from the first bytes of its `len`: `data` is
+/// the part of the coded image they hold ([`Reader::head`]).
+pub fn compressed_image_head(bytes: &[u8], len: usize) -> Result<CompressedImage<'_>, CdrError> {
+    let mut r = Reader::head(bytes, len)?;
     Ok(CompressedImage {
         header: header(&mut r)?,
         format: r.string()?,

@@ -488,6 +488,7 @@ impl Walk<'_, '_> {
                     channel,
                     log_time,
                     data: &data,
+                    len: data.len(),
                     at,
                 })?;
             }
@@ -556,6 +557,7 @@ fn walk_chunk(
             channel,
             log_time,
             data: rec.data,
+            len: rec.data.len(),
             at: Location {
                 file: index,
                 place: Place::Ros1 {

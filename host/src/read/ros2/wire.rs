@@ -5,6 +5,10 @@
 
 use super::{msgs, ros1_msgs};
 
+/// Why a ROS 1 message's first bytes are not decoded: its storage always
+/// hands over whole messages, so none is ever asked for.
+const PART_OF_ROS1: &str = "only a whole ROS 1 message is decoded";
+
 /// A message encoding the reader decodes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Wire {
@@ -37,6 +41,30 @@ impl Wire {
         match self {
             Wire::Cdr => msgs::compressed_image(bytes).map_err(|e| e.to_string()),
             Wire::Ros1 => ros1_msgs::compressed_image(bytes).map_err(|e| e.to_string()),
+        }
+    }
+
+    /// Decodes an Image from the first bytes of its `len` (`data` the part
+    /// at hand); a ROS 1 message only whole.
+    pub fn image_head(self, bytes: &[u8], len: usize) -> Result<msgs::Image<'_>, String> {
+        match self {
+            Wire::Cdr => msgs::image_head(bytes, len).map_err(|e| e.to_string()),
+            Wire::Ros1 if bytes.len() == len => self.image(bytes),
+            Wire::Ros1 => Err(PART_OF_ROS1.into()),
+        }
+    }
+
+    /// Decodes a CompressedImage from the first bytes of its `len` (`data`
+    /// the part at hand); a ROS 1 message only whole.
+    pub fn compressed_image_head(
+        self,
+        bytes: &[u8],
+        len: usize,
+    ) -> Result<msgs::CompressedImage<'_>, String> {
+        match self {
+            Wire::Cdr => msgs::compressed_image_head(bytes, len).map_err(|e| e.to_string()),
+            Wire::Ros1 if bytes.len() == len => self.compressed_image(bytes),
+            Wire::Ros1 => Err(PART_OF_ROS1.into()),
         }
     }
 
