@@ -2,7 +2,8 @@
 """Write robot-style recordings of 7-Scenes frames, for placedb's reader tests.
 
 The Rust tests call this script to get recordings laid out the way robots record
-them -- ROS 2 bags (sqlite3, split sqlite3, mcap), ROS 1 bags (plain, bz2, lz4),
+them -- ROS 2 bags (sqlite3, split sqlite3, mcap), ROS 1 bags (plain, bz2, lz4 as the
+rosbags library and as rosbag frame it),
 compressed depth in the formats image_transport's plugins write, TF trees, a
 ScanNet SensReader export -- and a few broken recordings that readers must refuse.
 The files are written by the ecosystem's own writers (the `rosbags` library for
@@ -72,7 +73,7 @@ VARIANTS = [
     'ros2-sqlite3', 'ros2-sqlite3-split', 'ros2-mcap',
     'ros2-compressed-png', 'ros2-compressed-png-rolling', 'ros2-compressed-rvl',
     'ros2-compressed-32f', 'ros2-png', 'ros2-tf', 'ros2-tf-half-rate',
-    'ros2-pose-half-rate', 'ros1', 'ros1-bz2', 'ros1-lz4', 'ros1-tf', 'scannet',
+    'ros2-pose-half-rate', 'ros1', 'ros1-bz2', 'ros1-lz4', 'ros1-roslz4', 'ros1-tf', 'scannet',
     'bad-truncated-db3', 'bad-truncated-bag', 'bad-short-compressed',
     'bad-8bit-png', 'bad-tf-cycle', 'bad-tf-two-parents',
 ]
@@ -472,15 +473,27 @@ class Bag2:
         self.w.close()
 
 
+def roslz4(data):
+    """A chunk's lz4 frame as rosbag writes it (ros_comm roslz4/lz4s.c, block size id 6
+    from rosbag_storage's LZ4Stream): independent 1 MiB blocks, a content checksum, no
+    content size. The rosbags library's own lz4 chunks are linked 64 KiB blocks without
+    checksums."""
+    import lz4.frame
+    return lz4.frame.compress(data, 0, block_size=lz4.frame.BLOCKSIZE_MAX1MB,
+                              block_linked=False, content_checksum=True, store_size=False)
+
+
 class Bag1:
     CALLERID = {DEPTH: '/camera/realsense2_camera', INFO: '/camera/realsense2_camera',
                 COLOR: '/camera/realsense2_camera', POSE: '/localization',
                 '/tf': '/robot_state_publisher', '/tf_static': '/robot_state_publisher'}
 
-    def __init__(self, path, compression=None, chunk_threshold=None):
+    def __init__(self, path, compression=None, chunk_threshold=None, compressor=None):
         self.w = Writer1(path)
         if compression:
             self.w.set_compression(compression)
+        if compressor:
+            self.w.compressor = compressor
         if chunk_threshold:
             self.w.chunk_threshold = chunk_threshold
         self.w.open()
@@ -640,8 +653,9 @@ def yaml_dump(obj, path):
     path.write_text(s.getvalue())
 
 
-def ros1_variant(name, out, fr, poses, compression=None, chunk_threshold=None, **kw):
-    bag = Bag1(out / f'{name}.bag', compression, chunk_threshold)
+def ros1_variant(name, out, fr, poses, compression=None, chunk_threshold=None, compressor=None,
+                 **kw):
+    bag = Bag1(out / f'{name}.bag', compression, chunk_threshold, compressor)
     write_frames(bag, TS1, fr, poses, **kw)
     bag.close()
 
@@ -780,6 +794,12 @@ def build(name, out, fr, poses):
                           if thr else ', chunk threshold 1 MiB (rosbags default)')
                        + (', rgb8 colour' if name == 'ros1' else '')
                        + '. Connection records carry callerid and latching.')
+    elif name == 'ros1-roslz4':
+        ros1_variant(name, out, fr, poses, compression=Writer1.CompressionFormat.LZ4,
+                     compressor=roslz4)
+        e.update(path=f'{name}.bag', kind='ros1', depth_topic=DEPTH,
+                 notes='ROS 1 bag v2.0, lz4 chunks framed as rosbag writes them (roslz4: '
+                       'independent 1 MiB blocks, content checksum), chunk threshold 1 MiB.')
     elif name == 'ros1-tf':
         ros1_variant(name, out, fr, poses, tf='tree')
         e.update(path=f'{name}.bag', kind='ros1', depth_topic=DEPTH,

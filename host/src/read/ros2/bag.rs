@@ -35,11 +35,15 @@ pub enum Place {
     Row(i64),
     /// A ROS 1 message record, or the message record at byte `in_chunk`
     /// of a chunk's decompressed data: the top-level record (header and
-    /// data) is `len` bytes at `offset`.
+    /// data) is `len` bytes at `offset`. `walked` is the CRC-32 of the
+    /// chunk's data as the walk read and verified it (0 outside a chunk, or
+    /// for a chunk with no checksums to skip): reading those same bytes
+    /// back skips the checksums the walk verified.
     Ros1 {
         offset: u64,
         len: u64,
         in_chunk: Option<u32>,
+        walked: u32,
     },
 }
 
@@ -221,7 +225,8 @@ pub fn fetch_kept(path: &Path, at: Location, kept: &Kept) -> Result<MessageBytes
             offset,
             len,
             in_chunk,
-        } => ros1_storage::fetch(path, at.file, offset, len, in_chunk, &kept.chunks),
+            walked,
+        } => ros1_storage::fetch(path, at.file, (offset, len), in_chunk, walked, &kept.chunks),
     }
 }
 

@@ -59,9 +59,27 @@ fn checked(code: usize) -> Result<usize, String> {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Checksums {
     Verify,
-    /// The caller checks the output another way (an MCAP chunk's CRC):
-    /// verifying both cost a third of reading an lz4 MCAP bag.
+    /// The output is checked another way (an MCAP chunk's CRC: verifying
+    /// both cost a third of reading an lz4 MCAP bag), or these very bytes
+    /// were verified already (a ROS 1 chunk read back after the walk: in a
+    /// bag rosbag wrote, whose lz4 frames all carry a content checksum,
+    /// verifying it twice was 30 % of the read).
     Skip,
+}
+
+/// The first bytes of an LZ4 frame.
+const MAGIC: [u8; 4] = [0x04, 0x22, 0x4d, 0x18];
+
+/// Whether the LZ4 frame `data` begins with has checksums to verify (its
+/// flags' content or block checksum bit): a frame without any decodes the
+/// same under [`Checksums::Skip`].
+pub fn has_checksums(data: &[u8]) -> bool {
+    const BLOCK_CHECKSUM: u8 = 1 << 4;
+    const CONTENT_CHECKSUM: u8 = 1 << 2;
+    data.starts_with(&MAGIC)
+        && data
+            .get(4)
+            .is_some_and(|flags| flags & (BLOCK_CHECKSUM | CONTENT_CHECKSUM) != 0)
 }
 
 /// Decompresses the LZ4 frames of `data` (one, or several one after the
@@ -180,6 +198,7 @@ mod tests {
                 for checksums in [true, false] {
                     for block in [lz4::BlockSize::Max64KB, lz4::BlockSize::Max4MB] {
                         let frame = encode(&data, linked, checksums, block);
+                        assert_eq!(has_checksums(&frame), checksums);
                         let mut out = vec![9; 3];
                         decompress_into(&frame, data.len(), &mut out, Checksums::Verify).unwrap();
                         assert!(out == data, "{n} bytes, linked {linked}");
