@@ -89,25 +89,45 @@ fn plain_bz2_and_lz4_bags_give_the_7scenes_frames_depth_and_database() {
 fn a_tf_tree_bag_gives_the_7scenes_poses_and_database() {
     let s7 = sevenscenes();
     let dir = temp("tf");
-    let out = write_recordings(&dir, &s7, &["ros1-tf"]);
-    let ros = open(&out.join("ros1-tf.bag")).unwrap();
-    assert_eq!(ros.frames.len(), s7.frames.len());
-    for (a, b) in ros.frames.iter().zip(&s7.frames) {
-        assert_eq!(a.timestamp, b.timestamp);
-        let near = |x: &[f64], y: &[f64]| x.iter().zip(y).all(|(p, q)| (p - q).abs() <= 1e-9);
-        assert!(
-            near(&a.translation, &b.translation) && near(&a.rotation, &b.rotation),
-            "t={}: {:?} {:?} vs {:?} {:?}",
-            a.timestamp,
-            a.translation,
-            a.rotation,
-            b.translation,
-            b.rotation
-        );
+    // The tree as tf2 records it (/tf_static), and as tf1 did (TUM RGB-D's
+    // bags): every link on /tf as tf/tfMessage, frames named `/map`, found
+    // from `map` as tf2 finds them.
+    let out = write_recordings(&dir, &s7, &["ros1-tf", "ros1-tf1"]);
+    let from = |pose_frame: Option<&str>| ReadOptions {
+        pose_interpolation: PoseInterpolation::Nearest,
+        ros2: read::ros2::Ros2Options {
+            pose_frame: pose_frame.map(str::to_string),
+            ..Default::default()
+        },
+        ..ReadOptions::default()
+    };
+    for (variant, pose_frame) in [
+        ("ros1-tf", None),
+        ("ros1-tf1", None),
+        ("ros1-tf1", Some("map")),
+        ("ros1-tf1", Some("/map")),
+    ] {
+        let what = format!("{variant} from {pose_frame:?}");
+        let bag = out.join(format!("{variant}.bag"));
+        let ros = read::open(&bag, &from(pose_frame)).unwrap_or_else(|e| panic!("{what}: {e}"));
+        assert_eq!(ros.frames.len(), s7.frames.len(), "{what}");
+        for (a, b) in ros.frames.iter().zip(&s7.frames) {
+            assert_eq!(a.timestamp, b.timestamp);
+            let near = |x: &[f64], y: &[f64]| x.iter().zip(y).all(|(p, q)| (p - q).abs() <= 1e-9);
+            assert!(
+                near(&a.translation, &b.translation) && near(&a.rotation, &b.rotation),
+                "{what} t={}: {:?} {:?} vs {:?} {:?}",
+                a.timestamp,
+                a.translation,
+                a.rotation,
+                b.translation,
+                b.rotation
+            );
+        }
+        // The same frames selected, the same labels; the poses in
+        // database.csv are the composed ones (equal to float64 rounding).
+        assert_same_selection(&ros, &s7, &what);
     }
-    // The same frames selected, the same labels; the poses in database.csv
-    // are the composed ones (equal to float64 rounding).
-    assert_same_selection(&ros, &s7, "ros1-tf");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

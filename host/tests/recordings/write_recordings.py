@@ -73,7 +73,8 @@ VARIANTS = [
     'ros2-sqlite3', 'ros2-sqlite3-split', 'ros2-mcap',
     'ros2-compressed-png', 'ros2-compressed-png-rolling', 'ros2-compressed-rvl',
     'ros2-compressed-32f', 'ros2-png', 'ros2-tf', 'ros2-tf-half-rate',
-    'ros2-pose-half-rate', 'ros1', 'ros1-bz2', 'ros1-lz4', 'ros1-roslz4', 'ros1-tf', 'scannet',
+    'ros2-pose-half-rate', 'ros1', 'ros1-bz2', 'ros1-lz4', 'ros1-roslz4', 'ros1-tf', 'ros1-tf1',
+    'scannet',
     'bad-truncated-db3', 'bad-truncated-bag', 'bad-short-compressed',
     'bad-8bit-png', 'bad-tf-cycle', 'bad-tf-two-parents',
 ]
@@ -85,6 +86,9 @@ TS1 = get_typestore(Stores.ROS1_NOETIC)
 # (the md5sum rosbags derives from it is the Noetic one, 94810edda583a504dfda3829e70d7eec).
 TS1.register(get_types_from_msg('geometry_msgs/TransformStamped[] transforms',
                                 'tf2_msgs/msg/TFMessage'))
+# Nor tf/tfMessage, what /tf carried before tf2 (TUM RGB-D's bags): the same fields.
+TS1.register(get_types_from_msg('geometry_msgs/TransformStamped[] transforms',
+                                'tf/msg/tfMessage'))
 
 
 # --- inputs ------------------------------------------------------------------
@@ -195,8 +199,8 @@ def transform_stamped(ts, t, parent, child, trans, quat):
                                                        child_frame_id=child, transform=tr)
 
 
-def tf_msg(ts, transforms):
-    return T(ts, 'tf2_msgs/msg/TFMessage')(transforms=transforms)
+def tf_msg(ts, transforms, msgtype='tf2_msgs/msg/TFMessage'):
+    return T(ts, msgtype)(transforms=transforms)
 
 
 # --- rigid transforms (float64) --------------------------------------------
@@ -253,15 +257,20 @@ def odom_T_base(row):
     return M[:3, 3], mat_to_quat(M[:3, :3])
 
 
-def static_tf(ts):
+def static_links(ts, t=0, slash=''):
     q_bc = mat_to_quat(BASE_T_CAM[:3, :3])
-    return tf_msg(ts, [
-        transform_stamped(ts, 0, 'base_link', 'camera_link', BASE_T_CAM[:3, 3], q_bc),
-        transform_stamped(ts, 0, 'camera_link', OPTICAL, [0, 0, 0], CAM_T_OPT_Q)])
+    return [
+        transform_stamped(ts, t, slash + 'base_link', slash + 'camera_link', BASE_T_CAM[:3, 3],
+                          q_bc),
+        transform_stamped(ts, t, slash + 'camera_link', slash + OPTICAL, [0, 0, 0], CAM_T_OPT_Q)]
 
 
-def map_odom_tf(ts, t):
-    return transform_stamped(ts, t, 'map', 'odom', MAP_T_ODOM[:3, 3],
+def static_tf(ts):
+    return tf_msg(ts, static_links(ts))
+
+
+def map_odom_tf(ts, t, slash=''):
+    return transform_stamped(ts, t, slash + 'map', slash + 'odom', MAP_T_ODOM[:3, 3],
                              mat_to_quat(MAP_T_ODOM[:3, :3]))
 
 
@@ -517,10 +526,14 @@ def write_frames(bag, ts, fr, poses, *, depth='raw', color=False, pose_every=1, 
     """Write frames 0..n-1 in one order per stamp: tf, pose, camera_info, depth, colour.
 
     depth: 'raw' | 'png16' (humble compressedDepth) | 'png16-rolling' | 'rvl' | 'png32' | 'png'.
-    tf: None | 'tree' | 'cycle' | 'two-parents'.
+    tf: None | 'tree' | 'cycle' | 'two-parents' | 'tf1' (the tree as tf1 recorded it: every
+    link on /tf as tf/tfMessage at each stamp, the static ones too, frames named with a
+    leading slash, the depth images' frame as well).
     """
     n = len(poses)
-    if tf:
+    slash = '/' if tf == 'tf1' else ''
+    optical = slash + OPTICAL
+    if tf and tf != 'tf1':
         # /tf_static once, as the very first message (stamp 0, log time 0), latched.
         bag.write('/tf_static', static_tf(ts), 0, latched=True)
     for i in range(n):
@@ -528,19 +541,23 @@ def write_frames(bag, ts, fr, poses, *, depth='raw', color=False, pose_every=1, 
         t = int(row[0])
         if tf and i % tf_every == 0:
             trans, quat = odom_T_base(row)
-            tfs = [map_odom_tf(ts, t), transform_stamped(ts, t, 'odom', 'base_link', trans, quat)]
-            if tf == 'cycle':          # base_link -> map closes map->odom->base_link->map
+            tfs = [map_odom_tf(ts, t, slash),
+                   transform_stamped(ts, t, slash + 'odom', slash + 'base_link', trans, quat)]
+            if tf == 'tf1':
+                tfs += static_links(ts, t, slash)
+            elif tf == 'cycle':          # base_link -> map closes map->odom->base_link->map
                 tfs.append(transform_stamped(ts, t, 'base_link', 'map', [0.5, 0, 0], [0, 0, 0, 1]))
             elif tf == 'two-parents':  # base_link gets a second parent, map
                 tfs.append(transform_stamped(ts, t, 'map', 'base_link', [0.5, 0, 0], [0, 0, 0, 1]))
-            bag.write('/tf', tf_msg(ts, tfs), t)
+            tf_type = 'tf/msg/tfMessage' if tf == 'tf1' else 'tf2_msgs/msg/TFMessage'
+            bag.write('/tf', tf_msg(ts, tfs, tf_type), t)
         if not tf and i % pose_every == 0:
             bag.write(POSE, pose_msg(ts, t, row), t)
         d = fr.depth(i)
         h, w = d.shape
         bag.write(INFO, camera_info_msg(ts, t, fr.K, w, h), t)
         if depth == 'raw':
-            bag.write(DEPTH, image_msg(ts, t, d, '16UC1', OPTICAL), t)
+            bag.write(DEPTH, image_msg(ts, t, d, '16UC1', optical), t)
         elif depth == 'png':
             ok, png = cv2.imencode('.png', d, [cv2.IMWRITE_PNG_COMPRESSION, 3])
             # humble compressed_publisher.cpp:258: "; png compressed " + "" for mono images
@@ -804,6 +821,13 @@ def build(name, out, fr, poses):
         ros1_variant(name, out, fr, poses, tf='tree')
         e.update(path=f'{name}.bag', kind='ros1', depth_topic=DEPTH,
                  notes=TF_NOTES + ' /tf_static connection has latching=1.')
+    elif name == 'ros1-tf1':
+        ros1_variant(name, out, fr, poses, tf='tf1')
+        e.update(path=f'{name}.bag', kind='ros1', depth_topic=DEPTH,
+                 notes='The ros1-tf tree as tf1 recorded it (TUM RGB-D): no /tf_static; /tf '
+                       '(tf/tfMessage) at each frame stamp holds all four links, the static two '
+                       'stamped like the others; every frame named with a leading slash '
+                       '(/map, /camera_depth_optical_frame), the depth header.frame_id too.')
     elif name == 'scannet':
         write_scannet(out, fr, poses)
         e.update(path='scannet', kind='scannet', depth_topic=None, invalid_pose_frames=[3],

@@ -11,6 +11,12 @@
 //! parents, a cycle, or a camera frame not connected to the fixed frame is
 //! an error naming the frames; an image whose chain has a dynamic link with
 //! no sample near its stamp has no pose (the reader skips and counts it).
+//!
+//! Frame names are compared as tf2 compares them, without a leading `/`:
+//! bags of the tf1 era (TUM RGB-D's among them) name `/world` and
+//! `/openni_depth_optical_frame`, and a driver of that era may stamp its
+//! images `/camera_depth_optical_frame` under a tree that says
+//! `camera_depth_optical_frame`.
 
 use crate::read::timed_poses::{pose_at, PoseInterpolation, TimedPose};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
@@ -59,6 +65,11 @@ pub struct Chain {
     children: Vec<String>,
 }
 
+/// A frame's name as tf2 compares it: one leading `/` removed.
+fn frame_name(name: &str) -> &str {
+    name.strip_prefix('/').unwrap_or(name)
+}
+
 fn isometry(p: &TimedPose) -> Isometry3<f64> {
     let [x, y, z, w] = p.rotation;
     Isometry3::from_parts(
@@ -72,7 +83,9 @@ impl TfTree {
     /// is an error naming both and the stamp of the second.
     pub fn new(links: Vec<Link>) -> Result<TfTree, String> {
         let mut edges: BTreeMap<String, Edge> = BTreeMap::new();
-        for link in links {
+        for mut link in links {
+            link.parent = frame_name(&link.parent).to_owned();
+            link.child = frame_name(&link.child).to_owned();
             if link.parent == link.child {
                 return Err(format!(
                     "{} at t={:.6}: frame `{}` is given as its own parent",
@@ -159,6 +172,7 @@ impl TfTree {
     /// The chain from `fixed` (the root above `camera` when `None`) down to
     /// `camera`, or an error naming the frames.
     pub fn chain(&self, fixed: Option<&str>, camera: &str) -> Result<Chain, String> {
+        let (fixed, camera) = (fixed.map(frame_name), frame_name(camera));
         if camera.is_empty() {
             return Err(
                 "the depth images have no frame_id, so the TF tree cannot place them: give \
@@ -311,6 +325,34 @@ mod tests {
             .unwrap_err();
         assert!(e.contains("-> odom") || e.contains("-> base"), "{e}");
         assert_eq!(tree.span(&chain), Some((1.0, 2.0)));
+    }
+
+    #[test]
+    fn frames_are_named_with_or_without_a_leading_slash_as_tf2_names_them() {
+        // A tf1-era bag: slashes in the tree, none in the image's frame or
+        // in --pose-frame, and a link republished without one.
+        let tree = TfTree::new(vec![
+            link("/world", "/kinect", 1.0, 1.0, false),
+            link("/kinect", "/openni_depth_optical_frame", 0.0, 0.5, true),
+            link("world", "kinect", 2.0, 2.0, false),
+        ])
+        .unwrap();
+        for (fixed, camera) in [
+            (None, "openni_depth_optical_frame"),
+            (Some("world"), "/openni_depth_optical_frame"),
+            (Some("/world"), "openni_depth_optical_frame"),
+        ] {
+            let chain = tree.chain(fixed, camera).unwrap();
+            assert_eq!(chain.fixed, "world");
+            let p = tree
+                .pose(&chain, 1.5, 0.5, PoseInterpolation::Linear)
+                .unwrap();
+            assert!((p.translation[0] - 2.0).abs() < 1e-12, "{p:?}");
+        }
+        assert_eq!(
+            tree.frames(),
+            ["kinect", "openni_depth_optical_frame", "world"]
+        );
     }
 
     #[test]
