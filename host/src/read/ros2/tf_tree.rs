@@ -184,8 +184,9 @@ impl TfTree {
             |f: &str| self.edges.contains_key(f) || self.edges.values().any(|e| e.parent == f);
         if !known(camera) {
             return Err(format!(
-                "the depth images' frame `{camera}` is never connected in the TF tree (its \
-                 frames: {})",
+                "the camera frame `{camera}` is never connected in the TF tree (its frames: \
+                 {}); --camera-frame names the frame to take in place of the depth images' \
+                 header.frame_id",
                 self.frames().join(", ")
             ));
         }
