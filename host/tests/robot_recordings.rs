@@ -185,6 +185,127 @@ fn mcap_chunks_compressed_as_rosbag2_presets_write_them_read_as_plain_ones() {
     }
 }
 
+/// Bags rosbag2 compressed itself (`ros2 bag record --compression-format
+/// zstd --compression-mode file|message`, Humble's only compression for
+/// sqlite3) read as the plain bag: the same frames, depth and database.
+/// The command decompresses a file-compressed bag into TMPDIR and leaves
+/// nothing there (and removes what a reading killed before its end left);
+/// a cut file and a damaged message are refused in words, nothing written.
+#[test]
+fn bags_rosbag2_compressed_file_by_file_or_message_by_message_read_as_plain_ones() {
+    let s7 = sevenscenes();
+    let dir = TempDir::new("rec-rosbag2-zstd");
+    let variants = [
+        "ros2-sqlite3-zstd-file",
+        "ros2-sqlite3-zstd-message",
+        "ros2-mcap-zstd-file",
+        "ros2-mcap-zstd-message",
+    ];
+    let out = write_recordings(
+        dir.path(),
+        &s7,
+        &[&["ros2-sqlite3"][..], &variants].concat(),
+    );
+    let want = [Solver::InOrder, Solver::Online].map(|s| database(&s7, s));
+    for name in variants {
+        let bag = out.join(name);
+        assert_eq!(read::detect(&bag).unwrap(), Format::Ros2, "{name}");
+        let seq = open(&bag, Ros2Options::default(), PoseInterpolation::Linear);
+        assert_same_frames(name, &seq, &s7);
+        for i in [0, FRAMES / 2, FRAMES - 1] {
+            assert_eq!(seq.depth(i).unwrap(), s7.depth(i).unwrap(), "{name} {i}");
+        }
+        let got = [Solver::InOrder, Solver::Online].map(|s| database(&seq, s));
+        assert_eq!(got, want, "{name}");
+    }
+    // Through the command, with a TMPDIR of its own holding a folder a
+    // killed reading left (a process id no system gives).
+    let tmp = dir.path().join("tmp");
+    let abandoned = tmp.join(format!(".placedb-bag-{}-x", u32::MAX));
+    std::fs::create_dir_all(abandoned.join("bag_0.db3")).unwrap();
+    let select = |bag: &str, to: &str| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_placedb"))
+            .args(["select", &out.join(bag).to_string_lossy(), "-q", "-o"])
+            .arg(dir.path().join(to))
+            .env("TMPDIR", &tmp)
+            .output()
+            .unwrap()
+    };
+    for bag in [
+        "ros2-sqlite3",
+        "ros2-sqlite3-zstd-file",
+        "ros2-mcap-zstd-message",
+    ] {
+        let run = select(bag, bag);
+        assert!(run.status.success(), "{bag}: {}", stderr(&run));
+        for csv in ["database.csv", "labels.csv"] {
+            assert_eq!(
+                std::fs::read(dir.path().join(bag).join(csv)).unwrap(),
+                std::fs::read(dir.path().join("ros2-sqlite3").join(csv)).unwrap(),
+                "{bag}: {csv}"
+            );
+        }
+        // Read plain, the bag needs no folder; read file-compressed, its
+        // folder and the abandoned one are gone.
+        let left: Vec<_> = std::fs::read_dir(&tmp).unwrap().collect();
+        assert_eq!(
+            left.is_empty(),
+            bag != "ros2-sqlite3",
+            "{bag}: TMPDIR has {left:?}"
+        );
+    }
+    // A file-compressed bag file cut short.
+    let file = out.join("ros2-sqlite3-zstd-file/ros2-sqlite3-zstd-file.db3.zstd");
+    let bytes = std::fs::read(&file).unwrap();
+    std::fs::write(&file, &bytes[..bytes.len() / 2]).unwrap();
+    // A message-compressed depth message with bytes flipped in its middle.
+    let db = out.join("ros2-sqlite3-zstd-message/ros2-sqlite3-zstd-message.db3");
+    let conn = rusqlite::Connection::open(&db).unwrap();
+    let (id, mut data): (i64, Vec<u8>) = conn
+        .query_row(
+            "SELECT m.id, m.data FROM messages m JOIN topics t ON t.id = m.topic_id \
+             WHERE t.name = '/camera/depth/image_rect_raw' ORDER BY m.timestamp LIMIT 1 OFFSET 2",
+            [],
+            |r| Ok((r.get(0)?, r.get(1)?)),
+        )
+        .unwrap();
+    let mid = data.len() / 2;
+    for b in &mut data[mid..mid + 4] {
+        *b ^= 0xff;
+    }
+    conn.execute(
+        "UPDATE messages SET data = ?1 WHERE id = ?2",
+        rusqlite::params![data, id],
+    )
+    .unwrap();
+    drop(conn);
+    for (bag, needles) in [
+        (
+            "ros2-sqlite3-zstd-file",
+            &["ros2-sqlite3-zstd-file.db3.zstd", "does not decompress"][..],
+        ),
+        (
+            "ros2-sqlite3-zstd-message",
+            &[
+                "ros2-sqlite3-zstd-message.db3",
+                "/camera/depth/image_rect_raw at t=2.000000",
+                "does not decompress",
+            ][..],
+        ),
+    ] {
+        let to = format!("broken-{bag}");
+        let run = select(bag, &to);
+        let e = stderr(&run);
+        assert_eq!(run.status.code(), Some(1), "{bag}: {e}");
+        for n in needles {
+            assert!(e.contains(n), "{bag}: {n:?} not in {e}");
+        }
+        assert!(!dir.path().join(&to).exists(), "{bag}: wrote its output");
+        let left: Vec<_> = std::fs::read_dir(&tmp).unwrap().collect();
+        assert!(left.is_empty(), "{bag} left {left:?} in TMPDIR");
+    }
+}
+
 #[test]
 fn compressed_depth_as_image_transport_writes_it() {
     let s7 = sevenscenes();

@@ -671,8 +671,8 @@ const ROSBAGS_METADATA: &str = "rosbag2_bagfile_information:
 
 /// Item 9 of issue 22: the bag folders the standard writers leave read,
 /// whatever they write for "no compression" (`""`, `''`, nothing, no
-/// key); compression, another storage and a broken file are refused in
-/// words naming metadata.yaml.
+/// key); a compression other than rosbag2's zstd, another storage and a
+/// broken file are refused in words naming metadata.yaml.
 #[test]
 fn metadata_yaml_as_the_standard_writers_leave_it() {
     let mut s7 = sevenscenes();
@@ -705,13 +705,19 @@ fn metadata_yaml_as_the_standard_writers_leave_it() {
     for (yaml, needles) in [
         (
             ROSBAGS_METADATA
-                .replace("compression_format: ''", "compression_format: zstd")
+                .replace("compression_format: ''", "compression_format: lz4")
                 .replace("compression_mode: ''", "compression_mode: FILE"),
-            ["`FILE`", "`zstd`", "ros2 bag decompress"],
+            ["format `lz4`", "only zstd", "ros2 bag convert"],
         ),
         (
             ROSBAG2_METADATA.replace("compression_mode: \"\"", "compression_mode: MESSAGE"),
-            ["`MESSAGE`", "unnamed", "ros2 bag decompress"],
+            ["format `unnamed`", "only zstd", "ros2 bag convert"],
+        ),
+        (
+            ROSBAGS_METADATA
+                .replace("compression_format: ''", "compression_format: zstd")
+                .replace("compression_mode: ''", "compression_mode: CHUNK"),
+            ["mode `CHUNK`", "file or message", "metadata.yaml"],
         ),
         (
             ROSBAGS_METADATA.replace("storage_identifier: mcap", "storage_identifier: my_store"),

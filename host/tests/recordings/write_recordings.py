@@ -43,7 +43,7 @@ try:
     from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
                                     QosReliability, QosTime)
     from rosbags.rosbag1 import Writer as Writer1
-    from rosbags.rosbag2 import StoragePlugin, Writer as Writer2
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer as Writer2
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 except ImportError as err:  # say what to do rather than print a traceback
     sys.exit(f'write_recordings.py: missing dependency ({err}); '
@@ -71,6 +71,8 @@ DEPTH_QUANT = 100.0    # publisher default depth_quantization (same file)
 
 VARIANTS = [
     'ros2-sqlite3', 'ros2-sqlite3-split', 'ros2-mcap',
+    'ros2-sqlite3-zstd-file', 'ros2-sqlite3-zstd-message', 'ros2-mcap-zstd-file',
+    'ros2-mcap-zstd-message',
     'ros2-compressed-png', 'ros2-compressed-png-rolling', 'ros2-compressed-rvl',
     'ros2-compressed-32f', 'ros2-png', 'ros2-tf', 'ros2-tf-half-rate',
     'ros2-pose-half-rate', 'ros1', 'ros1-bz2', 'ros1-lz4', 'ros1-roslz4', 'ros1-tf', 'ros1-tf1',
@@ -462,8 +464,11 @@ def qos_transient_local():
 class Bag2:
     """Thin wrapper over rosbags.rosbag2.Writer: topic -> connection, write(msg, t)."""
 
-    def __init__(self, path, storage=StoragePlugin.SQLITE3):
+    def __init__(self, path, storage=StoragePlugin.SQLITE3, compression=None):
         self.w = Writer2(path, version=ROS2_VERSION, storage_plugin=storage)
+        if compression:
+            # ros2 bag record --compression-mode file|message --compression-format zstd
+            self.w.set_compression(compression, CompressionFormat.ZSTD)
         self.w.open()
         self.conns = {}
 
@@ -597,8 +602,8 @@ TF_NOTES = ('No PoseStamped. /tf_static (tf2_msgs/msg/TFMessage) is the first me
             'camera_depth_optical_frame.')
 
 
-def ros2_variant(name, out, fr, poses, storage=StoragePlugin.SQLITE3, **kw):
-    bag = Bag2(out / name, storage)
+def ros2_variant(name, out, fr, poses, storage=StoragePlugin.SQLITE3, compression=None, **kw):
+    bag = Bag2(out / name, storage, compression)
     write_frames(bag, TS2, fr, poses, **kw)
     bag.close()
 
@@ -755,6 +760,18 @@ def build(name, out, fr, poses):
         ros2_variant(name, out, fr, poses, storage=StoragePlugin.MCAP)
         e.update(path=name, kind='ros2', depth_topic=DEPTH,
                  notes='mcap storage, same messages as ros2-sqlite3 without colour.')
+    elif name.endswith(('-zstd-file', '-zstd-message')):
+        storage = StoragePlugin.MCAP if name.startswith('ros2-mcap') else StoragePlugin.SQLITE3
+        mode = CompressionMode.FILE if name.endswith('-file') else CompressionMode.MESSAGE
+        ros2_variant(name, out, fr, poses, storage=storage, compression=mode)
+        e.update(path=name, kind='ros2', depth_topic=DEPTH,
+                 notes='The messages of ros2-sqlite3 / ros2-mcap (no colour), compressed by rosbag2 '
+                       'as `ros2 bag record --compression-format zstd --compression-mode '
+                       f'{mode.name.lower()}` does (rosbags Writer.set_compression): '
+                       + ('each bag file zstd-compressed whole (NAME_0.db3.zstd / .mcap.zstd)'
+                          if mode == CompressionMode.FILE
+                          else 'each message\'s CDR bytes a zstd frame of their own')
+                       + '; metadata.yaml says compression_mode and compression_format.')
     elif name == 'ros2-compressed-png':
         ros2_variant(name, out, fr, poses, depth='png16')
         e.update(path=name, kind='ros2', depth_topic=CDEPTH,

@@ -1,6 +1,7 @@
 //! ROS 2 recordings (rosbag2 with MCAP or sqlite3 storage): a bag folder
-//! (its `metadata.yaml` and `*.mcap` or `*.db3` files, one or split) or a
-//! single `.mcap` or `.db3` file; and ROS 1 bags (a `.bag` file, format 2.0,
+//! (its `metadata.yaml` and `*.mcap` or `*.db3` files, one or split, plain
+//! or compressed by rosbag2: [`bag_files`]) or a single `.mcap` or `.db3`
+//! file; and ROS 1 bags (a `.bag` file, format 2.0,
 //! chunks uncompressed, bz2 or lz4: [`ros1_storage`]), whose messages are
 //! the same types by their ROS 1 names (`sensor_msgs/Image`, ...,
 //! `tf/tfMessage`) in ROS 1's serialisation ([`ros1_msgs`]) and are read
@@ -33,6 +34,7 @@
 //! bag where no frame has one is an error naming the topics and times.
 
 pub mod bag;
+pub mod bag_files;
 pub mod cdr;
 pub mod color_codec;
 pub mod depth_codec;
@@ -57,8 +59,10 @@ use crate::picture::Image;
 use crate::sequence::{CameraModel, DepthImage, DepthSource, Format, FrameInfo, Sequence};
 use crate::warning::warn;
 use bag::{Channel, Location, Message};
+use bag_files::BagFiles;
+pub use bag_files::{check_metadata, looks_like_bag, looks_like_ros1_bag};
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use wire::Wire;
 
 /// Depth units per metre of `16UC1` (millimetres), and of the `u16` that
@@ -88,137 +92,6 @@ pub struct Ros2Options {
     pub camera_frame: Option<String>,
     /// Seconds; [`POSE_TOLERANCE`] when `None`.
     pub pose_tolerance: Option<f64>,
-}
-
-/// The file name endings of the storages read: MCAP and sqlite3.
-const BAG_FILE_ENDINGS: [&str; 2] = [".mcap", ".db3"];
-
-fn is_bag_file(name: &str) -> bool {
-    BAG_FILE_ENDINGS.iter().any(|e| name.ends_with(e))
-}
-
-/// Whether `path` is a ROS 2 recording: a `.mcap` or `.db3` file, or a
-/// directory with `metadata.yaml` or such a file.
-pub fn looks_like_bag(path: &Path) -> bool {
-    if path.is_file() {
-        return path
-            .file_name()
-            .is_some_and(|n| is_bag_file(&n.to_string_lossy()));
-    }
-    path.join("metadata.yaml").is_file()
-        || text::list_dir(path).is_ok_and(|names| names.iter().any(|n| is_bag_file(n)))
-}
-
-/// Whether `path` is a ROS 1 bag: a `.bag` file (its first bytes are
-/// checked when it is read).
-pub fn looks_like_ros1_bag(path: &Path) -> bool {
-    path.is_file() && path.extension().is_some_and(|e| e == "bag")
-}
-
-/// What the reader needs of a bag folder's `metadata.yaml` (rosbag2 writes
-/// more: topics, counts, times, which are in the bag files too).
-#[derive(Debug, Default, serde::Deserialize)]
-struct Metadata {
-    #[serde(default)]
-    rosbag2_bagfile_information: BagInfo,
-}
-
-/// The `rosbag2_bagfile_information` mapping. A key can be absent or empty
-/// (`compression_mode:`), and rosbag2's writers leave `''` or `""` for
-/// "none": all three mean not set.
-#[derive(Debug, Default, serde::Deserialize)]
-#[serde(default)]
-struct BagInfo {
-    storage_identifier: Option<String>,
-    compression_mode: Option<String>,
-    compression_format: Option<String>,
-    relative_file_paths: Option<Vec<String>>,
-}
-
-/// A set value: `None` for an absent, empty (null) or `''` one.
-fn set(value: &Option<String>) -> Option<&str> {
-    value.as_deref().map(str::trim).filter(|v| !v.is_empty())
-}
-
-/// Parses a bag folder's `metadata.yaml` (`path`, holding `yaml`), refuses
-/// what the reader cannot read (another storage than MCAP or sqlite3, bag
-/// compression of whole files or each message) and returns the bag's files
-/// as it lists them (none when it lists none).
-pub fn check_metadata(path: &Path, yaml: &str) -> Result<Vec<String>, ReadError> {
-    let meta: Metadata = serde_saphyr::from_str(yaml)
-        .map_err(|e| text::layout(path, format!("not a readable rosbag2 metadata.yaml: {e}")))?;
-    let info = &meta.rosbag2_bagfile_information;
-    if let Some(storage) =
-        set(&info.storage_identifier).filter(|s| !["mcap", "sqlite3"].contains(s))
-    {
-        return Err(text::layout(
-            path,
-            format!(
-                "storage `{storage}` is not supported, only mcap and sqlite3 \
-                 (convert with `ros2 bag convert`)"
-            ),
-        ));
-    }
-    if let Some(mode) = set(&info.compression_mode).filter(|m| !m.eq_ignore_ascii_case("none")) {
-        let format = set(&info.compression_format).unwrap_or("unnamed");
-        return Err(text::layout(
-            path,
-            format!(
-                "bag compression (mode `{mode}`, format `{format}`) is not supported: \
-                 decompress it with `ros2 bag decompress`; MCAP chunk compression is fine"
-            ),
-        ));
-    }
-    Ok(info.relative_file_paths.clone().unwrap_or_default())
-}
-
-/// The bag files (MCAP or sqlite3) of the recording at `path`: the ones its
-/// `metadata.yaml` lists, in its order, else every one in the folder in
-/// name order.
-fn bag_files(path: &Path) -> Result<Vec<PathBuf>, ReadError> {
-    if path.is_file() {
-        return Ok(vec![path.to_path_buf()]);
-    }
-    let meta = path.join("metadata.yaml");
-    let listed = if meta.is_file() {
-        check_metadata(&meta, &text::read_text(&meta)?)?
-    } else {
-        Vec::new()
-    };
-    if !listed.is_empty() {
-        // A listed name is relative to the folder (early rosbag2 releases
-        // put the folder's name in front: its last part is tried too); one
-        // that is not there is named.
-        return listed
-            .iter()
-            .map(|name| {
-                let file = path.join(name);
-                let base = Path::new(name).file_name().map(|b| path.join(b));
-                if file.is_file() {
-                    Ok(file)
-                } else if let Some(base) = base.filter(|b| b.is_file()) {
-                    Ok(base)
-                } else {
-                    Err(text::layout(
-                        &meta,
-                        format!("lists {name}, which is not in the bag folder"),
-                    ))
-                }
-            })
-            .collect();
-    }
-    let mut names: Vec<String> = text::list_dir(path)?
-        .into_iter()
-        .filter(|n| is_bag_file(n))
-        .collect();
-    names.sort();
-    if names.is_empty() {
-        return Err(text::layout(
-            path,
-            "no bag file (*.mcap or *.db3) in the bag folder",
-        ));
-    }
-    Ok(names.into_iter().map(|n| path.join(n)).collect())
 }
 
 /// One image message's metadata (its pixels stay in the bag).
@@ -555,11 +428,10 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions, format: Format) -> Result<Se
             format!("pose tolerance must be >= 0 seconds, got {tol}"),
         ));
     }
-    let files = bag_files(path)?;
+    let files = BagFiles::open(path)?;
     let mut topics = Topics::default();
-    for (i, file) in files.iter().enumerate() {
-        let cut =
-            bag::scan(i, file, &Topics::heads, &mut |m| topics.visit(file, m)).map_err(layout)?;
+    for (i, file) in files.named.iter().enumerate() {
+        let cut = files.scan(i, &Topics::heads, &mut |m| topics.visit(file, m))?;
         if cut > 0 {
             warn(format!(
                 "{}: the last {cut} bytes are an incomplete record (recording cut short): ignored",
@@ -753,13 +625,13 @@ pub struct Walked {
 /// own cost.
 pub fn walk(path: &Path) -> Result<Walked, ReadError> {
     let mut walked = Walked::default();
-    for (i, file) in bag_files(path)?.iter().enumerate() {
-        bag::scan(i, file, &Topics::heads, &mut |m| {
+    let files = BagFiles::open(path)?;
+    for i in 0..files.len() {
+        files.scan(i, &Topics::heads, &mut |m| {
             walked.messages += 1;
             walked.bytes += m.data.len() as u64;
             Ok(())
-        })
-        .map_err(layout)?;
+        })?;
     }
     Ok(walked)
 }
@@ -918,7 +790,7 @@ fn camera(
 
 /// Depth (and colour) of a bag's frames, read back from the bag on demand.
 struct BagSource {
-    files: Vec<PathBuf>,
+    files: BagFiles,
     depth: Vec<ImageRef>,
     color: Vec<Option<ImageRef>>,
     depth_scale: f64,
@@ -928,9 +800,15 @@ struct BagSource {
 }
 
 impl BagSource {
-    fn message(&self, r: &ImageRef) -> Result<bag::MessageBytes, ReadError> {
-        let file = &self.files[r.at.file];
-        bag::fetch_kept(file, r.at, &self.kept).map_err(layout)
+    /// Image `r`'s message read back; a refusal names the topic and time.
+    fn message(&self, r: &ImageRef, topic: &str) -> Result<bag::MessageBytes, ReadError> {
+        self.files.fetch(r.at, &self.kept).map_err(|e| match e {
+            ReadError::Layout { path, reason } => ReadError::Layout {
+                path,
+                reason: format!("{topic} at t={:.6}: {reason}", r.stamp),
+            },
+            other => other,
+        })
     }
 }
 
@@ -943,14 +821,14 @@ impl DepthSource for BagSource {
     fn depth_into(&self, i: usize, image: &mut DepthImage) -> Result<(), ReadError> {
         let r = self.depth.get(i).ok_or_else(|| {
             text::layout(
-                &self.files[0],
+                &self.files.named[0],
                 format!("frame {i} requested, the bag has {}", self.depth.len()),
             )
         })?;
-        let bytes = self.message(r)?;
+        let bytes = self.message(r, &self.topic)?;
         let at = |reason: String| {
             text::layout(
-                &self.files[r.at.file],
+                &self.files.named[r.at.file],
                 format!("{} at t={:.6}: {reason}", self.topic, r.stamp),
             )
         };
@@ -972,10 +850,10 @@ impl DepthSource for BagSource {
         let Some(Some(r)) = self.color.get(i) else {
             return Ok(None);
         };
-        let bytes = self.message(r)?;
+        let bytes = self.message(r, "colour image")?;
         let at = |reason: String| {
             text::layout(
-                &self.files[r.at.file],
+                &self.files.named[r.at.file],
                 format!("colour image at t={:.6}: {reason}", r.stamp),
             )
         };
