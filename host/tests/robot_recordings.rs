@@ -188,8 +188,8 @@ fn mcap_chunks_compressed_as_rosbag2_presets_write_them_read_as_plain_ones() {
 /// Bags rosbag2 compressed itself (`ros2 bag record --compression-format
 /// zstd --compression-mode file|message`, Humble's only compression for
 /// sqlite3) read as the plain bag: the same frames, depth and database.
-/// The command decompresses a file-compressed bag into TMPDIR and leaves
-/// nothing there (and removes what a reading killed before its end left);
+/// A file given alone reads too. The command decompresses a
+/// file-compressed bag into TMPDIR and leaves nothing there (and removes what a reading killed before its end left);
 /// a cut file and a damaged message are refused in words, nothing written.
 #[test]
 fn bags_rosbag2_compressed_file_by_file_or_message_by_message_read_as_plain_ones() {
@@ -231,10 +231,26 @@ fn bags_rosbag2_compressed_file_by_file_or_message_by_message_read_as_plain_ones
             .output()
             .unwrap()
     };
+    // Files given alone, without their metadata.yaml, tell by themselves
+    // how rosbag2 compressed them.
+    for (from, to) in [
+        (
+            "ros2-sqlite3-zstd-message/ros2-sqlite3-zstd-message.db3",
+            "alone-message.db3",
+        ),
+        (
+            "ros2-mcap-zstd-file/ros2-mcap-zstd-file.mcap.zstd",
+            "alone-file.mcap.zstd",
+        ),
+    ] {
+        std::fs::copy(out.join(from), out.join(to)).unwrap();
+    }
     for bag in [
         "ros2-sqlite3",
         "ros2-sqlite3-zstd-file",
         "ros2-mcap-zstd-message",
+        "alone-message.db3",
+        "alone-file.mcap.zstd",
     ] {
         let run = select(bag, bag);
         assert!(run.status.success(), "{bag}: {}", stderr(&run));

@@ -1,10 +1,12 @@
 //! The files of a recording: which paths are recordings, what a ROS 2 bag
 //! folder's `metadata.yaml` says, and the files a reading reads, with
 //! rosbag2's own compression (`ros2 bag record --compression-mode file` or
-//! `message`, zstd) undone: a file compressed whole is decompressed into a
-//! temporary folder that lives as long as the reading (an sqlite3 database
-//! is read in place, and rosbag2 itself does the same), a compressed
-//! message as it is read.
+//! `message`, zstd) undone: a file compressed whole (`*.db3.zstd`) is
+//! decompressed into a temporary folder that lives as long as the reading
+//! (an sqlite3 database is read in place, and rosbag2 itself does the
+//! same), a compressed message (its first bytes a zstd frame's) as it is
+//! read. Both are told by the files themselves, so a file given alone,
+//! without its `metadata.yaml`, reads as well.
 
 use super::bag::{self, Location};
 use crate::error::ReadError;
@@ -12,15 +14,20 @@ use crate::read::text;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
-/// The file name endings of the storages read: MCAP and sqlite3.
-const BAG_FILE_ENDINGS: [&str; 2] = [".mcap", ".db3"];
+/// The file name endings of the storages read, MCAP and sqlite3, as
+/// recorded and as rosbag2's file compression leaves them.
+const BAG_FILE_ENDINGS: [&str; 4] = [".mcap", ".db3", ".mcap.zstd", ".db3.zstd"];
+
+/// The ending rosbag2's file compression gives a bag file.
+const ZSTD_FILE: &str = ".zstd";
 
 fn is_bag_file(name: &str) -> bool {
     BAG_FILE_ENDINGS.iter().any(|e| name.ends_with(e))
 }
 
-/// Whether `path` is a ROS 2 recording: a `.mcap` or `.db3` file, or a
-/// directory with `metadata.yaml` or such a file.
+/// Whether `path` is a ROS 2 recording: a `.mcap` or `.db3` file (or one
+/// rosbag2 compressed, `.db3.zstd`), or a directory with `metadata.yaml`
+/// or such a file.
 pub fn looks_like_bag(path: &Path) -> bool {
     if path.is_file() {
         return path
@@ -62,34 +69,12 @@ fn set(value: &Option<String>) -> Option<&str> {
     value.as_deref().map(str::trim).filter(|v| !v.is_empty())
 }
 
-/// rosbag2's own compression of a recording (`ros2 bag record
-/// --compression-mode file|message --compression-format zstd`), which it
-/// does on top of the storage (an MCAP file's chunk compression is the
-/// storage's own, and is not this).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Compression {
-    /// Not compressed.
-    None,
-    /// Each bag file compressed whole (`bag_0.db3.zstd`).
-    File,
-    /// Each message's data compressed on its own.
-    Message,
-}
-
-/// What a bag folder's `metadata.yaml` says of its files.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Listed {
-    /// The bag's files as it lists them (none when it lists none).
-    pub files: Vec<String>,
-    /// How rosbag2 compressed them.
-    pub compression: Compression,
-}
-
 /// Parses a bag folder's `metadata.yaml` (`path`, holding `yaml`), refuses
 /// what the reader cannot read (another storage than MCAP or sqlite3, a
-/// compression format other than rosbag2's zstd) and returns what it says
-/// of the bag's files.
-pub fn check_metadata(path: &Path, yaml: &str) -> Result<Listed, ReadError> {
+/// compression other than rosbag2's zstd, file by file or message by
+/// message) and returns the bag's files as it lists them (none when it
+/// lists none).
+pub fn check_metadata(path: &Path, yaml: &str) -> Result<Vec<String>, ReadError> {
     let meta: Metadata = serde_saphyr::from_str(yaml)
         .map_err(|e| text::layout(path, format!("not a readable rosbag2 metadata.yaml: {e}")))?;
     let info = &meta.rosbag2_bagfile_information;
@@ -104,11 +89,23 @@ pub fn check_metadata(path: &Path, yaml: &str) -> Result<Listed, ReadError> {
             ),
         ));
     }
+    // How it was compressed needs no saying here: a file compressed whole
+    // ends `.zstd`, a compressed message begins as a zstd frame.
     let mode = set(&info.compression_mode).map(str::to_ascii_lowercase);
-    let compression = match mode.as_deref() {
-        None | Some("none") => Compression::None,
-        Some("file") => Compression::File,
-        Some("message") => Compression::Message,
+    match mode.as_deref() {
+        None | Some("none") => {}
+        Some("file" | "message") => {
+            let format = set(&info.compression_format).unwrap_or("unnamed");
+            if !format.eq_ignore_ascii_case("zstd") {
+                return Err(text::layout(
+                    path,
+                    format!(
+                        "compression format `{format}` is not read, only zstd (rosbag2's \
+                         own; convert the bag to an uncompressed one with `ros2 bag convert`)"
+                    ),
+                ));
+            }
+        }
         Some(_) => {
             return Err(text::layout(
                 path,
@@ -118,23 +115,8 @@ pub fn check_metadata(path: &Path, yaml: &str) -> Result<Listed, ReadError> {
                 ),
             ))
         }
-    };
-    if compression != Compression::None {
-        let format = set(&info.compression_format).unwrap_or("unnamed");
-        if !format.eq_ignore_ascii_case("zstd") {
-            return Err(text::layout(
-                path,
-                format!(
-                    "compression format `{format}` is not read, only zstd (rosbag2's own; \
-                     convert the bag to an uncompressed one with `ros2 bag convert`)"
-                ),
-            ));
-        }
     }
-    Ok(Listed {
-        files: info.relative_file_paths.clone().unwrap_or_default(),
-        compression,
-    })
+    Ok(info.relative_file_paths.clone().unwrap_or_default())
 }
 
 /// The files of a recording as a reading reads them: the bag's own, or,
@@ -145,8 +127,6 @@ pub struct BagFiles {
     read: Vec<PathBuf>,
     /// The same files as the recording names them, for messages.
     pub named: Vec<PathBuf>,
-    /// How rosbag2 compressed the recording.
-    pub compression: Compression,
     /// File compression: the folder of the decompressed copies, removed
     /// when the reading is dropped.
     _unpacked: Option<tempfile::TempDir>,
@@ -158,14 +138,17 @@ impl BagFiles {
     /// order, else every one in the folder in name order; file-compressed
     /// ones decompressed.
     pub fn open(path: &Path) -> Result<BagFiles, ReadError> {
-        let (named, compression) = listed_files(path)?;
+        let named = listed_files(path)?;
         let mut files = BagFiles {
             read: named.clone(),
             named,
-            compression,
             _unpacked: None,
         };
-        if compression == Compression::File {
+        if files
+            .named
+            .iter()
+            .any(|f| f.to_string_lossy().ends_with(ZSTD_FILE))
+        {
             files.unpack()?;
         }
         Ok(files)
@@ -198,7 +181,7 @@ impl BagFiles {
             })?;
         for (read, named) in self.read.iter_mut().zip(&self.named) {
             let name = named.file_name().map(|n| n.to_string_lossy().into_owned());
-            let Some(plain) = name.as_deref().and_then(|n| n.strip_suffix(".zstd")) else {
+            let Some(plain) = name.as_deref().and_then(|n| n.strip_suffix(ZSTD_FILE)) else {
                 continue;
             };
             let copy = dir.path().join(plain);
@@ -219,10 +202,9 @@ impl BagFiles {
         ReadError::Layout { path, reason }
     }
 
-    /// Walks every message of file `i` ([`bag::scan`]), each decompressed
-    /// first when rosbag2 compressed messages (then whole: a compressed
-    /// message has no head to read alone); a channel the walk only counts
-    /// (`heads` says 0 bytes) is handed over as stored.
+    /// Walks every message of file `i` ([`bag::scan`]), a message rosbag2
+    /// compressed handed over decompressed, whole (a head read of it, as
+    /// `heads` asks of an sqlite3 file, is read again whole).
     pub fn scan(
         &self,
         i: usize,
@@ -230,35 +212,43 @@ impl BagFiles {
         visit: &mut dyn FnMut(bag::Message<'_>) -> Result<(), bag::BagError>,
     ) -> Result<u64, ReadError> {
         let file = &self.read[i];
-        let scanned = if self.compression == Compression::Message {
-            let counted_only = |c: &bag::Channel| heads(c) == Some(0);
-            let mut whole = Vec::new();
-            bag::scan(i, file, &|c| counted_only(c).then_some(0), &mut |m| {
-                if counted_only(m.channel) {
-                    return visit(m);
-                }
-                decompress_message(m.data, &mut whole).map_err(|e| {
-                    let t = m.log_time as f64 * 1e-9;
-                    bag::err(file, format!("{} at t={t:.6}: {e}", m.channel.topic))
-                })?;
-                visit(bag::Message {
-                    data: &whole,
-                    len: whole.len(),
-                    ..m
-                })
+        let mut whole = Vec::new();
+        bag::scan(i, file, heads, &mut |m| {
+            if !is_compressed(m.channel.encoding == "cdr", m.data) {
+                return visit(m);
+            }
+            let fetched;
+            let data = if m.data.len() < m.len {
+                fetched = bag::fetch(file, m.at)?;
+                &fetched[..]
+            } else {
+                m.data
+            };
+            decompress_message(data, &mut whole).map_err(|e| {
+                let t = m.log_time as f64 * 1e-9;
+                bag::err(file, format!("{} at t={t:.6}: {e}", m.channel.topic))
+            })?;
+            visit(bag::Message {
+                data: &whole,
+                len: whole.len(),
+                ..m
             })
-        } else {
-            bag::scan(i, file, heads, visit)
-        };
-        scanned.map_err(|e| self.error(e))
+        })
+        .map_err(|e| self.error(e))
     }
 
-    /// Reads back the message at `at` ([`bag::fetch_kept`]), decompressed
-    /// when rosbag2 compressed messages.
-    pub fn fetch(&self, at: Location, kept: &bag::Kept) -> Result<bag::MessageBytes, ReadError> {
+    /// Reads back the message at `at` ([`bag::fetch_kept`]) of a channel
+    /// whose messages are CDR (`cdr`) or not, decompressed when rosbag2
+    /// compressed it.
+    pub fn fetch(
+        &self,
+        at: Location,
+        cdr: bool,
+        kept: &bag::Kept,
+    ) -> Result<bag::MessageBytes, ReadError> {
         let file = &self.read[at.file];
         let bytes = bag::fetch_kept(file, at, kept).map_err(|e| self.error(e))?;
-        if self.compression != Compression::Message {
+        if !is_compressed(cdr, &bytes) {
             return Ok(bytes);
         }
         let mut whole = Vec::new();
@@ -266,6 +256,18 @@ impl BagFiles {
             .map_err(|e| self.error(bag::err(file, format!("{}: {e}", at.place))))?;
         Ok(bag::MessageBytes::Own(whole))
     }
+}
+
+/// The first bytes of a zstd frame.
+const ZSTD_MAGIC: [u8; 4] = [0x28, 0xb5, 0x2f, 0xfd];
+
+/// Whether a message (`cdr`: of a CDR channel) is one rosbag2 compressed
+/// (`--compression-mode message`): a CDR message begins with its
+/// encapsulation, `00 00` or `00 01`, never with a zstd frame's magic, so
+/// its first bytes say so with or without the bag's metadata.yaml (a ROS 1
+/// message's first bytes are its own, and rosbag2 never wrote one).
+fn is_compressed(cdr: bool, data: &[u8]) -> bool {
+    cdr && data.starts_with(&ZSTD_MAGIC)
 }
 
 /// How the folders of decompressed bag files begin, before the id of the
@@ -353,26 +355,22 @@ fn decompress_file(named: &Path, copy: &Path) -> Result<(), ReadError> {
     out.flush().map_err(unwritable)
 }
 
-/// The recording's files as it names them, and its compression.
-fn listed_files(path: &Path) -> Result<(Vec<PathBuf>, Compression), ReadError> {
+/// The recording's files as it names them.
+fn listed_files(path: &Path) -> Result<Vec<PathBuf>, ReadError> {
     if path.is_file() {
-        return Ok((vec![path.to_path_buf()], Compression::None));
+        return Ok(vec![path.to_path_buf()]);
     }
     let meta = path.join("metadata.yaml");
     let listed = if meta.is_file() {
         check_metadata(&meta, &text::read_text(&meta)?)?
     } else {
-        Listed {
-            files: Vec::new(),
-            compression: Compression::None,
-        }
+        Vec::new()
     };
-    if !listed.files.is_empty() {
+    if !listed.is_empty() {
         // A listed name is relative to the folder (early rosbag2 releases
         // put the folder's name in front: its last part is tried too); one
         // that is not there is named.
-        let files = listed
-            .files
+        return listed
             .iter()
             .map(|name| {
                 let file = path.join(name);
@@ -388,8 +386,7 @@ fn listed_files(path: &Path) -> Result<(Vec<PathBuf>, Compression), ReadError> {
                     ))
                 }
             })
-            .collect::<Result<_, _>>()?;
-        return Ok((files, listed.compression));
+            .collect();
     }
     let mut names: Vec<String> = text::list_dir(path)?
         .into_iter()
@@ -402,10 +399,7 @@ fn listed_files(path: &Path) -> Result<(Vec<PathBuf>, Compression), ReadError> {
             "no bag file (*.mcap or *.db3) in the bag folder",
         ));
     }
-    Ok((
-        names.into_iter().map(|n| path.join(n)).collect(),
-        listed.compression,
-    ))
+    Ok(names.into_iter().map(|n| path.join(n)).collect())
 }
 
 #[cfg(test)]

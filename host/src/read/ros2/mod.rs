@@ -802,13 +802,16 @@ struct BagSource {
 impl BagSource {
     /// Image `r`'s message read back; a refusal names the topic and time.
     fn message(&self, r: &ImageRef, topic: &str) -> Result<bag::MessageBytes, ReadError> {
-        self.files.fetch(r.at, &self.kept).map_err(|e| match e {
-            ReadError::Layout { path, reason } => ReadError::Layout {
-                path,
-                reason: format!("{topic} at t={:.6}: {reason}", r.stamp),
-            },
-            other => other,
-        })
+        let cdr = r.wire == Wire::Cdr;
+        self.files
+            .fetch(r.at, cdr, &self.kept)
+            .map_err(|e| match e {
+                ReadError::Layout { path, reason } => ReadError::Layout {
+                    path,
+                    reason: format!("{topic} at t={:.6}: {reason}", r.stamp),
+                },
+                other => other,
+            })
     }
 }
 
