@@ -203,8 +203,8 @@ impl BagFiles {
     }
 
     /// Walks every message of file `i` ([`bag::scan`]), a message rosbag2
-    /// compressed handed over decompressed, whole (a head read of it, as
-    /// `heads` asks of an sqlite3 file, is read again whole).
+    /// compressed handed over decompressed: as much of it as `heads` asks
+    /// (the whole message's length known from its zstd frame), else whole.
     pub fn scan(
         &self,
         i: usize,
@@ -212,11 +212,17 @@ impl BagFiles {
         visit: &mut dyn FnMut(bag::Message<'_>) -> Result<(), bag::BagError>,
     ) -> Result<u64, ReadError> {
         let file = &self.read[i];
-        let mut whole = Vec::new();
+        let mut plain = Vec::new();
         bag::scan(i, file, heads, &mut |m| {
             if !is_compressed(m.channel.encoding == "cdr", m.data) {
                 return visit(m);
             }
+            let refused = |e: String| {
+                let t = m.log_time as f64 * 1e-9;
+                bag::err(file, format!("{} at t={t:.6}: {e}", m.channel.topic))
+            };
+            // The compressed bytes whole (a head of them, an sqlite3
+            // walk's, need not hold the first block).
             let fetched;
             let data = if m.data.len() < m.len {
                 fetched = bag::fetch(file, m.at)?;
@@ -224,17 +230,41 @@ impl BagFiles {
             } else {
                 m.data
             };
-            decompress_message(data, &mut whole).map_err(|e| {
-                let t = m.log_time as f64 * 1e-9;
-                bag::err(file, format!("{} at t={t:.6}: {e}", m.channel.topic))
-            })?;
+            // The frame's header says the whole length: then only the
+            // head asked for is decompressed (from the first block or two).
+            let stored = zstd::zstd_safe::get_frame_content_size(data)
+                .ok()
+                .flatten()
+                .and_then(|n| usize::try_from(n).ok());
+            let head = heads(m.channel).filter(|&h| stored.is_some_and(|n| h < n));
+            decompress_message(data, head, &mut plain).map_err(refused)?;
+            let len = match (head, stored) {
+                (Some(_), Some(n)) => n,
+                _ => plain.len(),
+            };
             visit(bag::Message {
-                data: &whole,
-                len: whole.len(),
+                data: &plain,
+                len,
                 ..m
             })
         })
         .map_err(|e| self.error(e))
+    }
+
+    /// The whole message at `at` in its file as read (a message of a
+    /// channel whose messages are CDR, `cdr`, decompressed when rosbag2
+    /// compressed it): what a walk reads when the head it was handed does
+    /// not hold what it needs.
+    pub fn whole(&self, at: Location, cdr: bool) -> Result<Vec<u8>, bag::BagError> {
+        let file = &self.read[at.file];
+        let bytes = bag::fetch(file, at)?;
+        if !is_compressed(cdr, &bytes) {
+            return Ok(bytes);
+        }
+        let mut plain = Vec::new();
+        decompress_message(&bytes, None, &mut plain)
+            .map_err(|e| bag::err(file, format!("{}: {e}", at.place)))?;
+        Ok(plain)
     }
 
     /// Reads back the message at `at` ([`bag::fetch_kept`]) of a channel
@@ -251,10 +281,10 @@ impl BagFiles {
         if !is_compressed(cdr, &bytes) {
             return Ok(bytes);
         }
-        let mut whole = Vec::new();
-        decompress_message(&bytes, &mut whole)
+        let mut plain = Vec::new();
+        decompress_message(&bytes, None, &mut plain)
             .map_err(|e| self.error(bag::err(file, format!("{}: {e}", at.place))))?;
-        Ok(bag::MessageBytes::Own(whole))
+        Ok(bag::MessageBytes::Own(plain))
     }
 }
 
@@ -306,13 +336,20 @@ fn zstd_most(n: usize) -> u64 {
         .saturating_add(128 * 1024)
 }
 
-/// One message's zstd data (rosbag2's message compression) into `out`.
-fn decompress_message(data: &[u8], out: &mut Vec<u8>) -> Result<(), String> {
+/// One message's zstd data (rosbag2's message compression) into `out`:
+/// its first `head` bytes, or all of it.
+fn decompress_message(data: &[u8], head: Option<usize>, out: &mut Vec<u8>) -> Result<(), String> {
     out.clear();
+    let most = head.map_or(zstd_most(data.len()), |h| h as u64);
+    // Room for what the frame says it holds, within what it can hold: one
+    // allocation, not a doubling one.
+    if let Ok(Some(n)) = zstd::zstd_safe::get_frame_content_size(data) {
+        out.reserve(usize::try_from(n.min(most)).unwrap_or(0));
+    }
     let decoder = zstd::stream::read::Decoder::with_buffer(data)
         .map_err(|e| format!("its zstd data does not decompress: {e}"))?;
     decoder
-        .take(zstd_most(data.len()))
+        .take(most)
         .read_to_end(out)
         .map_err(|e| format!("its zstd data does not decompress: {e}"))?;
     Ok(())

@@ -144,7 +144,9 @@ fn stamp_or(stamp: f64, log_time: u64) -> f64 {
 }
 
 impl Topics {
-    fn visit(&mut self, path: &Path, m: Message<'_>) -> Result<(), bag::BagError> {
+    /// Takes in message `m` of one of `files`.
+    fn visit(&mut self, files: &BagFiles, m: Message<'_>) -> Result<(), bag::BagError> {
+        let path = &files.named[m.at.file];
         let Channel {
             topic,
             schema,
@@ -188,7 +190,7 @@ impl Topics {
                     Ok(img) => img,
                     Err(e) if !cut => return Err(undecodable(e)),
                     Err(_) => {
-                        whole = bag::fetch(path, m.at)?;
+                        whole = files.whole(m.at, wire == Wire::Cdr)?;
                         wire.image(&whole).map_err(undecodable)?
                     }
                 };
@@ -216,7 +218,7 @@ impl Topics {
                     Ok(img) if !cut || size_at_hand(&img) => img,
                     Err(e) if !cut => return Err(undecodable(e)),
                     _ => {
-                        whole = bag::fetch(path, m.at)?;
+                        whole = files.whole(m.at, wire == Wire::Cdr)?;
                         wire.compressed_image(&whole).map_err(undecodable)?
                     }
                 };
@@ -431,7 +433,7 @@ pub(crate) fn read(path: &Path, opts: &ReadOptions, format: Format) -> Result<Se
     let files = BagFiles::open(path)?;
     let mut topics = Topics::default();
     for (i, file) in files.named.iter().enumerate() {
-        let cut = files.scan(i, &Topics::heads, &mut |m| topics.visit(file, m))?;
+        let cut = files.scan(i, &Topics::heads, &mut |m| topics.visit(&files, m))?;
         if cut > 0 {
             warn(format!(
                 "{}: the last {cut} bytes are an incomplete record (recording cut short): ignored",
@@ -1040,13 +1042,14 @@ mod tests {
     /// messages it was handed only the head of.
     fn walk_images(path: &Path, heads: bag::Heads<'_>) -> (Result<String, String>, usize) {
         let (mut topics, mut cut) = (Topics::default(), 0);
-        let walked = bag::scan(0, path, heads, &mut |m| {
+        let files = BagFiles::open(path).unwrap();
+        let walked = files.scan(0, heads, &mut |m| {
             cut += usize::from(m.data.len() < m.len);
-            topics.visit(path, m)
+            topics.visit(&files, m)
         });
         let found = walked
             .map(|_| format!("{:?}", topics.images))
-            .map_err(|e| e.1);
+            .map_err(|e| e.to_string());
         (found, cut)
     }
 
@@ -1105,16 +1108,28 @@ mod tests {
         assert_eq!(heads, whole);
         // Every image and the point cloud were handed over as heads.
         assert_eq!((none_cut, cut), (0, rows.len()));
+        // The same messages compressed as rosbag2 compresses them
+        // (--compression-mode message): heads of them decompressed, or
+        // whole ones where a head does not hold the fields, find the same.
+        let zstd_rows: Vec<_> = rows
+            .iter()
+            .map(|(topic, data)| (*topic, zstd::bulk::compress(data, 3).unwrap()))
+            .collect();
+        sqlite_bag(&path, &zstd_rows);
+        assert_eq!(walk_images(&path, &Topics::heads).0, whole);
+        assert_eq!(walk_images(&path, &|_| None).0, whole);
         // Damage past the head is found as reading the whole message finds
         // it: a pixel count beyond the message, a payload cut inside its
         // header (behind a long frame id).
         let mut short = image("cam", &pixels);
         short.truncate(short.len() - 1);
         for (topic, bad) in [(depth, short), (packed, compressed(&long, &rvl[..14]))] {
-            sqlite_bag(&path, &[(topic, bad)]);
+            sqlite_bag(&path, &[(topic, bad.clone())]);
             let (whole, _) = walk_images(&path, &|_| None);
             let (heads, _) = walk_images(&path, &Topics::heads);
             assert_eq!(heads, whole);
+            sqlite_bag(&path, &[(topic, zstd::bulk::compress(&bad, 3).unwrap())]);
+            assert_eq!(walk_images(&path, &Topics::heads).0, whole);
         }
         std::fs::remove_file(&path).unwrap();
     }
