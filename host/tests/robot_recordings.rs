@@ -523,6 +523,52 @@ fn a_scannet_export_reads_as_7scenes_without_its_lost_frame() {
             "{file}"
         );
     }
+    // The same export laid out as ScanNet's `scannet_frames_25k` release:
+    // numbers padded to six digits, intrinsics_depth.txt beside the
+    // folders. Each frame's pose and colour go by its depth file's name.
+    let frames_25k = dir.path().join("frames_25k");
+    for sub in ["depth", "pose", "color"] {
+        std::fs::create_dir_all(frames_25k.join(sub)).unwrap();
+        for entry in std::fs::read_dir(scan.join(sub)).unwrap() {
+            let name = entry.unwrap().file_name().into_string().unwrap();
+            let (number, ext) = name.split_once('.').unwrap();
+            let padded = format!("{:06}.{ext}", number.parse::<u32>().unwrap());
+            std::fs::copy(
+                scan.join(sub).join(&name),
+                frames_25k.join(sub).join(padded),
+            )
+            .unwrap();
+        }
+    }
+    std::fs::copy(
+        scan.join("intrinsic/intrinsic_depth.txt"),
+        frames_25k.join("intrinsics_depth.txt"),
+    )
+    .unwrap();
+    assert_eq!(read::detect(&frames_25k).unwrap(), Format::ScanNet);
+    let padded = open(
+        &frames_25k,
+        Ros2Options::default(),
+        PoseInterpolation::Linear,
+    );
+    assert_eq!(padded.frames.len(), seq.frames.len());
+    for (a, b) in padded.frames.iter().zip(&seq.frames) {
+        assert_eq!(
+            (a.timestamp, a.translation, a.rotation),
+            (b.timestamp, b.translation, b.rotation)
+        );
+        assert_eq!(a.color_path.is_some(), b.color_path.is_some());
+    }
+    let c = placedb(&["select", &frames_25k.to_string_lossy(), "-o", &dir.arg("c")]);
+    assert!(c.status.success(), "{}", stderr(&c));
+    assert!(stderr(&c).contains("pose/000003.txt"), "{}", stderr(&c));
+    for file in ["database.csv", "labels.csv"] {
+        assert_eq!(
+            std::fs::read(dir.path().join("c").join(file)).unwrap(),
+            std::fs::read(dir.path().join("a").join(file)).unwrap(),
+            "{file}"
+        );
+    }
 }
 
 #[test]

@@ -2,7 +2,10 @@
 //! file): `depth/N.png` (16-bit millimetres, depth scale 1000),
 //! `pose/N.txt` (4x4 camera-to-world, one row per line), `color/N.jpg`, and
 //! `intrinsic/intrinsic_depth.txt` (4x4, the depth camera's K in its top
-//! left), for frame numbers N without padding.
+//! left), for frame numbers N without padding; and the layout of its
+//! `scannet_frames_25k` release (every 100th frame, numbers padded to six
+//! digits, `000100.png`, and `intrinsics_depth.txt` beside the folders). A
+//! frame's pose and colour files have its depth file's name.
 //!
 //! Frames are sorted by frame number; the timestamp is the frame number
 //! (ScanNet records at 30 Hz and the export keeps no times). ScanNet writes
@@ -20,8 +23,9 @@ use std::path::Path;
 /// Depth units per metre (millimetres).
 pub const DEPTH_SCALE: f64 = 1000.0;
 
-/// The depth camera's intrinsics file, relative to the scene directory.
-pub const INTRINSICS: &str = "intrinsic/intrinsic_depth.txt";
+/// The depth camera's intrinsics file, relative to the scene directory:
+/// where SensReader's export puts it, and where `scannet_frames_25k` does.
+pub const INTRINSICS: [&str; 2] = ["intrinsic/intrinsic_depth.txt", "intrinsics_depth.txt"];
 
 /// The frame number of an `N.<ext>` file name.
 fn frame_number(name: &str, ext: &str) -> Option<u64> {
@@ -111,23 +115,26 @@ pub(crate) fn read(dir: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError
     };
     let camera = match opts.intrinsics {
         Some(k) => k,
-        None => {
-            let path = dir.join(INTRINSICS);
-            if !path.is_file() {
+        None => match INTRINSICS.iter().map(|f| dir.join(f)).find(|p| p.is_file()) {
+            Some(path) => parse_intrinsics(&path)?,
+            None => {
                 return Err(text::layout(
-                    &path,
-                    "intrinsics file missing: ScanNet's export writes it; or give \
-                     --intrinsics fx,fy,cx,cy",
-                ));
+                    dir,
+                    format!(
+                        "no intrinsics file ({}: ScanNet's exports write one); or give \
+                         --intrinsics fx,fy,cx,cy",
+                        INTRINSICS.join(" or ")
+                    ),
+                ))
             }
-            parse_intrinsics(&path)?
-        }
+        },
     };
     let mut frames = Vec::with_capacity(numbered.len());
     let mut paths = Vec::with_capacity(numbered.len());
     let mut invalid: Vec<String> = Vec::new();
     for (number, depth_name) in &numbered {
-        let pose_name = format!("{number}.txt");
+        let stem = depth_name.strip_suffix(".png").unwrap_or(depth_name);
+        let pose_name = format!("{stem}.txt");
         if !poses.contains(&pose_name) {
             return Err(text::layout(
                 &depth_dir.join(depth_name),
@@ -141,7 +148,7 @@ pub(crate) fn read(dir: &Path, opts: &ReadOptions) -> Result<Sequence, ReadError
             continue;
         }
         let (translation, rotation) = sevenscenes::parse_pose_text(&pose_path, &content)?;
-        let color_name = format!("{number}.jpg");
+        let color_name = format!("{stem}.jpg");
         frames.push(FrameInfo {
             index: frames.len(),
             timestamp: *number as f64,
