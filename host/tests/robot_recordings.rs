@@ -57,27 +57,30 @@ fn assert_same_frames(name: &str, got: &Sequence, want: &Sequence) {
     }
 }
 
-#[test]
-fn ros2_bags_in_sqlite3_split_sqlite3_and_mcap_read_as_the_7scenes_frames() {
-    let s7 = sevenscenes();
-    let dir = TempDir::new("rec-sqlite3");
-    let out = write_recordings(
-        dir.path(),
-        &s7,
-        &["ros2-sqlite3", "ros2-sqlite3-split", "ros2-mcap"],
-    );
-    let want = [Solver::InOrder, Solver::Online].map(|s| database(&s7, s));
-    for name in ["ros2-sqlite3", "ros2-sqlite3-split", "ros2-mcap"] {
+/// Each ROS 2 bag `names` in `out` is detected as one and gives the
+/// frames, depth (first, middle, last) and databases of `s7`.
+fn assert_ros2_bags_read_as(out: &Path, names: &[&str], s7: &Sequence) {
+    let want = [Solver::InOrder, Solver::Online].map(|s| database(s7, s));
+    for name in names {
         let bag = out.join(name);
         assert_eq!(read::detect(&bag).unwrap(), Format::Ros2, "{name}");
         let seq = open(&bag, Ros2Options::default(), PoseInterpolation::Linear);
-        assert_same_frames(name, &seq, &s7);
+        assert_same_frames(name, &seq, s7);
         for i in [0, FRAMES / 2, FRAMES - 1] {
             assert_eq!(seq.depth(i).unwrap(), s7.depth(i).unwrap(), "{name} {i}");
         }
         let got = [Solver::InOrder, Solver::Online].map(|s| database(&seq, s));
         assert_eq!(got, want, "{name}");
     }
+}
+
+#[test]
+fn ros2_bags_in_sqlite3_split_sqlite3_and_mcap_read_as_the_7scenes_frames() {
+    let s7 = sevenscenes();
+    let dir = TempDir::new("rec-sqlite3");
+    let bags = ["ros2-sqlite3", "ros2-sqlite3-split", "ros2-mcap"];
+    let out = write_recordings(dir.path(), &s7, &bags);
+    assert_ros2_bags_read_as(&out, &bags, &s7);
     // One .db3 file given alone reads the same, as a .mcap does.
     let single = out.join("ros2-sqlite3").join("ros2-sqlite3.db3");
     assert_eq!(read::detect(&single).unwrap(), Format::Ros2);
@@ -206,18 +209,7 @@ fn bags_rosbag2_compressed_file_by_file_or_message_by_message_read_as_plain_ones
         &s7,
         &[&["ros2-sqlite3"][..], &variants].concat(),
     );
-    let want = [Solver::InOrder, Solver::Online].map(|s| database(&s7, s));
-    for name in variants {
-        let bag = out.join(name);
-        assert_eq!(read::detect(&bag).unwrap(), Format::Ros2, "{name}");
-        let seq = open(&bag, Ros2Options::default(), PoseInterpolation::Linear);
-        assert_same_frames(name, &seq, &s7);
-        for i in [0, FRAMES / 2, FRAMES - 1] {
-            assert_eq!(seq.depth(i).unwrap(), s7.depth(i).unwrap(), "{name} {i}");
-        }
-        let got = [Solver::InOrder, Solver::Online].map(|s| database(&seq, s));
-        assert_eq!(got, want, "{name}");
-    }
+    assert_ros2_bags_read_as(&out, &variants, &s7);
     // Through the command, with a TMPDIR of its own holding a folder a
     // killed reading left (a process id no system gives).
     let tmp = dir.path().join("tmp");
