@@ -214,7 +214,8 @@ impl BagFiles {
         let file = &self.read[i];
         let mut plain = Vec::new();
         bag::scan(i, file, heads, &mut |m| {
-            if !is_compressed(m.channel.encoding == "cdr", m.data) {
+            // A channel the walk only counts is handed over as stored.
+            if heads(m.channel) == Some(0) || !is_compressed(m.channel.encoding == "cdr", m.data) {
                 return visit(m);
             }
             let refused = |e: String| {
