@@ -66,6 +66,9 @@ fn quiet_on_closed_stdout() {}
 
 fn main() -> ExitCode {
     quiet_on_closed_stdout();
+    // Ctrl-C leaves no partial output behind (the library alone leaves a
+    // host program's signals to it).
+    placedb_host::output::replace::remove_partials_on_signal();
     let cli = Cli::parse();
     let r = match cli.command {
         Command::Select(a) => cli::select::run(a),

@@ -55,3 +55,24 @@ def test_other_threads_run_while_placedb_works():
         stop.set()
         t.join()
     assert len(ticks) > 5
+
+
+def test_ctrl_c_after_a_write_raises_keyboard_interrupt(tmp_path):
+    # Writing outputs must not take Python's Ctrl-C over: the command's
+    # remove-the-partials-and-exit handler is the command's alone.
+    script = textwrap.dedent(
+        f"""
+        import os, signal, sys, time, placedb
+        placedb.select(demo=True, demo_frames=60).write({str(tmp_path / "out")!r})
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(5)
+        except KeyboardInterrupt:
+            print("interrupted", flush=True)
+            sys.exit(3)
+        print("not interrupted", flush=True)
+        """
+    )
+    child = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert child.returncode == 3, (child.returncode, child.stdout, child.stderr)
+    assert (tmp_path / "out" / "database.csv").is_file()

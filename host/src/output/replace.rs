@@ -16,7 +16,7 @@
 //! left behind is removed by the next run writing that target ([`stale`]).
 
 mod interrupt;
-pub use interrupt::{defer_stop, end_defer, stop_now, stop_requested};
+pub use interrupt::{defer_stop, end_defer, remove_partials_on_signal, stop_now, stop_requested};
 mod stale;
 
 use crate::error::OutputError;

@@ -10,7 +10,11 @@
 //! renames the outputs into place, so a run stopped during its commit ends
 //! committed, never half), removes every registered sibling and exits.
 //! The handlers are installed when the first output is staged, so commands
-//! that write nothing keep the default signal behaviour. A run that can stop
+//! that write nothing keep the default signal behaviour, and only in a
+//! program that asked for them ([`remove_partials_on_signal`], the
+//! `placedb` command): a library's host (the Python package, whose Ctrl-C
+//! raises `KeyboardInterrupt`) keeps its own handlers, which a watcher that
+//! exits the process would take over. A run that can stop
 //! cleanly (`placedb stream`) defers the first signal instead
 //! ([`defer_stop`]): it polls [`stop_requested`], ends what it was doing and
 //! calls [`stop_now`].
@@ -18,6 +22,17 @@
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
 use std::sync::{Mutex, MutexGuard};
+
+/// Whether this program removes the partial siblings on SIGINT and
+/// SIGTERM ([`remove_partials_on_signal`]).
+static ENABLED: AtomicBool = AtomicBool::new(false);
+
+/// From now on staging an output installs the SIGINT and SIGTERM handlers
+/// that remove the partial siblings and exit: for a program of its own
+/// (the `placedb` command), not for a library's host.
+pub fn remove_partials_on_signal() {
+    ENABLED.store(true, Ordering::SeqCst);
+}
 
 /// Whether the first SIGINT or SIGTERM only asks the run to stop
 /// ([`defer_stop`]).
@@ -103,6 +118,9 @@ fn watch() {
         unsafe { libc::write(fd, std::ptr::addr_of!(byte).cast(), 1) };
     }
 
+    if !ENABLED.load(Ordering::SeqCst) {
+        return;
+    }
     static ONCE: Once = Once::new();
     ONCE.call_once(|| {
         let mut fds = [0 as libc::c_int; 2];
