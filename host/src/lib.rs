@@ -17,6 +17,7 @@ pub mod cli;
 pub mod degradation;
 pub mod error;
 pub mod frame_rows;
+pub mod interrupt;
 pub mod output;
 pub mod picture;
 pub mod pipeline;

@@ -29,6 +29,7 @@ const LAYERS: &[&str] = &[
     "picture",
     "vector_unit",
     "rng",
+    "interrupt",
     "error",
     "warning",
 ];

@@ -314,6 +314,53 @@ fn bags_rosbag2_compressed_file_by_file_or_message_by_message_read_as_plain_ones
     }
 }
 
+/// A run stopped by SIGINT or SIGTERM while it reads a file-compressed
+/// bag removes the folder it decompressed the bag into, as it removes its
+/// partial outputs, and exits 130 or 143 with nothing written.
+#[test]
+fn a_run_stopped_while_it_reads_a_file_compressed_bag_leaves_nothing_in_tmpdir() {
+    // Frames enough that the folder lives a good part of a second.
+    let s7 = bag_common::sevenscenes(200);
+    let dir = TempDir::new("rec-rosbag2-zstd-stopped");
+    let out = write_recordings(dir.path(), &s7, &["ros2-sqlite3-zstd-file"]);
+    let tmp = dir.path().join("tmp");
+    std::fs::create_dir_all(&tmp).unwrap();
+    for (signal, code) in [("INT", 130), ("TERM", 143)] {
+        let target = dir.path().join(format!("out-{signal}"));
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_placedb"))
+            .arg("select")
+            .arg(out.join("ros2-sqlite3-zstd-file"))
+            .args(["-q", "-o"])
+            .arg(&target)
+            .env("TMPDIR", &tmp)
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        let start = std::time::Instant::now();
+        while std::fs::read_dir(&tmp).unwrap().next().is_none() {
+            assert!(
+                child.try_wait().unwrap().is_none(),
+                "{signal}: the run ended before it decompressed the bag"
+            );
+            assert!(
+                start.elapsed().as_secs() < 120,
+                "{signal}: no folder in TMPDIR"
+            );
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        let killed = std::process::Command::new("kill")
+            .args([&format!("-{signal}"), &child.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(killed.success());
+        let status = child.wait().unwrap();
+        assert_eq!(status.code(), Some(code), "{signal}");
+        let left: Vec<_> = std::fs::read_dir(&tmp).unwrap().collect();
+        assert!(left.is_empty(), "{signal}: TMPDIR has {left:?}");
+        assert!(!target.exists(), "{signal}: wrote {}", target.display());
+    }
+}
+
 #[test]
 fn compressed_depth_as_image_transport_writes_it() {
     let s7 = sevenscenes();

@@ -15,8 +15,10 @@
 //! siblings before it exits ([`interrupt`]); one that a run killed outright
 //! left behind is removed by the next run writing that target ([`stale`]).
 
-mod interrupt;
-pub use interrupt::{defer_stop, end_defer, remove_partials_on_signal, stop_now, stop_requested};
+use crate::interrupt::{self, remove};
+pub use crate::interrupt::{
+    defer_stop, end_defer, remove_partials_on_signal, stop_now, stop_requested,
+};
 mod stale;
 
 use crate::error::OutputError;
@@ -404,16 +406,6 @@ pub fn together<T>(
         // A failed rename names its target already.
         Ok(v) => outputs.commit().map(|()| v),
         Err(e) => Err(outputs.named(e)),
-    }
-}
-
-/// Removes a file or a directory tree.
-fn remove(path: &Path) -> std::io::Result<()> {
-    match std::fs::symlink_metadata(path) {
-        Ok(m) if m.is_dir() => std::fs::remove_dir_all(path),
-        Ok(_) => std::fs::remove_file(path),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
-        Err(e) => Err(e),
     }
 }
 

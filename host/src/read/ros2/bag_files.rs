@@ -127,9 +127,23 @@ pub struct BagFiles {
     read: Vec<PathBuf>,
     /// The same files as the recording names them, for messages.
     pub named: Vec<PathBuf>,
-    /// File compression: the folder of the decompressed copies, removed
-    /// when the reading is dropped.
-    _unpacked: Option<tempfile::TempDir>,
+    /// File compression: the folder of the decompressed copies.
+    _unpacked: Option<Unpacked>,
+}
+
+/// The folder a reading decompresses a bag's files into: removed when the
+/// reading is dropped, or, if the run is stopped by a signal first, by the
+/// command's watcher ([`crate::interrupt`]).
+struct Unpacked(Option<tempfile::TempDir>);
+
+impl Drop for Unpacked {
+    fn drop(&mut self) {
+        if let Some(dir) = self.0.take() {
+            let path = dir.path().to_path_buf();
+            drop(dir);
+            crate::interrupt::forget(&mut crate::interrupt::live(), &path);
+        }
+    }
 }
 
 impl BagFiles {
@@ -170,25 +184,29 @@ impl BagFiles {
     fn unpack(&mut self) -> Result<(), ReadError> {
         let tmp = std::env::temp_dir();
         remove_abandoned(&tmp);
-        let dir = tempfile::Builder::new()
-            .prefix(&format!("{UNPACKED}{}-", std::process::id()))
-            .tempdir_in(&tmp)
-            .map_err(|e| {
-                text::layout(
-                    &tmp,
-                    format!("cannot make a folder to decompress the bag's files in: {e}"),
-                )
-            })?;
+        let prefix = format!("{UNPACKED}{}-", std::process::id());
+        let dir = crate::interrupt::register_made(
+            || tempfile::Builder::new().prefix(&prefix).tempdir_in(&tmp),
+            |dir| dir.path(),
+        )
+        .map_err(|e| {
+            text::layout(
+                &tmp,
+                format!("cannot make a folder to decompress the bag's files in: {e}"),
+            )
+        })?;
+        let folder = dir.path().to_path_buf();
+        let unpacked = Unpacked(Some(dir));
         for (read, named) in self.read.iter_mut().zip(&self.named) {
             let name = named.file_name().map(|n| n.to_string_lossy().into_owned());
             let Some(plain) = name.as_deref().and_then(|n| n.strip_suffix(ZSTD_FILE)) else {
                 continue;
             };
-            let copy = dir.path().join(plain);
+            let copy = folder.join(plain);
             decompress_file(named, &copy)?;
             *read = copy;
         }
-        self._unpacked = Some(dir);
+        self._unpacked = Some(unpacked);
         Ok(())
     }
 
@@ -305,9 +323,9 @@ fn is_compressed(cdr: bool, data: &[u8]) -> bool {
 /// process reading them.
 const UNPACKED: &str = ".placedb-bag-";
 
-/// Removes the folders of decompressed bag files that a reading stopped
-/// before it could (killed, or interrupted while reading: the folder goes
-/// with the reading, and a signal ends the process without it): those in
+/// Removes the folders of decompressed bag files that a reading killed
+/// outright left (SIGKILL, a crash, a library host's own exit on a signal:
+/// the command's watcher removes its own on SIGINT and SIGTERM): those in
 /// `tmp` whose process no longer runs. Where that cannot be told (no
 /// `/proc`), nothing is removed.
 fn remove_abandoned(tmp: &Path) {

@@ -1,35 +1,37 @@
-//! All or nothing also when interrupted: the hidden partial siblings of the
-//! outputs a run is writing are registered here ([`register`], [`forget`]),
-//! and SIGINT or SIGTERM removes them before the process exits (130 or 143,
-//! as a shell reports a process those signals ended), so a Ctrl-C leaves
-//! every target as it was and no sibling beside it.
+//! What a run leaves on disk while it works, removed if it is stopped:
+//! the hidden partial siblings of the outputs being written (registered by
+//! [`crate::output::replace`]) and the folder a file-compressed bag is
+//! decompressed into ([`crate::read::ros2::bag_files`]). On SIGINT or
+//! SIGTERM they are removed before the process exits (130 or 143, as a
+//! shell reports a process those signals ended), so a Ctrl-C leaves every
+//! target as it was and nothing beside it.
 //!
 //! The signal handler itself only writes the signal's number to a pipe (an
 //! async-signal-safe call); a watcher thread reads it, takes the registry's
-//! lock (which [`Outputs::commit`](super::Outputs::commit) holds while it
-//! renames the outputs into place, so a run stopped during its commit ends
-//! committed, never half), removes every registered sibling and exits.
-//! The handlers are installed when the first output is staged, so commands
-//! that write nothing keep the default signal behaviour, and only in a
-//! program that asked for them ([`remove_partials_on_signal`], the
-//! `placedb` command): a library's host (the Python package, whose Ctrl-C
-//! raises `KeyboardInterrupt`) keeps its own handlers, which a watcher that
-//! exits the process would take over. A run that can stop
-//! cleanly (`placedb stream`) defers the first signal instead
-//! ([`defer_stop`]): it polls [`stop_requested`], ends what it was doing and
-//! calls [`stop_now`].
+//! lock (which [`Outputs::commit`](crate::output::replace::Outputs::commit)
+//! holds while it renames the outputs into place, so a run stopped during
+//! its commit ends committed, never half), removes every registered path
+//! and exits. The handlers are installed when the first path is
+//! registered, so commands that write nothing keep the default signal
+//! behaviour, and only in a program that asked for them
+//! ([`remove_partials_on_signal`], the `placedb` command): a library's host
+//! (the Python package, whose Ctrl-C raises `KeyboardInterrupt`) keeps its
+//! own handlers, which a watcher that exits the process would take over. A
+//! run that can stop cleanly (`placedb stream`) defers the first signal
+//! instead ([`defer_stop`]): it polls [`stop_requested`], ends what it was
+//! doing and calls [`stop_now`].
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
 use std::sync::{Mutex, MutexGuard};
 
-/// Whether this program removes the partial siblings on SIGINT and
+/// Whether this program removes the registered paths on SIGINT and
 /// SIGTERM ([`remove_partials_on_signal`]).
 static ENABLED: AtomicBool = AtomicBool::new(false);
 
-/// From now on staging an output installs the SIGINT and SIGTERM handlers
-/// that remove the partial siblings and exit: for a program of its own
-/// (the `placedb` command), not for a library's host.
+/// From now on registering a path installs the SIGINT and SIGTERM
+/// handlers that remove the registered paths and exit: for a program of
+/// its own (the `placedb` command), not for a library's host.
 pub fn remove_partials_on_signal() {
     ENABLED.store(true, Ordering::SeqCst);
 }
@@ -63,40 +65,65 @@ pub fn stop_requested() -> Option<i32> {
     }
 }
 
-/// Ends the process stopped by `signal`: the partial siblings removed, the
+/// Ends the process stopped by `signal`: the registered paths removed, the
 /// status a shell reports for it (130, 143).
 pub fn stop_now(signal: i32) -> ! {
     remove_all(&live());
     std::process::exit(128 + signal)
 }
 
-/// The partial siblings of the outputs being written.
+/// The paths to remove if the run is stopped.
 static LIVE: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
 
 /// The registry, even if a thread panicked holding it.
-pub(super) fn live() -> MutexGuard<'static, Vec<PathBuf>> {
+pub(crate) fn live() -> MutexGuard<'static, Vec<PathBuf>> {
     LIVE.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-/// `partial` is being written: removed if the process is stopped by
-/// SIGINT or SIGTERM before [`forget`].
-pub(super) fn register(partial: &Path) {
+/// `path` is being written: removed if the process is stopped by SIGINT
+/// or SIGTERM before [`forget`].
+pub(crate) fn register(path: &Path) {
     watch();
-    live().push(partial.to_path_buf());
+    live().push(path.to_path_buf());
 }
 
-/// `partial` is gone or has become its target (under the lock of
-/// [`live`], which the caller holds).
-pub(super) fn forget(live: &mut Vec<PathBuf>, partial: &Path) {
-    live.retain(|p| p != partial);
+/// Makes a path with `make` (a temporary folder, whose name it picks) and
+/// registers it ([`register`]) under one hold of the registry's lock, the
+/// handlers installed first: a signal finds it registered from the moment
+/// it exists.
+pub(crate) fn register_made<T>(
+    make: impl FnOnce() -> std::io::Result<T>,
+    path: impl Fn(&T) -> &Path,
+) -> std::io::Result<T> {
+    watch();
+    let mut live = live();
+    let made = make()?;
+    live.push(path(&made).to_path_buf());
+    Ok(made)
 }
 
-/// Removes every registered sibling (a few tries: a writer thread may
-/// still be creating a file inside a partial directory).
+/// `path` is gone or has become its target (under the lock of [`live`],
+/// which the caller holds).
+pub(crate) fn forget(live: &mut Vec<PathBuf>, path: &Path) {
+    live.retain(|p| p != path);
+}
+
+/// Removes the file or folder at `path`; one already gone is no error.
+pub(crate) fn remove(path: &Path) -> std::io::Result<()> {
+    match std::fs::symlink_metadata(path) {
+        Ok(m) if m.is_dir() => std::fs::remove_dir_all(path),
+        Ok(_) => std::fs::remove_file(path),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(e) => Err(e),
+    }
+}
+
+/// Removes every registered path (a few tries: a writer thread may still
+/// be creating a file inside a partial directory).
 fn remove_all(live: &[PathBuf]) {
     for p in live {
         for _ in 0..5 {
-            if super::remove(p).is_ok() {
+            if remove(p).is_ok() {
                 break;
             }
             std::thread::sleep(std::time::Duration::from_millis(2));
