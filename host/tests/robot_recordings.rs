@@ -192,8 +192,9 @@ fn mcap_chunks_compressed_as_rosbag2_presets_write_them_read_as_plain_ones() {
 /// zstd --compression-mode file|message`, Humble's only compression for
 /// sqlite3) read as the plain bag: the same frames, depth and database.
 /// A file given alone reads too. The command decompresses a
-/// file-compressed bag into TMPDIR and leaves nothing there (and removes what a reading killed before its end left);
-/// a cut file and a damaged message are refused in words, nothing written.
+/// file-compressed bag into TMPDIR and leaves nothing there (and removes
+/// what a reading killed before its end left); a cut file and a damaged
+/// message are refused in words, nothing written.
 #[test]
 fn bags_rosbag2_compressed_file_by_file_or_message_by_message_read_as_plain_ones() {
     let s7 = sevenscenes();

@@ -274,16 +274,8 @@ impl BagFiles {
     /// channel whose messages are CDR, `cdr`, decompressed when rosbag2
     /// compressed it): what a walk reads when the head it was handed does
     /// not hold what it needs.
-    pub fn whole(&self, at: Location, cdr: bool) -> Result<Vec<u8>, bag::BagError> {
-        let file = &self.read[at.file];
-        let bytes = bag::fetch(file, at)?;
-        if !is_compressed(cdr, &bytes) {
-            return Ok(bytes);
-        }
-        let mut plain = Vec::new();
-        decompress_message(&bytes, None, &mut plain)
-            .map_err(|e| bag::err(file, format!("{}: {e}", at.place)))?;
-        Ok(plain)
+    pub fn whole(&self, at: Location, cdr: bool) -> Result<bag::MessageBytes, bag::BagError> {
+        self.read_back(at, cdr, &bag::Kept::default())
     }
 
     /// Reads back the message at `at` ([`bag::fetch_kept`]) of a channel
@@ -295,14 +287,25 @@ impl BagFiles {
         cdr: bool,
         kept: &bag::Kept,
     ) -> Result<bag::MessageBytes, ReadError> {
+        self.read_back(at, cdr, kept).map_err(|e| self.error(e))
+    }
+
+    /// [`BagFiles::fetch`] and [`BagFiles::whole`]: the message at `at`,
+    /// `kept` what the reading keeps between messages.
+    fn read_back(
+        &self,
+        at: Location,
+        cdr: bool,
+        kept: &bag::Kept,
+    ) -> Result<bag::MessageBytes, bag::BagError> {
         let file = &self.read[at.file];
-        let bytes = bag::fetch_kept(file, at, kept).map_err(|e| self.error(e))?;
+        let bytes = bag::fetch_kept(file, at, kept)?;
         if !is_compressed(cdr, &bytes) {
             return Ok(bytes);
         }
         let mut plain = Vec::new();
         decompress_message(&bytes, None, &mut plain)
-            .map_err(|e| self.error(bag::err(file, format!("{}: {e}", at.place))))?;
+            .map_err(|e| bag::err(file, format!("{}: {e}", at.place)))?;
         Ok(bag::MessageBytes::Own(plain))
     }
 }

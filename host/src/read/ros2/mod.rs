@@ -183,7 +183,7 @@ impl Topics {
         // a payload cut before its size), or do not decode, the whole
         // message is read, so what it says is what the whole one says.
         let cut = m.data.len() < m.len;
-        let whole: Vec<u8>;
+        let whole: bag::MessageBytes;
         match schema.as_str() {
             msgs::IMAGE => {
                 let img = match wire.image_head(m.data, m.len) {
